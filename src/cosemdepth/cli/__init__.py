@@ -1,0 +1,1 @@
+"""Command-line interface: ``cosemdepth <command> ...`` (see :mod:`cosemdepth.cli.main`)."""

@@ -1,0 +1,70 @@
+"""``cosemdepth`` command dispatcher.
+
+Each sub-command lives in its own module ``cosemdepth.cli.<name>`` exposing ``configure(parser)`` (add the
+arguments) and ``run(args) -> int``. Modules are imported lazily so that ``cosemdepth synth --help`` does not pay
+for importing everything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+
+from ..errors import CosemdepthError
+
+#: name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "convert": ("cosemdepth.cli.convert", "convert an official TensorFlow checkpoint to our format"),
+    "synth": ("cosemdepth.cli.synth", "generate a SynthAir dataset (procedural aerial flights, Mid-Air format)"),
+    "splits": ("cosemdepth.cli.splits", "write the train/val/test split CSVs of a dataset"),
+    "train": ("cosemdepth.cli.train", "train a model"),
+    "evaluate": ("cosemdepth.cli.evaluate", "evaluate a model on a test split"),
+    "predict": ("cosemdepth.cli.predict", "run a model on a split or on your own flight and write its outputs"),
+    "demo": ("cosemdepth.cli.demo", "the end-to-end demo on SynthAir"),
+    "benchmark": ("cosemdepth.cli.benchmark", "measure speed and memory"),
+    "export": ("cosemdepth.cli.export", "export the streaming model to ONNX"),
+}
+
+
+def _available() -> dict[str, tuple[str, str]]:
+    out = {}
+    for name, (mod, help_) in COMMANDS.items():
+        if importlib.util.find_spec(mod) is not None:
+            out[name] = (mod, help_)
+    return out
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="cosemdepth",
+        description="Joint monocular depth and semantic segmentation for aerial image sequences.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, (mod, help_) in _available().items():
+        p = sub.add_parser(name, help=help_, description=help_)
+        if only is None or only == name:
+            importlib.import_module(mod).configure(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    first = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(only=first if first in COMMANDS else None)
+    args = parser.parse_args(argv)
+    module = importlib.import_module(COMMANDS[args.command][0])
+    try:
+        return int(module.run(args) or 0)
+    except CosemdepthError as e:
+        print(f"cosemdepth {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"cosemdepth {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

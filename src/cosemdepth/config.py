@@ -1,0 +1,83 @@
+"""The one place for defaults: the paper's Mid-Air configuration (spec sections 8.1 and 14).
+
+Configs are plain dataclasses; they round-trip through dicts (JSON/YAML) with :func:`to_dict` / ``from_dict``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from .errors import ConfigError
+
+ARCHITECTURES = ("cosemdepth", "m4depth", "m4semantic")
+
+#: Encoder output channels per absolute level (spec 2.1); a model with L levels uses the first L entries.
+ENCODER_CHANNELS = (16, 32, 64, 96, 128, 192)
+
+#: Mid-Air camera: 90 degree horizontal FOV, so f = W/2 and c = (W/2, H/2) (spec 3.1).
+MIDAIR_IMAGE_SIZE = 384
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Architecture of a Co-SemDepth-family model.
+
+    ``arch`` selects the joint model or one of its single-task siblings. The boolean switches are the ablations
+    of the original code; all on is the paper's model.
+    """
+
+    arch: str = "cosemdepth"
+    levels: int = 5
+    num_classes: int = 7
+    dinl: bool = True
+    sncv: bool = True
+    time_recurrence: bool = True
+    feature_normalization: bool = True
+    feature_subdivision: bool = True
+    level_memory: bool = True
+
+    def __post_init__(self) -> None:
+        if self.arch not in ARCHITECTURES:
+            raise ConfigError(f"model arch must be one of {ARCHITECTURES}, got {self.arch!r}")
+        if not isinstance(self.levels, int) or not 1 <= self.levels <= len(ENCODER_CHANNELS):
+            raise ConfigError(f"model levels must be an integer in 1..{len(ENCODER_CHANNELS)}, got {self.levels!r}")
+        if not isinstance(self.num_classes, int) or self.num_classes < 2:
+            raise ConfigError(f"model num_classes must be an integer >= 2, got {self.num_classes!r}")
+
+    @property
+    def has_depth(self) -> bool:
+        return self.arch in ("cosemdepth", "m4depth")
+
+    @property
+    def has_semantic(self) -> bool:
+        return self.arch in ("cosemdepth", "m4semantic")
+
+    @property
+    def encoder_channels(self) -> tuple[int, ...]:
+        return ENCODER_CHANNELS[: self.levels]
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "ModelConfig":
+        return _from_dict(cls, d, "model config")
+
+
+def _from_dict(cls, d: Mapping[str, Any], what: str):
+    if not isinstance(d, Mapping):
+        raise ConfigError(f"{what} must be a mapping, got {type(d).__name__}")
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(d) - names)
+    if unknown:
+        raise ConfigError(f"unknown {what} key(s) {unknown}; valid keys: {sorted(names)}")
+    return cls(**dict(d))
+
+
+def to_dict(cfg: Any) -> dict[str, Any]:
+    return dataclasses.asdict(cfg)
+
+
+__all__ = ["ARCHITECTURES", "ENCODER_CHANNELS", "MIDAIR_IMAGE_SIZE", "ModelConfig", "to_dict", "field"]

@@ -1,0 +1,1 @@
+"""Datasets: Mid-Air, SynthAir (procedural, Mid-Air format), TopAir, Aeroscapes and your own flights."""

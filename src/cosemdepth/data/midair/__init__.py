@@ -1,0 +1,1 @@
+"""Mid-Air: on-disk encodings, split CSVs and the sequence dataset."""

@@ -1,0 +1,104 @@
+"""Mid-Air on-disk encodings (spec sections 9.1-9.5), shared by the reader and by the SynthAir writer.
+
+Depth is stored as stereo disparity in a 16-bit PNG whose uint16 values are the *bit patterns* of float16
+disparities. At 1024 px (focal 512 px, 1 m baseline) ``z_depth = 512 / disparity``; at width ``W`` the focal is
+``W / 2`` so ``z_depth = (W / 2) / disparity``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Mid-Air's native image size and focal length (pixels), 90 degree horizontal FOV.
+NATIVE_SIZE = 1024
+NATIVE_FOCAL = 512.0
+
+ENVIRONMENTS = {
+    "Kite_training": ("sunny", "sunset", "foggy", "cloudy"),
+    "PLE_training": ("fall", "spring", "winter"),
+}
+
+#: The 14 Mid-Air label IDs, in ID order.
+MIDAIR_CLASSES = (
+    "sky", "animals", "trees", "dirt_ground", "ground_vegetation", "rocky_ground", "boulders",
+    "empty", "water", "man_made_construction", "road", "train_track", "road_sign", "others",
+)
+
+#: Mid-Air ID -> Co-SemDepth class (spec 9.5).
+MIDAIR_TO_7 = np.array([0, 6, 2, 3, 3, 3, 4, 6, 1, 6, 5, 6, 6, 6], dtype=np.uint8)
+
+CLASSES_7 = ("sky", "water", "trees", "land", "boulders", "road", "others")
+
+#: RGB visualisation palette of the 7 classes (spec 9.5).
+PALETTE_7 = np.array(
+    [
+        (127, 175, 230),
+        (75, 163, 185),
+        (50, 128, 0),
+        (53, 94, 59),
+        (70, 70, 70),
+        (128, 64, 128),
+        (128, 64, 64),
+    ],
+    dtype=np.uint8,
+)
+
+#: Split CSV columns, tab separated, floats printed with 6 decimals (spec 9.3).
+CSV_COLUMNS = ("id", "camera_l", "disp", "semantic", "qw", "qx", "qy", "qz", "tx", "ty", "tz")
+
+#: Folders of one climate, and file extensions.
+COLOR_DIR, DISPARITY_DIR, SEGMENTATION_DIR = "color_left", "stereo_disparity", "segmentation"
+COLOR_EXT, DISPARITY_EXT, SEGMENTATION_EXT = ".JPEG", ".PNG", ".PNG"
+SENSOR_RECORDS = "sensor_records.hdf5"
+
+#: Sampling rates (Hz): camera 25, ground truth 100; the split CSVs keep every 4th frame.
+CAMERA_RATE, GROUNDTRUTH_RATE, FRAME_SKIP = 25, 100, 4
+
+
+def frame_name(index: int, ext: str) -> str:
+    return f"{index:06d}{ext}"
+
+
+def trajectory_dir(number: int) -> str:
+    return f"trajectory_{number:04d}"
+
+
+def encode_disparity(disparity: np.ndarray) -> np.ndarray:
+    """float disparity -> uint16 array holding its float16 bit patterns (what the 16-bit PNG stores)."""
+    return np.ascontiguousarray(np.asarray(disparity, dtype=np.float16)).view(np.uint16)
+
+
+def decode_disparity(raw: np.ndarray) -> np.ndarray:
+    """uint16 PNG values -> float32 disparity (bit-cast to float16)."""
+    raw = np.asarray(raw)
+    if raw.dtype != np.uint16:
+        raise ValueError(f"a Mid-Air disparity map must be uint16, got {raw.dtype}")
+    return np.ascontiguousarray(raw).view(np.float16).astype(np.float32)
+
+
+def focal_at_width(width: int) -> float:
+    """Focal length in pixels of the Mid-Air camera at image width ``width`` (512 at 1024)."""
+    return NATIVE_FOCAL * width / NATIVE_SIZE
+
+
+def disparity_to_depth(disparity: np.ndarray, width: int) -> np.ndarray:
+    """Disparity (pixels at ``width``, 1 m baseline) -> z-depth in metres: ``(width / 2) / disparity``."""
+    return focal_at_width(width) / np.asarray(disparity, dtype=np.float32)
+
+
+def depth_to_disparity(depth: np.ndarray, width: int) -> np.ndarray:
+    """z-depth in metres -> disparity (pixels at ``width``, 1 m baseline)."""
+    return focal_at_width(width) / np.asarray(depth, dtype=np.float32)
+
+
+def map_labels(midair_ids: np.ndarray) -> np.ndarray:
+    """Map Mid-Air IDs (0..13) to the 7 Co-SemDepth classes. Raises ValueError on an out-of-range ID."""
+    ids = np.asarray(midair_ids)
+    if ids.size and (ids.min() < 0 or ids.max() >= len(MIDAIR_TO_7)):
+        raise ValueError(f"label IDs must lie in 0..{len(MIDAIR_TO_7) - 1}, found {int(ids.min())}..{int(ids.max())}")
+    return MIDAIR_TO_7[ids]
+
+
+def colorize(labels: np.ndarray, palette: np.ndarray = PALETTE_7) -> np.ndarray:
+    """[H,W] class indices -> [H,W,3] uint8 RGB with ``palette``."""
+    return palette[np.asarray(labels)]

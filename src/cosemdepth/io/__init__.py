@@ -1,0 +1,1 @@
+"""File formats: atomic writes, our model format, TensorFlow checkpoint reading."""
