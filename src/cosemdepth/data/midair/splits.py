@@ -1,0 +1,248 @@
+"""Mid-Air split CSVs: the generator from ``sensor_records.hdf5`` (spec 9.3, 9.4) and CSV read/write.
+
+A CSV row ``k`` refers to camera frame ``4 (k + 1)`` and holds the relative motion from frame ``4k`` to frame
+``4k + 4`` in camera axes, such that ``X_prev = R(q) X_curr + t`` (spec 3.2).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from ...errors import DatasetError
+from ...io.atomic import atomic_write_text
+from ..quaternion import qconj, qmul, qrotate
+from . import format as fmt
+
+#: Ground-truth samples per CSV row: 4 camera frames x 4 ground-truth samples per frame.
+GT_PER_ROW = fmt.FRAME_SKIP * fmt.GROUNDTRUTH_RATE // fmt.CAMERA_RATE
+
+#: Co-SemDepth's validation trajectories (taken out of the M4Depth test split), by (environment, number).
+MIDAIR_VALIDATION = {
+    ("Kite_training", 6), ("Kite_training", 1009), ("Kite_training", 2000), ("Kite_training", 3012),
+    ("PLE_training", 4006), ("PLE_training", 4015), ("PLE_training", 5018), ("PLE_training", 6021),
+}
+
+SPLITS = ("train", "val", "test")
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    env: str
+    climate: str
+    number: int  # as in the folder name trajectory_XXXX
+    index: int  # position in the sorted listing of the climate (the CSV's traj_XXXX number)
+
+    @property
+    def name(self) -> str:
+        return fmt.trajectory_dir(self.number)
+
+
+def relative_motions(attitude: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-row relative motion in camera axes from 100 Hz ground truth (body NED, quaternion w-first).
+
+    Args:
+        attitude: ``[N, 4]`` unit quaternions (w, x, y, z), body -> world.
+        position: ``[N, 3]`` positions in metres (NED world frame).
+    Returns:
+        ``(q [R, 4], t [R, 3])`` with ``R = (N - 16) // 16`` rows, camera axes (x right, y down, z forward).
+    """
+    attitude = np.asarray(attitude, dtype=np.float64)
+    position = np.asarray(position, dtype=np.float64)
+    n_rows = max((len(attitude) - GT_PER_ROW) // GT_PER_ROW, 0)
+    a = np.arange(n_rows) * GT_PER_ROW
+    b = a + GT_PER_ROW
+    inv_a = qconj(attitude[a])
+    q_body = qmul(inv_a, attitude[b])
+    t_body = qrotate(inv_a, position[b] - position[a])
+    q_cam = q_body[:, [0, 2, 3, 1]]
+    t_cam = t_body[:, [1, 2, 0]]
+    return q_cam, t_cam
+
+
+def midair_split_rule(traj: Trajectory) -> str:
+    """The paper's rule: index % 3 == 0 is test, except the 8 fixed validation trajectories; the rest train."""
+    if (traj.env, traj.number) in MIDAIR_VALIDATION:
+        return "val"
+    return "test" if traj.index % 3 == 0 else "train"
+
+
+def generic_split_rule(trajectories: Sequence[Trajectory]) -> Callable[[Trajectory], str]:
+    """Rule for datasets other than Mid-Air (e.g. SynthAir): index % 3 == 0 is test, the rest train; in each
+    climate that has at least two test trajectories, the last one goes to validation instead."""
+    val = set()
+    by_climate: dict[tuple[str, str], list[Trajectory]] = {}
+    for t in trajectories:
+        if t.index % 3 == 0:
+            by_climate.setdefault((t.env, t.climate), []).append(t)
+    for tests in by_climate.values():
+        if len(tests) >= 2:
+            val.add(max(tests, key=lambda t: t.index))
+
+    def rule(traj: Trajectory) -> str:
+        if traj in val:
+            return "val"
+        return "test" if traj.index % 3 == 0 else "train"
+
+    return rule
+
+
+def find_climates(root: Path) -> list[tuple[str, str]]:
+    """``(env, climate)`` folders under ``root`` that hold a ``sensor_records.hdf5``, sorted."""
+    found = sorted({(p.parent.parent.name, p.parent.name) for p in root.glob(f"*/*/{fmt.SENSOR_RECORDS}")})
+    if not found:
+        raise DatasetError(f"{root}: no <env>/<climate>/{fmt.SENSOR_RECORDS} found; is this a Mid-Air-format root?")
+    return found
+
+
+def list_trajectories(root: Path, env: str, climate: str) -> list[Trajectory]:
+    """Trajectories of one climate, from the ``color_left`` listing, numbered in sorted order."""
+    color = root / env / climate / fmt.COLOR_DIR
+    if not color.is_dir():
+        raise DatasetError(f"{color}: missing colour image folder")
+    names = sorted(p.name for p in color.iterdir() if p.is_dir() and p.name.startswith("trajectory_"))
+    out = []
+    for i, name in enumerate(names):
+        try:
+            number = int(name.split("_", 1)[1])
+        except ValueError:
+            raise DatasetError(f"{color / name}: trajectory folder name must be trajectory_<number>") from None
+        out.append(Trajectory(env, climate, number, i))
+    return out
+
+
+def trajectory_rows(traj: Trajectory, attitude: np.ndarray, position: np.ndarray) -> list[dict]:
+    """The CSV rows of one trajectory (paths relative to the dataset root)."""
+    q, t = relative_motions(attitude, position)
+    base = f"{traj.env}/{traj.climate}"
+    rows = []
+    for k in range(len(q)):
+        frame = fmt.FRAME_SKIP * (k + 1)
+        rows.append(
+            {
+                "id": k,
+                "camera_l": f"{base}/{fmt.COLOR_DIR}/{traj.name}/{fmt.frame_name(frame, fmt.COLOR_EXT)}",
+                "disp": f"{base}/{fmt.DISPARITY_DIR}/{traj.name}/{fmt.frame_name(frame, fmt.DISPARITY_EXT)}",
+                "semantic": f"{base}/{fmt.SEGMENTATION_DIR}/{traj.name}/{fmt.frame_name(frame, fmt.SEGMENTATION_EXT)}",
+                "qw": q[k, 0], "qx": q[k, 1], "qy": q[k, 2], "qz": q[k, 3],
+                "tx": t[k, 0], "ty": t[k, 1], "tz": t[k, 2],
+            }
+        )
+    return rows
+
+
+def format_csv(rows: Iterable[Mapping]) -> str:
+    """Rows -> the authors' tab-separated text (header, floats with 6 decimals)."""
+    buf = io.StringIO()
+    buf.write("\t".join(fmt.CSV_COLUMNS) + "\n")
+    for r in rows:
+        fields = []
+        for c in fmt.CSV_COLUMNS:
+            v = r[c]
+            fields.append(f"{v:.6f}" if isinstance(v, (float, np.floating)) else str(v))
+        buf.write("\t".join(fields) + "\n")
+    return buf.getvalue()
+
+
+def write_csv(path: Path, rows: Iterable[Mapping]) -> None:
+    atomic_write_text(path, format_csv(rows))
+
+
+def read_csv(path: Path) -> list[dict]:
+    """Read a split CSV; numeric columns are converted (id to int, motion to float)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise DatasetError(f"{path}: cannot read split CSV ({e.strerror})") from None
+    reader = csv.DictReader(io.StringIO(text), delimiter="\t")
+    if reader.fieldnames is None:
+        raise DatasetError(f"{path}: empty split CSV (no header)")
+    missing = [c for c in ("id", "camera_l", "qw", "qx", "qy", "qz", "tx", "ty", "tz") if c not in reader.fieldnames]
+    if missing:
+        raise DatasetError(f"{path}: split CSV header lacks column(s) {missing}; found {reader.fieldnames}")
+    rows = []
+    for line_no, r in enumerate(reader, start=2):
+        if None in r or any(v is None for v in r.values()):
+            raise DatasetError(f"{path}:{line_no}: row has the wrong number of fields (truncated CSV?)")
+        try:
+            r["id"] = int(r["id"])
+            for c in ("qw", "qx", "qy", "qz", "tx", "ty", "tz"):
+                r[c] = float(r[c])
+        except ValueError as e:
+            raise DatasetError(f"{path}:{line_no}: malformed number ({e})") from None
+        rows.append(r)
+    return rows
+
+
+def generate_splits(
+    root: str | Path,
+    out_dir: str | Path,
+    rule: Callable[[Trajectory], str] | str = "auto",
+) -> dict[str, list[Path]]:
+    """Write ``out_dir/{train,val,test}_data/<env>/<climate>/traj_XXXX.csv`` for a Mid-Air-format root.
+
+    Args:
+        root: dataset root holding ``<env>/<climate>/sensor_records.hdf5`` and the image folders.
+        out_dir: where the split folders go (nothing is written into ``root``).
+        rule: ``"midair"`` (the paper's), ``"generic"`` (see :func:`generic_split_rule`), ``"auto"`` (midair when
+            the root has Mid-Air's environment names) or a callable ``Trajectory -> split name``.
+    Returns:
+        split name -> written CSV paths.
+    """
+    import h5py
+
+    root, out_dir = Path(root), Path(out_dir)
+    climates = find_climates(root)
+    trajs = [t for env, cl in climates for t in list_trajectories(root, env, cl)]
+    if rule == "auto":
+        rule = "midair" if all(env in fmt.ENVIRONMENTS for env, _ in climates) else "generic"
+    if rule == "midair":
+        rule_fn = midair_split_rule
+    elif rule == "generic":
+        rule_fn = generic_split_rule(trajs)
+    elif callable(rule):
+        rule_fn = rule
+    else:
+        raise ValueError(f"unknown split rule {rule!r}")
+
+    written: dict[str, list[Path]] = {s: [] for s in SPLITS}
+    for env, climate in climates:
+        h5_path = root / env / climate / fmt.SENSOR_RECORDS
+        try:
+            h5 = h5py.File(h5_path, "r")
+        except OSError as e:
+            raise DatasetError(f"{h5_path}: cannot open HDF5 file ({e})") from None
+        with h5:
+            for traj in (t for t in trajs if (t.env, t.climate) == (env, climate)):
+                try:
+                    gt = h5[traj.name]["groundtruth"]
+                    att = np.asarray(gt["attitude"], dtype=np.float64)
+                    pos = np.asarray(gt["position"], dtype=np.float64)
+                except KeyError as e:
+                    raise DatasetError(f"{h5_path}: trajectory {traj.name} lacks groundtruth data ({e})") from None
+                _check_groundtruth(h5_path, traj.name, att, pos)
+                split = rule_fn(traj)
+                path = out_dir / f"{split}_data" / env / climate / f"traj_{traj.index:04d}.csv"
+                write_csv(path, trajectory_rows(traj, att, pos))
+                written[split].append(path)
+    return written
+
+
+def _check_groundtruth(h5_path: Path, name: str, att: np.ndarray, pos: np.ndarray) -> None:
+    where = f"{h5_path}: {name}/groundtruth"
+    if att.ndim != 2 or att.shape[1] != 4:
+        raise DatasetError(f"{where}/attitude must have shape [N, 4], got {list(att.shape)}")
+    if pos.ndim != 2 or pos.shape[1] != 3 or len(pos) != len(att):
+        raise DatasetError(f"{where}/position must have shape [{len(att)}, 3], got {list(pos.shape)}")
+    if not (np.isfinite(att).all() and np.isfinite(pos).all()):
+        raise DatasetError(f"{where}: attitude or position holds NaN/inf")
+    norms = np.linalg.norm(att, axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
+    if bad.size:
+        raise DatasetError(f"{where}/attitude[{bad[0]}] is not a unit quaternion (norm {norms[bad[0]]:.6f})")
