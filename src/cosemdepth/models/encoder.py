@@ -1,0 +1,56 @@
+"""Shared feature-pyramid encoder with DINL (spec 2)."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn as nn
+
+from .layers import conv3x3, lrelu
+
+
+class DINL(nn.Module):
+    """Domain-invariant normalisation layer exactly as the original codes it (spec 2.2).
+
+    Per image and channel: ``z = (x - mean) / (variance + 1e-12)`` (the variance, not the std), then L2
+    normalisation across channels per pixel (``max(sum z^2, 1e-12)``), then an affine ``gamma * n + beta``.
+    """
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.weight = nn.Parameter(torch.ones(channels))
+        self.bias = nn.Parameter(torch.zeros(channels))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        mean = x.mean(dim=(2, 3), keepdim=True)
+        centred = x - mean
+        var = (centred * centred).mean(dim=(2, 3), keepdim=True)
+        z = centred / (var + 1e-12)
+        n = z / torch.sqrt((z * z).sum(dim=1, keepdim=True).clamp_min(1e-12))
+        return n * self.weight.view(1, -1, 1, 1) + self.bias.view(1, -1, 1, 1)
+
+
+class Encoder(nn.Module):
+    """L levels of ``conv3x3 s1 -> (DINL at level 1) -> LReLU -> conv3x3 s2 -> LReLU``.
+
+    Args:
+        channels: output channels per level, e.g. ``(16, 32, 64, 96, 128)``.
+        dinl: use DINL after the first convolution of level 1.
+    Input ``[B, 3, H, W]``; output: list (finest first) of ``[B, C_l, ceil(H / 2^l), ceil(W / 2^l)]``.
+    """
+
+    def __init__(self, channels: tuple[int, ...], dinl: bool = True):
+        super().__init__()
+        ins = (3, *channels[:-1])
+        self.conv_s1 = nn.ModuleList(conv3x3(i, o) for i, o in zip(ins, channels))
+        self.conv_s2 = nn.ModuleList(conv3x3(o, o, stride=2) for o in channels)
+        self.dinl = DINL(channels[0]) if dinl else None
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        feats = []
+        for k, (c1, c2) in enumerate(zip(self.conv_s1, self.conv_s2)):
+            x = c1(x)
+            if k == 0 and self.dinl is not None:
+                x = self.dinl(x)
+            x = lrelu(c2(lrelu(x)))
+            feats.append(x)
+        return feats

@@ -1,0 +1,83 @@
+"""Cost volumes of the depth decoder (spec 4.6): the parallax-sweeping cost volume (PSCV) and the spatial
+neighbourhood cost volume (SNCV).
+
+Both correlate channel groups: for group ``g`` of ``n_g`` channels, ``corr = (1 / n_g) sum_{c in g} a_c b_c``, i.e. the
+cosine similarity of normalised group vectors divided by ``n_g``.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from ..geometry.warp import sample_bilinear
+
+
+def group_correlation(a: torch.Tensor, b: torch.Tensor, groups: int, half: bool = False) -> torch.Tensor:
+    """Mean over each channel group of ``a * b``.
+
+    Args:
+        a: ``[B, C, ...]``; b: broadcastable to ``a``'s shape with the same C.
+        half: multiply in float16 like the original's PSCV (the sum is accumulated in float32 and the mean rounded to
+            float16 before casting back).
+    Returns:
+        ``[B, groups, ...]`` in ``a``'s dtype.
+    """
+    c = a.shape[1]
+    n = c // groups
+    if half:
+        prod = (a.half() * b.half()).float()
+        out = prod.unflatten(1, (groups, n)).sum(dim=2) / n
+        return out.half().to(a.dtype)
+    prod = a * b
+    return prod.unflatten(1, (groups, n)).mean(dim=2)
+
+
+def parallax_sweep_cost_volume(
+    feat: torch.Tensor,
+    prev: torch.Tensor,
+    points: torch.Tensor,
+    groups: int,
+    half: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """PSCV: correlate the current features with the previous ones warped along the parallax hypotheses.
+
+    The previous features and the previous parallax are warped together, with one bilinear sampling call for all
+    hypotheses (they are stacked along the sampled grid's rows).
+
+    Args:
+        feat: ``[B, C, H, W]`` current normalised features.
+        prev: ``[B, C + 1, H, W]`` previous normalised features with the previous parallax as last channel.
+        points: ``[B, S, 2, H, W]`` sampling positions (x, y) in the previous frame, one per hypothesis.
+        groups: number of channel groups ``K``.
+        half: float16 products like the original.
+    Returns:
+        ``pscv [B, K*S, H, W]`` with channel ``g*S + s`` (group-major), and ``warped_parallax [B, S, H, W]``.
+    """
+    b, c, h, w = feat.shape
+    s = points.shape[1]
+    pts = points.permute(0, 2, 1, 3, 4).reshape(b, 2, s * h, w)
+    warped = sample_bilinear(prev, pts).view(b, c + 1, s, h, w)
+    corr = group_correlation(feat.unsqueeze(2), warped[:, :c], groups, half=half)  # [B,K,S,H,W]
+    return corr.reshape(b, groups * s, h, w), warped[:, c]
+
+
+def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negative_slope: float = 0.1) -> torch.Tensor:
+    """SNCV: self-correlation of the features over a ``(2r+1)^2`` window with zero padding, then LeakyReLU.
+
+    Args:
+        feat: ``[B, C, H, W]`` normalised features.
+        groups: number of channel groups ``K``.
+        radius: search range ``r`` (3 gives a 7x7 window).
+    Returns:
+        ``[B, (2r+1)^2 * K, H, W]`` with channel ``((dy + r)(2r + 1) + (dx + r)) * K + g`` (offset-major).
+    """
+    b, c, h, w = feat.shape
+    padded = F.pad(feat, (radius, radius, radius, radius))
+    outs = []
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            shifted = padded[:, :, radius + dy : radius + dy + h, radius + dx : radius + dx + w]
+            outs.append(group_correlation(feat, shifted, groups))
+    vol = torch.stack(outs, dim=1).reshape(b, len(outs) * groups, h, w)
+    return F.leaky_relu(vol, negative_slope)
