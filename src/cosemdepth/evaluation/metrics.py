@@ -226,6 +226,7 @@ class ConfusionMatrix:
 
     def reset(self) -> None:
         self.matrix = torch.zeros(self.num_classes, self.num_classes, dtype=torch.int64)
+        self.frames = 0  # number of included frames seen
 
     def update(self, gt: torch.Tensor, pred: torch.Tensor, include: Any = None) -> None:
         """Add frames of labels.
@@ -244,21 +245,21 @@ class ConfusionMatrix:
         p = _label_frames(pred, "pred").long()
         inc = _include_mask(include, g.shape[0], g.device)
         g, p = g[inc], p[inc]
+        frames = g.shape[0]
         if self.ignore_index is not None:
             keep = g != self.ignore_index
             g, p = g[keep], p[keep]
         g, p = g.reshape(-1), p.reshape(-1)
-        if g.numel() == 0:
-            return
         n = self.num_classes
-        for name, x in (("ground-truth", g), ("predicted", p)):
-            lo, hi = int(x.min()), int(x.max())
-            if lo < 0 or hi >= n:
-                extra = "" if self.ignore_index is None else f" (ignore_index={self.ignore_index})"
-                raise LabelRangeError(f"{name} labels must lie in [0, {n - 1}] for {n} classes{extra}; "
-                                      f"found values in [{lo}, {hi}]")
-        counts = torch.bincount(g * n + p, minlength=n * n)
-        self.matrix += counts.reshape(n, n).cpu()
+        if g.numel():
+            for name, x in (("ground-truth", g), ("predicted", p)):
+                lo, hi = int(x.min()), int(x.max())
+                if lo < 0 or hi >= n:
+                    extra = "" if self.ignore_index is None else f" (ignore_index={self.ignore_index})"
+                    raise LabelRangeError(f"{name} labels must lie in [0, {n - 1}] for {n} classes{extra}; "
+                                          f"found values in [{lo}, {hi}]")
+            self.matrix += torch.bincount(g * n + p, minlength=n * n).reshape(n, n).cpu()
+        self.frames += frames
 
     def iou(self) -> torch.Tensor:
         """Per-class IoU ``TP / (TP + FP + FN)`` as float64 ``[N]``; NaN for a class absent from GT and prediction."""
@@ -304,14 +305,12 @@ class EvaluationMetrics:
             raise ValueError("EvaluationMetrics: nothing to evaluate (no depth and no classes)")
         self.depth = DepthMetrics(max_depth=max_depth, min_pred=min_pred) if depth else None
         self.semantic = None if num_classes is None else ConfusionMatrix(num_classes, ignore_index=ignore_index)
-        self._semantic_frames = 0
 
     def reset(self) -> None:
         if self.depth is not None:
             self.depth.reset()
         if self.semantic is not None:
             self.semantic.reset()
-        self._semantic_frames = 0
 
     def update(
         self,
@@ -342,13 +341,8 @@ class EvaluationMetrics:
                 if pred_semantic.dim() != 4 or pred_semantic.shape[1] != self.semantic.num_classes:
                     raise ValueError(f"pred_semantic scores must be [B, {self.semantic.num_classes}, H, W], got "
                                      f"{list(pred_semantic.shape)}")
-                pred_labels = pred_semantic.argmax(dim=1)
-                gt = gt_labels[:, 0] if gt_labels.dim() == 4 else gt_labels
-            else:
-                pred_labels, gt = pred_semantic, gt_labels
-            self.semantic.update(gt, pred_labels, include)
-            frames = 1 if gt.dim() == 2 else gt.shape[0]
-            self._semantic_frames += int(_include_mask(include, frames, gt.device).sum())
+                pred_semantic = pred_semantic.argmax(dim=1, keepdim=gt_labels.dim() == 4)
+            self.semantic.update(gt_labels, pred_semantic, include)
 
     def compute(self) -> dict[str, Any]:
         """Depth metrics (:class:`DepthMetrics`) and ``miou``, ``iou`` (list per class), ``semantic_frames``."""
@@ -358,7 +352,7 @@ class EvaluationMetrics:
         if self.semantic is not None:
             out["miou"] = self.semantic.miou()
             out["iou"] = [float(x) for x in self.semantic.iou()]
-            out["semantic_frames"] = self._semantic_frames
+            out["semantic_frames"] = self.semantic.frames
         return out
 
 

@@ -206,7 +206,7 @@ def semantic_loss(
                          f"found values in [{lo}, {hi}]")
 
     dtype = torch.promote_types(pred_semantic[0].dtype, torch.float32)
-    total = None
+    total = labels.new_zeros((), dtype=dtype)
     for i, pred in enumerate(pred_semantic):
         size = tuple(pred.shape[-2:])
         scores = pred[:, first_frame:].to(dtype).reshape(b * n_frames, n_classes, *size)
@@ -216,7 +216,7 @@ def semantic_loss(
             log_p = F.log_softmax(torch.log(scores.clamp(epsilon, 1.0 - epsilon)), dim=1)
         target = resize_nn2(labels, size)
         level = -log_p.gather(1, target).mean()
-        total = weights[i] * level if total is None else total + weights[i] * level
+        total = total + weights[i] * level
     return total
 
 
