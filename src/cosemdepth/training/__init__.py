@@ -1,0 +1,1 @@
+"""Training: losses (:mod:`cosemdepth.training.losses`) and the training loop."""
