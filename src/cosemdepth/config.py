@@ -37,6 +37,9 @@ class ModelConfig:
     feature_normalization: bool = True
     feature_subdivision: bool = True
     level_memory: bool = True
+    #: Precision of the parallax-sweeping cost-volume products: "float32", or "float16" as the original computes
+    #: them (converted official checkpoints use float16 so that they reproduce the original's numbers).
+    pscv_dtype: str = "float32"
 
     def __post_init__(self) -> None:
         if self.arch not in ARCHITECTURES:
@@ -45,6 +48,8 @@ class ModelConfig:
             raise ConfigError(f"model levels must be an integer in 1..{len(ENCODER_CHANNELS)}, got {self.levels!r}")
         if not isinstance(self.num_classes, int) or self.num_classes < 2:
             raise ConfigError(f"model num_classes must be an integer >= 2, got {self.num_classes!r}")
+        if self.pscv_dtype not in ("float32", "float16"):
+            raise ConfigError(f"model pscv_dtype must be 'float32' or 'float16', got {self.pscv_dtype!r}")
 
     @property
     def has_depth(self) -> bool:

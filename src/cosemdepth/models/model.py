@@ -38,6 +38,7 @@ class SceneModel(nn.Module):
         self.encoder = Encoder(config.encoder_channels, dinl=config.dinl)
         self.depth_decoder = DepthDecoder(config) if config.has_depth else None
         self.semantic_decoder = SemanticDecoder(config) if config.has_semantic else None
+        self.set_numerics(pscv_half=config.pscv_dtype == "float16")
 
     default_arch = "cosemdepth"
 
