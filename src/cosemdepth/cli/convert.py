@@ -1,0 +1,73 @@
+"""``cosemdepth convert TF_CHECKPOINT OUT_DIR``: official TensorFlow checkpoint -> our model folder."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..config import ARCHITECTURES
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "checkpoint",
+        metavar="TF_CHECKPOINT",
+        help="TensorFlow checkpoint: a prefix (.../cp-0059.ckpt), its .index file, or a folder with a "
+        "'checkpoint' file (such as the authors' train/ or best/ folder)",
+    )
+    parser.add_argument("out_dir", metavar="OUT_DIR", help="output folder; gets config.json and model.safetensors")
+    parser.add_argument(
+        "--arch",
+        choices=ARCHITECTURES,
+        default=None,
+        help="load only this part of the checkpoint, e.g. m4depth = encoder + depth decoder of a joint checkpoint "
+        "(default: the architecture the checkpoint holds)",
+    )
+    parser.add_argument(
+        "--no-feature-normalization",
+        dest="feature_normalization",
+        action="store_false",
+        help="the checkpoint was trained with --no_feature_normalization (the only ablation that leaves no trace "
+        "in the weights, so it cannot be inferred)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import CheckpointError
+    from ..io.convert import import_checkpoint
+    from ..io.model_io import CONFIG_FILE, WEIGHTS_FILE, save_weights
+
+    out = Path(args.out_dir)
+    if out.exists() and not out.is_dir():
+        raise CheckpointError(f"{out}: OUT_DIR exists and is not a folder")
+    conv = import_checkpoint(args.checkpoint, arch=args.arch, feature_normalization=args.feature_normalization)
+    save_weights(conv.state_dict, conv.config, out, source=conv.source)
+    cfg = conv.config
+    yes = {True: "on", False: "off"}
+    parts = ", ".join(f"{p.replace('_', ' ')} {n:,}" for p, n in conv.parameters_by_part().items())
+    lines = [
+        f"source:     {conv.source['checkpoint']} ({conv.source['entries']} entries)",
+        f"arch:       {cfg.arch}",
+        f"levels:     {cfg.levels}",
+    ]
+    if cfg.has_semantic:
+        lines.append(f"classes:    {cfg.num_classes}")
+    lines.append(f"parameters: {conv.num_parameters:,} ({parts})")
+    switches = [f"DINL {yes[cfg.dinl]}"]
+    if cfg.has_depth:
+        switches += [
+            f"SNCV {yes[cfg.sncv]}",
+            f"time recurrence {yes[cfg.time_recurrence]}",
+            f"level memory {yes[cfg.level_memory]}",
+            f"feature subdivision {yes[cfg.feature_subdivision]}",
+        ]
+    switches.append(f"feature normalization {yes[cfg.feature_normalization]} (assumed)")
+    lines.append(f"switches:   {', '.join(switches)}")
+    dropped = f"{len(conv.dropped_keys)} dropped (--arch {cfg.arch}), " if conv.dropped_keys else ""
+    lines.append(
+        f"tensors:    {len(conv.converted_keys)} converted, {dropped}"
+        f"{conv.source['ignored_tensors']} ignored (optimizer, metrics, counters, state, object graph)"
+    )
+    lines.append(f"wrote:      {out / CONFIG_FILE}, {out / WEIGHTS_FILE}")
+    print("\n".join(lines))
+    return 0

@@ -1,0 +1,237 @@
+"""Our model file format: a folder with ``model.safetensors`` (the weights) and ``config.json``.
+
+``config.json``::
+
+    {"format": "cosemdepth", "format_version": 1,
+     "model": {...ModelConfig fields...},
+     "source": {...where the weights came from: a TF checkpoint, a training run...},
+     "num_parameters": 5202528, "cosemdepth_version": "0.1.0"}
+
+Both files are written atomically (temporary file + rename), and both are fully written before either is renamed
+into place, so a crash never leaves a half-written file. :func:`load_model` also accepts an official TensorFlow
+checkpoint (converted on the fly).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any, Mapping
+
+import torch
+
+from ..config import ModelConfig
+from ..errors import CheckpointError, ConfigError
+from .atomic import atomic_open, atomic_path
+from .convert import expected_param_shapes
+
+FORMAT = "cosemdepth"
+FORMAT_VERSION = 1
+WEIGHTS_FILE = "model.safetensors"
+CONFIG_FILE = "config.json"
+
+
+def check_state_dict(state_dict: Mapping[str, torch.Tensor], cfg: ModelConfig, origin: str) -> None:
+    """Raise :class:`CheckpointError` unless ``state_dict`` has exactly the parameters of ``cfg``, shapes included."""
+    expected = expected_param_shapes(cfg)
+    missing = sorted(set(expected) - set(state_dict))
+    unexpected = sorted(set(state_dict) - set(expected))
+    wrong = [
+        f"{k} has shape {list(state_dict[k].shape)}, expected {list(s)}"
+        for k, s in expected.items()
+        if k in state_dict and tuple(state_dict[k].shape) != s
+    ]
+    not_float = [k for k, t in state_dict.items() if k in expected and not torch.is_floating_point(t)]
+    problems = []
+    if missing:
+        problems.append(f"missing {_show(missing)}")
+    if unexpected:
+        problems.append(f"unexpected {_show(unexpected)}")
+    if wrong:
+        problems.append("shape mismatch: " + "; ".join(wrong[:5]) + (f" ({len(wrong)} in all)" if len(wrong) > 5 else ""))
+    if not_float:
+        problems.append(f"not floating point: {_show(not_float)}")
+    if problems:
+        raise CheckpointError(
+            f"{origin}: weights do not match the {cfg.arch} model (levels={cfg.levels}, classes={cfg.num_classes}): "
+            + "; ".join(problems)
+        )
+
+
+def _show(keys: list[str], n: int = 5) -> str:
+    return ", ".join(keys[:n]) + (f", ... ({len(keys)} in all)" if len(keys) > n else "")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Writing
+
+
+def save_weights(
+    state_dict: Mapping[str, torch.Tensor],
+    config: ModelConfig,
+    out_dir: str | os.PathLike,
+    source: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write ``OUT_DIR/model.safetensors`` and ``OUT_DIR/config.json``; return ``OUT_DIR``.
+
+    The state dict is checked against ``config`` first; nothing is written if it does not match. ``OUT_DIR`` is
+    created if needed (and removed again if writing fails); existing files of ours in it are replaced atomically.
+    """
+    from safetensors.torch import save_file
+
+    from .. import __version__
+
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise CheckpointError(f"{out}: exists and is not a folder; the output must be a folder (it gets {CONFIG_FILE} "
+                              f"and {WEIGHTS_FILE})")
+    check_state_dict(state_dict, config, f"weights for {out}")
+    tensors = {k: v.detach().to("cpu").contiguous().clone() for k, v in state_dict.items()}
+    meta = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "model": config.to_dict(),
+        "source": dict(source) if source else {},
+        "num_parameters": sum(int(t.numel()) for t in tensors.values()),
+        "cosemdepth_version": __version__,
+    }
+    text = json.dumps(meta, indent=2) + "\n"
+    created = _missing_ancestors(out)
+    try:
+        with atomic_path(out / WEIGHTS_FILE) as tmp_weights, atomic_open(out / CONFIG_FILE, "w") as f:
+            save_file(tensors, str(tmp_weights), metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
+            f.write(text)
+    except BaseException:
+        for d in created:  # deepest first; only folders we made and that are still empty
+            try:
+                d.rmdir()
+            except OSError:
+                break
+        raise
+    return out
+
+
+def _missing_ancestors(path: Path) -> list[Path]:
+    """``path`` and its ancestors that do not exist yet, deepest first."""
+    out = []
+    p = path.absolute()
+    while not p.exists() and p != p.parent:
+        out.append(p)
+        p = p.parent
+    return out
+
+
+def save_model(model: torch.nn.Module, out_dir: str | os.PathLike, source: Mapping[str, Any] | None = None) -> Path:
+    """Save ``model`` (which has a ``config: ModelConfig``) in our format; see :func:`save_weights`."""
+    cfg = getattr(model, "config", None)
+    if not isinstance(cfg, ModelConfig):
+        raise ConfigError(f"save_model needs a model with a ModelConfig in .config, got {type(cfg).__name__}")
+    return save_weights(model.state_dict(), cfg, out_dir, source=source)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Reading
+
+
+def _model_dir(path: str | os.PathLike) -> Path:
+    p = Path(path)
+    if p.is_file() and p.name in (CONFIG_FILE, WEIGHTS_FILE):
+        return p.parent
+    if not p.exists():
+        raise CheckpointError(f"{p}: model folder not found")
+    if not p.is_dir():
+        raise CheckpointError(f"{p}: not a model folder (expected a folder with {CONFIG_FILE} and {WEIGHTS_FILE})")
+    return p
+
+
+def read_config_file(path: str | os.PathLike) -> tuple[ModelConfig, dict[str, Any]]:
+    """``(ModelConfig, whole config.json)`` of the model folder ``path``."""
+    cfg_path = _model_dir(path) / CONFIG_FILE
+    if not cfg_path.is_file():
+        raise CheckpointError(f"{cfg_path}: not found; a model folder needs {CONFIG_FILE} and {WEIGHTS_FILE}")
+    try:
+        meta = json.loads(cfg_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise CheckpointError(f"{cfg_path}: corrupt model config (not valid JSON: {e})") from e
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise CheckpointError(f"{cfg_path}: not a cosemdepth model config (no \"format\": \"{FORMAT}\")")
+    version = meta.get("format_version")
+    if not isinstance(version, int) or version < 1:
+        raise CheckpointError(f"{cfg_path}: bad format_version {version!r}")
+    if version > FORMAT_VERSION:
+        raise CheckpointError(
+            f"{cfg_path}: format_version {version} is newer than this cosemdepth supports ({FORMAT_VERSION}); upgrade"
+        )
+    try:
+        cfg = ModelConfig.from_dict(meta.get("model"))
+    except (ConfigError, TypeError) as e:
+        raise CheckpointError(f"{cfg_path}: invalid \"model\" entry: {e}") from e
+    return cfg, meta
+
+
+def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], ModelConfig, dict[str, Any]]:
+    """``(state_dict, ModelConfig, meta)`` of the model folder ``path`` (or its config.json / model.safetensors).
+
+    ``meta`` is the whole parsed config.json (format, source, ...). The weights are checked against the config.
+    """
+    from safetensors import SafetensorError
+    from safetensors.torch import load_file
+
+    folder = _model_dir(path)
+    cfg, meta = read_config_file(folder)
+    weights = folder / WEIGHTS_FILE
+    if not weights.is_file():
+        raise CheckpointError(f"{weights}: not found; a model folder needs {CONFIG_FILE} and {WEIGHTS_FILE}")
+    try:
+        state_dict = load_file(str(weights))
+    except (SafetensorError, OSError, ValueError, RuntimeError) as e:
+        raise CheckpointError(f"{weights}: corrupt or truncated safetensors file ({e})") from e
+    check_state_dict(state_dict, cfg, str(weights))
+    return state_dict, cfg, meta
+
+
+def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> torch.nn.Module:
+    """Build the model stored at ``path`` and load its weights, in eval mode on ``device``.
+
+    ``path`` is one of our model folders, or an official TensorFlow checkpoint (a prefix such as
+    ``.../cp-0059.ckpt``, its ``.index`` file, or a folder with a ``checkpoint`` file), converted on the fly.
+    """
+    from ..models import build_model
+    from .tf_checkpoint import is_tf_checkpoint
+
+    p = Path(path)
+    ours = p.is_dir() and ((p / CONFIG_FILE).exists() or (p / WEIGHTS_FILE).exists())
+    if not ours and p.name not in (CONFIG_FILE, WEIGHTS_FILE) and is_tf_checkpoint(p):
+        from .convert import convert_checkpoint
+
+        state_dict, cfg = convert_checkpoint(p)
+        origin = str(p)
+    else:
+        if p.is_dir() and not ours:
+            raise CheckpointError(
+                f"{p}: neither a cosemdepth model folder ({CONFIG_FILE} + {WEIGHTS_FILE}) nor a TensorFlow "
+                "checkpoint folder (a 'checkpoint' file naming cp-XXXX.ckpt)"
+            )
+        state_dict, cfg, _ = read_model_files(p)
+        origin = str(_model_dir(p))
+    model = build_model(cfg)
+    try:
+        model.load_state_dict(state_dict, strict=True)
+    except RuntimeError as e:
+        raise CheckpointError(f"{origin}: weights do not fit the {cfg.arch} model: {e}") from e
+    return model.eval().to(device)
+
+
+__all__ = [
+    "CONFIG_FILE",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "WEIGHTS_FILE",
+    "check_state_dict",
+    "load_model",
+    "read_config_file",
+    "read_model_files",
+    "save_model",
+    "save_weights",
+]
