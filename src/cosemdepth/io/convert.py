@@ -47,10 +47,11 @@ _REFINER = re.compile(
     r"^(?P<root>(?:.*/)?)levels/(?P<j>\d+)/(?P<ref>disp_refiner|semantic_refiner)/"
     r"(?P<stack>prep_conv_layers|est_[a-z]+_conv_layers)/(?P<k>\d+)/(?P<p>kernel|bias)" + _VAR
 )
+_SLOT = re.compile(r"/\.OPTIMIZER_SLOT/")
 #: Keys that are not weights: what they are, and the pattern.
 _IGNORED = (
     ("object graph", re.compile(r"^_CHECKPOINTABLE_OBJECT_GRAPH$")),
-    ("optimizer slot", re.compile(r"/\.OPTIMIZER_SLOT/")),
+    ("optimizer slot", _SLOT),
     ("optimizer", re.compile(r"(^|/)optimizer/")),
     ("metric", re.compile(r"(^|/)[A-Za-z0-9_]*metrics?(/|$)")),
     ("counter", re.compile(r"(^|/)(step_counter|save_counter)/")),
@@ -304,12 +305,12 @@ def convert_tensors(
     weights are dropped); by default the architecture the checkpoint holds. ``origin`` names the checkpoint in
     error messages. Raises :class:`CheckpointError` on a missing, unexpected or wrongly shaped tensor.
     """
-    mapped: dict[str, tuple[str, np.ndarray]] = {}  # our name -> (tf key, array)
+    hits: list[tuple[str, str, str]] = []  # (tf key, part, our name)
     ignored: dict[str, str] = {}
     unknown: list[str] = []
     roots: dict[str, set[str]] = {}
-    for key, value in tensors.items():
-        hit = _classify(key)
+    for key in tensors:
+        hit = None if _SLOT.search(key) else _classify(key)
         if hit is None:
             why = _ignored_reason(key)
             if why is not None:
@@ -319,10 +320,8 @@ def convert_tensors(
             continue
         part, root, name = hit
         roots.setdefault(part, set()).add(root)
-        if name in mapped:
-            raise CheckpointError(f"{origin}: {key!r} and {mapped[name][0]!r} both map to {name}")
-        mapped[name] = (key, np.asarray(value))
-    if not mapped:
+        hits.append((key, part, name))
+    if not hits:
         raise CheckpointError(
             f"{origin}: no Co-SemDepth / M4Depth / M4Semantic weights found among its {len(tensors)} tensors "
             f"(e.g. {_show(sorted(tensors), 4)}): a checkpoint of another model?"
@@ -333,6 +332,11 @@ def convert_tensors(
                 f"{origin}: {part.replace('_', ' ')} weights under several roots {sorted(r.rstrip('/') for r in rs)}: "
                 "ambiguous checkpoint"
             )
+    mapped: dict[str, tuple[str, np.ndarray]] = {}  # our name -> (tf key, array)
+    for key, _, name in hits:
+        if name in mapped:
+            raise CheckpointError(f"{origin}: {key!r} and {mapped[name][0]!r} both map to {name}")
+        mapped[name] = (key, np.asarray(tensors[key]))
 
     tf_shapes = {name: tuple(int(d) for d in arr.shape) for name, (_, arr) in mapped.items()}
     cfg, inferred = infer_config(tf_shapes, arch=arch, feature_normalization=feature_normalization, origin=origin)
