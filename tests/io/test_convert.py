@@ -136,7 +136,8 @@ def test_m4depth_four_levels_from_file(tmp_path):
 
 def test_m4depth_six_levels_other_root_names(tmp_path):
     """M4Depth's released weights are 6-level; keys are matched below any root attribute name."""
-    t = model_tensors(levels=6, semantic=False, roots=("model/feature_pyramid", "model/depth_net", "unused"), zeros=True)
+    roots = ("model/feature_pyramid", "model/depth_net", "unused")
+    t = model_tensors(levels=6, semantic=False, roots=roots, zeros=True)
     prefix = write_bundle(tmp_path / "m4d" / "cp-0001.ckpt", t)
     conv = import_checkpoint(prefix)
     assert conv.config.arch == "m4depth" and conv.config.levels == 6
@@ -241,7 +242,7 @@ def _small() -> dict:
 def test_missing_tensor():
     t = _small()
     del t[f"s_estimator/levels/1/semantic_refiner/est_s_conv_layers/2/bias{SUFFIX}"]
-    with pytest.raises(CheckpointError, match=r"missing weights 'semantic_decoder\.levels\.1\.refiner\.convs\.5\.bias'"):
+    with pytest.raises(CheckpointError, match=r"missing weights 'semantic_decoder\.levels\.1\.refiner\.convs\.5\."):
         convert_tensors(t, origin="my.ckpt")
 
 
@@ -272,7 +273,7 @@ def test_unexpected_weight_tensors():
         convert_tensors(t)
     t = _small()
     t[f"d_estimator/levels/0/disp_refiner/est_d_conv_layers/4/kernel{SUFFIX}"] = np.zeros((3, 3, 5, 5), np.float32)
-    with pytest.raises(CheckpointError, match="unexpected tensors 'd_estimator/levels/0/disp_refiner/est_d_conv_layers/4"):
+    with pytest.raises(CheckpointError, match="unexpected tensors 'd_estimator/levels/0/disp_refiner/est_d_conv_l"):
         convert_tensors(t)
 
 
@@ -325,7 +326,8 @@ def test_two_encoders_are_ambiguous():
 def test_refiner_channels_matching_no_ablation():
     t = model_tensors(levels=2, semantic=False, zeros=True, extras=False)
     for j, c_in in ((0, 63), (1, 120)):  # 120 at l = 2 fits no switch combination (K = 2 or 1)
-        t[f"d_estimator/levels/{j}/disp_refiner/prep_conv_layers/0/kernel{SUFFIX}"] = np.zeros((3, 3, c_in, 128), np.float32)
+        key = f"d_estimator/levels/{j}/disp_refiner/prep_conv_layers/0/kernel{SUFFIX}"
+        t[key] = np.zeros((3, 3, c_in, 128), np.float32)
     with pytest.raises(CheckpointError, match=r"input channels \[63, 120\].*match no combination"):
         convert_tensors(t)
 

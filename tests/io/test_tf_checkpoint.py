@@ -270,7 +270,8 @@ def test_truncated_data_shard(small_ckpt):
 
 
 def test_missing_data_shard(tmp_path):
-    prefix = write_bundle(tmp_path / "m.ckpt", {"a": np.ones(3, np.float32), "b": np.zeros(2, np.float32)}, num_shards=2)
+    t = {"a": np.ones(3, np.float32), "b": np.zeros(2, np.float32)}
+    prefix = write_bundle(tmp_path / "m.ckpt", t, num_shards=2)
     missing = _data(prefix, 1, 2)
     missing.unlink()
     with pytest.raises(CheckpointError, match="data shard of the checkpoint not found") as e:

@@ -254,7 +254,10 @@ def infer_config(
         raise ConfigError(f"arch must be one of {ARCHITECTURES}, got {arch!r}")
     want_depth = arch in ("cosemdepth", "m4depth")
     want_sem = arch in ("cosemdepth", "m4semantic")
-    for want, part, ref in ((want_depth, "depth_decoder", "disp_refiner"), (want_sem, "semantic_decoder", "semantic_refiner")):
+    for want, part, ref in (
+        (want_depth, "depth_decoder", "disp_refiner"),
+        (want_sem, "semantic_decoder", "semantic_refiner"),
+    ):
         if want and not has[part]:
             raise CheckpointError(
                 f"{origin}: holds a {found} model, which has no {part.replace('_', ' ')} (no '{ref}' weights); "
@@ -363,7 +366,8 @@ def convert_tensors(
             if tuple(arr.shape) != want:
                 bad_shapes.append(f"{key!r} has shape {list(arr.shape)}, expected {list(want)}")
     if bad_shapes:
-        problems.append("wrong shapes: " + "; ".join(bad_shapes[:6]) + (f" ({len(bad_shapes)} in all)" if len(bad_shapes) > 6 else ""))
+        more = f" ({len(bad_shapes)} in all)" if len(bad_shapes) > 6 else ""
+        problems.append("wrong shapes: " + "; ".join(bad_shapes[:6]) + more)
     if problems:
         raise CheckpointError(f"{origin}: does not match the inferred {_describe(cfg)} model: " + "; ".join(problems))
 

@@ -2,14 +2,15 @@
 
 Why not a package: ``google-crc32c`` / ``crc32c`` would be faster, but the only user is the checkpoint reader,
 which checks a few tens of MB once per conversion; a vectorised numpy version does 20 MB in about 0.1 s on
-one core (see ``benchmarks/crc32c_speed.py``) and keeps the dependency list unchanged.
+one core (see ``benchmarks/tf_checkpoint_speed.py``) and keeps the dependency list unchanged.
 
 How it is fast without a compiled loop: the CRC register is linear over GF(2). The buffer is cut into ``M`` rows
 of ``C`` bytes, and the table-driven byte step runs on all rows at once (``C`` numpy steps on ``M``-vectors, each
 row starting from register 0). Each row's register is then "shifted" over the ``C`` bytes that follow it with a
 precomputed linear operator (four 256-entry tables) and the rows are combined. Leading zero bytes do not change a
 zero register, so the buffer is zero-padded at the front to a whole number of rows; the standard initial value
-``0xFFFFFFFF`` (or a previous CRC being extended) is applied by XOR-ing it into the first four data bytes, which is equivalent for a reflected CRC.
+``0xFFFFFFFF`` (or a previous CRC being extended) is applied by XOR-ing it into the first four data bytes, which is
+equivalent for a reflected CRC.
 """
 
 from __future__ import annotations
@@ -52,9 +53,8 @@ def _shift_tables(nbytes: int) -> np.ndarray:
     cached = _SHIFT_CACHE.get(nbytes)
     if cached is not None:
         return cached
-    # Image of each of the 32 basis bits, advanced by squaring the operator (bit images of "n zero bytes").
-    basis = np.array([1 << i for i in range(32)], dtype=np.uint32)
-    images = basis.copy()  # images[i] = shift(1 << i) for the shift built so far (starts as identity)
+    # Images of the 32 basis bits under "advance over nbytes zero bytes", by binary powering of the 1-byte step.
+    images = np.array([1 << i for i in range(32)], dtype=np.uint32)  # identity
     step = _zero_byte_images()  # operator for 1 zero byte
     n = nbytes
     while n:
@@ -98,8 +98,9 @@ def crc32c(data: bytes | bytearray | memoryview | np.ndarray, crc: int = 0) -> i
     n = buf.size
     if n < _SMALL:
         return _update_small(init, buf.tobytes()) ^ 0xFFFFFFFF
-    rows = min(8192, max(1, n // 512))
-    cols = -(-n // rows)
+    # Cost ~ cols numpy steps + rows Python combine steps: balance them; a power of two keeps the cache small.
+    cols = 1 << max(4, int(0.2 * n**0.5).bit_length())
+    rows = -(-n // cols)
     padded = np.zeros(rows * cols, dtype=np.uint8)
     padded[rows * cols - n :] = buf
     start = rows * cols - n

@@ -49,7 +49,8 @@ def check_state_dict(state_dict: Mapping[str, torch.Tensor], cfg: ModelConfig, o
     if unexpected:
         problems.append(f"unexpected {_show(unexpected)}")
     if wrong:
-        problems.append("shape mismatch: " + "; ".join(wrong[:5]) + (f" ({len(wrong)} in all)" if len(wrong) > 5 else ""))
+        more = f" ({len(wrong)} in all)" if len(wrong) > 5 else ""
+        problems.append("shape mismatch: " + "; ".join(wrong[:5]) + more)
     if not_float:
         problems.append(f"not floating point: {_show(not_float)}")
     if problems:
@@ -197,7 +198,6 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
     ``path`` is one of our model folders, or an official TensorFlow checkpoint (a prefix such as
     ``.../cp-0059.ckpt``, its ``.index`` file, or a folder with a ``checkpoint`` file), converted on the fly.
     """
-    from ..models import build_model
     from .tf_checkpoint import is_tf_checkpoint
 
     p = Path(path)
@@ -215,6 +215,8 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
             )
         state_dict, cfg, _ = read_model_files(p)
         origin = str(_model_dir(p))
+    from ..models import build_model  # imported late: the checks above do not need the model code
+
     model = build_model(cfg)
     try:
         model.load_state_dict(state_dict, strict=True)

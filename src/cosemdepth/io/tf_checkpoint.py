@@ -466,7 +466,9 @@ class CheckpointReader:
             raise bad
         stored = data[pos : pos + 4]
         if int.from_bytes(stored, "little") != mask_crc(crc):
-            raise CheckpointError(f"{shard}: CRC32C mismatch in the lengths of string tensor {key!r}: corrupt data shard")
+            raise CheckpointError(
+                f"{shard}: CRC32C mismatch in the lengths of string tensor {key!r}: corrupt data shard"
+            )
         crc = crc32c(stored, crc)
         pos += 4
         if pos + sum(lengths) != len(data):
@@ -560,7 +562,9 @@ def is_tf_checkpoint(path: str | os.PathLike) -> bool:
     p = Path(path)
     if p.is_dir():
         return (p / "checkpoint").is_file()
-    return Path(f"{p}.index").is_file() or (p.is_file() and (p.name.endswith(".index") or bool(_SHARD_SUFFIX.search(p.name))))
+    if Path(f"{p}.index").is_file():
+        return True
+    return p.is_file() and (p.name.endswith(".index") or bool(_SHARD_SUFFIX.search(p.name)))
 
 
 __all__ = [

@@ -1,0 +1,243 @@
+"""Our model folder format (config.json + model.safetensors) and load_model / save_model."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+import torch
+from safetensors.torch import save_file
+
+from cosemdepth.config import ModelConfig
+from cosemdepth.errors import CheckpointError, ConfigError
+from cosemdepth.io.convert import convert_checkpoint, expected_param_shapes
+from cosemdepth.io.model_io import load_model, read_model_files, save_model, save_weights
+from tf_bundle_writer import model_tensors, write_bundle
+
+SMALL = ModelConfig(arch="cosemdepth", levels=2, num_classes=5)
+
+
+def _random_state(cfg: ModelConfig) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(0)
+    return {k: torch.randn(s, generator=g) for k, s in expected_param_shapes(cfg).items()}
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# Writing and reading the files
+
+
+def test_round_trip(tmp_path):
+    sd = _random_state(SMALL)
+    out = save_weights(sd, SMALL, tmp_path / "runs" / "model", source={"type": "test", "note": "round trip"})
+    assert sorted(os.listdir(out)) == ["config.json", "model.safetensors"]  # no temporary files left
+    sd2, cfg, meta = read_model_files(out)
+    assert cfg == SMALL
+    assert sd2.keys() == sd.keys()
+    for k in sd:
+        assert torch.equal(sd[k], sd2[k]), k
+    assert meta["source"] == {"type": "test", "note": "round trip"}
+    # the other two ways to name the folder
+    assert read_model_files(out / "config.json")[1] == SMALL
+    assert read_model_files(out / "model.safetensors")[1] == SMALL
+
+
+def test_config_json_content(tmp_path):
+    cfg = ModelConfig(arch="m4depth", levels=3, sncv=False)
+    save_weights(_random_state(cfg), cfg, tmp_path)
+    meta = json.loads((tmp_path / "config.json").read_text())
+    assert meta["format"] == "cosemdepth" and meta["format_version"] == 1
+    assert meta["model"] == {
+        "arch": "m4depth", "levels": 3, "num_classes": 7, "dinl": True, "sncv": False, "time_recurrence": True,
+        "feature_normalization": True, "feature_subdivision": True, "level_memory": True,
+    }
+    assert meta["source"] == {}
+    assert meta["num_parameters"] == sum(s.numel() for s in _random_state(cfg).values())
+
+
+def test_overwrite_replaces_both_files(tmp_path):
+    save_weights(_random_state(SMALL), SMALL, tmp_path)
+    other = ModelConfig(arch="m4semantic", levels=1, num_classes=3)
+    sd = _random_state(other)
+    save_weights(sd, other, tmp_path)
+    sd2, cfg, _ = read_model_files(tmp_path)
+    assert cfg == other and sd2.keys() == sd.keys()
+
+
+def test_out_dir_is_a_file(tmp_path):
+    f = tmp_path / "model"
+    f.write_text("keep me")
+    with pytest.raises(CheckpointError, match="exists and is not a folder"):
+        save_weights(_random_state(SMALL), SMALL, f)
+    assert f.read_text() == "keep me"
+
+
+def test_mismatched_state_dict_writes_nothing(tmp_path):
+    sd = _random_state(SMALL)
+    sd["encoder.conv_s1.0.weight"] = torch.zeros(16, 3, 5, 5)
+    del sd["encoder.dinl.bias"]
+    with pytest.raises(CheckpointError, match=r"missing encoder\.dinl\.bias.*shape mismatch: encoder\.conv_s1\.0\."):
+        save_weights(sd, SMALL, tmp_path / "a" / "b")
+    assert not (tmp_path / "a").exists()
+
+
+def test_failed_write_leaves_no_partial_output(tmp_path, monkeypatch):
+    import safetensors.torch
+
+    def boom(tensors, filename, metadata=None):
+        with open(filename, "wb") as f:
+            f.write(b"half a file")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(safetensors.torch, "save_file", boom)
+    with pytest.raises(OSError, match="disk full"):
+        save_weights(_random_state(SMALL), SMALL, tmp_path / "new" / "model")
+    assert not (tmp_path / "new").exists()
+    existing = tmp_path / "existing"
+    existing.mkdir()
+    with pytest.raises(OSError, match="disk full"):
+        save_weights(_random_state(SMALL), SMALL, existing)
+    assert os.listdir(existing) == []
+
+
+@pytest.fixture()
+def saved(tmp_path):
+    return save_weights(_random_state(SMALL), SMALL, tmp_path / "m")
+
+
+def test_missing_folder(tmp_path):
+    with pytest.raises(CheckpointError, match="model folder not found"):
+        read_model_files(tmp_path / "nope")
+
+
+def test_missing_config(saved):
+    (saved / "config.json").unlink()
+    with pytest.raises(CheckpointError, match=r"config\.json: not found"):
+        read_model_files(saved)
+
+
+def test_corrupt_config(saved):
+    (saved / "config.json").write_text('{"format": "cosemdepth", ')
+    with pytest.raises(CheckpointError, match=r"config\.json: corrupt model config"):
+        read_model_files(saved)
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda m: m.update(format="something-else"), "not a cosemdepth model config"),
+        (lambda m: m.update(format_version=2), "format_version 2 is newer"),
+        (lambda m: m.update(format_version="1"), "bad format_version"),
+        (lambda m: m["model"].update(levels=9), r"invalid \"model\" entry: model levels"),
+        (lambda m: m["model"].update(colour="red"), r"invalid \"model\" entry: unknown model config key"),
+        (lambda m: m.pop("model"), r"invalid \"model\" entry"),
+    ],
+)
+def test_bad_config_values(saved, edit, message):
+    meta = json.loads((saved / "config.json").read_text())
+    edit(meta)
+    (saved / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(CheckpointError, match=message) as e:
+        read_model_files(saved)
+    assert str(saved / "config.json") in str(e.value)
+
+
+def test_missing_weights(saved):
+    (saved / "model.safetensors").unlink()
+    with pytest.raises(CheckpointError, match=r"model\.safetensors: not found"):
+        read_model_files(saved)
+
+
+def test_corrupt_weights(saved):
+    (saved / "model.safetensors").write_bytes(b"\x00\x01garbage" * 10)
+    with pytest.raises(CheckpointError, match=r"model\.safetensors: corrupt or truncated"):
+        read_model_files(saved)
+
+
+def test_truncated_weights(saved):
+    f = saved / "model.safetensors"
+    f.write_bytes(f.read_bytes()[:-1000])
+    with pytest.raises(CheckpointError, match=r"model\.safetensors: corrupt or truncated"):
+        read_model_files(saved)
+
+
+def test_weights_not_matching_config(saved):
+    sd = _random_state(SMALL)
+    sd["semantic_decoder.levels.1.refiner.convs.6.weight"] = torch.zeros(10, 16, 3, 3)
+    save_file(sd, str(saved / "model.safetensors"))
+    with pytest.raises(CheckpointError, match=r"model\.safetensors: .*shape mismatch: "
+                                              r"semantic_decoder\.levels\.1\.refiner\.convs\.6\.weight has shape "
+                                              r"\[10, 16, 3, 3\], expected \[9, 16, 3, 3\]"):
+        read_model_files(saved)
+
+
+def test_converted_fixture_round_trip(tfref_dir, tmp_path):
+    sd, cfg = convert_checkpoint(tfref_dir / "ckpt")
+    save_weights(sd, cfg, tmp_path)
+    sd2, cfg2, meta = read_model_files(tmp_path)
+    assert cfg2 == cfg and meta["num_parameters"] == 5_202_528
+    assert all(torch.equal(sd[k], sd2[k]) for k in sd)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# With the model (cosemdepth.models.build_model)
+
+
+CONFIGS = [
+    ModelConfig(),
+    ModelConfig(arch="m4depth", levels=4, sncv=False, dinl=False),
+    ModelConfig(arch="m4depth", levels=3, time_recurrence=False, level_memory=False, feature_subdivision=False),
+    ModelConfig(arch="m4semantic", levels=6, num_classes=12),
+]
+
+
+@pytest.mark.parametrize("cfg", CONFIGS, ids=lambda c: f"{c.arch}-L{c.levels}")
+def test_model_parameters_match_the_converter(cfg):
+    """The model's parameter names and shapes are exactly those the converter and the file format expect."""
+    from cosemdepth.models import build_model
+
+    model = build_model(cfg)
+    assert {k: tuple(v.shape) for k, v in model.state_dict().items()} == expected_param_shapes(cfg)
+
+
+def test_save_model_and_load_model(tmp_path):
+    from cosemdepth.models import build_model
+
+    cfg = ModelConfig(arch="cosemdepth", levels=3, num_classes=6)
+    model = build_model(cfg)
+    out = save_model(model, tmp_path / "m", source={"type": "test"})
+    loaded = load_model(out)
+    assert loaded.config == cfg
+    assert not loaded.training
+    ref = model.state_dict()
+    for k, v in loaded.state_dict().items():
+        assert torch.equal(v, ref[k]), k
+    assert all(p.device.type == "cpu" for p in loaded.parameters())
+
+
+def test_save_model_needs_a_config(tmp_path):
+    with pytest.raises(ConfigError, match="ModelConfig"):
+        save_model(torch.nn.Linear(2, 2), tmp_path)
+
+
+def test_load_model_from_tf_checkpoint(tfref_dir):
+    model = load_model(tfref_dir / "ckpt")
+    assert model.config == ModelConfig()
+    assert sum(p.numel() for p in model.parameters()) == 5_202_528
+    sd, _ = convert_checkpoint(tfref_dir / "ckpt")
+    got = model.state_dict()
+    assert all(torch.equal(got[k], sd[k]) for k in sd)
+
+
+def test_load_model_from_written_m4depth_checkpoint(tmp_path):
+    prefix = write_bundle(tmp_path / "train" / "cp-0007.ckpt", model_tensors(levels=2, semantic=False, seed=2))
+    for path in (tmp_path / "train", prefix, f"{prefix}.index"):
+        model = load_model(path)
+        assert model.config.arch == "m4depth" and model.config.levels == 2
+
+
+def test_load_model_errors(tmp_path):
+    with pytest.raises(CheckpointError, match="model folder not found"):
+        load_model(tmp_path / "missing")
+    with pytest.raises(CheckpointError, match="neither a cosemdepth model folder.*nor a TensorFlow checkpoint"):
+        load_model(tmp_path)
