@@ -41,6 +41,7 @@ def test_convert_with_arch(tfref_dir, tmp_path, capsys):
     assert main(["convert", str(tfref_dir / "ckpt" / "cp-0000.ckpt"), str(out), "--arch", "m4depth"]) == 0
     text = capsys.readouterr().out
     assert "arch:       m4depth" in text and "3,059,881" in text and "70 dropped" in text
+    assert "classes:    - (no semantic decoder)" in text
     assert json.loads((out / "config.json").read_text())["model"]["arch"] == "m4depth"
 
 

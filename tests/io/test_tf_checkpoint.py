@@ -227,11 +227,17 @@ def test_round_trip_multiple_shards(tmp_path):
 
 
 def test_checkpoint_file_with_absolute_and_escaped_paths(tmp_path):
-    prefix = write_bundle(tmp_path / "weights" / 'we"ird.ckpt', {"x": np.ones(2, np.float32)}, checkpoint_file=False)
+    """TensorFlow writes the state file in protobuf text format: quotes and backslashes escaped, non-ASCII bytes
+    as octal escapes."""
+    prefix = write_bundle(tmp_path / "weights" / 'wé"ird.ckpt', {"x": np.ones(2, np.float32)}, checkpoint_file=False)
     state_dir = tmp_path / "state"
     state_dir.mkdir()
-    escaped = str(prefix).replace("\\", "\\\\").replace('"', '\\"')
-    (state_dir / "checkpoint").write_text(f'model_checkpoint_path: "{escaped}"\n')
+    escaped = "".join(
+        {ord('"'): '\\"', ord("\\"): "\\\\"}.get(b, chr(b)) if b < 128 else f"\\{b:03o}"
+        for b in str(prefix).encode("utf-8")
+    )
+    assert "\\303\\251" in escaped and '\\"' in escaped
+    (state_dir / "checkpoint").write_text(f'model_checkpoint_path: "{escaped}"\n', encoding="ascii")
     assert resolve_checkpoint(state_dir) == prefix
 
 

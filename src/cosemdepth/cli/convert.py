@@ -50,8 +50,7 @@ def run(args: argparse.Namespace) -> int:
         f"arch:       {cfg.arch}",
         f"levels:     {cfg.levels}",
     ]
-    if cfg.has_semantic:
-        lines.append(f"classes:    {cfg.num_classes}")
+    lines.append(f"classes:    {cfg.num_classes}" if cfg.has_semantic else "classes:    - (no semantic decoder)")
     lines.append(f"parameters: {conv.num_parameters:,} ({parts})")
     switches = [f"DINL {yes[cfg.dinl]}"]
     if cfg.has_depth:

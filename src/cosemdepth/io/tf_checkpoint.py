@@ -142,14 +142,22 @@ def _read_checkpoint_state(state: Path) -> Path:
     raise CheckpointError(f"{state}: no 'model_checkpoint_path: \"...\"' line (not a TensorFlow checkpoint state file)")
 
 
+_ESCAPE = re.compile(rb"\\([0-7]{1,3}|x[0-9a-fA-F]{1,2}|.)", re.DOTALL)
+_SIMPLE_ESCAPES = {b"n": b"\n", b"r": b"\r", b"t": b"\t", b"a": b"\a", b"b": b"\b", b"f": b"\f", b"v": b"\v"}
+
+
 def _unescape_text_proto(s: str) -> str:
-    """Undo the C-style escapes of a text-format protobuf string (``\\"``, ``\\\\``, octal bytes)."""
-    if "\\" not in s:
-        return s
-    try:
-        return s.encode("latin-1", "backslashreplace").decode("unicode_escape").encode("latin-1").decode("utf-8")
-    except (UnicodeError, ValueError):
-        return s
+    """Undo the C-style escapes of a text-format protobuf string (``\\"``, ``\\\\``, octal/hex bytes)."""
+
+    def one(m: re.Match) -> bytes:
+        e = m.group(1)
+        if e[:1] == b"x":
+            return bytes([int(e[1:], 16)])
+        if e[:1].isdigit():
+            return bytes([int(e, 8) & 0xFF])
+        return _SIMPLE_ESCAPES.get(e, e)
+
+    return _ESCAPE.sub(one, s.encode("utf-8")).decode("utf-8", errors="surrogateescape")
 
 
 # ----------------------------------------------------------------------------------------------------------------
