@@ -58,7 +58,9 @@ def test_no_feature_normalization_flag(tmp_path):
     assert main(["convert", str(tmp_path / "ck"), str(tmp_path / "out"), "--no-feature-normalization"]) == 0
     meta = json.loads((tmp_path / "out" / "config.json").read_text())
     assert meta["model"]["feature_normalization"] is False
-    assert meta["source"]["assumed"] == {"feature_normalization": False}
+    assert meta["source"]["not_from_checkpoint"] == {"feature_normalization": False, "pscv_dtype": "float16"}
+    assert main(["convert", str(tmp_path / "ck"), str(tmp_path / "out32"), "--pscv-dtype", "float32"]) == 0
+    assert json.loads((tmp_path / "out32" / "config.json").read_text())["model"]["pscv_dtype"] == "float32"
 
 
 def _fails(argv, capsys, *needles):

@@ -40,7 +40,8 @@ def fixture_conversion(tfref_dir):
 
 def test_fixture_config_and_parameter_count(fixture_conversion):
     conv, _ = fixture_conversion
-    assert conv.config == ModelConfig(arch="cosemdepth", levels=5, num_classes=7)  # every switch on
+    # every switch on; float16 cost-volume products like the original
+    assert conv.config == ModelConfig(arch="cosemdepth", levels=5, num_classes=7, pscv_dtype="float16")
     assert conv.num_parameters == 5_202_528
     assert conv.parameters_by_part() == {
         "encoder": 468_848,
@@ -98,7 +99,7 @@ def test_fixture_ignored_entries(fixture_conversion):
     assert len(conv.ignored_keys) + len(conv.converted_keys) == len(tf) == 180
     assert conv.source["entries"] == 181 and conv.source["ignored_tensors"] == 19
     assert conv.source["checkpoint"].endswith("cp-0000.ckpt")
-    assert conv.source["assumed"] == {"feature_normalization": True}
+    assert conv.source["not_from_checkpoint"] == {"feature_normalization": True, "pscv_dtype": "float16"}
 
 
 def test_fixture_partial_arch(tfref_dir):
@@ -120,7 +121,7 @@ def test_m4depth_four_levels_from_file(tmp_path):
     t = model_tensors(levels=4, semantic=False, seed=1)
     prefix = write_bundle(tmp_path / "train" / "cp-0042.ckpt", t)
     conv = import_checkpoint(tmp_path / "train")
-    assert conv.config == ModelConfig(arch="m4depth", levels=4)
+    assert conv.config == ModelConfig(arch="m4depth", levels=4, pscv_dtype="float16")
     assert conv.num_parameters == 2_189_828  # spec 12.1 table, L = 4 M4Depth part
     assert "num_classes" not in conv.inferred and "sncv" in conv.inferred
     # inference state variables of both naming schemes and the string object graph are ignored, not converted
@@ -171,7 +172,7 @@ def test_m4semantic_six_levels_nine_classes_no_dinl(tmp_path):
 
 def test_joint_nine_classes():
     conv = convert_tensors(model_tensors(levels=5, classes=9, zeros=True))
-    assert conv.config == ModelConfig(levels=5, num_classes=9)
+    assert conv.config == ModelConfig(levels=5, num_classes=9, pscv_dtype="float16")
     assert conv.num_parameters == 5_215_498  # spec 12.1, TopAir
 
 
@@ -214,10 +215,12 @@ def test_one_level_model_subdivision_is_indistinguishable():
     assert cfg.levels == 1 and cfg.feature_subdivision is True
 
 
-def test_feature_normalization_comes_from_the_caller():
+def test_settings_without_weights_come_from_the_caller():
     t = model_tensors(levels=2, zeros=True)
     assert convert_tensors(t).config.feature_normalization is True
     assert convert_tensors(t, feature_normalization=False).config.feature_normalization is False
+    assert convert_tensors(t).config.pscv_dtype == "float16"
+    assert convert_tensors(t, pscv_dtype="float32").config.pscv_dtype == "float32"
 
 
 def test_arch_subset_of_joint_and_impossible_arch():

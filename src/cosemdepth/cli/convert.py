@@ -30,6 +30,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="the checkpoint was trained with --no_feature_normalization (the only ablation that leaves no trace "
         "in the weights, so it cannot be inferred)",
     )
+    parser.add_argument(
+        "--pscv-dtype",
+        choices=("float16", "float32"),
+        default="float16",
+        help="precision of the parallax cost-volume products in the converted model: float16 as the original "
+        "computes them, so that the original's numbers are reproduced (default), or float32",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,7 +47,12 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out_dir)
     if out.exists() and not out.is_dir():
         raise CheckpointError(f"{out}: OUT_DIR exists and is not a folder")
-    conv = import_checkpoint(args.checkpoint, arch=args.arch, feature_normalization=args.feature_normalization)
+    conv = import_checkpoint(
+        args.checkpoint,
+        arch=args.arch,
+        feature_normalization=args.feature_normalization,
+        pscv_dtype=args.pscv_dtype,
+    )
     save_weights(conv.state_dict, conv.config, out, source=conv.source)
     cfg = conv.config
     yes = {True: "on", False: "off"}
@@ -60,7 +72,9 @@ def run(args: argparse.Namespace) -> int:
             f"level memory {yes[cfg.level_memory]}",
             f"feature subdivision {yes[cfg.feature_subdivision]}",
         ]
-    switches.append(f"feature normalization {yes[cfg.feature_normalization]} (assumed)")
+    switches.append(f"feature normalization {yes[cfg.feature_normalization]} (not stored in checkpoints)")
+    if cfg.has_depth:
+        switches.append(f"cost volume {cfg.pscv_dtype}")
     lines.append(f"switches:   {', '.join(switches)}")
     dropped = f"{len(conv.dropped_keys)} dropped (--arch {cfg.arch}), " if conv.dropped_keys else ""
     lines.append(

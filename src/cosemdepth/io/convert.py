@@ -17,7 +17,8 @@ The model config is inferred from shapes: the architecture from which refiners e
 the encoder, the classes from the last semantic conv (``N + 4`` channels), DINL from its presence, and the depth
 ablations from the depth refiners' input channels ``9K + 1 + 4·[level memory] + 49K·[SNCV] + [time recurrence]``
 with ``K = 2^floor(l/2)`` (``1`` without feature subdivision) at absolute level ``l`` (spec 4.1, 4.6). Feature
-normalization has no weights, so it cannot be read from a checkpoint: it is taken from the caller (default on).
+normalization has no weights, so it cannot be read from a checkpoint: it is taken from the caller (default on), and
+so is the cost-volume precision (default float16, as the original computes it).
 """
 
 from __future__ import annotations
@@ -218,6 +219,7 @@ def infer_config(
     *,
     arch: str | None = None,
     feature_normalization: bool = True,
+    pscv_dtype: str = "float16",
     origin: str = "checkpoint",
 ) -> tuple[ModelConfig, list[str]]:
     """Infer the :class:`ModelConfig` from our parameter names and their **TF** shapes (see :func:`convert_tensors`).
@@ -264,7 +266,9 @@ def infer_config(
                 f"it cannot be loaded as {arch}"
             )
 
-    kw: dict[str, Any] = dict(arch=arch, levels=levels, feature_normalization=feature_normalization)
+    kw: dict[str, Any] = dict(
+        arch=arch, levels=levels, feature_normalization=feature_normalization, pscv_dtype=pscv_dtype
+    )
     kw["dinl"] = any(n.startswith("encoder.dinl.") for n in names)
     inferred = (["arch"] if arch_inferred else []) + ["levels", "dinl"]
     if has["semantic_decoder"]:
@@ -300,13 +304,15 @@ def convert_tensors(
     *,
     arch: str | None = None,
     feature_normalization: bool = True,
+    pscv_dtype: str = "float16",
     origin: str = "checkpoint",
 ) -> Conversion:
     """Map TF checkpoint tensors ``{key: array}`` to our state dict and infer the config.
 
     ``arch`` loads only part of a checkpoint (e.g. ``"m4depth"`` from a joint checkpoint: the semantic decoder's
-    weights are dropped); by default the architecture the checkpoint holds. ``origin`` names the checkpoint in
-    error messages. Raises :class:`CheckpointError` on a missing, unexpected or wrongly shaped tensor.
+    weights are dropped); by default the architecture the checkpoint holds. ``feature_normalization`` and
+    ``pscv_dtype`` leave no trace in the weights and are set as given: float16 cost-volume products reproduce the
+    original's numbers (spec 4.6 step 2). ``origin`` names the checkpoint in error messages. Raises :class:`CheckpointError` on a missing, unexpected or wrongly shaped tensor.
     """
     hits: list[tuple[str, str, str]] = []  # (tf key, part, our name)
     ignored: dict[str, str] = {}
@@ -342,7 +348,9 @@ def convert_tensors(
         mapped[name] = (key, np.asarray(tensors[key]))
 
     tf_shapes = {name: tuple(int(d) for d in arr.shape) for name, (_, arr) in mapped.items()}
-    cfg, inferred = infer_config(tf_shapes, arch=arch, feature_normalization=feature_normalization, origin=origin)
+    cfg, inferred = infer_config(
+        tf_shapes, arch=arch, feature_normalization=feature_normalization, pscv_dtype=pscv_dtype, origin=origin
+    )
     expected = expected_param_shapes(cfg)
 
     loaded_parts = {"encoder"} | ({"depth_decoder"} if cfg.has_depth else set()) | (
@@ -392,7 +400,11 @@ def _describe(cfg: ModelConfig) -> str:
 
 
 def import_checkpoint(
-    path: str | os.PathLike, *, arch: str | None = None, feature_normalization: bool = True
+    path: str | os.PathLike,
+    *,
+    arch: str | None = None,
+    feature_normalization: bool = True,
+    pscv_dtype: str = "float16",
 ) -> Conversion:
     """Read the TF checkpoint at ``path`` (prefix, ``.index`` file or folder) and convert it.
 
@@ -405,7 +417,13 @@ def import_checkpoint(
 
     reader = CheckpointReader(path)
     origin = str(reader.prefix)
-    conv = convert_tensors(reader.read_all(), arch=arch, feature_normalization=feature_normalization, origin=origin)
+    conv = convert_tensors(
+        reader.read_all(),
+        arch=arch,
+        feature_normalization=feature_normalization,
+        pscv_dtype=pscv_dtype,
+        origin=origin,
+    )
     conv.source = {
         "type": "tensorflow_checkpoint",
         "checkpoint": str(reader.prefix.resolve()),
@@ -415,17 +433,21 @@ def import_checkpoint(
         "ignored_tensors": len(reader) - len(conv.converted_keys) - len(conv.dropped_keys),
         "dropped_tensors": len(conv.dropped_keys),
         "inferred": list(conv.inferred),
-        "assumed": {"feature_normalization": feature_normalization},
+        "not_from_checkpoint": {"feature_normalization": feature_normalization, "pscv_dtype": pscv_dtype},
         "converter": f"cosemdepth {__version__}",
     }
     return conv
 
 
 def convert_checkpoint(
-    path: str | os.PathLike, *, arch: str | None = None, feature_normalization: bool = True
+    path: str | os.PathLike,
+    *,
+    arch: str | None = None,
+    feature_normalization: bool = True,
+    pscv_dtype: str = "float16",
 ) -> tuple[dict[str, torch.Tensor], ModelConfig]:
     """``(state_dict, config)`` of the TF checkpoint at ``path``; see :func:`import_checkpoint`."""
-    conv = import_checkpoint(path, arch=arch, feature_normalization=feature_normalization)
+    conv = import_checkpoint(path, arch=arch, feature_normalization=feature_normalization, pscv_dtype=pscv_dtype)
     return conv.state_dict, conv.config
 
 
