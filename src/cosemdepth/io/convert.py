@@ -226,6 +226,8 @@ def infer_config(
 
     Returns the config and the names of its fields that were read from the shapes (the others keep defaults).
     """
+    if pscv_dtype not in ("float16", "float32"):
+        raise ConfigError(f"pscv_dtype must be 'float16' or 'float32', got {pscv_dtype!r}")
     names = set(shapes)
     levels = _level_count(names, r"encoder\.conv_s1\.(\d+)\.", "encoder level", origin)
     if levels == 0:
@@ -271,7 +273,7 @@ def infer_config(
     )
     kw["dinl"] = any(n.startswith("encoder.dinl.") for n in names)
     inferred = (["arch"] if arch_inferred else []) + ["levels", "dinl"]
-    if has["semantic_decoder"]:
+    if has["semantic_decoder"] and want_sem:
         last = shapes.get("semantic_decoder.levels.0.refiner.convs.6.weight")
         if last is None or len(last) != 4:
             raise CheckpointError(f"{origin}: the last conv of the finest semantic refiner is missing or not a kernel")
