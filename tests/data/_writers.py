@@ -105,12 +105,12 @@ def write_midair(
                         [
                             (128 + 100 * np.sin(xx / 3.0 + i + number)),
                             (128 + 100 * np.cos(yy / 4.0 - i)),
-                            rng.integers(0, 256, (size, size)),
+                            (128 + 90 * np.sin((xx + yy) / 5.0 + 0.5 * i)),
                         ],
                         axis=-1,
                     ).astype(np.uint8)
                     p = f"{rel}/color_left/{traj}/{i:06d}.JPEG"
-                    Image.fromarray(rgb).save(root / p, format="JPEG", quality=95)
+                    Image.fromarray(rgb).save(root / p, format="JPEG", quality=95, subsampling=0)
                     truth.rgb[p] = rgb
                     disp = rng.uniform(0.05, 40.0, (size, size)).astype(np.float16)
                     bits = disp.view(np.uint16)

@@ -181,7 +181,7 @@ def read_csv(path: Path) -> list[dict]:
     except (OSError, UnicodeDecodeError) as e:
         raise DatasetError(f"{path}: cannot read split CSV ({e})") from None
     reader = csv.DictReader(io.StringIO(text), delimiter="\t")
-    if reader.fieldnames is None:
+    if not reader.fieldnames:
         raise DatasetError(f"{path}: empty split CSV (no header)")
     missing = [c for c in _REQUIRED_COLUMNS if c not in reader.fieldnames]
     if missing:
