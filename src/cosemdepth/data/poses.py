@@ -204,7 +204,7 @@ def poses_at(track: PoseTrack, times: np.ndarray, names: list[str], max_gap: flo
         if abs(ts[j_best] - t) <= exact_tolerance:
             pos[i], quat[i] = track.positions[j_best], track.quaternions[j_best]
             continue
-        if 0 < k < len(ts) and ts[k] - ts[k - 1] <= max_gap:
+        if 0 < k < len(ts) and ts[k] - ts[k - 1] <= max_gap + 1e-9:
             a = (t - ts[k - 1]) / (ts[k] - ts[k - 1])
             pos[i] = (1 - a) * track.positions[k - 1] + a * track.positions[k]
             quat[i] = slerp(track.quaternions[k - 1], track.quaternions[k], a)
