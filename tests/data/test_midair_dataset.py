@@ -290,3 +290,11 @@ def test_readers_never_write_into_the_dataset_folder(copy):
     for _ in make_loader(ds, batch_size=2, num_workers=2):
         pass
     assert snapshot(root) == before
+
+
+def test_val_split_with_seq_len_1_streams_with_csv_resets(dataset):
+    _, root, splits = dataset
+    ds = open_dataset("midair", root, split_dir=splits, split="val", seq_len=1, size=8)
+    assert ds.mode == "stream"
+    assert [bool(it["reset"][0]) for it in ds] == [True, False, False, False]
+    assert open_dataset("midair", root, split_dir=splits, split="val", seq_len=2, size=8, mode="stream").mode == "stream"

@@ -98,7 +98,7 @@ def open_aeroscapes(
         )
         for i, n in enumerate(names)
     ]
-    trajectory = Trajectory(name=split, frames=frames, reset=np.ones(len(frames), dtype=bool))
+    trajectory = Trajectory.from_records(split, frames, reset=np.ones(len(frames), dtype=bool))
     out_size = as_size(size)
     return SequenceDataset(
         [trajectory],

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import DatasetError
 from .midair.splits import read_csv
-from .sequence import FrameRecord, Trajectory
+from .sequence import Trajectory
 
 
 def find_split_csvs(split_dir: str | Path, split: str) -> tuple[Path, list[Path]]:
@@ -73,29 +73,29 @@ def trajectories_from_csvs(
                 sources[modality] = (lambda r, f=rule: f(r[columns["rgb"]])) if first.parent.is_dir() else None
             else:
                 sources[modality] = None
-        frames = []
-        for r in rows:
-            frames.append(
-                FrameRecord(
-                    rgb=root / r[columns["rgb"]],
-                    depth=root / sources["depth"](r) if sources["depth"] else None,
-                    semantic=root / sources["semantic"](r) if sources["semantic"] else None,
-                    rot=(r["qw"], r["qx"], r["qy"], r["qz"]),
-                    trans=(r["tx"], r["ty"], r["tz"]),
-                    id=r["id"],
-                )
-            )
-        ids = np.array([f.id for f in frames], dtype=np.int64)
+        rgb_col = columns["rgb"]
+        ids = np.array([r["id"] for r in rows], dtype=np.int64)
         reset = np.asarray(reset_rule(ids), dtype=bool).copy()
         reset[0] = True
-        name = csv_path.relative_to(folder).with_suffix("").as_posix()
-        trajectories.append(Trajectory(name=name, frames=frames, reset=reset))
+        trajectories.append(
+            Trajectory(
+                csv_path.relative_to(folder).with_suffix("").as_posix(),
+                [r[rgb_col] for r in rows],
+                [(r["qw"], r["qx"], r["qy"], r["qz"]) for r in rows],
+                [(r["tx"], r["ty"], r["tz"]) for r in rows],
+                ids,
+                root=root,
+                depth=[sources["depth"](r) for r in rows] if sources["depth"] else None,
+                semantic=[sources["semantic"](r) for r in rows] if sources["semantic"] else None,
+                reset=reset,
+            )
+        )
     return trajectories
 
 
 def check_modalities_consistent(trajectories: Sequence[Trajectory], where: Path) -> None:
     """All trajectories of a dataset must agree on which modalities they have (items are batched together)."""
-    kinds = {(t.frames[0].depth is not None, t.frames[0].semantic is not None) for t in trajectories}
+    kinds = {(t.depth is not None, t.semantic is not None) for t in trajectories}
     if len(kinds) > 1:
         raise DatasetError(
             f"{where}: the split CSVs disagree on the modalities they provide (some have depth/semantic columns, "

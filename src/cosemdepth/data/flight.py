@@ -248,7 +248,7 @@ def open_flight(
     k_native = parse_intrinsics(intrinsics, fov, native, intrinsics_convention)
     out_size = as_size(size) or native
     return SequenceDataset(
-        [Trajectory(name=root.name, frames=frames)],
+        [Trajectory.from_records(root.name, frames)],
         FlightFrameLoader(out_size, native, depth_scale, num_classes),
         scale_intrinsics(k_native, native, out_size),
         seq_len=seq_len,

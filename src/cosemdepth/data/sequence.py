@@ -38,7 +38,7 @@ loader of :mod:`cosemdepth.data.loader` does) to get new draws each epoch.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
@@ -50,6 +50,16 @@ from ..errors import ConfigError
 from .augment import AugmentConfig, augment_sample
 
 MODES = ("train", "windowed", "stream")
+
+
+def default_mode(split: str | None, seq_len: int) -> str:
+    """``"train"`` for the train split; ``"windowed"`` for the val split with ``seq_len > 1`` (spec 6.3);
+    ``"stream"`` otherwise (so ``seq_len = 1`` on val streams with the CSV resets, as on test)."""
+    if split == "train":
+        return "train"
+    if split == "val" and seq_len > 1:
+        return "windowed"
+    return "stream"
 
 
 @dataclass(frozen=True)
@@ -66,22 +76,78 @@ class FrameRecord:
     timestamp: float | None = None
 
 
-@dataclass
 class Trajectory:
-    """An ordered list of rows and, for stream mode, which rows start a new trajectory."""
+    """An ordered list of rows in compact form (path strings and numpy arrays; a Mid-Air split of 100k rows takes
+    a few tens of MB and pickles quickly to DataLoader workers) and, for stream mode, which rows are resets.
 
-    name: str
-    frames: list[FrameRecord]
-    reset: np.ndarray = field(default=None)  # [n] bool; default: only the first row
+    Args:
+        name: trajectory name (``item["trajectory"]``).
+        rgb, depth, semantic: per-row paths, relative to ``root`` (or absolute when ``root`` is None);
+            ``depth``/``semantic`` are None when the modality is absent.
+        rot: ``[n, 4]`` (w, x, y, z); trans: ``[n, 3]``; ids: ``[n]``; timestamps: ``[n]`` or None.
+        reset: ``[n]`` bool, stream-mode resets (default: only the first row).
+    """
 
-    def __post_init__(self) -> None:
-        if self.reset is None:
-            self.reset = np.zeros(len(self.frames), dtype=bool)
-            if len(self.frames):
-                self.reset[0] = True
-        self.reset = np.asarray(self.reset, dtype=bool)
-        if self.reset.shape != (len(self.frames),):
-            raise ValueError("reset must have one flag per frame")
+    def __init__(self, name: str, rgb: Sequence[str], rot, trans, ids, *, root: Path | None = None,
+                 depth: Sequence[str] | None = None, semantic: Sequence[str] | None = None,
+                 timestamps=None, reset=None) -> None:
+        n = len(rgb)
+        self.name = name
+        self.root = root
+        self.rgb = list(rgb)
+        self.depth = list(depth) if depth is not None else None
+        self.semantic = list(semantic) if semantic is not None else None
+        self.rot = np.asarray(rot, dtype=np.float32).reshape(n, 4)
+        self.trans = np.asarray(trans, dtype=np.float32).reshape(n, 3)
+        self.ids = np.asarray(ids, dtype=np.int64).reshape(n)
+        self.timestamps = None if timestamps is None else np.asarray(timestamps, dtype=np.float64).reshape(n)
+        if reset is None:
+            reset = np.zeros(n, dtype=bool)
+            reset[:1] = True
+        self.reset = np.asarray(reset, dtype=bool).reshape(n)
+        for what, col in (("depth", self.depth), ("semantic", self.semantic)):
+            if col is not None and len(col) != n:
+                raise ValueError(f"{name}: {len(col)} {what} paths for {n} rows")
+
+    @classmethod
+    def from_records(cls, name: str, records: Sequence[FrameRecord], reset=None) -> "Trajectory":
+        """Build from :class:`FrameRecord` rows (paths kept as given)."""
+        has_depth = records[0].depth is not None
+        has_sem = records[0].semantic is not None
+        return cls(
+            name,
+            [str(r.rgb) for r in records],
+            [r.rot for r in records],
+            [r.trans for r in records],
+            [r.id for r in records],
+            depth=[str(r.depth) for r in records] if has_depth else None,
+            semantic=[str(r.semantic) for r in records] if has_sem else None,
+            timestamps=[r.timestamp for r in records] if records[0].timestamp is not None else None,
+            reset=reset,
+        )
+
+    def __len__(self) -> int:
+        return len(self.rgb)
+
+    def _path(self, rel: str) -> Path:
+        return self.root / rel if self.root is not None else Path(rel)
+
+    def frame(self, i: int) -> FrameRecord:
+        """Row ``i`` as a :class:`FrameRecord` (absolute paths)."""
+        return FrameRecord(
+            rgb=self._path(self.rgb[i]),
+            depth=self._path(self.depth[i]) if self.depth is not None else None,
+            semantic=self._path(self.semantic[i]) if self.semantic is not None else None,
+            rot=tuple(float(v) for v in self.rot[i]),
+            trans=tuple(float(v) for v in self.trans[i]),
+            id=int(self.ids[i]),
+            timestamp=float(self.timestamps[i]) if self.timestamps is not None else None,
+        )
+
+    @property
+    def frames(self) -> list[FrameRecord]:
+        """All rows as :class:`FrameRecord` objects (built on demand)."""
+        return [self.frame(i) for i in range(len(self))]
 
 
 FrameLoader = Callable[[FrameRecord], Mapping[str, torch.Tensor]]
@@ -143,7 +209,7 @@ class SequenceDataset(Dataset):
         self.windows: list[tuple[int, int]] = [
             (ti, start)
             for ti, traj in enumerate(self.trajectories)
-            for start in range(0, len(traj.frames) - chunk + 1, chunk)
+            for start in range(0, len(traj) - chunk + 1, chunk)
         ]
 
     def set_epoch(self, epoch: int) -> None:
@@ -155,7 +221,7 @@ class SequenceDataset(Dataset):
 
     @property
     def num_frames(self) -> int:
-        return sum(len(t.frames) for t in self.trajectories)
+        return sum(len(t) for t in self.trajectories)
 
     def generator(self, index: int) -> torch.Generator:
         return torch.Generator().manual_seed(item_seed(self.seed, self.epoch, index))
@@ -180,7 +246,7 @@ class SequenceDataset(Dataset):
         g = self.generator(index)
         ti, rows = self.rows(index, g)
         traj = self.trajectories[ti]
-        records = [traj.frames[r] for r in rows]
+        records = [traj.frame(r) for r in rows]
         frames = [self.load_frame(rec) for rec in records]
         sample: dict = {"rgb": torch.stack([f["rgb"] for f in frames])}
         for key in ("depth", "semantic"):
@@ -189,8 +255,8 @@ class SequenceDataset(Dataset):
                 sample[key] = torch.stack([f[key] for f in frames])
             elif any(present):
                 raise ValueError(f"{traj.name}: modality {key!r} present in some frames of a window only")
-        sample["rot"] = torch.tensor([rec.rot for rec in records], dtype=torch.float32)
-        sample["trans"] = torch.tensor([rec.trans for rec in records], dtype=torch.float32)
+        sample["rot"] = torch.from_numpy(traj.rot[rows])
+        sample["trans"] = torch.from_numpy(traj.trans[rows])
         sample["intrinsics"] = self.intrinsics.clone()
         if self.mode == "stream":
             reset = torch.from_numpy(traj.reset[rows].copy())
@@ -201,8 +267,8 @@ class SequenceDataset(Dataset):
         if self.augment is not None:
             sample = augment_sample(sample, self.augment, g)
         sample["frame"] = torch.tensor(rows, dtype=torch.int64)
-        sample["id"] = torch.tensor([rec.id for rec in records], dtype=torch.int64)
+        sample["id"] = torch.from_numpy(traj.ids[rows])
         sample["trajectory"] = traj.name
-        if records[0].timestamp is not None:
-            sample["timestamp"] = torch.tensor([rec.timestamp for rec in records], dtype=torch.float64)
+        if traj.timestamps is not None:
+            sample["timestamp"] = torch.from_numpy(traj.timestamps[rows])
         return sample

@@ -26,7 +26,7 @@ from .augment import resolve_augment
 from .csvsplits import check_modalities_consistent, find_split_csvs, trajectories_from_csvs
 from .decode import check_labels, image_size, read_channel0, read_rgb
 from .frames import Size, as_size, depth_to_tensor, labels_to_tensor, midair_intrinsics, rgb_to_tensor
-from .sequence import FrameRecord, SequenceDataset
+from .sequence import FrameRecord, SequenceDataset, default_mode
 
 CLASSES = ("sky", "water", "trees", "land", "vehicle", "boulders", "road", "man_made_construction", "others")
 
@@ -47,8 +47,6 @@ ENVIRONMENTS = (
 )
 FRAME_SKIPS = (1, 2, 3, 1, 2, 3, 1, 3, 2, 1, 2, 3, 3, 2, 1)
 TEST_ENVIRONMENTS = ("OakForest_3", "RuralAust3_1")
-
-DEFAULT_MODES = {"train": "train", "val": "windowed"}
 
 
 def read_depth8(path: str | Path) -> np.ndarray:
@@ -114,7 +112,7 @@ def open_topair(
     )
     check_modalities_consistent(trajectories, folder)
     if out_size is None:
-        out_size_k = image_size(trajectories[0].frames[0].rgb)
+        out_size_k = image_size(trajectories[0].frame(0).rgb)
     else:
         out_size_k = out_size
     return SequenceDataset(
@@ -122,7 +120,7 @@ def open_topair(
         TopAirFrameLoader(out_size),
         midair_intrinsics(out_size_k),
         seq_len=seq_len,
-        mode=mode or DEFAULT_MODES.get(split, "stream"),
+        mode=mode or default_mode(split, seq_len),
         db_seq_len=db_seq_len,
         augment=resolve_augment(augment),
         seed=seed,

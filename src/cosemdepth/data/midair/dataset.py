@@ -29,16 +29,13 @@ from ..augment import resolve_augment
 from ..csvsplits import check_modalities_consistent, find_split_csvs, trajectories_from_csvs
 from ..decode import check_labels, image_size, read_channel0, read_rgb, read_uint16_png
 from ..frames import Size, as_size, labels_to_tensor, midair_intrinsics, rgb_to_tensor, depth_to_tensor
-from ..sequence import FrameRecord, SequenceDataset
+from ..sequence import FrameRecord, SequenceDataset, default_mode
 from . import format as fmt
 
 #: Smallest positive float16 (subnormal): zero disparities are read as this value.
 MIN_DISPARITY = float(np.finfo(np.float16).smallest_subnormal)
 
 LABEL_MODES = {"midair": len(fmt.MIDAIR_CLASSES), "raw": len(fmt.MIDAIR_CLASSES), "mapped": len(fmt.CLASSES_7)}
-
-#: Default window mode per split name.
-DEFAULT_MODES = {"train": "train", "val": "windowed"}
 
 
 def read_disparity(path: str | Path) -> np.ndarray:
@@ -127,7 +124,8 @@ def open_midair(
         size: output size, int or ``(H, W)``; ``None`` keeps the native size of each file.
         augment: ``False``, ``True`` (paper settings), a preset name or an :class:`AugmentConfig`.
         mode: window mode (``"train"``, ``"windowed"``, ``"stream"``); default ``"train"`` for the train split,
-            ``"windowed"`` for val (spec 6.3) and ``"stream"`` otherwise.
+            ``"windowed"`` for val with ``seq_len > 1`` (spec 6.3) and ``"stream"`` otherwise
+            (:func:`cosemdepth.data.sequence.default_mode`).
         db_seq_len: chunk length in train mode (default ``seq_len``; the paper uses 4 / 4).
         labels: ``"midair"`` (14 IDs mapped to 7 classes), ``"mapped"`` (files already hold the 7 classes) or
             ``"raw"`` (the 14 IDs, unmapped).
@@ -158,7 +156,7 @@ def open_midair(
     )
     check_modalities_consistent(trajectories, folder)
     if out_size is None:
-        intrinsics_size = image_size(trajectories[0].frames[0].rgb)
+        intrinsics_size = image_size(trajectories[0].frame(0).rgb)
     else:
         intrinsics_size = out_size
     return SequenceDataset(
@@ -166,7 +164,7 @@ def open_midair(
         MidAirFrameLoader(out_size, labels),
         midair_intrinsics(intrinsics_size),
         seq_len=seq_len,
-        mode=mode or DEFAULT_MODES.get(split, "stream"),
+        mode=mode or default_mode(split, seq_len),
         db_seq_len=db_seq_len,
         augment=resolve_augment(augment),
         seed=seed,
