@@ -123,6 +123,8 @@ def test_train_windows_random_offset_in_chunks_and_reset_first(dataset):
     assert offsets == {0, 1, 2}
     with pytest.raises(ConfigError, match="db_seq_len"):
         open_dataset("midair", root, split_dir=splits, split="train", seq_len=4, db_seq_len=2)
+    with pytest.raises(DatasetError, match="no window of 8 rows fits"):
+        open_dataset("midair", root, split_dir=splits, split="train", seq_len=2, db_seq_len=8)
 
 
 def test_val_split_uses_windows_with_reset_first(dataset):

@@ -46,7 +46,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from ..errors import ConfigError
+from ..errors import ConfigError, DatasetError
 from .augment import AugmentConfig, augment_sample
 
 MODES = ("train", "windowed", "stream")
@@ -211,6 +211,12 @@ class SequenceDataset(Dataset):
             for ti, traj in enumerate(self.trajectories)
             for start in range(0, len(traj) - chunk + 1, chunk)
         ]
+        if self.trajectories and not self.windows:
+            longest = max(len(t) for t in self.trajectories)
+            raise DatasetError(
+                f"{name or 'dataset'}: no window of {chunk} rows fits in any trajectory (the longest has {longest} "
+                "rows); lower seq_len/db_seq_len"
+            )
 
     def set_epoch(self, epoch: int) -> None:
         """Select the random draws of ``epoch`` (train windows and augmentation)."""
