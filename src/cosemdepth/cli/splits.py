@@ -12,6 +12,7 @@ when OUT_DIR is left out: ROOT/splits is where ``open_dataset("synthair", ROOT)`
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..errors import ConfigError
@@ -53,6 +54,11 @@ def run(args: argparse.Namespace) -> int:
         rows = sum(_count_rows(p) for p in paths)
         print(f"{split}: {len(paths)} trajectories, {rows} rows")
     print(f"wrote {sum(len(p) for p in written.values())} CSV files under {args.out_dir}")
+    ours = {p.resolve() for paths in written.values() for p in paths}
+    stale = sorted(p for p in Path(args.out_dir).glob("*_data/**/*.csv") if p.resolve() not in ours)
+    if stale:
+        print(f"warning: {len(stale)} other CSV file(s) under {args.out_dir} were not written by this run "
+              f"(e.g. {stale[0]}); readers would include them: remove them or use a fresh OUT_DIR", file=sys.stderr)
     return 0
 
 
