@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, Sequence
@@ -94,6 +95,8 @@ def generic_split_rule(trajectories: Sequence[Trajectory]) -> Callable[[Trajecto
 
 def find_climates(root: Path) -> list[tuple[str, str]]:
     """``(env, climate)`` folders under ``root`` that hold a ``sensor_records.hdf5``, sorted."""
+    if not root.is_dir():
+        raise DatasetError(f"{root}: dataset root not found (or not a folder)")
     found = sorted({(p.parent.parent.name, p.parent.name) for p in root.glob(f"*/*/{fmt.SENSOR_RECORDS}")})
     if not found:
         raise DatasetError(f"{root}: no <env>/<climate>/{fmt.SENSOR_RECORDS} found; is this a Mid-Air-format root?")
@@ -136,47 +139,79 @@ def trajectory_rows(traj: Trajectory, attitude: np.ndarray, position: np.ndarray
     return rows
 
 
-def format_csv(rows: Iterable[Mapping]) -> str:
+def format_csv(rows: Iterable[Mapping], columns: Sequence[str] = fmt.CSV_COLUMNS) -> str:
     """Rows -> the authors' tab-separated text (header, floats with 6 decimals)."""
     buf = io.StringIO()
-    buf.write("\t".join(fmt.CSV_COLUMNS) + "\n")
+    buf.write("\t".join(columns) + "\n")
     for r in rows:
         fields = []
-        for c in fmt.CSV_COLUMNS:
+        for c in columns:
             v = r[c]
             fields.append(f"{v:.6f}" if isinstance(v, (float, np.floating)) else str(v))
         buf.write("\t".join(fields) + "\n")
     return buf.getvalue()
 
 
-def write_csv(path: Path, rows: Iterable[Mapping]) -> None:
-    atomic_write_text(path, format_csv(rows))
+def write_csv(path: Path, rows: Iterable[Mapping], columns: Sequence[str] = fmt.CSV_COLUMNS) -> None:
+    """Write a split CSV atomically (``columns``: Mid-Air's by default; TopAir has ``depth`` for ``disp``)."""
+    atomic_write_text(path, format_csv(rows, columns))
+
+
+#: Largest accepted deviation of a CSV quaternion's norm from 1 (the authors print 6 decimals).
+QUATERNION_TOLERANCE = 1e-3
+
+_MOTION_COLUMNS = ("qw", "qx", "qy", "qz", "tx", "ty", "tz")
+_REQUIRED_COLUMNS = ("id", "camera_l") + _MOTION_COLUMNS
 
 
 def read_csv(path: Path) -> list[dict]:
-    """Read a split CSV; numeric columns are converted (id to int, motion to float)."""
+    """Read and validate a split CSV (tab separated, header line, spec 9.3).
+
+    ``id`` is converted to int and the motion columns to float; other columns (``camera_l``, ``disp``,
+    ``semantic``, TopAir's ``depth``...) stay strings. Raises a :class:`DatasetError` naming the file and line for a
+    missing/unreadable file, a missing column, a row with the wrong number of fields (truncated file), a malformed,
+    NaN or infinite number, a quaternion whose norm is not 1 (within :data:`QUATERNION_TOLERANCE`), an empty path
+    field, or a file without data rows.
+    """
     path = Path(path)
     try:
         text = path.read_text()
-    except OSError as e:
-        raise DatasetError(f"{path}: cannot read split CSV ({e.strerror})") from None
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: split CSV not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{path}: cannot read split CSV ({e})") from None
     reader = csv.DictReader(io.StringIO(text), delimiter="\t")
-    if reader.fieldnames is None:
+    if not reader.fieldnames:
         raise DatasetError(f"{path}: empty split CSV (no header)")
-    missing = [c for c in ("id", "camera_l", "qw", "qx", "qy", "qz", "tx", "ty", "tz") if c not in reader.fieldnames]
+    missing = [c for c in _REQUIRED_COLUMNS if c not in reader.fieldnames]
     if missing:
         raise DatasetError(f"{path}: split CSV header lacks column(s) {missing}; found {reader.fieldnames}")
+    path_columns = [c for c in reader.fieldnames if c not in _REQUIRED_COLUMNS or c == "camera_l"]
     rows = []
-    for line_no, r in enumerate(reader, start=2):
+    for r in reader:
+        line_no = reader.line_num
         if None in r or any(v is None for v in r.values()):
             raise DatasetError(f"{path}:{line_no}: row has the wrong number of fields (truncated CSV?)")
         try:
             r["id"] = int(r["id"])
-            for c in ("qw", "qx", "qy", "qz", "tx", "ty", "tz"):
+        except ValueError:
+            raise DatasetError(f"{path}:{line_no}: malformed id {r['id']!r}") from None
+        for c in _MOTION_COLUMNS:
+            try:
                 r[c] = float(r[c])
-        except ValueError as e:
-            raise DatasetError(f"{path}:{line_no}: malformed number ({e})") from None
+            except ValueError:
+                raise DatasetError(f"{path}:{line_no}: malformed number {r[c]!r} in column {c}") from None
+            if not math.isfinite(r[c]):
+                raise DatasetError(f"{path}:{line_no}: column {c} is {r[c]} (NaN/inf)")
+        norm = math.sqrt(sum(r[c] ** 2 for c in ("qw", "qx", "qy", "qz")))
+        if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+            raise DatasetError(f"{path}:{line_no}: quaternion (qw, qx, qy, qz) is not unit (norm {norm:.6f})")
+        for c in path_columns:
+            if not r[c].strip():
+                raise DatasetError(f"{path}:{line_no}: empty {c} field")
         rows.append(r)
+    if not rows:
+        raise DatasetError(f"{path}: split CSV has a header but no data rows (empty or truncated)")
     return rows
 
 
@@ -193,7 +228,8 @@ def generate_splits(
         rule: ``"midair"`` (the paper's), ``"generic"`` (see :func:`generic_split_rule`), ``"auto"`` (midair when
             the root has Mid-Air's environment names) or a callable ``Trajectory -> split name``.
     Returns:
-        split name -> written CSV paths.
+        split name -> written CSV paths. A trajectory too short for one row (fewer than 32 ground-truth samples)
+        gets no CSV; the others keep their index in the sorted listing.
     """
     import h5py
 
@@ -227,9 +263,14 @@ def generate_splits(
                 except KeyError as e:
                     raise DatasetError(f"{h5_path}: trajectory {traj.name} lacks groundtruth data ({e})") from None
                 _check_groundtruth(h5_path, traj.name, att, pos)
+                rows = trajectory_rows(traj, att, pos)
+                if not rows:  # fewer than 2 x 16 ground-truth samples: nothing to write
+                    continue
                 split = rule_fn(traj)
+                if split not in written:
+                    raise ValueError(f"split rule returned {split!r}; expected one of {SPLITS}")
                 path = out_dir / f"{split}_data" / env / climate / f"traj_{traj.index:04d}.csv"
-                write_csv(path, trajectory_rows(traj, att, pos))
+                write_csv(path, rows)
                 written[split].append(path)
     return written
 

@@ -1,0 +1,67 @@
+"""``cosemdepth splits``: write the train/val/test split CSVs of a dataset.
+
+    cosemdepth splits midair ROOT OUT_DIR      # Mid-Air: the paper's rule (spec 9.4)
+    cosemdepth splits synthair ROOT [OUT_DIR]  # SynthAir / any Mid-Air-format root: generic rule; default ROOT/splits
+    cosemdepth splits topair ROOT OUT_DIR      # TopAir, from each environment's airsim_rec.txt
+
+Mid-Air-format output: ``OUT_DIR/{train,val,test}_data/<env>/<climate>/traj_XXXX.csv`` in the authors' tab-separated
+format, trajectories numbered in sorted order of their folders. Nothing is written into ROOT (except for SynthAir
+when OUT_DIR is left out: ROOT/splits is where ``open_dataset("synthair", ROOT)`` looks).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..errors import ConfigError
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dataset", choices=("midair", "synthair", "topair"), help="dataset format")
+    parser.add_argument("root", type=Path, help="dataset root")
+    parser.add_argument("out_dir", type=Path, nargs="?", help="output folder (default for synthair: ROOT/splits)")
+    parser.add_argument(
+        "--rule",
+        choices=("auto", "midair", "generic"),
+        default=None,
+        help="split rule for Mid-Air-format roots: midair = the paper's (index %% 3 == 0 test, 8 fixed "
+        "validation trajectories), generic = index %% 3 == 0 test with the last test trajectory of each climate "
+        "(when it has two or more) as validation; default midair for midair, generic for synthair",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.dataset == "topair":
+        from ..data.topair_splits import generate_topair_splits
+
+        if args.out_dir is None:
+            raise ConfigError("cosemdepth splits topair needs OUT_DIR")
+        written = generate_topair_splits(args.root, args.out_dir)
+    else:
+        from ..data.midair.splits import generate_splits
+
+        out_dir = args.out_dir
+        if out_dir is None:
+            if args.dataset == "midair":
+                raise ConfigError("cosemdepth splits midair needs OUT_DIR (nothing is written into the dataset)")
+            out_dir = args.root / "splits"
+        rule = args.rule or ("midair" if args.dataset == "midair" else "generic")
+        written = generate_splits(args.root, out_dir, rule=rule)
+        args.out_dir = out_dir
+    for split, paths in written.items():
+        rows = sum(_count_rows(p) for p in paths)
+        print(f"{split}: {len(paths)} trajectories, {rows} rows")
+    print(f"wrote {sum(len(p) for p in written.values())} CSV files under {args.out_dir}")
+    ours = {p.resolve() for paths in written.values() for p in paths}
+    stale = sorted(p for p in Path(args.out_dir).glob("*_data/**/*.csv") if p.resolve() not in ours)
+    if stale:
+        print(f"warning: {len(stale)} other CSV file(s) under {args.out_dir} were not written by this run "
+              f"(e.g. {stale[0]}); readers would include them: remove them or use a fresh OUT_DIR", file=sys.stderr)
+    return 0
+
+
+def _count_rows(path: Path) -> int:
+    with open(path) as f:
+        return max(sum(1 for _ in f) - 1, 0)

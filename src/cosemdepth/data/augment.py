@@ -1,0 +1,316 @@
+"""Per-sequence training augmentations (spec 8.3): flips, transpose and colour jitter, drawn once per sequence.
+
+A *sample* is a dict as produced by the readers (one sequence, no batch axis):
+
+* ``rgb`` ``[T, 3, H, W]`` float, ``depth`` ``[T, 1, H, W]`` (optional), ``semantic`` ``[T, H, W]`` (optional);
+* ``rot`` ``[T, 4]`` (w, x, y, z) and ``trans`` ``[T, 3]``: relative motion, ``X_prev = R(q) X_curr + t``;
+* ``intrinsics`` ``[4] = (fx, fy, cx, cy)`` in pixels, principal point in the convention of spec 3.1
+  (pixel ``(i, j)`` has centred coordinates ``u = j + 0.5 - cx``, ``v = i + 0.5 - cy``).
+
+Geometric operations (applied in this order, each with its own probability):
+
+=================  =====================  =========================  ===============================================
+operation          images                 motion                     intrinsics
+=================  =====================  =========================  ===============================================
+vertical flip      reverse rows           q -> (w, -x, y, -z),        cy -> H - cy
+                                          t -> (tx, -ty, tz)
+horizontal flip    reverse columns        q -> (w, x, -y, -z),        cx -> W - cx
+                                          t -> (-tx, ty, tz)
+transpose          swap H and W           q -> (w, -y, -x, -z),       fx <-> fy and cx <-> cy (fix of spec 15.11;
+(square only)                             t -> (ty, tx, tz)           the original swapped neither)
+=================  =====================  =========================  ===============================================
+
+Each is the conjugation of the motion by the mirror ``S`` of the camera axes that the image operation applies
+(``X' = S X``, ``R' = S R S``, ``t' = S t``), so a flipped sample stays geometrically consistent.
+
+Colour operations, on ``rgb`` only, with TensorFlow ``tf.image`` semantics written out explicitly:
+
+* brightness: ``x + delta``, ``delta ~ U[-0.2, 0.2]``;
+* contrast: ``(x - mean) * f + mean``, mean per frame and per channel over H, W, ``f ~ U[0.75, 1.25]``;
+* saturation: RGB -> HSV, ``S <- clip(S * f, 0, 1)``, HSV -> RGB, ``f ~ U[0.75, 1.25]``;
+* hue: RGB -> HSV, ``H <- (H + delta) mod 1``, HSV -> RGB, ``delta ~ U[-0.4, 0.4]``;
+* inversion ``x -> 1 - x`` with probability 0.5 (in the code, not in the paper).
+
+No clipping follows (spec 15.10, reproduced), so values can leave [0, 1]. The HSV conversion follows TF's kernel:
+``V = max``, ``S = (max - min) / V`` if ``V > 0`` else 0, hue in [0, 1) (0 for gray pixels).
+
+Randomness comes only from the ``torch.Generator`` passed in: the draws are ``torch.rand(8)`` in the order
+vflip, hflip, transpose, brightness, contrast, saturation, hue, inversion (all eight are drawn even when an
+operation is disabled or impossible, so that the stream of draws does not depend on the image shape).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Mapping
+
+import torch
+
+from ..errors import ConfigError
+
+Sample = dict[str, torch.Tensor]
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    """Probabilities and ranges of the augmentations. The defaults are the paper's training settings (spec 8.3)."""
+
+    p_vflip: float = 0.5
+    p_hflip: float = 0.5
+    p_transpose: float = 0.5
+    brightness: float = 0.2  # delta ~ U[-b, b]
+    contrast: tuple[float, float] = (0.75, 1.25)
+    saturation: tuple[float, float] = (0.75, 1.25)
+    hue: float = 0.4  # delta ~ U[-h, h]
+    p_invert: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("p_vflip", "p_hflip", "p_transpose", "p_invert"):
+            p = getattr(self, name)
+            if not 0.0 <= p <= 1.0:
+                raise ConfigError(f"augmentation {name} must be a probability in [0, 1], got {p!r}")
+        for name in ("contrast", "saturation"):
+            lo, hi = getattr(self, name)
+            if not 0.0 <= lo <= hi:
+                raise ConfigError(f"augmentation {name} must be a range 0 <= lo <= hi, got {(lo, hi)!r}")
+        if self.brightness < 0 or self.hue < 0 or self.hue > 0.5:
+            raise ConfigError("augmentation brightness must be >= 0 and hue in [0, 0.5]")
+
+    @classmethod
+    def train(cls) -> "AugmentConfig":
+        """The paper's training augmentation (spec 8.3)."""
+        return cls()
+
+    @classmethod
+    def finetune(cls) -> "AugmentConfig":
+        """The original ``finetune`` mode: no flips/transpose, contrast/saturation in [0.8, 1.2], hue 0.2."""
+        return cls(p_vflip=0.0, p_hflip=0.0, p_transpose=0.0, contrast=(0.8, 1.2), saturation=(0.8, 1.2), hue=0.2)
+
+    @classmethod
+    def geometric_only(cls) -> "AugmentConfig":
+        """Flips and transpose only; colours untouched."""
+        return cls(brightness=0.0, contrast=(1.0, 1.0), saturation=(1.0, 1.0), hue=0.0, p_invert=0.0)
+
+
+def resolve_augment(augment: "bool | str | AugmentConfig | Mapping | None") -> AugmentConfig | None:
+    """``False``/``None`` -> no augmentation; ``True``/``"train"`` -> :meth:`AugmentConfig.train`;
+    ``"finetune"``; ``"geometric"``; an :class:`AugmentConfig`; or a mapping of its fields."""
+    if augment is None or augment is False:
+        return None
+    if augment is True:
+        return AugmentConfig.train()
+    if isinstance(augment, AugmentConfig):
+        return augment
+    if isinstance(augment, str):
+        presets = {"train": AugmentConfig.train, "finetune": AugmentConfig.finetune,
+                   "geometric": AugmentConfig.geometric_only, "none": lambda: None}
+        if augment not in presets:
+            raise ConfigError(f"augment must be a bool, an AugmentConfig or one of {sorted(presets)}, got {augment!r}")
+        return presets[augment]()
+    if isinstance(augment, Mapping):
+        try:
+            return replace(AugmentConfig(), **dict(augment))
+        except TypeError as e:
+            raise ConfigError(f"bad augment settings {dict(augment)!r}: {e}") from None
+    raise ConfigError(f"augment must be a bool, a preset name, an AugmentConfig or a mapping, got {augment!r}")
+
+
+@dataclass(frozen=True)
+class AugmentParams:
+    """One draw of the per-sequence augmentation parameters."""
+
+    vflip: bool = False
+    hflip: bool = False
+    transpose: bool = False
+    brightness: float = 0.0
+    contrast: float = 1.0
+    saturation: float = 1.0
+    hue: float = 0.0
+    invert: bool = False
+
+
+def draw_params(cfg: AugmentConfig, generator: torch.Generator, square: bool) -> AugmentParams:
+    """Draw the parameters of one sequence (8 uniform numbers from ``generator``; see the module docstring)."""
+    u = torch.rand(8, generator=generator, dtype=torch.float64).tolist()
+
+    def between(lo: float, hi: float, x: float) -> float:
+        return lo + (hi - lo) * x
+
+    return AugmentParams(
+        vflip=u[0] < cfg.p_vflip,
+        hflip=u[1] < cfg.p_hflip,
+        transpose=square and u[2] < cfg.p_transpose,
+        brightness=between(-cfg.brightness, cfg.brightness, u[3]),
+        contrast=between(*cfg.contrast, u[4]),
+        saturation=between(*cfg.saturation, u[5]),
+        hue=between(-cfg.hue, cfg.hue, u[6]),
+        invert=u[7] < cfg.p_invert,
+    )
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Geometric operations (pure functions; a new dict is returned, the input is not modified)
+
+
+def _flip_maps(sample: Mapping[str, torch.Tensor], dims_rgb: tuple[int, ...], dims_sem: tuple[int, ...]) -> Sample:
+    out = dict(sample)
+    out["rgb"] = sample["rgb"].flip(dims_rgb)
+    if "depth" in sample:
+        out["depth"] = sample["depth"].flip(dims_rgb)
+    if "semantic" in sample:
+        out["semantic"] = sample["semantic"].flip(dims_sem)
+    return out
+
+
+def vflip(sample: Mapping[str, torch.Tensor]) -> Sample:
+    """Reverse the rows: ``q -> (w, -x, y, -z)``, ``t -> (tx, -ty, tz)``, ``cy -> H - cy``."""
+    out = _flip_maps(sample, (-2,), (-2,))
+    h = sample["rgb"].shape[-2]
+    out["rot"] = sample["rot"] * sample["rot"].new_tensor([1.0, -1.0, 1.0, -1.0])
+    out["trans"] = sample["trans"] * sample["trans"].new_tensor([1.0, -1.0, 1.0])
+    k = sample["intrinsics"].clone()
+    k[..., 3] = h - k[..., 3]
+    out["intrinsics"] = k
+    return out
+
+
+def hflip(sample: Mapping[str, torch.Tensor]) -> Sample:
+    """Reverse the columns: ``q -> (w, x, -y, -z)``, ``t -> (-tx, ty, tz)``, ``cx -> W - cx``."""
+    out = _flip_maps(sample, (-1,), (-1,))
+    w = sample["rgb"].shape[-1]
+    out["rot"] = sample["rot"] * sample["rot"].new_tensor([1.0, 1.0, -1.0, -1.0])
+    out["trans"] = sample["trans"] * sample["trans"].new_tensor([-1.0, 1.0, 1.0])
+    k = sample["intrinsics"].clone()
+    k[..., 2] = w - k[..., 2]
+    out["intrinsics"] = k
+    return out
+
+
+def transpose(sample: Mapping[str, torch.Tensor]) -> Sample:
+    """Swap H and W: ``q -> (w, -y, -x, -z)``, ``t -> (ty, tx, tz)``, ``fx <-> fy``, ``cx <-> cy``."""
+    out = dict(sample)
+    out["rgb"] = sample["rgb"].transpose(-1, -2).contiguous()
+    if "depth" in sample:
+        out["depth"] = sample["depth"].transpose(-1, -2).contiguous()
+    if "semantic" in sample:
+        out["semantic"] = sample["semantic"].transpose(-1, -2).contiguous()
+    q = sample["rot"]
+    out["rot"] = torch.stack([q[..., 0], -q[..., 2], -q[..., 1], -q[..., 3]], dim=-1)
+    t = sample["trans"]
+    out["trans"] = torch.stack([t[..., 1], t[..., 0], t[..., 2]], dim=-1)
+    k = sample["intrinsics"]
+    out["intrinsics"] = torch.stack([k[..., 1], k[..., 0], k[..., 3], k[..., 2]], dim=-1)
+    return out
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Colour operations on [..., 3, H, W] tensors
+
+
+def adjust_brightness(rgb: torch.Tensor, delta: float) -> torch.Tensor:
+    """``x + delta`` (TF ``adjust_brightness``; additive, unlike torchvision)."""
+    return rgb + delta
+
+
+def adjust_contrast(rgb: torch.Tensor, factor: float) -> torch.Tensor:
+    """``(x - mean) * factor + mean`` with the mean per image and per channel over H, W (TF ``adjust_contrast``)."""
+    mean = rgb.mean(dim=(-2, -1), keepdim=True)
+    return (rgb - mean) * factor + mean
+
+
+def rgb_to_hsv(rgb: torch.Tensor) -> torch.Tensor:
+    """``[..., 3, H, W]`` RGB -> HSV with H in [0, 1) (TF kernel semantics, valid for values outside [0, 1] too)."""
+    r, g, b = rgb.unbind(dim=-3)
+    v = torch.maximum(torch.maximum(r, g), b)
+    mn = torch.minimum(torch.minimum(r, g), b)
+    rng = v - mn
+    s = torch.where(v > 0, rng / torch.where(v > 0, v, torch.ones_like(v)), torch.zeros_like(v))
+    safe = torch.where(rng > 0, rng, torch.ones_like(rng))
+    h = torch.where(
+        r == v,
+        (g - b) / (6 * safe),
+        torch.where(g == v, (b - r) / (6 * safe) + 1.0 / 3.0, (r - g) / (6 * safe) + 2.0 / 3.0),
+    )
+    h = torch.where(rng > 0, h, torch.zeros_like(h))
+    h = torch.where(h < 0, h + 1, h)
+    return torch.stack([h, s, v], dim=-3)
+
+
+def hsv_to_rgb(hsv: torch.Tensor) -> torch.Tensor:
+    """``[..., 3, H, W]`` HSV (H in [0, 1)) -> RGB: chroma ``C = S V``, ``m = V - C``, sector ``floor(6 H)``."""
+    h, s, v = hsv.unbind(dim=-3)
+    c = s * v
+    m = v - c
+    dh = h * 6
+    sector = torch.floor(dh)
+    x = c * (1 - torch.abs(torch.remainder(dh, 2) - 1))
+    sector = torch.remainder(sector, 6)
+    z = torch.zeros_like(c)
+    # (r, g, b) before adding m, per sector 0..5
+    table_r = [c, x, z, z, x, c]
+    table_g = [x, c, c, x, z, z]
+    table_b = [z, z, x, c, c, x]
+    r = torch.zeros_like(c)
+    g = torch.zeros_like(c)
+    b = torch.zeros_like(c)
+    for k in range(6):
+        sel = sector == k
+        r = torch.where(sel, table_r[k], r)
+        g = torch.where(sel, table_g[k], g)
+        b = torch.where(sel, table_b[k], b)
+    return torch.stack([r + m, g + m, b + m], dim=-3)
+
+
+def adjust_saturation(rgb: torch.Tensor, factor: float) -> torch.Tensor:
+    """HSV saturation times ``factor``, clipped to [0, 1] (TF ``adjust_saturation``)."""
+    hsv = rgb_to_hsv(rgb)
+    h, s, v = hsv.unbind(dim=-3)
+    return hsv_to_rgb(torch.stack([h, (s * factor).clamp(0.0, 1.0), v], dim=-3))
+
+
+def adjust_hue(rgb: torch.Tensor, delta: float) -> torch.Tensor:
+    """HSV hue plus ``delta``, wrapped to [0, 1) (TF ``adjust_hue``)."""
+    hsv = rgb_to_hsv(rgb)
+    h, s, v = hsv.unbind(dim=-3)
+    h = torch.remainder(h + delta, 1.0)
+    return hsv_to_rgb(torch.stack([h, s, v], dim=-3))
+
+
+def invert(rgb: torch.Tensor) -> torch.Tensor:
+    """``1 - x``."""
+    return 1.0 - rgb
+
+
+# --------------------------------------------------------------------------------------------------------------
+
+
+def apply_params(sample: Mapping[str, torch.Tensor], p: AugmentParams) -> Sample:
+    """Apply one draw of parameters to a sample (geometric then colour, in the order of spec 8.3)."""
+    out = dict(sample)
+    if p.vflip:
+        out = vflip(out)
+    if p.hflip:
+        out = hflip(out)
+    if p.transpose:
+        if out["rgb"].shape[-1] != out["rgb"].shape[-2]:
+            raise ValueError("transpose augmentation needs square images")
+        out = transpose(out)
+    rgb = out["rgb"]
+    if p.brightness != 0.0:
+        rgb = adjust_brightness(rgb, p.brightness)
+    if p.contrast != 1.0:
+        rgb = adjust_contrast(rgb, p.contrast)
+    if p.saturation != 1.0:
+        rgb = adjust_saturation(rgb, p.saturation)
+    if p.hue != 0.0:
+        rgb = adjust_hue(rgb, p.hue)
+    if p.invert:
+        rgb = invert(rgb)
+    out["rgb"] = rgb
+    return out
+
+
+def augment_sample(sample: Mapping[str, torch.Tensor], cfg: AugmentConfig, generator: torch.Generator) -> Sample:
+    """Draw per-sequence parameters from ``generator`` and apply them; returns the augmented sample."""
+    h, w = sample["rgb"].shape[-2:]
+    return apply_params(sample, draw_params(cfg, generator, square=(h == w)))

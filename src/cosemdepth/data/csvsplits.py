@@ -1,0 +1,103 @@
+"""Finding split CSVs and turning their rows into trajectories (Mid-Air, SynthAir and TopAir share this).
+
+Layout: ``<split_dir>/<split>_data/**/*.csv`` (the authors' ``data/midair/{train,val,test}_data/...``); a plain
+``<split_dir>/<split>/`` folder is accepted too. One CSV is one trajectory; CSVs are taken in sorted order of their
+path relative to the split folder, rows in file order. Paths inside the CSVs are relative to the dataset root.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..errors import DatasetError
+from .midair.splits import read_csv
+from .sequence import Trajectory
+
+
+def find_split_csvs(split_dir: str | Path, split: str) -> tuple[Path, list[Path]]:
+    """``(split folder, sorted CSV paths)`` of ``split`` under ``split_dir``."""
+    split_dir = Path(split_dir)
+    if not split_dir.is_dir():
+        raise DatasetError(f"{split_dir}: split folder not found (or not a folder)")
+    candidates = [split_dir / f"{split}_data", split_dir / split]
+    folder = next((c for c in candidates if c.is_dir()), None)
+    if folder is None:
+        raise DatasetError(
+            f"{split_dir}: no {split!r} split here (looked for {candidates[0].name}/ and {candidates[1].name}/); "
+            "write the split CSVs with `cosemdepth splits`"
+        )
+    csvs = sorted((p for p in folder.rglob("*.csv") if p.is_file()), key=lambda p: p.relative_to(folder).as_posix())
+    if not csvs:
+        raise DatasetError(f"{folder}: no split CSV files (*.csv) found")
+    return folder, csvs
+
+
+def trajectories_from_csvs(
+    root: Path,
+    folder: Path,
+    csvs: Sequence[Path],
+    columns: dict[str, str | None],
+    reset_rule: Callable[[np.ndarray], np.ndarray],
+    derive: dict[str, Callable[[str], str]] | None = None,
+) -> list[Trajectory]:
+    """Read the CSVs into :class:`Trajectory` objects.
+
+    Args:
+        root: dataset root (CSV paths are relative to it).
+        folder: split folder (trajectory names are CSV paths relative to it, without ``.csv``).
+        csvs: CSV files, in order.
+        columns: modality -> CSV column, for ``"rgb"``, ``"depth"``, ``"semantic"``; ``None`` skips a modality.
+            A column missing from a CSV means the modality is absent, unless ``derive`` has a rule for it.
+        reset_rule: ``ids [n] -> reset flags [n]`` for stream mode (the first row is always a reset too).
+        derive: modality -> ``rgb relative path -> that modality's relative path``, used when its column is missing
+            (e.g. Mid-Air CSVs written by the original generator, which have no ``semantic`` column).
+    """
+    derive = derive or {}
+    trajectories = []
+    for csv_path in csvs:
+        rows = read_csv(csv_path)
+        header = rows[0].keys()
+        sources: dict[str, Callable[[dict], str] | None] = {}
+        for modality in ("depth", "semantic"):
+            col = columns.get(modality)
+            if col is None:
+                sources[modality] = None
+            elif col in header:
+                sources[modality] = lambda r, c=col: r[c]
+            elif modality in derive:
+                rule = derive[modality]
+                first = root / rule(rows[0][columns["rgb"]])
+                sources[modality] = (lambda r, f=rule: f(r[columns["rgb"]])) if first.parent.is_dir() else None
+            else:
+                sources[modality] = None
+        rgb_col = columns["rgb"]
+        ids = np.array([r["id"] for r in rows], dtype=np.int64)
+        reset = np.asarray(reset_rule(ids), dtype=bool).copy()
+        reset[0] = True
+        trajectories.append(
+            Trajectory(
+                csv_path.relative_to(folder).with_suffix("").as_posix(),
+                [r[rgb_col] for r in rows],
+                [(r["qw"], r["qx"], r["qy"], r["qz"]) for r in rows],
+                [(r["tx"], r["ty"], r["tz"]) for r in rows],
+                ids,
+                root=root,
+                depth=[sources["depth"](r) for r in rows] if sources["depth"] else None,
+                semantic=[sources["semantic"](r) for r in rows] if sources["semantic"] else None,
+                reset=reset,
+            )
+        )
+    return trajectories
+
+
+def check_modalities_consistent(trajectories: Sequence[Trajectory], where: Path) -> None:
+    """All trajectories of a dataset must agree on which modalities they have (items are batched together)."""
+    kinds = {(t.depth is not None, t.semantic is not None) for t in trajectories}
+    if len(kinds) > 1:
+        raise DatasetError(
+            f"{where}: the split CSVs disagree on the modalities they provide (some have depth/semantic columns, "
+            "some do not); use one format for the whole split"
+        )

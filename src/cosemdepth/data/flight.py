@@ -1,0 +1,260 @@
+"""Your own flight: a folder of images + a file of absolute camera poses + intrinsics -> model-ready sequences.
+
+Inputs:
+
+* ``root``: a folder of images (``.jpg``, ``.jpeg``, ``.png``, any case; or a sub-folder ``images/`` of it), all of
+  the same size;
+* ``poses``: a pose file (default: the first of ``poses.txt``, ``poses.tum``, ``poses.csv``, ``groundtruth.txt``
+  in ``root``) in TUM or CSV format, with the world/camera convention of :mod:`cosemdepth.data.poses`;
+* ``intrinsics=(fx, fy, cx, cy)`` in pixels of the original images, or ``fov`` = horizontal field of view in
+  degrees (square pixels, centred principal point). The principal point is in the convention of spec 3.1 (pixel
+  ``(i, j)`` covers ``[j, j+1] x [i, i+1]``; a centred camera has ``cx = W/2``). Calibration tools in the OpenCV
+  convention (pixel centres at integer coordinates, centred ``cx = (W-1)/2``) need ``+0.5``:
+  pass ``intrinsics_convention="opencv"`` to have it added.
+
+Matching images to poses (``match``):
+
+* ``"timestamp"``: image file stems are timestamps in the pose file's unit (e.g. ``1305031102.175304.png``); each
+  image takes the pose with the same timestamp, or the interpolation of the two poses around it when they are at
+  most ``max_gap`` seconds apart; otherwise a DatasetError names the image;
+* ``"order"``: one pose per image: the n-th pose (file order) goes with the n-th image (natural sort of the names);
+  a count mismatch is a DatasetError;
+* ``"auto"`` (default): ``"timestamp"`` when every image stem is a number, the pose file has timestamps and at
+  least one image stem falls in the poses' time range; else ``"order"`` (so ``000001.png`` ... with a pose file
+  in seconds since 1970 is matched by order).
+
+``frame_skip = k`` keeps images 0, k, 2k, ... (after matching). The first kept frame is a reset with the identity
+motion; every other frame carries the motion from the previous kept frame, ``X_prev = R X_curr + t`` in camera axes
+(x right, y down, z forward). Intrinsics are rescaled to the output size (``fx, cx`` by ``W_out/W``, ``fy, cy`` by
+``H_out/H``).
+
+Optional ground truth: ``depth_dir`` with one file per image of the same stem, ``.npy`` (float metres) or a 16-bit
+``.png`` times ``depth_scale`` metres (default 0.001); ``semantic_dir`` with class-ID PNGs (checked against
+``num_classes``). Depth is BL2-resized, labels NN2-resized.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from ..errors import ConfigError, DatasetError
+from .augment import resolve_augment
+from .decode import check_labels, image_size, read_channel0, read_rgb, read_uint16_png
+from .frames import Size, as_size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
+from .poses import poses_at, read_poses, relative_camera_motions
+from .sequence import FrameRecord, SequenceDataset, Trajectory
+
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png")
+DEFAULT_POSE_FILES = ("poses.txt", "poses.tum", "poses.csv", "groundtruth.txt")
+
+
+def natural_key(name: str) -> list:
+    """Sort key putting ``img2`` before ``img10``."""
+    return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", name)]
+
+
+def _as_number(stem: str) -> float | None:
+    try:
+        v = float(stem)
+    except ValueError:
+        return None
+    return v if math.isfinite(v) else None
+
+
+def list_images(folder: Path) -> list[Path]:
+    """Image files of ``folder`` (non-recursive), naturally sorted."""
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: image folder not found (or not a folder)")
+    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS]
+    if not files and (folder / "images").is_dir():
+        return list_images(folder / "images")
+    if not files:
+        raise DatasetError(f"{folder}: no images ({', '.join(IMAGE_EXTENSIONS)}) found")
+    return sorted(files, key=lambda p: natural_key(p.name))
+
+
+def parse_intrinsics(intrinsics, fov: float | None, native: Size, convention: str = "model") -> np.ndarray:
+    """``(fx, fy, cx, cy)`` in pixels of the native image from ``intrinsics`` (4 numbers, or a string
+    ``"fx,fy,cx,cy"``) or a horizontal ``fov`` in degrees."""
+    h, w = native
+    if (intrinsics is None) == (fov is None):
+        raise ConfigError("a flight needs exactly one of intrinsics=(fx, fy, cx, cy) or fov=<horizontal degrees>")
+    if fov is not None:
+        if not 0 < float(fov) < 180:
+            raise ConfigError(f"fov must be a horizontal field of view in degrees in (0, 180), got {fov!r}")
+        f = (w / 2) / math.tan(math.radians(float(fov)) / 2)
+        return np.array([f, f, w / 2, h / 2])
+    if isinstance(intrinsics, str):
+        intrinsics = [s for s in re.split(r"[,\s]+", intrinsics.strip()) if s]
+    try:
+        k = np.array([float(v) for v in intrinsics], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f"intrinsics must be 4 numbers (fx, fy, cx, cy), got {intrinsics!r}") from None
+    if k.shape != (4,) or not np.isfinite(k).all() or k[0] <= 0 or k[1] <= 0:
+        raise ConfigError(f"intrinsics must be 4 finite numbers (fx, fy, cx, cy) with fx, fy > 0, got {intrinsics!r}")
+    if convention == "opencv":
+        k[2:] += 0.5
+    elif convention != "model":
+        raise ConfigError(f"intrinsics_convention must be 'model' or 'opencv', got {convention!r}")
+    return k
+
+
+def scale_intrinsics(k: np.ndarray, native: Size, out: Size) -> torch.Tensor:
+    """Rescale ``(fx, fy, cx, cy)`` from ``native = (H, W)`` to ``out = (H', W')``."""
+    sy, sx = out[0] / native[0], out[1] / native[1]
+    return torch.tensor([k[0] * sx, k[1] * sy, k[2] * sx, k[3] * sy], dtype=torch.float32)
+
+
+class FlightFrameLoader:
+    """Loads one flight image (and optional depth/labels) at the output size. Picklable."""
+
+    def __init__(self, size: Size, native: Size, depth_scale: float, num_classes: int) -> None:
+        self.size = size
+        self.native = native
+        self.depth_scale = depth_scale
+        self.num_classes = num_classes
+
+    def __call__(self, rec: FrameRecord) -> dict[str, torch.Tensor]:
+        rgb = read_rgb(rec.rgb)
+        if rgb.shape[:2] != tuple(self.native):
+            raise DatasetError(
+                f"{rec.rgb}: image is {rgb.shape[0]}x{rgb.shape[1]} but the flight's first image is "
+                f"{self.native[0]}x{self.native[1]}; all images of a flight must have one size"
+            )
+        out = {"rgb": rgb_to_tensor(rgb, self.size)}
+        if rec.depth is not None:
+            out["depth"] = depth_to_tensor(self._depth(rec.depth), self.size)
+        if rec.semantic is not None:
+            ids = read_channel0(rec.semantic)
+            check_labels(ids, self.num_classes, rec.semantic)
+            out["semantic"] = labels_to_tensor(ids, self.size, "nn2")
+        return out
+
+    def _depth(self, path: Path) -> np.ndarray:
+        if path.suffix.lower() == ".npy":
+            try:
+                d = np.load(path, allow_pickle=False)
+            except FileNotFoundError:
+                raise DatasetError(f"{path}: file not found") from None
+            except (OSError, ValueError) as e:
+                raise DatasetError(f"{path}: cannot read depth array ({e})") from None
+            d = np.squeeze(d)
+            if d.ndim != 2:
+                raise DatasetError(f"{path}: depth array must be 2-D, got shape {list(d.shape)}")
+            return d.astype(np.float32)
+        return read_uint16_png(path).astype(np.float32) * np.float32(self.depth_scale)
+
+
+def _companion(folder: Path, stem: str, exts: Sequence[str], what: str) -> Path:
+    for ext in exts:
+        p = folder / f"{stem}{ext}"
+        if p.is_file():
+            return p
+    raise DatasetError(f"{folder}: no {what} file for image {stem!r} (looked for {', '.join(stem + e for e in exts)})")
+
+
+def open_flight(
+    root: str | Path,
+    split_dir=None,
+    split=None,
+    seq_len: int = 1,
+    size: int | tuple[int, int] | None = None,
+    augment=False,
+    *,
+    poses: str | Path | None = None,
+    pose_format: str = "auto",
+    convention="opencv",
+    intrinsics=None,
+    fov: float | None = None,
+    intrinsics_convention: str = "model",
+    match: str = "auto",
+    frame_skip: int = 1,
+    max_gap: float = 0.1,
+    depth_dir: str | Path | None = None,
+    depth_scale: float = 0.001,
+    semantic_dir: str | Path | None = None,
+    num_classes: int = 7,
+    mode: str = "stream",
+    db_seq_len: int | None = None,
+    seed: int = 0,
+    name: str = "flight",
+) -> SequenceDataset:
+    """Open your own flight (see the module docstring). ``split_dir`` and ``split`` are ignored (one flight is
+    one trajectory); ``size`` defaults to the native image size."""
+    root = Path(root)
+    images = list_images(root)
+    if poses is None:
+        found = [root / n for n in DEFAULT_POSE_FILES if (root / n).is_file()]
+        if not found:
+            raise DatasetError(f"{root}: no pose file given and none of {DEFAULT_POSE_FILES} found there")
+        poses = found[0]
+    track = read_poses(poses, pose_format)
+    if not isinstance(frame_skip, int) or frame_skip < 1:
+        raise ConfigError(f"frame_skip must be a positive integer, got {frame_skip!r}")
+
+    stamps = [_as_number(p.stem) for p in images]
+    if match == "auto":
+        match = "order"
+        if all(s is not None for s in stamps) and track.timestamps is not None:
+            lo, hi = track.timestamps[0] - max_gap, track.timestamps[-1] + max_gap
+            if any(lo <= s <= hi for s in stamps):
+                match = "timestamp"
+    if match == "timestamp":
+        bad = [p for p, s in zip(images, stamps) if s is None]
+        if bad:
+            raise DatasetError(f"{bad[0]}: image name is not a timestamp (needed by match='timestamp')")
+        order = np.argsort(np.array(stamps, dtype=np.float64), kind="stable")
+        images = [images[i] for i in order]
+        times = np.array([stamps[i] for i in order], dtype=np.float64)
+        pos, quat = poses_at(track, times, [str(p) for p in images], max_gap)
+    elif match == "order":
+        if len(track) != len(images):
+            raise DatasetError(
+                f"{track.path}: {len(track)} poses for {len(images)} images in {images[0].parent} "
+                "(match='order' needs one pose per image)"
+            )
+        pos, quat = track.positions, track.quaternions
+        times = track.timestamps
+    else:
+        raise ConfigError(f"match must be 'auto', 'timestamp' or 'order', got {match!r}")
+
+    keep = np.arange(0, len(images), frame_skip)
+    images = [images[i] for i in keep]
+    q_rel, t_rel = relative_camera_motions(quat[keep], pos[keep], convention)
+    times = times[keep] if times is not None else None
+
+    depth_dir = Path(depth_dir) if depth_dir is not None else None
+    semantic_dir = Path(semantic_dir) if semantic_dir is not None else None
+    frames = []
+    for i, img in enumerate(images):
+        frames.append(
+            FrameRecord(
+                rgb=img,
+                depth=_companion(depth_dir, img.stem, (".npy", ".png"), "depth") if depth_dir else None,
+                semantic=_companion(semantic_dir, img.stem, (".png",), "label") if semantic_dir else None,
+                rot=tuple(float(v) for v in q_rel[i]),
+                trans=tuple(float(v) for v in t_rel[i]),
+                id=int(keep[i]),
+                timestamp=float(times[i]) if times is not None else None,
+            )
+        )
+    native = image_size(images[0])
+    k_native = parse_intrinsics(intrinsics, fov, native, intrinsics_convention)
+    out_size = as_size(size) or native
+    return SequenceDataset(
+        [Trajectory.from_records(root.name, frames)],
+        FlightFrameLoader(out_size, native, depth_scale, num_classes),
+        scale_intrinsics(k_native, native, out_size),
+        seq_len=seq_len,
+        mode=mode,
+        db_seq_len=db_seq_len,
+        augment=resolve_augment(augment),
+        seed=seed,
+        name=name,
+    )

@@ -1,0 +1,65 @@
+"""Per-frame tensors shared by the readers: image -> tensor conversion, resizing rules and intrinsics.
+
+Resizing rules (spec 9.6, Appendix A): colour and metric depth use BL2 (TF2 bilinear, half-pixel centres, no
+antialias); label maps use a nearest rule chosen by the reader (NN1 = OpenCV/legacy-TF nearest for Mid-Air, whose
+labels the authors resized with OpenCV; NN2 = TF2 half-pixel nearest for TopAir/Aeroscapes, whose loaders call
+``tf.image.resize(..., "nearest")``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..errors import ConfigError
+from ..ops.resample import resize_bl2, resize_nn1, resize_nn2
+
+Size = tuple[int, int]
+
+NEAREST = {"nn1": resize_nn1, "nn2": resize_nn2}
+
+
+def as_size(size: int | tuple[int, int] | list[int] | None, what: str = "size") -> Size | None:
+    """``int`` -> ``(s, s)``; ``(H, W)`` -> ``(H, W)``; ``None`` stays ``None``. Raises ConfigError otherwise."""
+    if size is None:
+        return None
+    if isinstance(size, (int, np.integer)) and not isinstance(size, bool):
+        h = w = int(size)
+    elif isinstance(size, (tuple, list)) and len(size) == 2 and all(isinstance(s, (int, np.integer)) for s in size):
+        h, w = int(size[0]), int(size[1])
+    else:
+        raise ConfigError(f"{what} must be an int or a pair (H, W) of ints, got {size!r}")
+    if h < 1 or w < 1:
+        raise ConfigError(f"{what} must be positive, got {size!r}")
+    return h, w
+
+
+def midair_intrinsics(size: Size) -> torch.Tensor:
+    """Intrinsics ``[4] = (fx, fy, cx, cy)`` of a 90-degree-FOV centred pinhole at ``size = (H, W)`` (spec 3.1):
+    ``fx = W/2, fy = H/2, cx = W/2, cy = H/2``."""
+    h, w = size
+    return torch.tensor([w / 2, h / 2, w / 2, h / 2], dtype=torch.float32)
+
+
+def rgb_to_tensor(rgb: np.ndarray, size: Size | None) -> torch.Tensor:
+    """``[H, W, 3]`` uint8 -> ``[3, H', W']`` float32 in [0, 1] (``/255`` then BL2 to ``size``)."""
+    x = torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).to(torch.float32).div_(255.0)
+    if size is not None and tuple(x.shape[-2:]) != tuple(size):
+        x = resize_bl2(x[None], size)[0]
+    return x.contiguous()
+
+
+def depth_to_tensor(depth: np.ndarray, size: Size | None, rule: str = "bl2") -> torch.Tensor:
+    """``[H, W]`` float depth (metres) -> ``[1, H', W']`` float32, resized with BL2 (or ``"nn1"``/``"nn2"``)."""
+    x = torch.from_numpy(np.ascontiguousarray(depth, dtype=np.float32))[None]
+    if size is not None and tuple(x.shape[-2:]) != tuple(size):
+        x = resize_bl2(x[None], size)[0] if rule == "bl2" else NEAREST[rule](x, size)
+    return x.contiguous()
+
+
+def labels_to_tensor(labels: np.ndarray, size: Size | None, rule: str) -> torch.Tensor:
+    """``[H, W]`` integer labels -> ``[H', W']`` int64, nearest-resized with ``rule`` (``"nn1"`` or ``"nn2"``)."""
+    x = torch.from_numpy(np.ascontiguousarray(labels).astype(np.int64, copy=False))
+    if size is not None and tuple(x.shape) != tuple(size):
+        x = NEAREST[rule](x, size)
+    return x.contiguous()

@@ -1,0 +1,172 @@
+"""The Mid-Air sequence dataset (spec 9), also used for SynthAir (same on-disk format, any env/climate names).
+
+Decoding of one row (spec 9.2, 9.6):
+
+* colour: ``camera_l`` JPEG -> uint8 -> ``/255`` -> BL2 resize to the output size;
+* depth: ``disp`` 16-bit PNG whose values are float16 bit patterns -> disparity -> z-depth
+  ``(W_native / 2) / disparity`` (= ``512 / disparity`` at 1024 px) at the native size -> BL2 resize (in the depth
+  domain). A zero disparity (infinitely far) is read as the smallest positive float16 disparity (2^-24), i.e. a depth
+  of ``W_native / 2 * 2^24`` m, so that the bilinear resize stays finite (spec 15.1); a negative, NaN or infinite
+  disparity is a :class:`DatasetError`;
+* labels: ``semantic`` PNG, channel 0 (8-bit gray, 16-bit gray, palette indices or RGB) -> OpenCV nearest (NN1)
+  to the output size -> the 14 Mid-Air IDs mapped to the 7 classes on the fly (``labels="midair"``; the dataset is
+  never rewritten), or already-mapped 7-class files (``labels="mapped"``), or the raw 14 IDs (``labels="raw"``).
+  An ID out of range is a :class:`DatasetError` naming the file;
+* motion: ``(qw, qx, qy, qz)``, ``(tx, ty, tz)`` from the CSV; intrinsics ``fx = W/2, fy = H/2, cx = W/2,
+  cy = H/2`` at the output size (spec 3.1).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+import torch
+
+from ...errors import ConfigError, DatasetError
+from ..augment import resolve_augment
+from ..csvsplits import check_modalities_consistent, find_split_csvs, trajectories_from_csvs
+from ..decode import check_labels, image_size, read_channel0, read_rgb, read_uint16_png
+from ..frames import Size, as_size, labels_to_tensor, midair_intrinsics, rgb_to_tensor, depth_to_tensor
+from ..sequence import FrameRecord, SequenceDataset, default_mode
+from . import format as fmt
+
+#: Smallest positive float16 (subnormal): zero disparities are read as this value.
+MIN_DISPARITY = float(np.finfo(np.float16).smallest_subnormal)
+
+LABEL_MODES = {"midair": len(fmt.MIDAIR_CLASSES), "raw": len(fmt.MIDAIR_CLASSES), "mapped": len(fmt.CLASSES_7)}
+
+
+def read_disparity(path: str | Path) -> np.ndarray:
+    """Mid-Air disparity PNG -> ``[H, W]`` float32 disparity, bit-exact (uint16 values bit-cast to float16)."""
+    return fmt.decode_disparity(read_uint16_png(path))
+
+
+def read_depth(path: str | Path) -> np.ndarray:
+    """Mid-Air disparity PNG -> ``[H, W]`` float32 z-depth in metres at the file's native size."""
+    path = Path(path)
+    disp = read_disparity(path)
+    bad = ~np.isfinite(disp) | (disp < 0)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        raise DatasetError(
+            f"{path}: {int(bad.sum())} disparity value(s) are negative, NaN or infinite "
+            f"(first at row {i}, column {j}: {disp[i, j]})"
+        )
+    disp = np.maximum(disp, np.float32(MIN_DISPARITY))
+    return fmt.disparity_to_depth(disp, disp.shape[1]).astype(np.float32, copy=False)
+
+
+def read_labels(path: str | Path, labels: str = "midair") -> np.ndarray:
+    """Segmentation PNG -> ``[H, W]`` class IDs at native size, validated for ``labels`` (not yet mapped)."""
+    ids = read_channel0(path)
+    check_labels(ids, LABEL_MODES[labels], path)
+    return ids
+
+
+_MAP_14_TO_7 = torch.from_numpy(fmt.MIDAIR_TO_7.astype(np.int64))
+
+
+class MidAirFrameLoader:
+    """Loads one row at the output size (see the module docstring). Picklable, for DataLoader workers."""
+
+    def __init__(self, size: Size, labels: str = "midair") -> None:
+        if labels not in LABEL_MODES:
+            raise ConfigError(f"labels must be one of {sorted(LABEL_MODES)}, got {labels!r}")
+        self.size = size
+        self.labels = labels
+
+    def __call__(self, rec: FrameRecord) -> dict[str, torch.Tensor]:
+        out = {"rgb": rgb_to_tensor(read_rgb(rec.rgb), self.size)}
+        if rec.depth is not None:
+            out["depth"] = depth_to_tensor(read_depth(rec.depth), self.size)
+        if rec.semantic is not None:
+            sem = labels_to_tensor(read_labels(rec.semantic, self.labels), self.size, "nn1")
+            if self.labels == "midair":
+                sem = _MAP_14_TO_7[sem]
+            out["semantic"] = sem
+        return out
+
+
+def _derive_semantic(rgb_rel: str) -> str:
+    """``.../color_left/trajectory_XXXX/NNNNNN.JPEG`` -> ``.../segmentation/trajectory_XXXX/NNNNNN.PNG``."""
+    parts = rgb_rel.split("/")
+    if fmt.COLOR_DIR in parts:
+        parts[len(parts) - 1 - parts[::-1].index(fmt.COLOR_DIR)] = fmt.SEGMENTATION_DIR
+    stem = parts[-1].rsplit(".", 1)[0]
+    parts[-1] = stem + fmt.SEGMENTATION_EXT
+    return "/".join(parts)
+
+
+def open_midair(
+    root: str | Path,
+    split_dir: str | Path,
+    split: str = "test",
+    seq_len: int = 1,
+    size: int | tuple[int, int] | None = 384,
+    augment=False,
+    *,
+    mode: str | None = None,
+    db_seq_len: int | None = None,
+    labels: str = "midair",
+    modalities: Iterable[str] | None = None,
+    seed: int = 0,
+    name: str = "midair",
+) -> SequenceDataset:
+    """Open a split of a Mid-Air-format dataset (Mid-Air itself or SynthAir).
+
+    Args:
+        root: dataset root; the CSV paths are relative to it.
+        split_dir: folder holding ``<split>_data/**/*.csv`` (see :mod:`cosemdepth.data.csvsplits`).
+        split: ``"train"``, ``"val"``, ``"test"`` (or any folder name present).
+        seq_len: frames per item.
+        size: output size, int or ``(H, W)``; ``None`` keeps the native size of each file.
+        augment: ``False``, ``True`` (paper settings), a preset name or an :class:`AugmentConfig`.
+        mode: window mode (``"train"``, ``"windowed"``, ``"stream"``); default ``"train"`` for the train split,
+            ``"windowed"`` for val with ``seq_len > 1`` (spec 6.3) and ``"stream"`` otherwise
+            (:func:`cosemdepth.data.sequence.default_mode`).
+        db_seq_len: chunk length in train mode (default ``seq_len``; the paper uses 4 / 4).
+        labels: ``"midair"`` (14 IDs mapped to 7 classes), ``"mapped"`` (files already hold the 7 classes) or
+            ``"raw"`` (the 14 IDs, unmapped).
+        modalities: subset of ``("depth", "semantic")`` to load (default: all the CSVs provide).
+        seed: base seed of the random window offsets and augmentations.
+        name: stored as ``dataset.name``.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise DatasetError(f"{root}: dataset root not found (or not a folder)")
+    out_size = as_size(size)
+    wanted = set(("depth", "semantic") if modalities is None else modalities)
+    unknown = wanted - {"depth", "semantic"}
+    if unknown:
+        raise ConfigError(f"modalities may only name 'depth' and 'semantic', got {sorted(unknown)}")
+    folder, csvs = find_split_csvs(split_dir, split)
+    trajectories = trajectories_from_csvs(
+        root,
+        folder,
+        csvs,
+        columns={
+            "rgb": "camera_l",
+            "depth": "disp" if "depth" in wanted else None,
+            "semantic": "semantic" if "semantic" in wanted else None,
+        },
+        reset_rule=lambda ids: ids == 0,
+        derive={"semantic": _derive_semantic},
+    )
+    check_modalities_consistent(trajectories, folder)
+    if out_size is None:
+        intrinsics_size = image_size(trajectories[0].frame(0).rgb)
+    else:
+        intrinsics_size = out_size
+    return SequenceDataset(
+        trajectories,
+        MidAirFrameLoader(out_size, labels),
+        midair_intrinsics(intrinsics_size),
+        seq_len=seq_len,
+        mode=mode or default_mode(split, seq_len),
+        db_seq_len=db_seq_len,
+        augment=resolve_augment(augment),
+        seed=seed,
+        name=name,
+    )
