@@ -14,12 +14,12 @@ from cosemdepth.training.run_config import set_key
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 
-#: A run of a few seconds: 3 levels, 32x32 frames, 8 toy sequences, batch 2 (4 steps per epoch), one CPU thread.
+#: A run of a few seconds: 3 levels, 16x16 frames, 8 toy sequences, batch 2 (4 steps per epoch), one CPU thread.
 TINY = {
     "model.levels": 3,
     "data.train.0.name": "toy",
     "data.train.0.options": {"length": 8},
-    "data.size": 32,
+    "data.size": 16,
     "data.num_workers": 0,
     "train.batch_size": 2,
     "train.epochs": 2,

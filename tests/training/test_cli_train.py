@@ -11,12 +11,10 @@ import time
 from pathlib import Path
 
 import pytest
-import torch
 
 from cosemdepth.cli.main import main
 from cosemdepth.training.checkpoint import DELAY_ENV, load_checkpoint, validate_checkpoint
 from cosemdepth.training.events import read_events
-from cosemdepth.training.trainer import Trainer
 
 
 def _train_cmd(python, run_dir: Path, tiny_cli, **overrides) -> list[str]:
@@ -46,8 +44,8 @@ def _kill(proc: subprocess.Popen) -> None:
     assert proc.returncode == -signal.SIGKILL
 
 
-def test_sigkill_while_training_and_while_writing_a_checkpoint_then_resume(tmp_path, python, cli_env, tiny_cli,
-                                                                          tiny_config):
+def test_sigkill_while_training_and_while_writing_a_checkpoint_then_resume(tmp_path, python, cli_env, tiny_cli):
+    """(That a resumed run continues bit-exactly is tested in-process, in test_trainer.py.)"""
     run = tmp_path / "run"
     settings = dict(train__epochs=3, train__max_steps=10, train__checkpoint_every=2, train__keep_last=3)
     cmd = _train_cmd(python, run, tiny_cli, **settings)
@@ -92,13 +90,6 @@ def test_sigkill_while_training_and_while_writing_a_checkpoint_then_resume(tmp_p
     for path in kept.values():
         validate_checkpoint(path)
         load_checkpoint(path)
-
-    # the interrupted run ends with the weights of an uninterrupted one
-    ref = Trainer(tiny_config(**settings), tmp_path / "ref", console=False)
-    ref.fit()
-    final = load_checkpoint(kept[10]).model
-    for k, v in ref.model.state_dict().items():
-        assert torch.equal(final[k], v), k
 
 
 def _run_cli(args: list[str], capsys) -> tuple[int, str]:

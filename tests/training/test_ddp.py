@@ -20,7 +20,8 @@ def test_two_process_ddp_matches_one_process_with_double_batch(tmp_path, python,
     # per-channel mean, so its true gradient is zero and what is left is float rounding noise (~1e-9) that depends
     # on how the batch is split. With eps = 1e-7 Adam turns that noise into full +-lr steps; with 1e-3 it stays
     # noise, while every real gradient still gets an Adam step. The weights then agree to ~3e-8 (moves ~3e-4).
-    settings = dict(data__augment=False, train__max_steps=STEPS, train__checkpoint_every=100, train__eps=1e-3)
+    settings = dict(data__augment=False, train__max_steps=STEPS, train__checkpoint_every=100, train__eps=1e-3,
+                    train__validate_every_epochs=1)
     cmd = [python, "-m", "torch.distributed.run", "--standalone", "--nnodes=1", "--nproc_per_node=2",
            "-m", "cosemdepth", "train", "--out", str(run), *tiny_cli(train__batch_size=1, **settings)]
     r = subprocess.run(cmd, env=cli_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
@@ -49,3 +50,8 @@ def test_two_process_ddp_matches_one_process_with_double_batch(tmp_path, python,
     ref_first = next(e for e in read_events(tmp_path / "single" / "events.jsonl") if e["kind"] == "train")
     ddp_first = next(e for e in events if e["kind"] == "train")
     assert abs(ddp_first["loss_total"] - ref_first["loss_total"]) < 1e-5 * abs(ref_first["loss_total"])
+    # the final validation ran (every rank computes it, rank 0's result is used) and wrote the best model once
+    val = [e for e in events if e["kind"] == "validation"]
+    assert len(val) == 1 and val[0]["step"] == STEPS and val[0]["metrics"]["frames"] == 8
+    assert abs(val[0]["metrics"]["abs_rel"] - ref.state.last_validation["abs_rel"]) < 1e-4
+    assert [e["step"] for e in events if e["kind"] == "best"] == [STEPS] and (run / "best" / "config.json").is_file()

@@ -97,11 +97,14 @@ def _describe(event: dict) -> str:
     kind = event["kind"]
     skip = {"time", "kind", "iou", "config", "traceback"}
     fields = " ".join(f"{k}={_fmt(v)}" for k, v in event.items() if k not in skip and not isinstance(v, (dict, list)))
+    for k, v in event.items():
+        if k not in skip and isinstance(v, list) and all(isinstance(x, (str, int, float)) for x in v):
+            fields += f" {k}=[{'; '.join(_fmt(x) for x in v)}]"
     metrics = event.get("metrics")
     if isinstance(metrics, dict):
         shown = {k: v for k, v in metrics.items() if isinstance(v, float)}
         fields += " " + " ".join(f"{k}={_fmt(v)}" for k, v in shown.items())
-    return f"[{kind}] {fields}".rstrip()
+    return f"[{kind}] {fields.strip()}".rstrip()
 
 
 def read_events(path: str | os.PathLike) -> list[dict]:

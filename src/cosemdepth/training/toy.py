@@ -48,8 +48,8 @@ class ToyDataset(Dataset):
         shift: int = 2,
         altitude: float = 40.0,
     ) -> None:
-        if length < 1 or seq_len < 1:
-            raise ValueError(f"ToyDataset: length and seq_len must be >= 1, got {length}, {seq_len}")
+        if length < 0 or seq_len < 1:
+            raise ValueError(f"ToyDataset: length must be >= 0 and seq_len >= 1, got {length}, {seq_len}")
         self.length = int(length)
         self.seq_len = int(seq_len)
         self.size = (int(size[0]), int(size[1]))

@@ -282,6 +282,7 @@ class Trainer:
         else:
             self.events("start", run_dir=str(self.run_dir), total_steps=self.total_steps,
                         steps_per_epoch=self.steps_per_epoch, world_size=dist.world_size, device=str(self.device),
+                        bf16_autocast=bool(cfg.train.bf16 and self.device.type == "cuda"),
                         num_parameters=self.model.num_parameters(), train_items=len(self.train_set),
                         val_items=None if self.val_set is None else len(self.val_set))
             self._save_checkpoint()
