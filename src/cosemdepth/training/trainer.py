@@ -26,7 +26,7 @@ import random
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Optional
+from typing import Callable, Iterable, Optional
 
 import numpy as np
 import torch
@@ -268,8 +268,7 @@ class Trainer:
         def find_checkpoint() -> str | None:
             self.ckpts.cleanup()
             recover_best(self.run_dir)
-            p = self.ckpts.latest_valid()
-            return None if p is None else str(p)
+            return self._latest_valid_path()
 
         path = D.on_main(find_checkpoint, dist)
         if path is not None:
@@ -288,6 +287,10 @@ class Trainer:
             self._save_checkpoint()
         if main:
             self.board = _make_board(self.run_dir / TENSORBOARD_NAME, self.state.step if path else None)
+
+    def _latest_valid_path(self) -> str | None:
+        p = self.ckpts.latest_valid()
+        return None if p is None else str(p)
 
     def _progress_bar_shown(self) -> bool:
         """A progress bar on rank 0 when asked for and stderr is a terminal (else "train" events are printed)."""
@@ -361,7 +364,7 @@ class Trainer:
             raise TrainingDiverged(
                 f"step {bad_step}: {self.guard.streak} non-finite steps in a row again after "
                 f"{self.cfg.train.max_rollbacks} rollback(s) without progress; see {self.run_dir / EVENTS_NAME}")
-        path = D.on_main(lambda: (lambda p: None if p is None else str(p))(self.ckpts.latest_valid()), self.dist)
+        path = D.on_main(self._latest_valid_path, self.dist)
         if path is None:
             raise TrainingDiverged(f"step {bad_step}: non-finite steps and no valid checkpoint to roll back to")
         best, last, hist = self.state.best, self.state.last_validation, self.state.history
