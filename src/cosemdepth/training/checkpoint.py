@@ -279,7 +279,7 @@ class CheckpointManager:
                 self.log("checkpoint_invalid", path=str(path), step=step, error=str(e),
                          removed=remove_invalid)
                 if remove_invalid:
-                    shutil.rmtree(path, ignore_errors=True)
+                    self._remove(path)
                 continue
             return path
         return None
@@ -339,8 +339,19 @@ class CheckpointManager:
         """Remove the oldest checkpoints beyond ``keep_last``."""
         ckpts = self.list()
         for step, path in ckpts[: max(0, len(ckpts) - self.keep_last)]:
-            shutil.rmtree(path, ignore_errors=True)
+            self._remove(path)
             self.log("checkpoint_removed", path=str(path), step=step)
+
+    def _remove(self, path: Path) -> None:
+        """Rename a checkpoint out of the ``ckpt-*`` namespace first (atomic), then delete it: a crash in the middle
+        of the deletion leaves an ``.old-ckpt-*`` folder (removed at the next start), never a half-deleted
+        ``ckpt-*``."""
+        old = self.folder / f".old-{path.name}-{os.getpid()}"
+        try:
+            os.replace(path, old)
+        except OSError:
+            old = path
+        shutil.rmtree(old, ignore_errors=True)
 
 
 def _jsonable(x: Any) -> Any:
