@@ -6,8 +6,11 @@ Configs are plain dataclasses; they round-trip through dicts (JSON/YAML) with :f
 from __future__ import annotations
 
 import dataclasses
+import math
+import types
+import typing
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, Optional, Union
 
 from .errors import ConfigError
 
@@ -85,4 +88,344 @@ def to_dict(cfg: Any) -> dict[str, Any]:
     return dataclasses.asdict(cfg)
 
 
-__all__ = ["ARCHITECTURES", "ENCODER_CHANNELS", "MIDAIR_IMAGE_SIZE", "ModelConfig", "to_dict", "field"]
+# ---------------------------------------------------------------------------------------------------------------
+# Training (spec 8): the paper's Mid-Air recipe as defaults
+# ---------------------------------------------------------------------------------------------------------------
+
+#: Dataset names a training run accepts: those of :func:`cosemdepth.data.open_dataset` and ``"toy"`` (a tiny
+#: procedural in-memory dataset for smoke tests, :mod:`cosemdepth.training.toy`).
+DATASET_NAMES = ("midair", "synthair", "topair", "aeroscapes", "flight", "toy")
+
+
+def known_datasets() -> tuple[str, ...]:
+    """The dataset names of :func:`cosemdepth.data.open_dataset` (when available) plus ``"toy"``."""
+    try:
+        from .data import DATASETS  # the data package's own list, when it has one
+    except ImportError:
+        return DATASET_NAMES
+    return tuple(DATASETS) + tuple(n for n in ("toy",) if n not in DATASETS)
+
+
+@dataclass(frozen=True)
+class DatasetSource:
+    """One dataset of a run: which reader, where, and its weight in a mix.
+
+    ``options`` are passed on to :func:`cosemdepth.data.open_dataset` as keyword arguments (e.g. ``labels``,
+    ``modalities``; for ``"toy"``: ``length``).
+    """
+
+    name: str = "midair"
+    root: Optional[str] = None
+    split_dir: Optional[str] = None
+    weight: float = 1.0
+    options: dict = field(default_factory=dict)
+
+    def check(self, key: str) -> None:
+        """Raise :class:`ConfigError` naming ``key`` (e.g. ``data.train[0]``) if a value is invalid. (A missing
+        ``root`` is reported when the dataset is opened, so that a config can be written before the data exists.)"""
+        names = known_datasets()
+        if self.name not in names:
+            raise ConfigError(f"{key}.name: unknown dataset {self.name!r}; choose one of {list(names)}")
+        if not (self.weight >= 0 and math.isfinite(self.weight)):
+            raise ConfigError(f"{key}.weight must be a finite number >= 0, got {self.weight!r}")
+
+
+def key_path(key: str) -> str:
+    """``data.train[1]`` -> ``data.train.1`` (the ``--set`` spelling of a key)."""
+    return key.replace("[", ".").replace("]", "")
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """What a run trains and validates on (spec 8.2, 6.3).
+
+    ``train`` holds one dataset or a weighted mix of several (sampling weights ``weight``). ``val`` defaults to the
+    first training dataset's ``val_split``; ``validate: false`` turns validation off.
+    """
+
+    train: tuple[DatasetSource, ...] = (DatasetSource(),)
+    val: Optional[DatasetSource] = None
+    train_split: str = "train"
+    val_split: str = "val"
+    validate: bool = True
+    #: Network input size (square side or [H, W]); the paper uses 384.
+    size: tuple[int, ...] = (MIDAIR_IMAGE_SIZE, MIDAIR_IMAGE_SIZE)
+    seq_len: int = 4
+    db_seq_len: int = 4
+    #: Window length of the validation (spec 6.3): windows of 4, only the last frame of each counts.
+    val_seq_len: int = 4
+    #: The augmentations of spec 8.3 (True), none (False) or a preset name of the data package.
+    augment: Union[bool, str] = True
+    #: Items per epoch of a mix (default: the sum of the datasets' lengths).
+    mix_length: Optional[int] = None
+    num_workers: int = 2
+
+    def __post_init__(self) -> None:
+        if not self.train:
+            raise ConfigError("data.train must list at least one dataset")
+        for i, src in enumerate(self.train):
+            src.check(f"data.train[{i}]")
+        if len(self.train) > 1 and sum(s.weight for s in self.train) <= 0:
+            raise ConfigError("data.train: the mix weights must not all be zero")
+        if self.val is not None:
+            self.val.check("data.val")
+        if len(self.size) != 2 or any(not isinstance(v, int) or v < 8 for v in self.size):
+            raise ConfigError(f"data.size must be an integer >= 8 or [H, W] of such integers, got {list(self.size)}")
+        _positive_int("data.seq_len", self.seq_len, minimum=2)
+        _positive_int("data.db_seq_len", self.db_seq_len, minimum=self.seq_len,
+                      why=f" (a chunk must hold a window of data.seq_len = {self.seq_len})")
+        _positive_int("data.val_seq_len", self.val_seq_len)
+        _positive_int("data.num_workers", self.num_workers, minimum=0)
+        if self.mix_length is not None:
+            _positive_int("data.mix_length", self.mix_length)
+
+    @property
+    def val_source(self) -> Optional[DatasetSource]:
+        """The validation dataset (``val`` or the first training dataset), or None if validation is off."""
+        if not self.validate:
+            return None
+        return self.val if self.val is not None else self.train[0]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation, checkpointing, validation and logging of a run (spec 8.1, 8.4, 8.5)."""
+
+    epochs: int = 60
+    #: Stop after this many training steps in all (0: no limit besides ``epochs``).
+    max_steps: int = 0
+    batch_size: int = 3
+    #: Adam as Keras' defaults in the original: lr 1e-4 constant, betas 0.9/0.999, eps 1e-7, no weight decay.
+    lr: float = 1e-4
+    betas: tuple[float, float] = (0.9, 0.999)
+    eps: float = 1e-7
+    weight_decay: float = 0.0
+    #: Multiply the learning rate by ``lr_decay`` at each of these epochs (0-based; empty: constant, the paper).
+    lr_decay_epochs: tuple[int, ...] = ()
+    lr_decay: float = 0.1
+    #: Clip the gradient norm to this value (0: no clipping, the paper).
+    grad_clip: float = 0.0
+    #: Weight of the semantic loss in the total loss (spec 7.3).
+    semantic_weight: float = 0.1
+    #: Semantic loss on log-softmax of logits instead of Keras' clipped probabilities (spec 15 item 21).
+    semantic_from_logits: bool = False
+    seed: int = 42
+    #: "auto" (CUDA when available), "cpu", "cuda", "cuda:1"...
+    device: str = "auto"
+    #: bfloat16 autocast of the forward pass on CUDA (ignored on CPU).
+    bf16: bool = False
+    #: torch CPU threads (0: torch's default).
+    num_threads: int = 0
+    #: Write a checkpoint every this many steps (0: only at epoch ends); one is always written at each epoch end.
+    checkpoint_every: int = 1000
+    #: Keep the newest K checkpoints (the original keeps 5).
+    keep_last: int = 5
+    #: Validate every this many epochs (0: never at epoch ends) and/or every this many steps (0: never).
+    validate_every_epochs: int = 1
+    validate_every_steps: int = 0
+    #: Validate on at most this many batches (0: the whole validation set).
+    val_max_batches: int = 0
+    val_batch_size: int = 4
+    #: Best-checkpoint rule: "paper" (spec 8.5), or one metric: "rmse", "miou", "abs_rel:min", ...
+    best: str = "paper"
+    #: Non-finite guard: after this many non-finite steps in a row, roll back to the last good checkpoint.
+    nonfinite_patience: int = 3
+    #: Give up (error) after this many rollbacks without a good checkpoint in between.
+    max_rollbacks: int = 5
+    #: Log losses every this many steps (events log, TensorBoard) and images every ``image_every`` steps (0: never).
+    log_every: int = 50
+    image_every: int = 1000
+    #: Show a progress bar (tqdm) on the console.
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        _positive_int("train.epochs", self.epochs)
+        _positive_int("train.max_steps", self.max_steps, minimum=0)
+        _positive_int("train.batch_size", self.batch_size)
+        _positive_number("train.lr", self.lr)
+        if len(self.betas) != 2 or not all(0.0 <= b < 1.0 for b in self.betas):
+            raise ConfigError(f"train.betas must be two numbers in [0, 1), got {list(self.betas)}")
+        _positive_number("train.eps", self.eps)
+        _positive_number("train.weight_decay", self.weight_decay, allow_zero=True)
+        if any(e < 0 for e in self.lr_decay_epochs):
+            raise ConfigError(f"train.lr_decay_epochs must be epochs >= 0, got {list(self.lr_decay_epochs)}")
+        _positive_number("train.lr_decay", self.lr_decay)
+        _positive_number("train.grad_clip", self.grad_clip, allow_zero=True)
+        _positive_number("train.semantic_weight", self.semantic_weight, allow_zero=True)
+        if not self.device or not (self.device in ("auto", "cpu", "mps") or self.device.startswith("cuda")):
+            raise ConfigError(f"train.device must be 'auto', 'cpu', 'cuda', 'cuda:N' or 'mps', got {self.device!r}")
+        _positive_int("train.num_threads", self.num_threads, minimum=0)
+        _positive_int("train.checkpoint_every", self.checkpoint_every, minimum=0)
+        _positive_int("train.keep_last", self.keep_last)
+        _positive_int("train.validate_every_epochs", self.validate_every_epochs, minimum=0)
+        _positive_int("train.validate_every_steps", self.validate_every_steps, minimum=0)
+        _positive_int("train.val_max_batches", self.val_max_batches, minimum=0)
+        _positive_int("train.val_batch_size", self.val_batch_size)
+        _positive_int("train.nonfinite_patience", self.nonfinite_patience)
+        _positive_int("train.max_rollbacks", self.max_rollbacks, minimum=0)
+        _positive_int("train.log_every", self.log_every)
+        _positive_int("train.image_every", self.image_every, minimum=0)
+        from .evaluation.metrics import selection_rule
+
+        try:
+            selection_rule(self.best)
+        except ConfigError as e:
+            raise ConfigError(f"train.best: {e}") from None
+
+
+@dataclass(frozen=True)
+class DebugConfig:
+    """Test hooks. ``inject_nonfinite_steps``: make the loss of these training steps (1-based) NaN, once each."""
+
+    inject_nonfinite_steps: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        if any(s < 1 for s in self.inject_nonfinite_steps):
+            raise ConfigError(f"debug.inject_nonfinite_steps must be step numbers >= 1, got "
+                              f"{list(self.inject_nonfinite_steps)}")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything a training run needs: ``model``, ``data``, ``train``, ``debug`` (the sections of the YAML file)."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    debug: DebugConfig = field(default_factory=DebugConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return to_dict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "RunConfig":
+        """Build from a (partial) nested dict; missing keys take the defaults. Values are converted to the field
+        types (so ``"3e-4"`` is a float); unknown keys and bad values raise :class:`ConfigError` naming the key."""
+        return build_config(cls, d, "")
+
+
+def _positive_int(key: str, value: Any, minimum: int = 1, why: str = "") -> None:
+    if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
+        raise ConfigError(f"{key} must be an integer >= {minimum}{why}, got {value!r}")
+
+
+def _positive_number(key: str, value: Any, allow_zero: bool = False) -> None:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    ok = ok and (value >= 0 if allow_zero else value > 0)
+    if not ok:
+        raise ConfigError(f"{key} must be a finite number {'>= 0' if allow_zero else '> 0'}, got {value!r}")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Typed construction from nested dicts (YAML, JSON, command-line overrides)
+# ---------------------------------------------------------------------------------------------------------------
+
+_TRUE = ("true", "yes", "on", "1")
+_FALSE = ("false", "no", "off", "0")
+
+
+def build_config(cls, d: Any, prefix: str):
+    """Build dataclass ``cls`` from the mapping ``d`` (missing keys: defaults), converting values to the field
+    types. ``prefix`` is the dotted key of ``d`` for error messages (``""`` at the top)."""
+    what = prefix or "the config"
+    if d is None:
+        d = {}
+    if not isinstance(d, Mapping):
+        raise ConfigError(f"{what} must be a mapping of keys to values, got {type(d).__name__} {d!r}")
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = [k for k in d if k not in names]
+    if unknown:
+        keys = ", ".join(repr(_join(prefix, str(k))) for k in unknown)
+        raise ConfigError(f"unknown config key{'s' if len(unknown) > 1 else ''} {keys}; valid keys"
+                          f"{' of ' + repr(prefix) if prefix else ''}: {names}")
+    kwargs = {k: _coerce(v, hints[k], _join(prefix, k)) for k, v in d.items()}
+    try:
+        return cls(**kwargs)
+    except ConfigError as e:
+        if prefix == "model" and not str(e).startswith("model"):
+            raise ConfigError(f"model: {e}") from None
+        raise
+
+
+def _join(prefix: str, key: str) -> str:
+    return f"{prefix}.{key}" if prefix else key
+
+
+def _coerce(value: Any, tp: Any, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        options = [a for a in args if a is not type(None)]
+        if bool in options and (isinstance(value, bool) or (isinstance(value, str) and value.lower() in _TRUE + _FALSE)):
+            return _coerce(value, bool, key)
+        errors = []
+        for a in options:
+            try:
+                return _coerce(value, a, key)
+            except ConfigError as e:
+                errors.append(str(e))
+        raise ConfigError(errors[0] if len(errors) == 1 else f"{key}: invalid value {value!r} ({'; '.join(errors)})")
+    if value is None:
+        raise ConfigError(f"{key}: a value is required, got null")
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        return build_config(tp, value, key)
+    if origin is tuple:
+        if tp == tuple[int, ...] and key.endswith(".size") and isinstance(value, (int, str)) and not isinstance(value, bool):
+            value = [value, value]  # a square size
+        if not isinstance(value, (list, tuple)):
+            value = [value] if args and args[-1] is Ellipsis else value
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{key}: expected a list, got {value!r}")
+        if args and args[-1] is Ellipsis:
+            return tuple(_coerce(v, args[0], f"{key}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(f"{key}: expected a list of {len(args)} values, got {list(value)!r}")
+        return tuple(_coerce(v, a, f"{key}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
+    if tp is dict or origin is dict:
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{key}: expected a mapping, got {value!r}")
+        return dict(value)
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in _TRUE + _FALSE:
+            return value.lower() in _TRUE
+        raise ConfigError(f"{key}: expected true or false, got {value!r}")
+    if tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        if isinstance(value, str):
+            try:
+                return int(value.strip())
+            except ValueError:
+                pass
+        raise ConfigError(f"{key}: expected an integer, got {value!r}")
+    if tp is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        if isinstance(value, str):
+            try:
+                return float(value.strip())
+            except ValueError:
+                pass
+        raise ConfigError(f"{key}: expected a number, got {value!r}")
+    if tp is str:
+        if isinstance(value, str):
+            return value
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return str(value)
+        raise ConfigError(f"{key}: expected a string, got {value!r}")
+    raise AssertionError(f"unsupported config type {tp!r} for {key}")
+
+
+__all__ = [
+    "ARCHITECTURES", "DATASET_NAMES", "DataConfig", "DatasetSource", "DebugConfig", "ENCODER_CHANNELS",
+    "MIDAIR_IMAGE_SIZE", "ModelConfig", "RunConfig", "TrainConfig", "build_config", "known_datasets", "to_dict",
+]

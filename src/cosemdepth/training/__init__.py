@@ -1,1 +1,38 @@
-"""Training: losses (:mod:`cosemdepth.training.losses`) and the training loop."""
+"""Training: losses, the training loop and its parts.
+
+* :mod:`~cosemdepth.training.losses`: the losses of spec 7;
+* :mod:`~cosemdepth.training.trainer`: :class:`Trainer` (the loop, resume, non-finite guard, validation, best model);
+* :mod:`~cosemdepth.training.run_config`: YAML configs and ``KEY=VALUE`` overrides (the dataclasses are in
+  :mod:`cosemdepth.config`);
+* :mod:`~cosemdepth.training.checkpoint`: atomic, manifest-validated checkpoints;
+* :mod:`~cosemdepth.training.data`, :mod:`~cosemdepth.training.validation`, :mod:`~cosemdepth.training.distributed`,
+  :mod:`~cosemdepth.training.events`, :mod:`~cosemdepth.training.board`, :mod:`~cosemdepth.training.visual`,
+  :mod:`~cosemdepth.training.rundir`, :mod:`~cosemdepth.training.toy`.
+
+Three lines::
+
+    from cosemdepth.training import Trainer, resolve_config
+    cfg = resolve_config("synthair-small", ["data.train.0.root=data/synthair"])
+    Trainer(cfg, "runs/small").fit()
+"""
+
+from __future__ import annotations
+
+_LAZY = {
+    "Trainer": ("cosemdepth.training.trainer", "Trainer"),
+    "resolve_config": ("cosemdepth.training.run_config", "resolve_config"),
+    "validate": ("cosemdepth.training.validation", "validate"),
+    "load_checkpoint": ("cosemdepth.training.checkpoint", "load_checkpoint"),
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        return getattr(importlib.import_module(module), attr)
+    raise AttributeError(f"module 'cosemdepth.training' has no attribute {name!r}")
+
+
+__all__ = list(_LAZY)

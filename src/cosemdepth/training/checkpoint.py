@@ -1,0 +1,373 @@
+"""Training checkpoints: written atomically, validated by a manifest, the newest K kept.
+
+Layout of one checkpoint, ``RUN_DIR/checkpoints/ckpt-<step, 8 digits>/``::
+
+    model.safetensors   the weights   } our model format (cosemdepth.io.model_io): the folder itself loads
+    config.json         model config  } with ``load_model``
+    optimizer.pt        optimizer state dict (torch.save; loads with ``weights_only=True``)
+    rng.pt              RNG states: python, numpy, torch CPU (and CUDA)
+    trainer_state.json  loop state: step, epoch, position in the epoch, best metrics, ...
+    manifest.json       written last: the list of files with their sizes and SHA-256
+
+Writing: every file goes into a temporary sibling folder ``.tmp-ckpt-<step>-<pid>``; the manifest is written last,
+then the folder is renamed to its final name (an atomic rename on POSIX file systems) and the parent folder is
+fsynced. A crash (even SIGKILL) at any moment leaves either a temporary folder (removed at the next start) or a
+complete checkpoint. A checkpoint is *valid* when its manifest parses and every listed file exists with the listed
+size and checksum, so a truncated or damaged checkpoint is detected even if it got its final name by other means
+(a partial copy, a disk error).
+
+The environment variable ``COSEMDEPTH_DEBUG_CHECKPOINT_DELAY`` (seconds) makes the writer sleep after each file;
+tests use it to kill a run while a checkpoint is being written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import re
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import torch
+
+from ..config import ModelConfig
+from ..errors import CheckpointError
+from ..io.atomic import _fsync_dir, atomic_open, atomic_write_text
+
+MANIFEST_FILE = "manifest.json"
+STATE_FILE = "trainer_state.json"
+OPTIMIZER_FILE = "optimizer.pt"
+RNG_FILE = "rng.pt"
+WEIGHTS_FILE = "model.safetensors"
+CONFIG_FILE = "config.json"
+REQUIRED_FILES = (WEIGHTS_FILE, CONFIG_FILE, OPTIMIZER_FILE, RNG_FILE, STATE_FILE)
+MANIFEST_FORMAT = "cosemdepth-checkpoint"
+MANIFEST_VERSION = 1
+DELAY_ENV = "COSEMDEPTH_DEBUG_CHECKPOINT_DELAY"
+
+_NAME = re.compile(r"^ckpt-(\d{8,})$")
+
+
+def checkpoint_name(step: int) -> str:
+    return f"ckpt-{step:08d}"
+
+
+def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(chunk), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _debug_delay() -> None:
+    value = os.environ.get(DELAY_ENV)
+    if value:
+        time.sleep(float(value))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Model weights in our model format. cosemdepth.io.model_io provides save_weights / read_model_files; until it is
+# installed everywhere, the private fallbacks below write and read the same two files (format version 1).
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def save_model_files(state_dict: Mapping[str, torch.Tensor], config: ModelConfig, folder: Path,
+                     source: Mapping[str, Any]) -> None:
+    """Write ``model.safetensors`` + ``config.json`` into ``folder`` (our model format)."""
+    try:
+        from ..io.model_io import save_weights
+    except ImportError:
+        save_weights = _save_weights
+    save_weights(state_dict, config, folder, source=source)
+
+
+def read_model_state(folder: Path) -> dict[str, torch.Tensor]:
+    """The weights of the model folder ``folder`` (checked against its config when model_io is installed)."""
+    try:
+        from ..io.model_io import read_model_files
+    except ImportError:
+        from safetensors.torch import load_file
+
+        return load_file(str(folder / WEIGHTS_FILE))
+    state, _, _ = read_model_files(folder)
+    return state
+
+
+def _save_weights(state_dict: Mapping[str, torch.Tensor], config: ModelConfig, out_dir: Path,
+                  source: Mapping[str, Any] | None = None) -> Path:
+    """Private stand-in for ``cosemdepth.io.model_io.save_weights`` (same files, same format); to be removed."""
+    from safetensors.torch import save_file
+
+    from .. import __version__
+    from ..io.atomic import atomic_path
+
+    out_dir = Path(out_dir)
+    tensors = {k: v.detach().to("cpu").contiguous().clone() for k, v in state_dict.items()}
+    meta = {
+        "format": "cosemdepth",
+        "format_version": 1,
+        "model": config.to_dict(),
+        "source": dict(source or {}),
+        "num_parameters": sum(int(t.numel()) for t in tensors.values()),
+        "cosemdepth_version": __version__,
+    }
+    with atomic_path(out_dir / WEIGHTS_FILE) as tmp:
+        save_file(tensors, str(tmp), metadata={"format": "cosemdepth", "format_version": "1"})
+    atomic_write_text(out_dir / CONFIG_FILE, json.dumps(meta, indent=2) + "\n")
+    return out_dir
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# RNG states
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def get_rng_state() -> dict[str, Any]:
+    """The states of python's, numpy's and torch's global generators, in types ``torch.load(weights_only=True)``
+    accepts."""
+    import random
+
+    import numpy as np
+
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    state = {
+        "python": random.getstate(),
+        "numpy": {"kind": kind, "keys": torch.from_numpy(keys.astype("int64")), "pos": int(pos),
+                  "has_gauss": int(has_gauss), "cached_gaussian": float(cached)},
+        "torch": torch.get_rng_state(),
+    }
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def set_rng_state(state: Mapping[str, Any]) -> None:
+    import random
+
+    import numpy as np
+
+    random.setstate(state["python"])
+    n = state["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy().astype("uint32"), n["pos"], n["has_gauss"],
+                         n["cached_gaussian"]))
+    torch.set_rng_state(state["torch"])
+    if "cuda" in state and torch.cuda.is_available():
+        with contextlib.suppress(RuntimeError):
+            torch.cuda.set_rng_state_all(state["cuda"])
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Checkpoints
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class LoadedCheckpoint:
+    """The contents of a checkpoint: ``model`` (state dict), ``optimizer`` (state dict), ``state`` (loop state),
+    ``rng`` (generator states), and its ``path``."""
+
+    path: Path
+    model: dict[str, torch.Tensor]
+    optimizer: dict[str, Any]
+    state: dict[str, Any]
+    rng: dict[str, Any]
+
+    @property
+    def step(self) -> int:
+        return int(self.state["step"])
+
+
+def validate_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
+    """Check a checkpoint folder against its manifest; return the manifest.
+
+    Raises:
+        CheckpointError: no or unreadable manifest, a listed file missing, or a size or checksum mismatch.
+    """
+    path = Path(path)
+    mpath = path / MANIFEST_FILE
+    try:
+        manifest = json.loads(mpath.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise CheckpointError(f"{path}: incomplete checkpoint (no {MANIFEST_FILE})") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise CheckpointError(f"{mpath}: unreadable manifest ({e})") from e
+    if not isinstance(manifest, dict) or manifest.get("format") != MANIFEST_FORMAT:
+        raise CheckpointError(f"{mpath}: not a cosemdepth checkpoint manifest")
+    if int(manifest.get("version", 0)) > MANIFEST_VERSION:
+        raise CheckpointError(f"{mpath}: checkpoint version {manifest.get('version')} is newer than this cosemdepth "
+                              f"supports ({MANIFEST_VERSION})")
+    files = manifest.get("files")
+    if not isinstance(files, dict) or set(REQUIRED_FILES) - set(files):
+        raise CheckpointError(f"{mpath}: the manifest must list {list(REQUIRED_FILES)}")
+    for name, info in files.items():
+        f = path / name
+        if not f.is_file():
+            raise CheckpointError(f"{f}: missing (listed in the manifest)")
+        size = f.stat().st_size
+        if size != info.get("size"):
+            raise CheckpointError(f"{f}: {size} bytes, the manifest says {info.get('size')} (truncated or changed)")
+        if sha256_file(f) != info.get("sha256"):
+            raise CheckpointError(f"{f}: checksum mismatch (corrupt)")
+    return manifest
+
+
+def load_checkpoint(path: str | os.PathLike, device: str | torch.device = "cpu",
+                    validate: bool = True) -> LoadedCheckpoint:
+    """Read a checkpoint folder (validated against its manifest first unless ``validate=False``)."""
+    path = Path(path)
+    if validate:
+        validate_checkpoint(path)
+    try:
+        model = read_model_state(path)
+        optimizer = torch.load(path / OPTIMIZER_FILE, map_location=device, weights_only=True)
+        rng = torch.load(path / RNG_FILE, map_location="cpu", weights_only=True)
+        state = json.loads((path / STATE_FILE).read_text(encoding="utf-8"))
+    except CheckpointError:
+        raise
+    except Exception as e:  # noqa: BLE001 - any read failure means an unusable checkpoint
+        raise CheckpointError(f"{path}: cannot read the checkpoint ({type(e).__name__}: {e})") from e
+    return LoadedCheckpoint(path=path, model=model, optimizer=optimizer, state=state, rng=rng)
+
+
+class CheckpointManager:
+    """The checkpoints of one run, in ``folder``.
+
+    Args:
+        folder: ``RUN_DIR/checkpoints``.
+        keep_last: how many of the newest checkpoints to keep.
+        log: ``log(kind, **fields)`` called for removals and invalid checkpoints (the run's event log).
+    """
+
+    def __init__(self, folder: str | os.PathLike, keep_last: int = 5,
+                 log: Callable[..., None] | None = None) -> None:
+        self.folder = Path(folder)
+        self.keep_last = int(keep_last)
+        self.log = log or (lambda kind, **fields: None)
+
+    def list(self) -> list[tuple[int, Path]]:
+        """``(step, path)`` of the folders named like checkpoints, oldest first (valid or not)."""
+        if not self.folder.is_dir():
+            return []
+        out = []
+        for p in self.folder.iterdir():
+            m = _NAME.match(p.name)
+            if m and p.is_dir():
+                out.append((int(m.group(1)), p))
+        return sorted(out)
+
+    def cleanup(self) -> None:
+        """Remove temporary folders left by an interrupted write."""
+        if not self.folder.is_dir():
+            return
+        for p in self.folder.iterdir():
+            if p.name.startswith((".tmp-ckpt-", ".old-ckpt-")):
+                shutil.rmtree(p, ignore_errors=True)
+                self.log("checkpoint_temp_removed", path=str(p))
+
+    def latest_valid(self, remove_invalid: bool = True) -> Path | None:
+        """The newest checkpoint that validates; newer invalid ones are logged (and removed)."""
+        for step, path in reversed(self.list()):
+            try:
+                validate_checkpoint(path)
+            except CheckpointError as e:
+                self.log("checkpoint_invalid", path=str(path), step=step, error=str(e),
+                         removed=remove_invalid)
+                if remove_invalid:
+                    self._remove(path)
+                continue
+            return path
+        return None
+
+    def save(
+        self,
+        *,
+        model_state: Mapping[str, torch.Tensor],
+        model_config: ModelConfig,
+        optimizer_state: Mapping[str, Any],
+        trainer_state: Mapping[str, Any],
+        rng_state: Mapping[str, Any],
+        source: Mapping[str, Any] | None = None,
+    ) -> Path:
+        """Write the checkpoint of ``trainer_state["step"]`` atomically, then remove the oldest beyond
+        ``keep_last``. Returns its path."""
+        step = int(trainer_state["step"])
+        final = self.folder / checkpoint_name(step)
+        tmp = self.folder / f".tmp-{final.name}-{os.getpid()}"
+        self.folder.mkdir(parents=True, exist_ok=True)
+        if tmp.exists():
+            shutil.rmtree(tmp)
+        tmp.mkdir()
+        try:
+            save_model_files(model_state, model_config, tmp, dict(source or {}, step=step))
+            _debug_delay()
+            with atomic_open(tmp / OPTIMIZER_FILE, "wb") as f:
+                torch.save(optimizer_state, f)
+            _debug_delay()
+            with atomic_open(tmp / RNG_FILE, "wb") as f:
+                torch.save(dict(rng_state), f)
+            _debug_delay()
+            atomic_write_text(tmp / STATE_FILE, json.dumps(_jsonable(trainer_state), indent=2) + "\n")
+            _debug_delay()
+            files = {}
+            for p in sorted(tmp.iterdir()):
+                files[p.name] = {"size": p.stat().st_size, "sha256": sha256_file(p)}
+            manifest = {"format": MANIFEST_FORMAT, "version": MANIFEST_VERSION, "step": step,
+                        "epoch": trainer_state.get("epoch"), "files": files}
+            atomic_write_text(tmp / MANIFEST_FILE, json.dumps(manifest, indent=2) + "\n")
+            _debug_delay()
+            if final.exists():  # the same step written before (e.g. after a rollback): swap it out
+                old = self.folder / f".old-{final.name}-{os.getpid()}"
+                os.replace(final, old)
+                os.replace(tmp, final)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                os.replace(tmp, final)
+            _fsync_dir(self.folder)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        self.prune()
+        return final
+
+    def prune(self) -> None:
+        """Remove the oldest checkpoints beyond ``keep_last``."""
+        ckpts = self.list()
+        for step, path in ckpts[: max(0, len(ckpts) - self.keep_last)]:
+            self._remove(path)
+            self.log("checkpoint_removed", path=str(path), step=step)
+
+    def _remove(self, path: Path) -> None:
+        """Rename a checkpoint out of the ``ckpt-*`` namespace first (atomic), then delete it: a crash in the middle
+        of the deletion leaves an ``.old-ckpt-*`` folder (removed at the next start), never a half-deleted
+        ``ckpt-*``."""
+        old = self.folder / f".old-{path.name}-{os.getpid()}"
+        try:
+            os.replace(path, old)
+        except OSError:
+            old = path
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _jsonable(x: Any) -> Any:
+    """Plain JSON values; NaN and infinities become None (strict JSON has no NaN)."""
+    if isinstance(x, Mapping):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, float) and (x != x or x in (float("inf"), float("-inf"))):
+        return None
+    if isinstance(x, torch.Tensor) and x.numel() == 1:
+        return _jsonable(x.item())
+    return x
+
+
+__all__ = [
+    "CheckpointManager", "LoadedCheckpoint", "MANIFEST_FILE", "REQUIRED_FILES", "checkpoint_name", "get_rng_state",
+    "load_checkpoint", "read_model_state", "save_model_files", "set_rng_state", "validate_checkpoint",
+]

@@ -1,0 +1,222 @@
+"""Datasets and batches of a training run: opening the configured datasets, a resumable distributed sampler, and
+batch collation / device transfer.
+
+Training items come from :func:`cosemdepth.data.open_dataset` in ``"train"`` window mode (spec 8.2: chunks of
+``db_seq_len``, a random ``seq_len`` window in each, the paper's augmentations); validation items in ``"windowed"``
+mode (spec 6.3: non-overlapping windows of ``val_seq_len``, no augmentation). A mix of datasets samples items with
+the configured weights. The order of the items of an epoch follows ``(seed, epoch)`` exactly as
+:class:`torch.utils.data.DistributedSampler`, so a run can resume in the middle of an epoch by skipping the batches
+it already consumed, without loading them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterator, Mapping, Sequence
+
+import torch
+from torch.utils.data import DataLoader, Dataset, DistributedSampler
+
+from ..config import DataConfig, DatasetSource, ModelConfig, key_path
+from ..errors import ConfigError, DatasetError
+
+#: Seed stride between the sample orders of successive rollbacks (a rollback re-shuffles the rest of the epoch).
+SALT_STRIDE = 1_000_003
+
+
+def open_source(
+    src: DatasetSource,
+    key: str,
+    *,
+    split: str,
+    seq_len: int,
+    size: tuple[int, int],
+    augment: bool | str,
+    mode: str,
+    db_seq_len: int | None,
+    seed: int,
+    num_classes: int,
+) -> Dataset:
+    """Open one configured dataset. ``key`` (e.g. ``data.train[0]``) names it in error messages.
+
+    Raises:
+        DatasetError: the dataset folder (or split folder) is missing.
+        ConfigError: the dataset readers are not installed, or an option is invalid.
+    """
+    if src.name == "toy":
+        from .toy import ToyDataset
+
+        opts = dict(src.options)
+        unknown = sorted(set(opts) - {"length", "shift", "altitude"})
+        if unknown:
+            raise ConfigError(f"{key}.options: unknown option(s) {unknown} for the toy dataset; valid: "
+                              "['altitude', 'length', 'shift']")
+        return ToyDataset(seq_len=seq_len, size=size, num_classes=num_classes, seed=seed, split=split, **opts)
+
+    if src.root is None:
+        raise ConfigError(f"{key}.root: the folder of the {src.name!r} dataset is required (set it in the config "
+                          f"file, or with --data-root / --set {key_path(key)}.root=PATH)")
+    root = Path(src.root)
+    if not root.exists():
+        raise DatasetError(f"{key}.root: dataset folder {root} not found")
+    if not root.is_dir():
+        raise DatasetError(f"{key}.root: {root} is not a folder")
+    if src.split_dir is not None and not Path(src.split_dir).is_dir():
+        raise DatasetError(f"{key}.split_dir: split folder {src.split_dir} not found")
+    try:
+        from ..data import open_dataset
+    except ImportError as e:
+        raise ConfigError(f"{key}: the dataset readers (cosemdepth.data.open_dataset) are not available in this "
+                          f"installation ({e}); only the 'toy' dataset can be used") from e
+    kwargs: dict[str, Any] = {"seed": seed}
+    if src.name != "aeroscapes":  # single images: no window modes
+        kwargs.update(mode=mode, db_seq_len=db_seq_len)
+    kwargs.update(src.options)
+    try:
+        return open_dataset(src.name, src.root, split_dir=src.split_dir, split=split, seq_len=seq_len, size=size,
+                            augment=augment, **kwargs)
+    except (ConfigError, DatasetError) as e:
+        raise type(e)(f"{key} ({src.name} at {src.root}, split {split!r}): {e}") from e
+
+
+def build_train_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Dataset:
+    """The training dataset of a run: one dataset, or a weighted mix of the ``data.train`` datasets."""
+    sets = [
+        open_source(src, f"data.train[{i}]", split=data.train_split, seq_len=data.seq_len, size=data.size,
+                    augment=data.augment, mode="train", db_seq_len=data.db_seq_len, seed=seed,
+                    num_classes=model.num_classes)
+        for i, src in enumerate(data.train)
+    ]
+    for i, ds in enumerate(sets):
+        if len(ds) == 0:
+            raise DatasetError(f"data.train[{i}] ({data.train[i].name}, split {data.train_split!r}) has no "
+                               f"training sequence of {data.seq_len} frames")
+    if len(sets) == 1:
+        return sets[0]
+    weights = [src.weight for src in data.train]
+    try:
+        from ..data import MixedDataset
+    except ImportError:
+        MixedDataset = _Mix  # noqa: N806  (replace by cosemdepth.data.MixedDataset once it has landed)
+    return MixedDataset(sets, weights, length=data.mix_length, seed=seed)
+
+
+def build_val_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Dataset | None:
+    """The validation dataset (spec 6.3 windows), or None when validation is off."""
+    src = data.val_source
+    if src is None:
+        return None
+    key = "data.val" if data.val is not None else "data.train[0] (validation)"
+    ds = open_source(src, key, split=data.val_split, seq_len=data.val_seq_len, size=data.size, augment=False,
+                     mode="windowed", db_seq_len=None, seed=seed, num_classes=model.num_classes)
+    if len(ds) == 0:
+        raise DatasetError(f"{key} ({src.name}, split {data.val_split!r}) has no validation window of "
+                           f"{data.val_seq_len} frames; set data.validate: false to train without validation")
+    return ds
+
+
+def check_modalities(dataset: Dataset, model: ModelConfig, what: str) -> None:
+    """Raise :class:`DatasetError` unless the items of ``dataset`` carry the ground truth ``model`` learns from."""
+    item = dataset[0]
+    missing = [k for k, need in (("depth", model.has_depth), ("semantic", model.has_semantic))
+               if need and item.get(k) is None]
+    if missing:
+        other = "m4semantic" if "depth" in missing else "m4depth"
+        raise DatasetError(f"{what} has no {' and no '.join(missing)} ground truth, which the {model.arch} model "
+                           f"needs (choose another dataset, or the {other} model)")
+
+
+class ResumableSampler(DistributedSampler):
+    """:class:`DistributedSampler` that can start in the middle of an epoch, and re-shuffle after a rollback.
+
+    The order of an epoch depends on ``(seed + SALT_STRIDE * salt, epoch)``; this rank's indices are
+    ``order[rank::world_size]`` as in ``DistributedSampler`` (tail dropped to a multiple of ``world_size``), and the
+    first ``start`` of them are skipped.
+    """
+
+    def __init__(self, dataset: Dataset, *, num_replicas: int = 1, rank: int = 0, shuffle: bool = True,
+                 seed: int = 0) -> None:
+        super().__init__(dataset, num_replicas=num_replicas, rank=rank, shuffle=shuffle, seed=seed, drop_last=True)
+        self.base_seed = int(seed)
+        self.start = 0
+
+    def set_position(self, epoch: int, start: int = 0, salt: int = 0) -> None:
+        """Epoch ``epoch``, skipping this rank's first ``start`` items, with the order salted by ``salt``."""
+        self.set_epoch(int(epoch))
+        self.seed = self.base_seed + SALT_STRIDE * int(salt)
+        self.start = int(start)
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(list(super().__iter__())[self.start:])
+
+    def __len__(self) -> int:
+        return max(0, self.num_samples - self.start)
+
+
+def collate(items: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Stack the tensors of the items (``rgb [T,3,H,W]`` -> ``[B,T,3,H,W]``...); other values become lists."""
+    out: dict[str, Any] = {}
+    for k, v in items[0].items():
+        vals = [it[k] for it in items]
+        out[k] = torch.stack(vals) if isinstance(v, torch.Tensor) else vals
+    return out
+
+
+def make_loader(dataset: Dataset, sampler: ResumableSampler | None, batch_size: int, num_workers: int,
+                seed: int, pin_memory: bool = False) -> DataLoader:
+    """A DataLoader over ``dataset`` with our collation; full batches only when a sampler is given (training)."""
+    gen = torch.Generator().manual_seed(seed)  # worker seeds, without touching the global RNG
+    return DataLoader(dataset, batch_size=batch_size, sampler=sampler, shuffle=False, num_workers=num_workers,
+                      collate_fn=collate, drop_last=sampler is not None, pin_memory=pin_memory, generator=gen)
+
+
+def to_device(batch: Mapping[str, Any], device: torch.device) -> dict[str, Any]:
+    """Move the tensors of a batch to ``device`` (non-blocking); leave other values."""
+    return {k: v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
+
+
+class _Mix(Dataset):
+    """Minimal weighted mix, used only while :class:`cosemdepth.data.MixedDataset` is not installed: item ``i`` of
+    epoch ``e`` is drawn from dataset ``d`` with probability ``w_d / sum(w)``, seeded by ``(seed, e, i)``."""
+
+    def __init__(self, datasets: Sequence[Dataset], weights: Sequence[float], length: int | None = None,
+                 seed: int = 0) -> None:
+        self.datasets = list(datasets)
+        total = float(sum(weights))
+        self.weights = torch.tensor([w / total for w in weights], dtype=torch.float64)
+        self.length = int(length) if length is not None else sum(len(d) for d in datasets)
+        self.seed = int(seed)
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+        for d in self.datasets:
+            if hasattr(d, "set_epoch"):
+                d.set_epoch(epoch)
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __getitem__(self, index: int) -> dict:
+        g = torch.Generator().manual_seed((self.seed * 1_000_003 + self.epoch) * 1_000_033 + index)
+        d = int(torch.multinomial(self.weights, 1, generator=g))
+        j = int(torch.randint(0, len(self.datasets[d]), (1,), generator=g))
+        item = dict(self.datasets[d][j])
+        item["source"] = torch.tensor(d, dtype=torch.int64)
+        return item
+
+
+def steps_per_epoch(dataset: Dataset, batch_size: int, world_size: int) -> int:
+    """Optimizer steps in one epoch: each rank gets ``len // world_size`` items, in full batches."""
+    return (len(dataset) // world_size) // batch_size
+
+
+def total_steps(epochs: int, per_epoch: int, max_steps: int) -> int:
+    total = epochs * per_epoch
+    return min(total, max_steps) if max_steps > 0 else total
+
+
+__all__ = [
+    "SALT_STRIDE", "ResumableSampler", "build_train_dataset", "build_val_dataset", "check_modalities", "collate",
+    "make_loader", "open_source", "steps_per_epoch", "to_device", "total_steps",
+]

@@ -1,0 +1,597 @@
+"""The training loop (spec 8): :class:`Trainer`.
+
+One :class:`Trainer` runs one run folder (layout in :mod:`cosemdepth.training.rundir`):
+
+* Adam with the configured recipe (the paper's: lr 1e-4 constant, betas 0.9/0.999, eps 1e-7) on the loss of spec 7;
+* a checkpoint every ``train.checkpoint_every`` steps and at every epoch end, the newest ``train.keep_last`` kept;
+  running the same command again resumes from the newest valid checkpoint (weights, optimizer, position in the
+  epoch, RNG states, best metrics), so the resumed run continues exactly where the checkpoint was taken;
+* validation as in spec 6.3 every ``train.validate_every_epochs`` epochs and/or ``train.validate_every_steps``
+  steps, and the best model in ``RUN_DIR/best`` by the rule ``train.best`` (spec 8.5, or one metric);
+* a non-finite guard: a step whose loss or gradient is not finite is skipped (no optimizer update) and logged; after
+  ``train.nonfinite_patience`` such steps in a row the run rolls back to the last good checkpoint, re-shuffles the
+  rest of that epoch, and continues; it gives up after ``train.max_rollbacks`` rollbacks without progress;
+* DistributedDataParallel when started by ``torchrun`` (rank 0 writes everything);
+* TensorBoard, a JSON-lines event log, a tqdm progress bar.
+
+A training step counts one batch, whether its update was applied or skipped; "step N" is the N-th batch of the run
+(1-based), and ``ckpt-0000000N`` holds the state after it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import random
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Optional
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from ..config import RunConfig
+from ..errors import ConfigError, CosemdepthError, DatasetError
+from ..evaluation.metrics import selection_rule
+from ..models import build_model
+from ..ops.resample import resize_nn2
+from . import distributed as D
+from .checkpoint import CheckpointManager, get_rng_state, load_checkpoint, set_rng_state
+from .data import (
+    ResumableSampler,
+    build_train_dataset,
+    build_val_dataset,
+    check_modalities,
+    make_loader,
+    steps_per_epoch,
+    to_device,
+    total_steps,
+)
+from .events import CONSOLE_KINDS, EventLog
+from .losses import LossTerms, total_loss
+from .rundir import (
+    BEST_METRICS_NAME,
+    BEST_NAME,
+    CHECKPOINTS_NAME,
+    CONFIG_NAME,
+    EVENTS_NAME,
+    TENSORBOARD_NAME,
+    check_output_dir,
+    compare_configs,
+    create_run_dir,
+    read_run_config,
+    recover_best,
+    save_best,
+)
+from .validation import validate
+from .visual import example_strip
+
+
+class TrainingDiverged(CosemdepthError):
+    """The non-finite guard rolled back ``train.max_rollbacks`` times without reaching a new good checkpoint."""
+
+
+@dataclass
+class LoopState:
+    """Where the run is. Saved in every checkpoint (``trainer_state.json``)."""
+
+    step: int = 0
+    epoch: int = 0
+    batch_in_epoch: int = 0
+    #: Salt of the sample order of the current epoch (incremented by each rollback).
+    data_salt: int = 0
+    #: ``{"step": int, "metrics": {...}}`` of the best validation so far, or None.
+    best: Optional[dict] = None
+    last_validation: Optional[dict] = None
+    last_validation_step: int = -1
+    history: list = field(default_factory=list)  # [{"step", "epoch", "metrics"}] of every validation
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "LoopState":
+        names = set(cls.__dataclass_fields__)
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+
+class NonFiniteGuard:
+    """Counts non-finite steps in a row: :meth:`record` says ``"ok"``, ``"skip"`` or ``"rollback"``."""
+
+    def __init__(self, patience: int) -> None:
+        self.patience = int(patience)
+        self.streak = 0
+
+    def record(self, finite: bool) -> str:
+        if finite:
+            self.streak = 0
+            return "ok"
+        self.streak += 1
+        return "rollback" if self.streak >= self.patience else "skip"
+
+    def reset(self) -> None:
+        self.streak = 0
+
+
+def resolve_device(name: str) -> torch.device:
+    """``train.device`` -> a torch device; "auto" is CUDA when available, else the CPU."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"train.device: {name!r} asked for, but CUDA is not available (use 'auto' or 'cpu')")
+    if name == "mps" and not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
+        raise ConfigError("train.device: 'mps' asked for, but MPS is not available")
+    return torch.device(name)
+
+
+def seed_everything(seed: int) -> None:
+    """Seed python's, numpy's and torch's global generators (CPU and CUDA)."""
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def compute_loss(out, batch: dict, cfg: RunConfig) -> LossTerms:
+    """The training loss (spec 7) of a :class:`SequenceOutput` against a batch, for any of the three models."""
+    m = cfg.model
+    from_logits = cfg.train.semantic_from_logits
+    sem = (out.semantic_logits if from_logits else out.semantic) if m.has_semantic else None
+    return total_loss(
+        out.depth if m.has_depth else None,
+        batch["depth"] if m.has_depth else None,
+        sem,
+        batch["semantic"] if m.has_semantic else None,
+        semantic_weight=cfg.train.semantic_weight,
+        from_logits=from_logits,
+    )
+
+
+def learning_rate(cfg: RunConfig, epoch: int) -> float:
+    """The learning rate of ``epoch``: ``lr * lr_decay ** (number of lr_decay_epochs <= epoch)``."""
+    t = cfg.train
+    return t.lr * t.lr_decay ** sum(1 for e in t.lr_decay_epochs if e <= epoch)
+
+
+class Trainer:
+    """Train a model as configured by ``config`` in the run folder ``run_dir``.
+
+    Construction checks everything that can be checked before writing (config, device, datasets, output folder)
+    and raises :class:`CosemdepthError` subclasses naming what is wrong; nothing is written until :meth:`fit`.
+
+    Args:
+        config: the run config.
+        run_dir: the run folder (created, or resumed if it holds a run).
+        train_dataset, val_dataset: datasets to use instead of the configured ones (items as
+            :func:`cosemdepth.data.open_dataset`); ``val_dataset=None`` uses the configured validation.
+        listeners: callables receiving every event dict (see :mod:`cosemdepth.training.events`) on rank 0.
+        console: print events and a progress bar.
+    """
+
+    def __init__(
+        self,
+        config: RunConfig,
+        run_dir: str | Path,
+        *,
+        train_dataset: Dataset | None = None,
+        val_dataset: Dataset | None = None,
+        listeners: Iterable[Callable[[dict], None]] = (),
+        console: bool = True,
+    ) -> None:
+        self.cfg = config
+        self.run_dir = Path(run_dir)
+        self.listeners = list(listeners)
+        self.console = console
+        tc = config.train
+        device = resolve_device(tc.device)
+        self.dist = D.init_distributed(device.type == "cuda")
+        if self.dist.enabled and device.type == "cuda":
+            device = torch.device("cuda", self.dist.local_rank)
+        self.device = device
+        if tc.num_threads:
+            torch.set_num_threads(tc.num_threads)
+
+        self.train_set = train_dataset if train_dataset is not None else build_train_dataset(
+            config.data, config.model, tc.seed)
+        check_modalities(self.train_set, config.model, "the training data")
+        self.val_set = val_dataset if val_dataset is not None else build_val_dataset(
+            config.data, config.model, tc.seed)
+        if self.val_set is not None:
+            check_modalities(self.val_set, config.model, "the validation data")
+        self.steps_per_epoch = steps_per_epoch(self.train_set, tc.batch_size, self.dist.world_size)
+        if self.steps_per_epoch == 0:
+            raise DatasetError(f"the training data has {len(self.train_set)} sequences, fewer than one batch of "
+                               f"train.batch_size = {tc.batch_size} per process ({self.dist.world_size} "
+                               "process(es)); lower the batch size or add data")
+        self.total_steps = total_steps(tc.epochs, self.steps_per_epoch, tc.max_steps)
+        self.is_better = selection_rule(tc.best)
+        self.resuming = D.on_main(lambda: check_output_dir(self.run_dir), self.dist)
+
+        self.state = LoopState()
+        self.guard = NonFiniteGuard(tc.nonfinite_patience)
+        self.model = None
+        self.optimizer = None
+        self.events = EventLog(None, console=False)
+        self.board = None
+        self._injected: set[int] = set()
+        self._pending_checkpoint = False
+        self._last_saved_step = -1
+        self._rollbacks_since_good = 0
+        self._max_salt = 0
+        self._bar = None
+        self._acc: dict[str, float] = {}
+        self._acc_n = 0
+        self._t_log = time.time()
+        self._steps_at_log = 0
+
+    # ------------------------------------------------------------------------------------------------ set-up
+    def _setup(self) -> None:
+        cfg, dist = self.cfg, self.dist
+        main = dist.is_main
+
+        def prepare() -> list[str]:
+            if self.resuming:
+                changes = compare_configs(read_run_config(self.run_dir), cfg, self.run_dir)
+                if changes:
+                    from ..io.atomic import atomic_write_text
+                    from .run_config import dump_config
+
+                    atomic_write_text(self.run_dir / CONFIG_NAME, dump_config(cfg))
+                return changes
+            create_run_dir(self.run_dir, cfg)
+            return []
+
+        changes = D.on_main(prepare, dist)
+        if main:
+            kinds = set(CONSOLE_KINDS) | ({"train"} if not self._progress_bar_shown() else set())
+            self.events = EventLog(self.run_dir / EVENTS_NAME, console=self.console, listeners=self.listeners,
+                                   console_kinds=kinds)
+            self.events.open()
+            if changes:
+                self.events("config_changed", changes=changes)
+        self.ckpts = CheckpointManager(self.run_dir / CHECKPOINTS_NAME, cfg.train.keep_last, log=self.events)
+
+        seed_everything(cfg.train.seed)
+        self.model = build_model(cfg.model).to(self.device)
+        self.model.train()
+        if dist.enabled:
+            from torch.nn.parallel import DistributedDataParallel
+
+            ids = [self.device.index] if self.device.type == "cuda" else None
+            self.net = DistributedDataParallel(self.model, device_ids=ids)
+        else:
+            self.net = self.model
+        t = cfg.train
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=t.lr, betas=t.betas, eps=t.eps,
+                                          weight_decay=t.weight_decay)
+        self.sampler = ResumableSampler(self.train_set, num_replicas=dist.world_size, rank=dist.rank, shuffle=True,
+                                        seed=t.seed)
+
+        def find_checkpoint() -> str | None:
+            self.ckpts.cleanup()
+            recover_best(self.run_dir)
+            return self._latest_valid_path()
+
+        path = D.on_main(find_checkpoint, dist)
+        if path is not None:
+            self._load(path)
+            best = self._read_best()
+            if best is not None:
+                self.state.best = best
+            self.events("resume", checkpoint=path, step=self.state.step, epoch=self.state.epoch,
+                        batch_in_epoch=self.state.batch_in_epoch, total_steps=self.total_steps)
+        else:
+            self.events("start", run_dir=str(self.run_dir), total_steps=self.total_steps,
+                        steps_per_epoch=self.steps_per_epoch, world_size=dist.world_size, device=str(self.device),
+                        bf16_autocast=bool(cfg.train.bf16 and self.device.type == "cuda"),
+                        num_parameters=self.model.num_parameters(), train_items=len(self.train_set),
+                        val_items=None if self.val_set is None else len(self.val_set))
+            self._save_checkpoint()
+        if main:
+            self.board = _make_board(self.run_dir / TENSORBOARD_NAME, self.state.step if path else None)
+
+    def _latest_valid_path(self) -> str | None:
+        p = self.ckpts.latest_valid()
+        return None if p is None else str(p)
+
+    def _progress_bar_shown(self) -> bool:
+        """A progress bar on rank 0 when asked for and stderr is a terminal (else "train" events are printed)."""
+        import sys
+
+        return bool(self.console and self.cfg.train.progress and self.dist.is_main and sys.stderr.isatty())
+
+    def _read_best(self) -> dict | None:
+        import json
+
+        p = self.run_dir / BEST_NAME / BEST_METRICS_NAME
+
+        def read() -> dict | None:
+            try:
+                d = json.loads(p.read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                return None
+            return {"step": d.get("step"), "metrics": d}
+
+        return D.on_main(read, self.dist)
+
+    # ------------------------------------------------------------------------------------------------ checkpoints
+    def _trainer_state(self) -> dict:
+        d = asdict(self.state)
+        d.update(total_steps=self.total_steps, steps_per_epoch=self.steps_per_epoch,
+                 world_size=self.dist.world_size, batch_size=self.cfg.train.batch_size, saved_at=time.time())
+        return d
+
+    def _save_checkpoint(self) -> None:
+        if self.state.step == self._last_saved_step:
+            return
+        if self.dist.is_main:
+            path = self.ckpts.save(
+                model_state=self.model.state_dict(),
+                model_config=self.cfg.model,
+                optimizer_state=self.optimizer.state_dict(),
+                trainer_state=self._trainer_state(),
+                rng_state=get_rng_state(),
+                source={"kind": "training", "run_dir": str(self.run_dir.absolute()), "epoch": self.state.epoch},
+            )
+            self.events("checkpoint", path=str(path), step=self.state.step, epoch=self.state.epoch)
+        D.barrier(self.dist)
+        self._last_saved_step = self.state.step
+        self._pending_checkpoint = False
+        self._rollbacks_since_good = 0
+
+    def _request_checkpoint(self) -> None:
+        """Save now, or as soon as the non-finite streak is over (the last checkpoint must stay a good one)."""
+        if self.guard.streak > 0:
+            if not self._pending_checkpoint:
+                self.events("checkpoint_deferred", step=self.state.step, streak=self.guard.streak)
+            self._pending_checkpoint = True
+        else:
+            self._save_checkpoint()
+
+    def _load(self, path: str) -> None:
+        ck = load_checkpoint(path, device=self.device)
+        self.model.load_state_dict(ck.model)
+        self.optimizer.load_state_dict(ck.optimizer)
+        set_rng_state(ck.rng)
+        self.state = LoopState.from_dict(ck.state)
+        if self.state.batch_in_epoch >= self.steps_per_epoch:  # the epoch got shorter (less data, larger batch)
+            self.state.epoch += 1
+            self.state.batch_in_epoch = 0
+        self._last_saved_step = self.state.step
+        self._max_salt = max(self._max_salt, self.state.data_salt)
+
+    def _rollback(self, bad_step: int) -> None:
+        self._rollbacks_since_good += 1
+        if self._rollbacks_since_good > self.cfg.train.max_rollbacks:
+            raise TrainingDiverged(
+                f"step {bad_step}: {self.guard.streak} non-finite steps in a row again after "
+                f"{self.cfg.train.max_rollbacks} rollback(s) without progress; see {self.run_dir / EVENTS_NAME}")
+        path = D.on_main(self._latest_valid_path, self.dist)
+        if path is None:
+            raise TrainingDiverged(f"step {bad_step}: non-finite steps and no valid checkpoint to roll back to")
+        best, last, hist = self.state.best, self.state.last_validation, self.state.history
+        self._load(path)
+        self.state.best = best  # validations after the checkpoint stay known (best/ holds their winner)
+        self.state.last_validation, self.state.history = last, hist
+        self._max_salt += 1
+        self.state.data_salt = self._max_salt
+        streak = self.guard.streak
+        self.guard.reset()
+        self._pending_checkpoint = False
+        self.events("rollback", from_step=bad_step, to_step=self.state.step, checkpoint=path, streak=streak,
+                    rollbacks_without_progress=self._rollbacks_since_good, data_salt=self.state.data_salt)
+
+    # ------------------------------------------------------------------------------------------------ steps
+    def _autocast(self):
+        if self.cfg.train.bf16 and self.device.type == "cuda":
+            return torch.autocast("cuda", dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
+    def _train_step(self, batch: dict) -> str:
+        """One batch: forward, loss, backward, guard, update. Returns the guard's verdict."""
+        st = self.state
+        step = st.step + 1
+        batch = to_device(batch, self.device)
+        for g in self.optimizer.param_groups:
+            g["lr"] = learning_rate(self.cfg, st.epoch)
+        with self._autocast():
+            out = self.net(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch.get("reset"))
+        terms = compute_loss(out, batch, self.cfg)
+        loss = terms.total
+        if step in self.cfg.debug.inject_nonfinite_steps and step not in self._injected:
+            self._injected.add(step)
+            loss = loss * float("nan")
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        grads = [p.grad for p in self.model.parameters() if p.grad is not None]
+        grad_norm = torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(g.float()) for g in grads]))
+        finite = bool(torch.isfinite(loss.detach()).item() and torch.isfinite(grad_norm).item())
+        finite = D.all_true(finite, self.dist, self.device)
+        verdict = self.guard.record(finite)
+        if finite:
+            if self.cfg.train.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.train.grad_clip)
+            self.optimizer.step()
+            values = {k: v for k, v in terms.as_dict().items()}
+            values["grad_norm"] = float(grad_norm)
+            for k, v in values.items():
+                self._acc[k] = self._acc.get(k, 0.0) + v
+            self._acc_n += 1
+        else:
+            self.optimizer.zero_grad(set_to_none=True)
+            self.events("nonfinite_step", step=step, epoch=st.epoch, loss=float(loss.detach()),
+                        grad_norm=float(grad_norm), streak=self.guard.streak, action=verdict,
+                        injected=step in self._injected)
+        st.step = step
+        st.batch_in_epoch += 1
+        if finite and self._pending_checkpoint:
+            self._save_checkpoint()
+        if self.board is not None and self.cfg.train.image_every and step % self.cfg.train.image_every == 0:
+            self._log_images("train", batch, out, step)
+        return verdict
+
+    def _log_train(self) -> None:
+        """Every ``log_every`` steps: mean losses of the good steps since the last log (over all ranks)."""
+        st = self.state
+        keys = ["total", "grad_norm"] + [k for k, need in (("depth", self.cfg.model.has_depth),
+                                                           ("semantic", self.cfg.model.has_semantic)) if need]
+        means = {k: self._acc[k] / self._acc_n if self._acc_n else math.nan for k in keys}
+        means["good_steps"] = float(self._acc_n)
+        means = D.mean_over_ranks(means, self.dist, self.device)
+        now = time.time()
+        speed = (st.step - self._steps_at_log) / max(now - self._t_log, 1e-9)
+        self._t_log, self._steps_at_log = now, st.step
+        self._acc, self._acc_n = {}, 0
+        lr = learning_rate(self.cfg, st.epoch)
+        named = {f"loss_{k}" if k in ("total", "depth", "semantic") else k: v for k, v in means.items()}
+        self.events("train", step=st.step, epoch=st.epoch, lr=lr, steps_per_s=speed, **named)
+        if self.board is not None:
+            self.board.scalars("train", {k: v for k, v in named.items() if k != "good_steps"}, st.step)
+            self.board.scalars("train", {"lr": lr, "steps_per_s": speed, "epoch": st.epoch}, st.step)
+        if self._bar is not None and math.isfinite(means["total"]):
+            self._bar.set_postfix(loss=f"{means['total']:.4f}", epoch=st.epoch, refresh=False)
+
+    def _log_images(self, tag: str, batch: dict, out, step: int) -> None:
+        m = self.cfg.model
+        size = tuple(batch["rgb"].shape[-2:])
+        with torch.no_grad():
+            pd = resize_nn2(out.depth[0][:1, -1].float(), size)[0] if m.has_depth else None
+            pl = resize_nn2(out.semantic[0][:1, -1].float(), size)[0].argmax(0) if m.has_semantic else None
+        strip = example_strip(batch["rgb"][0, -1], true_depth=batch["depth"][0, -1] if m.has_depth else None,
+                              pred_depth=pd, true_labels=batch["semantic"][0, -1] if m.has_semantic else None,
+                              pred_labels=pl, num_classes=m.num_classes)
+        self.board.image(f"{tag}/rgb_depth_true_pred_labels_true_pred", strip, step)
+
+    # ------------------------------------------------------------------------------------------------ validation
+    def _validate(self) -> None:
+        st = self.state
+
+        def run() -> dict:
+            loader = make_loader(self.val_set, None, self.cfg.train.val_batch_size, self.cfg.data.num_workers,
+                                 seed=self.cfg.train.seed)
+            metrics, example = validate(self.model, loader, self.device, max_batches=self.cfg.train.val_max_batches,
+                                        autocast=self._autocast())
+            if self.board is not None and example is not None:
+                strip = example_strip(example["rgb"], true_depth=example.get("depth"),
+                                      pred_depth=example.get("pred_depth"), true_labels=example.get("semantic"),
+                                      pred_labels=example.get("pred_labels"), num_classes=self.cfg.model.num_classes)
+                self.board.image("val/rgb_depth_true_pred_labels_true_pred", strip, st.step)
+            return metrics
+
+        # Every rank validates (same weights, same data): no rank waits in a collective for the length of a
+        # validation, which could exceed the process group's timeout; rank 0's result is used everywhere.
+        metrics = D.broadcast(run(), self.dist)
+        st.last_validation = metrics
+        st.last_validation_step = st.step
+        st.history.append({"step": st.step, "epoch": st.epoch, "metrics": _scalars(metrics)})
+        self.events("validation", step=st.step, epoch=st.epoch, metrics=metrics)
+        if self.board is not None:
+            self.board.scalars("val", {k: v for k, v in metrics.items() if k != "frames"}, st.step)
+        best = None if st.best is None else st.best.get("metrics")
+        if self.is_better(metrics, best):
+            if self.dist.is_main:
+                path = save_best(self.run_dir, self.model.state_dict(), self.cfg.model, metrics,
+                                 {"step": st.step, "epoch": st.epoch, "rule": self.cfg.train.best})
+                self.events("best", step=st.step, epoch=st.epoch, path=str(path), rule=self.cfg.train.best,
+                            metrics=metrics)
+            D.barrier(self.dist)
+            st.best = {"step": st.step, "metrics": metrics}
+
+    # ------------------------------------------------------------------------------------------------ the loop
+    def _epoch_loader(self):
+        st, tc = self.state, self.cfg.train
+        if hasattr(self.train_set, "set_epoch"):
+            self.train_set.set_epoch(st.epoch)
+        self.sampler.set_position(st.epoch, st.batch_in_epoch * tc.batch_size, st.data_salt)
+        seed = (tc.seed * 1_000_003 + st.epoch) * 1_000_033 + st.data_salt
+        return make_loader(self.train_set, self.sampler, tc.batch_size, self.cfg.data.num_workers, seed=seed,
+                           pin_memory=self.device.type == "cuda")
+
+    def fit(self) -> dict:
+        """Train (or resume) until ``train.epochs`` epochs or ``train.max_steps`` steps; return a summary dict:
+        ``step``, ``epoch``, ``best`` ({step, metrics} or None), ``last_validation``, ``checkpoint``, ``run_dir``."""
+        try:
+            self._setup()
+            self._loop()
+            summary = {"run_dir": str(self.run_dir), "step": self.state.step, "epoch": self.state.epoch,
+                       "best": self.state.best, "last_validation": self.state.last_validation,
+                       "checkpoint": str(self.ckpts.folder / f"ckpt-{self.state.step:08d}")}
+            self.events("done", step=self.state.step, epoch=self.state.epoch,
+                        best_step=None if self.state.best is None else self.state.best.get("step"))
+            return summary
+        except BaseException as e:
+            if not isinstance(e, (KeyboardInterrupt, ConfigError)):
+                self.events("error", step=self.state.step, error=f"{type(e).__name__}: {e}")
+            raise
+        finally:
+            if self._bar is not None:
+                self._bar.close()
+            if self.board is not None:
+                self.board.close()
+            self.events.close()
+            D.shutdown(self.dist)
+
+    def _loop(self) -> None:
+        st, tc = self.state, self.cfg.train
+        from tqdm import tqdm
+
+        self._bar = tqdm(total=self.total_steps, initial=min(st.step, self.total_steps), desc="train", unit="step",
+                         dynamic_ncols=True, disable=not self._progress_bar_shown(), smoothing=0.05)
+        self._t_log, self._steps_at_log = time.time(), st.step
+        while self.state.step < self.total_steps:
+            st = self.state
+            rolled_back = False
+            ended = False
+            for batch in self._epoch_loader():
+                verdict = self._train_step(batch)
+                st = self.state
+                self._bar.update(1)
+                if verdict == "rollback":
+                    self._rollback(st.step)
+                    self._bar.n = self.state.step
+                    self._bar.refresh()
+                    rolled_back = True
+                    break
+                if st.step % tc.log_every == 0:
+                    self._log_train()
+                epoch_done = st.batch_in_epoch >= self.steps_per_epoch
+                if epoch_done:
+                    st.epoch += 1
+                    st.batch_in_epoch = 0
+                    self.events("epoch_end", step=st.step, epoch=st.epoch)
+                validate_now = self.val_set is not None and (
+                    (epoch_done and tc.validate_every_epochs and st.epoch % tc.validate_every_epochs == 0)
+                    or (tc.validate_every_steps and st.step % tc.validate_every_steps == 0))
+                if validate_now:
+                    self._validate()
+                if epoch_done or (tc.checkpoint_every and st.step % tc.checkpoint_every == 0):
+                    self._request_checkpoint()
+                if st.step >= self.total_steps or epoch_done:
+                    ended = True
+                    break
+            if rolled_back:
+                continue
+            if not ended:
+                raise RuntimeError(f"the training data ran out at step {self.state.step}, batch "
+                                   f"{self.state.batch_in_epoch} of an epoch of {self.steps_per_epoch}")
+        st = self.state
+        if self.val_set is not None and st.last_validation_step != st.step and (
+                tc.validate_every_epochs or tc.validate_every_steps):
+            self._validate()
+        self._save_checkpoint()
+
+
+def _make_board(log_dir: Path, purge_step: int | None):
+    """A TensorBoard writer, or None if TensorBoard is not installed."""
+    try:
+        from .board import Board
+
+        return Board(log_dir, purge_step=purge_step)
+    except ImportError:
+        return None
+
+
+def _scalars(metrics: dict) -> dict:
+    return {k: v for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+
+
+__all__ = ["LoopState", "NonFiniteGuard", "Trainer", "TrainingDiverged", "compute_loss", "learning_rate",
+           "resolve_device", "seed_everything"]

@@ -1,0 +1,76 @@
+"""Pictures for TensorBoard: colourised depth and labels, and a strip RGB | depth (true, predicted) | labels."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..data.midair.format import PALETTE_7
+
+#: Depth range of the colour map (metres, log scale).
+DEPTH_VIS_RANGE = (0.5, 200.0)
+
+
+def depth_to_rgb(depth: torch.Tensor | np.ndarray, lo: float = DEPTH_VIS_RANGE[0],
+                 hi: float = DEPTH_VIS_RANGE[1]) -> np.ndarray:
+    """``[H, W]`` metres -> ``[H, W, 3]`` uint8, log scale from ``lo`` (bright) to ``hi`` (dark), "magma" colours.
+    Non-finite values are black."""
+    from matplotlib import colormaps
+
+    d = np.asarray(depth.detach().float().cpu() if isinstance(depth, torch.Tensor) else depth, dtype=np.float64)
+    finite = np.isfinite(d)
+    x = (np.log(np.clip(np.where(finite, d, hi), lo, hi)) - np.log(lo)) / (np.log(hi) - np.log(lo))
+    rgb = colormaps["magma"](1.0 - x)[..., :3]
+    rgb[~finite] = 0.0
+    return (rgb * 255.0 + 0.5).astype(np.uint8)
+
+
+def palette(num_classes: int) -> np.ndarray:
+    """``[N, 3]`` uint8 colours: the Mid-Air palette (spec 9.5) for up to 7 classes, "tab20" beyond."""
+    if num_classes <= len(PALETTE_7):
+        return PALETTE_7[:num_classes]
+    from matplotlib import colormaps
+
+    cols = colormaps["tab20"](np.arange(num_classes) % 20)[:, :3]
+    return (cols * 255.0 + 0.5).astype(np.uint8)
+
+
+def labels_to_rgb(labels: torch.Tensor | np.ndarray, num_classes: int) -> np.ndarray:
+    """``[H, W]`` class indices -> ``[H, W, 3]`` uint8; out-of-range labels are black."""
+    lab = np.asarray(labels.detach().cpu() if isinstance(labels, torch.Tensor) else labels).astype(np.int64)
+    pal = palette(num_classes)
+    ok = (lab >= 0) & (lab < num_classes)
+    out = pal[np.clip(lab, 0, num_classes - 1)]
+    out[~ok] = 0
+    return out
+
+
+def image_to_rgb(rgb: torch.Tensor) -> np.ndarray:
+    """``[3, H, W]`` float (about [0, 1]) -> ``[H, W, 3]`` uint8."""
+    x = rgb.detach().float().cpu().clamp(0, 1).permute(1, 2, 0).numpy()
+    return (x * 255.0 + 0.5).astype(np.uint8)
+
+
+def example_strip(
+    rgb: torch.Tensor,
+    *,
+    true_depth: torch.Tensor | None = None,
+    pred_depth: torch.Tensor | None = None,
+    true_labels: torch.Tensor | None = None,
+    pred_labels: torch.Tensor | None = None,
+    num_classes: int = 7,
+) -> np.ndarray:
+    """``[H, 5W, 3]`` uint8 (fewer panels when some are None): RGB | true depth | predicted depth | true labels |
+    predicted labels. ``rgb [3,H,W]``, depths ``[H,W]`` or ``[1,H,W]`` metres, labels ``[H,W]`` integers, all at the
+    same size."""
+    panels = [image_to_rgb(rgb)]
+    for d in (true_depth, pred_depth):
+        if d is not None:
+            panels.append(depth_to_rgb(d.reshape(d.shape[-2:])))
+    for lab in (true_labels, pred_labels):
+        if lab is not None:
+            panels.append(labels_to_rgb(lab.reshape(lab.shape[-2:]), num_classes))
+    return np.concatenate(panels, axis=1)
+
+
+__all__ = ["DEPTH_VIS_RANGE", "depth_to_rgb", "example_strip", "image_to_rgb", "labels_to_rgb", "palette"]

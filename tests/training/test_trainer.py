@@ -1,0 +1,204 @@
+"""The training loop in-process: determinism, exact resume, the non-finite guard (skip, deferred checkpoint,
+rollback, giving up), validation and the best model."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from cosemdepth.training.checkpoint import load_checkpoint, read_model_state, validate_checkpoint
+from cosemdepth.training.events import read_events
+from cosemdepth.training.trainer import NonFiniteGuard, Trainer, TrainingDiverged, learning_rate
+
+
+def _weights(trainer: Trainer) -> dict[str, torch.Tensor]:
+    return {k: v.detach().clone() for k, v in trainer.model.state_dict().items()}
+
+
+def _equal(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_guard_counts_streaks():
+    g = NonFiniteGuard(3)
+    assert [g.record(f) for f in (False, True, False, False, False)] == ["skip", "ok", "skip", "skip", "rollback"]
+
+
+def test_learning_rate_steps(tiny_config):
+    cfg = tiny_config(train__lr=1e-3, train__lr_decay_epochs=[2, 4], train__lr_decay=0.5)
+    assert [learning_rate(cfg, e) for e in range(6)] == [1e-3, 1e-3, 5e-4, 5e-4, 2.5e-4, 2.5e-4]
+
+
+def test_same_seed_same_weights_and_exact_resume(tmp_path, tiny_config):
+    """Two trainings of one config and seed give identical weights, even when the second one is stopped in the
+    middle of an epoch and resumed from its checkpoint by a new Trainer."""
+    cfg6 = tiny_config(train__max_steps=6, train__checkpoint_every=100)
+    a = Trainer(cfg6, tmp_path / "a", console=False)
+    a.fit()
+
+    first = Trainer(tiny_config(train__max_steps=3, train__checkpoint_every=100), tmp_path / "c", console=False)
+    first.fit()
+    assert first.state.epoch == 0 and first.state.batch_in_epoch == 3  # stopped mid-epoch (4 steps per epoch)
+    assert not _equal(_weights(first), _weights(a))
+    resumed = Trainer(cfg6, tmp_path / "c", console=False)
+    assert resumed.resuming
+    resumed.fit()
+    assert _equal(_weights(resumed), _weights(a))
+    events = read_events(tmp_path / "c" / "events.jsonl")
+    kinds = [e["kind"] for e in events]
+    assert kinds.count("start") == 1 and kinds.count("resume") == 1 and "config_changed" in kinds
+    assert next(e for e in events if e["kind"] == "resume")["step"] == 3
+
+
+def test_nonfinite_steps_are_skipped_then_rolled_back(tmp_path, tiny_config):
+    """Injected NaN losses at steps 2, 4 (isolated: skipped) and 6, 7, 8 (three in a row: rollback)."""
+    cfg = tiny_config(train__epochs=3, train__max_steps=10, train__checkpoint_every=4, train__nonfinite_patience=3,
+                      debug__inject_nonfinite_steps=[2, 4, 6, 7, 8])
+    checks = []
+    trainer = None
+    last_weights = {}
+
+    def listen(event):
+        kind = event["kind"]
+        if kind == "train":  # a good step: remember the weights it produced
+            last_weights["w"] = _weights(trainer)
+            last_weights["step"] = event["step"]
+        elif kind == "nonfinite_step":
+            # no update: the weights are those of the last good step (or of the last checkpoint)
+            checks.append(("skip", event["step"], _equal(_weights(trainer), last_weights["w"])))
+        elif kind == "rollback":
+            ck = load_checkpoint(event["checkpoint"])
+            same = _equal(_weights(trainer), ck.model)
+            adam_steps = {int(s["step"]) for s in trainer.optimizer.state_dict()["state"].values()}
+            ck_steps = {int(s["step"]) for s in ck.optimizer["state"].values()}
+            checks.append(("rollback", event["to_step"], same and adam_steps == ck_steps))
+            last_weights["w"] = ck.model
+
+    trainer = Trainer(cfg, tmp_path / "run", console=False, listeners=[listen])
+    summary = trainer.fit()
+    events = read_events(tmp_path / "run" / "events.jsonl")
+    bad = [(e["step"], e["action"]) for e in events if e["kind"] == "nonfinite_step"]
+    assert bad == [(2, "skip"), (4, "skip"), (6, "skip"), (7, "skip"), (8, "rollback")]
+    # the checkpoint of step 4 (a bad step) was deferred to step 5, the last good one before the rollback
+    assert any(e["kind"] == "checkpoint_deferred" and e["step"] == 4 for e in events)
+    saved = [e["step"] for e in events if e["kind"] == "checkpoint"]
+    assert 4 not in saved and 5 in saved
+    rollbacks = [e for e in events if e["kind"] == "rollback"]
+    assert len(rollbacks) == 1 and rollbacks[0]["to_step"] == 5 and rollbacks[0]["from_step"] == 8
+    assert checks and all(ok for _, _, ok in checks), checks
+    assert [c[0] for c in checks].count("rollback") == 1
+    # training went on after the rollback to the end, with finite weights
+    assert summary["step"] == 10 and events[-1]["kind"] == "done"
+    assert all(torch.isfinite(v).all() for v in trainer.model.state_dict().values())
+    assert max(e["step"] for e in events if e["kind"] == "train") == 10
+    # the data after the rollback is drawn in a new order (salted), recorded in the checkpoints
+    assert load_checkpoint(tmp_path / "run" / "checkpoints" / "ckpt-00000010").state["data_salt"] == 1
+
+
+def test_gives_up_after_max_rollbacks(tmp_path, tiny_config):
+    cfg = tiny_config(train__max_steps=8, train__nonfinite_patience=2, train__max_rollbacks=0,
+                      debug__inject_nonfinite_steps=[2, 3])
+    with pytest.raises(TrainingDiverged, match="rollback"):
+        Trainer(cfg, tmp_path / "run", console=False).fit()
+    events = read_events(tmp_path / "run" / "events.jsonl")
+    assert events[-1]["kind"] == "error" and "TrainingDiverged" in events[-1]["error"]
+
+
+def test_validation_best_model_and_checkpoints(tmp_path, tiny_config):
+    """Validation after each epoch, on 4-frame windows, last frame only; the best model is a model folder."""
+    cfg = tiny_config(train__max_steps=8, train__validate_every_epochs=1, train__checkpoint_every=0,
+                      train__keep_last=2, train__best="abs_rel", train__image_every=4, train__log_every=2)
+    trainer = Trainer(cfg, tmp_path / "run", console=False)
+    trainer.fit()
+    events = read_events(tmp_path / "run" / "events.jsonl")
+    vals = [e for e in events if e["kind"] == "validation"]
+    assert [v["step"] for v in vals] == [4, 8]
+    # 8 windows of 4 frames: one metric frame per window
+    assert all(v["metrics"]["frames"] == 8 and v["metrics"]["depth_frames"] == 8
+               and v["metrics"]["semantic_frames"] == 8 for v in vals)
+    bests = [e for e in events if e["kind"] == "best"]
+    expected = [4] + ([8] if vals[1]["metrics"]["abs_rel"] < vals[0]["metrics"]["abs_rel"] else [])
+    assert [b["step"] for b in bests] == expected
+    best_dir = tmp_path / "run" / "best"
+    metrics = json.loads((best_dir / "metrics.json").read_text())
+    assert metrics["step"] == expected[-1] and metrics["rule"] == "abs_rel"
+    state = read_model_state(best_dir)
+    ck = load_checkpoint(tmp_path / "run" / "checkpoints" / f"ckpt-{expected[-1]:08d}")
+    assert _equal(state, ck.model)  # the best model is the model of that validation's step
+    # epoch-end checkpoints only, the newest two kept, all valid
+    kept = sorted(p.name for p in (tmp_path / "run" / "checkpoints").iterdir())
+    assert kept == ["ckpt-00000004", "ckpt-00000008"]
+    for name in kept:
+        validate_checkpoint(tmp_path / "run" / "checkpoints" / name)
+    # TensorBoard: losses, learning rate, metrics, and pictures of depth and labels (true and predicted)
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(tmp_path / "run" / "tensorboard")).Reload()
+    scalars = set(acc.Tags()["scalars"])
+    assert {"train/loss_total", "train/loss_depth", "train/loss_semantic", "train/lr", "val/abs_rel", "val/miou",
+            "val/rmse", "val/iou/0"} <= scalars
+    assert [e.step for e in acc.Scalars("train/loss_total")] == [2, 4, 6, 8]
+    images = acc.Tags()["images"]
+    train_tag = next(t for t in images if t.startswith("train/"))
+    val_tag = next(t for t in images if t.startswith("val/"))
+    pics = acc.Images(train_tag)
+    assert [p.step for p in pics] == [4, 8] and (pics[0].width, pics[0].height) == (5 * 16, 16)
+    assert [p.step for p in acc.Images(val_tag)] == [4, 8]
+
+
+def test_validation_uses_only_the_last_frame_of_each_window(tiny_config):
+    """run_window's output is the streaming model's last frame, equal to the sequence forward at that frame."""
+    from cosemdepth.models import build_model
+    from cosemdepth.ops.resample import resize_nn2
+    from cosemdepth.training.data import collate
+    from cosemdepth.training.toy import ToyDataset
+    from cosemdepth.training.validation import run_window
+
+    cfg = tiny_config()
+    model = build_model(cfg.model).eval()
+    batch = collate([ToyDataset(length=2, size=(32, 32), split="val")[i] for i in range(2)])
+    with torch.no_grad():
+        last = run_window(model, batch)
+        seq = model.forward_sequence(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"])
+    torch.testing.assert_close(last.depth, resize_nn2(seq.depth[0][:, -1], (32, 32)))
+    torch.testing.assert_close(last.semantic, resize_nn2(seq.semantic[0][:, -1], (32, 32)))
+
+
+@pytest.mark.parametrize("arch", ["m4depth", "m4semantic"])
+def test_single_task_models_train(tmp_path, tiny_config, arch):
+    cfg = tiny_config(model__arch=arch, train__max_steps=2, train__validate_every_epochs=1)
+    summary = Trainer(cfg, tmp_path / arch, console=False).fit()
+    metrics = summary["last_validation"]
+    assert ("miou" in metrics) == (arch == "m4semantic") and ("abs_rel" in metrics) == (arch == "m4depth")
+    assert (tmp_path / arch / "best" / "model.safetensors").is_file()
+
+
+def test_weighted_mix_of_two_datasets(tmp_path, tiny_config):
+    cfg = tiny_config(train__max_steps=2, data__train__1__name="toy", data__train__1__weight=3.0,
+                      data__train__1__options={"length": 4, "shift": 1}, data__mix_length=12)
+    trainer = Trainer(cfg, tmp_path / "mix", console=False)
+    assert len(trainer.train_set) == 12
+    sources = [int(trainer.train_set[i]["source"]) for i in range(12)]
+    assert set(sources) <= {0, 1} and sources.count(1) > sources.count(0)  # weight 3 vs 1
+    trainer.fit()
+
+
+def test_bf16_autocast_keeps_the_loss_in_float32(tiny_config):
+    """bf16 autocast is applied on CUDA only; the model and the loss work under it (checked with CPU autocast)."""
+    from cosemdepth.models import build_model
+    from cosemdepth.training.data import collate
+    from cosemdepth.training.toy import ToyDataset
+    from cosemdepth.training.trainer import compute_loss
+
+    cfg = tiny_config(train__bf16=True)
+    model = build_model(cfg.model)
+    batch = collate([ToyDataset(length=2, size=(32, 32))[i] for i in range(2)])
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = model(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch["reset"])
+    assert out.semantic[0].dtype == torch.bfloat16
+    terms = compute_loss(out, batch, cfg)
+    assert terms.total.dtype == torch.float32 and torch.isfinite(terms.total)
+    terms.total.backward()
+    assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)

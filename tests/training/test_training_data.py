@@ -1,0 +1,130 @@
+"""Training data plumbing: the resumable distributed sampler, collation, the toy dataset, dataset errors, pictures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torch.utils.data import DistributedSampler
+
+from cosemdepth.config import DataConfig, DatasetSource, ModelConfig
+from cosemdepth.data.midair.format import PALETTE_7
+from cosemdepth.errors import ConfigError, DatasetError
+from cosemdepth.training.data import (
+    ResumableSampler,
+    build_train_dataset,
+    check_modalities,
+    collate,
+    open_source,
+    steps_per_epoch,
+    total_steps,
+)
+from cosemdepth.training.toy import ToyDataset
+from cosemdepth.training.visual import depth_to_rgb, example_strip, labels_to_rgb
+
+
+def test_sampler_matches_distributed_sampler_and_resumes_mid_epoch():
+    data = list(range(11))
+    ref = DistributedSampler(data, num_replicas=1, rank=0, shuffle=True, seed=5, drop_last=True)
+    ref.set_epoch(3)
+    s = ResumableSampler(data, seed=5)
+    s.set_position(3)
+    full = list(s)
+    assert full == list(ref) and sorted(full) == data
+    s.set_position(3, start=4)
+    assert list(s) == full[4:] and len(s) == 7
+    s.set_position(4)
+    assert list(s) != full  # a new order every epoch
+    s.set_position(3, salt=1)
+    assert list(s) != full and sorted(s) == data  # a rollback re-shuffles
+
+
+def test_two_ranks_split_the_single_process_order():
+    """Batch k of two ranks with batch B together hold batch k of one process with batch 2B."""
+    data = list(range(12))
+    single = ResumableSampler(data, seed=1)
+    single.set_position(0)
+    ranks = [ResumableSampler(data, num_replicas=2, rank=r, seed=1) for r in (0, 1)]
+    for r in ranks:
+        r.set_position(0)
+    order = list(single)
+    r0, r1 = list(ranks[0]), list(ranks[1])
+    b = 2
+    for k in range(len(r0) // b):
+        assert sorted(r0[k * b:(k + 1) * b] + r1[k * b:(k + 1) * b]) == sorted(order[2 * b * k:2 * b * (k + 1)])
+    assert steps_per_epoch(data, 2, 2) == 3 and steps_per_epoch(data, 4, 1) == 3
+    assert total_steps(60, 3, 0) == 180 and total_steps(60, 3, 7) == 7
+
+
+def test_collate_stacks_tensors_and_lists_the_rest():
+    items = [{"rgb": torch.zeros(4, 3, 2, 2), "trajectory": "a"}, {"rgb": torch.ones(4, 3, 2, 2), "trajectory": "b"}]
+    b = collate(items)
+    assert b["rgb"].shape == (2, 4, 3, 2, 2) and b["trajectory"] == ["a", "b"] and b["rgb"][1].min() == 1
+
+
+def test_toy_dataset_layout_and_motion():
+    ds = ToyDataset(length=3, seq_len=4, size=(16, 24), num_classes=5, seed=1, shift=2)
+    it = ds[1]
+    assert it["rgb"].shape == (4, 3, 16, 24) and it["depth"].shape == (4, 1, 16, 24)
+    assert it["semantic"].shape == (4, 16, 24) and it["semantic"].dtype == torch.int64
+    assert int(it["semantic"].max()) < 5 and it["reset"].tolist() == [True, False, False, False]
+    assert torch.equal(ds[1]["rgb"], it["rgb"])  # deterministic
+    assert not torch.equal(ToyDataset(length=3, seed=1, split="val")[1]["rgb"], ToyDataset(length=3, seed=1)[1]["rgb"])
+    # the content slides left by `shift` pixels per frame, matching t = (shift * altitude / f, 0, 0)
+    assert torch.equal(it["rgb"][1, :, :, :-2], it["rgb"][0, :, :, 2:])
+    f = float(it["intrinsics"][0])
+    assert f == 12.0 and torch.allclose(it["trans"][1], torch.tensor([2 * 40.0 / f, 0.0, 0.0]))
+    # depth follows the class: one depth per label
+    d, lab = it["depth"][0, 0], it["semantic"][0]
+    for c in lab.unique():
+        assert d[lab == c].unique().numel() == 1
+
+
+def _open(src, **kw):
+    args = dict(split="train", seq_len=4, size=(32, 32), augment=False, mode="train", db_seq_len=4, seed=0,
+                num_classes=7)
+    args.update(kw)
+    return open_source(src, "data.train[0]", **args)
+
+
+def test_dataset_errors_name_the_key_and_the_folder(tmp_path):
+    with pytest.raises(DatasetError, match=r"data\.train\[0\]\.root: dataset folder .*nowhere not found"):
+        _open(DatasetSource(name="synthair", root=str(tmp_path / "nowhere")))
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(DatasetError, match="is not a folder"):
+        _open(DatasetSource(name="midair", root=str(tmp_path / "file")))
+    with pytest.raises(DatasetError, match=r"split_dir: split folder"):
+        _open(DatasetSource(name="midair", root=str(tmp_path), split_dir=str(tmp_path / "no_splits")))
+    with pytest.raises(ConfigError, match=r"data\.train\[0\]\.root: the folder of the 'topair' dataset is required"):
+        _open(DatasetSource(name="topair"))
+    with pytest.raises(ConfigError, match="unknown option"):
+        _open(DatasetSource(name="toy", options={"colour": 1}))
+
+
+def test_modalities_are_checked_against_the_model():
+    class NoDepth(ToyDataset):
+        def __getitem__(self, i):
+            item = super().__getitem__(i)
+            del item["depth"]
+            return item
+
+    check_modalities(NoDepth(length=1), ModelConfig(arch="m4semantic"), "x")
+    with pytest.raises(DatasetError, match="no depth ground truth.*m4semantic"):
+        check_modalities(NoDepth(length=1), ModelConfig(arch="cosemdepth"), "the training data")
+
+
+def test_an_empty_training_set_is_an_error():
+    data = DataConfig(train=(DatasetSource(name="toy", options={"length": 0}),), size=(32, 32))
+    with pytest.raises(DatasetError, match=r"data\.train\[0\] \(toy, split 'train'\) has no training sequence"):
+        build_train_dataset(data, ModelConfig(levels=3), 0)
+
+
+def test_pictures():
+    pal = labels_to_rgb(np.array([[0, 1], [6, 9]]), 7)
+    assert (pal[0, 0] == PALETTE_7[0]).all() and (pal[1, 0] == PALETTE_7[6]).all() and (pal[1, 1] == 0).all()
+    near, far = depth_to_rgb(np.array([[1.0, 150.0]]))[0]
+    assert int(near.sum()) > int(far.sum())  # near is brighter
+    assert (depth_to_rgb(np.array([[np.nan]])) == 0).all()
+    strip = example_strip(torch.rand(3, 8, 8), true_depth=torch.ones(1, 8, 8), pred_depth=torch.ones(1, 8, 8),
+                          true_labels=torch.zeros(8, 8, dtype=torch.long), pred_labels=None)
+    assert strip.shape == (8, 32, 3) and strip.dtype == np.uint8
