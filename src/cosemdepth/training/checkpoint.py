@@ -72,55 +72,24 @@ def _debug_delay() -> None:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Model weights in our model format. cosemdepth.io.model_io provides save_weights / read_model_files; until it is
-# installed everywhere, the private fallbacks below write and read the same two files (format version 1).
+# Model weights: our model format (cosemdepth.io.model_io), so that every checkpoint is also a loadable model folder.
 # ---------------------------------------------------------------------------------------------------------------
 
 
 def save_model_files(state_dict: Mapping[str, torch.Tensor], config: ModelConfig, folder: Path,
                      source: Mapping[str, Any]) -> None:
     """Write ``model.safetensors`` + ``config.json`` into ``folder`` (our model format)."""
-    try:
-        from ..io.model_io import save_weights
-    except ImportError:
-        save_weights = _save_weights
+    from ..io.model_io import save_weights
+
     save_weights(state_dict, config, folder, source=source)
 
 
 def read_model_state(folder: Path) -> dict[str, torch.Tensor]:
-    """The weights of the model folder ``folder`` (checked against its config when model_io is installed)."""
-    try:
-        from ..io.model_io import read_model_files
-    except ImportError:
-        from safetensors.torch import load_file
+    """The weights of the model folder ``folder``, checked against its config."""
+    from ..io.model_io import read_model_files
 
-        return load_file(str(folder / WEIGHTS_FILE))
     state, _, _ = read_model_files(folder)
     return state
-
-
-def _save_weights(state_dict: Mapping[str, torch.Tensor], config: ModelConfig, out_dir: Path,
-                  source: Mapping[str, Any] | None = None) -> Path:
-    """Private stand-in for ``cosemdepth.io.model_io.save_weights`` (same files, same format); to be removed."""
-    from safetensors.torch import save_file
-
-    from .. import __version__
-    from ..io.atomic import atomic_path
-
-    out_dir = Path(out_dir)
-    tensors = {k: v.detach().to("cpu").contiguous().clone() for k, v in state_dict.items()}
-    meta = {
-        "format": "cosemdepth",
-        "format_version": 1,
-        "model": config.to_dict(),
-        "source": dict(source or {}),
-        "num_parameters": sum(int(t.numel()) for t in tensors.values()),
-        "cosemdepth_version": __version__,
-    }
-    with atomic_path(out_dir / WEIGHTS_FILE) as tmp:
-        save_file(tensors, str(tmp), metadata={"format": "cosemdepth", "format_version": "1"})
-    atomic_write_text(out_dir / CONFIG_FILE, json.dumps(meta, indent=2) + "\n")
-    return out_dir
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -93,11 +93,9 @@ def build_train_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Data
                                f"training sequence of {data.seq_len} frames")
     if len(sets) == 1:
         return sets[0]
+    from ..data import MixedDataset
+
     weights = [src.weight for src in data.train]
-    try:
-        from ..data import MixedDataset
-    except ImportError:
-        MixedDataset = _Mix  # noqa: N806  (replace by cosemdepth.data.MixedDataset once it has landed)
     return MixedDataset(sets, weights, length=data.mix_length, seed=seed)
 
 
@@ -173,37 +171,6 @@ def make_loader(dataset: Dataset, sampler: ResumableSampler | None, batch_size: 
 def to_device(batch: Mapping[str, Any], device: torch.device) -> dict[str, Any]:
     """Move the tensors of a batch to ``device`` (non-blocking); leave other values."""
     return {k: v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
-
-
-class _Mix(Dataset):
-    """Minimal weighted mix, used only while :class:`cosemdepth.data.MixedDataset` is not installed: item ``i`` of
-    epoch ``e`` is drawn from dataset ``d`` with probability ``w_d / sum(w)``, seeded by ``(seed, e, i)``."""
-
-    def __init__(self, datasets: Sequence[Dataset], weights: Sequence[float], length: int | None = None,
-                 seed: int = 0) -> None:
-        self.datasets = list(datasets)
-        total = float(sum(weights))
-        self.weights = torch.tensor([w / total for w in weights], dtype=torch.float64)
-        self.length = int(length) if length is not None else sum(len(d) for d in datasets)
-        self.seed = int(seed)
-        self.epoch = 0
-
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = int(epoch)
-        for d in self.datasets:
-            if hasattr(d, "set_epoch"):
-                d.set_epoch(epoch)
-
-    def __len__(self) -> int:
-        return self.length
-
-    def __getitem__(self, index: int) -> dict:
-        g = torch.Generator().manual_seed((self.seed * 1_000_003 + self.epoch) * 1_000_033 + index)
-        d = int(torch.multinomial(self.weights, 1, generator=g))
-        j = int(torch.randint(0, len(self.datasets[d]), (1,), generator=g))
-        item = dict(self.datasets[d][j])
-        item["source"] = torch.tensor(d, dtype=torch.int64)
-        return item
 
 
 def steps_per_epoch(dataset: Dataset, batch_size: int, world_size: int) -> int:
