@@ -74,8 +74,8 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluation.predict import MANIFEST
 
     StagedDir(args.out, MANIFEST, overwrite=args.overwrite, what="--out folder").check()  # fail before loading
-    model, device = load(args.model, args.device)
     dataset = _open(args)
+    model, device = load(args.model, args.device)
     info = {
         "model": {"path": str(args.model)},
         "dataset": {"root": str(args.images if args.flight else args.root),

@@ -51,6 +51,18 @@ def _why(e: OSError) -> str:
     return e.strerror or str(e)
 
 
+def probe_writable(folder: Path, message: str) -> None:
+    """Raise :class:`ConfigError` (``message`` + the reason) unless a folder can be created in ``folder`` or, if
+    it does not exist yet, in its nearest existing ancestor. Nothing is left behind."""
+    p = folder.absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".probe.", dir=p))
+    except OSError as e:
+        raise ConfigError(f"{message} ({p}: {_why(e)})") from None
+
+
 def _check_not_file(out: Path, what: str) -> None:
     for p in [out, *out.absolute().parents]:
         if p.exists():
@@ -95,6 +107,7 @@ class StagedDir:
                 )
         if out.absolute() == Path.cwd() or out.absolute() in Path.cwd().parents:
             raise ConfigError(f"{out}: the {self.what} cannot be the current folder or one of its parents")
+        probe_writable(out.absolute().parent, f"{out}: cannot write the {self.what} here")
 
     def __enter__(self) -> Path:
         self.check()

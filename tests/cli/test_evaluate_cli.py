@@ -1,0 +1,103 @@
+"""``cosemdepth evaluate``: outputs, and clear errors that leave no partial output behind."""
+
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
+from _outputs import SIZE, leftovers, tiny_midair, tiny_model, torch_threads, unwritable_folder  # noqa: E402
+
+from cosemdepth.cli.main import main  # noqa: E402
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    with torch_threads(1):
+        yield
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory):
+    return tiny_model(tmp_path_factory.mktemp("m") / "tiny")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return tiny_midair(tmp_path_factory.mktemp("d") / "midair")
+
+
+def evaluate(model, root, *extra):
+    return main(["evaluate", "--model", str(model), "--dataset", "midair", "--root", str(root), "--split-dir",
+                 str(Path(root) / "splits"), "--size", str(SIZE), "--no-progress", *map(str, extra)])
+
+
+def test_without_out_nothing_is_written(model_dir, data, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert evaluate(model_dir, data) == 0
+    assert "| tiny |" in capsys.readouterr().out
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_out_in_an_existing_folder_keeps_other_files(model_dir, data, tmp_path):
+    (tmp_path / "notes.txt").write_text("mine")
+    assert evaluate(model_dir, data, "--out", tmp_path, "--max-frames", 2) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["metrics.json", "metrics.md", "notes.txt"]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["protocol"]["frames_streamed"] == 2 and m["protocol"]["frames_evaluated"] == 1
+
+
+def test_output_folder_that_is_a_file(model_dir, data, tmp_path, capsys):
+    f = tmp_path / "out"
+    f.write_text("mine")
+    assert evaluate(model_dir, data, "--out", f) == 2
+    assert "exists and is not a folder" in capsys.readouterr().err
+    assert f.read_text() == "mine" and leftovers(tmp_path) == []
+    assert evaluate(model_dir, data, "--out", f / "sub") == 2
+    assert "is a file, not a folder" in capsys.readouterr().err
+
+
+def test_unwritable_folder(model_dir, data, tmp_path, capsys):
+    with unwritable_folder(tmp_path / "ro") as ro:
+        assert evaluate(model_dir, data, "--out", ro) == 2
+        assert "cannot write" in capsys.readouterr().err
+        assert evaluate(model_dir, data, "--out", ro / "a" / "b") == 2
+        assert "cannot write" in capsys.readouterr().err
+        assert list(ro.iterdir()) == []
+
+
+def test_missing_model_or_dataset_creates_nothing(model_dir, data, tmp_path, capsys):
+    out = tmp_path / "a" / "b" / "out"
+    assert evaluate(tmp_path / "nomodel", data, "--out", out) == 2
+    assert "model folder not found" in capsys.readouterr().err
+    assert evaluate(model_dir, tmp_path / "nodata", "--out", out) == 2
+    assert "not found" in capsys.readouterr().err
+    assert main(["evaluate", "--model", str(model_dir), "--dataset", "midair", "--root", str(data),
+                 "--out", str(out)]) == 2
+    assert "split_dir" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_device(model_dir, data, tmp_path, capsys):
+    import torch
+
+    name = "mps" if torch.cuda.is_available() else "cuda"
+    assert evaluate(model_dir, data, "--device", name, "--out", tmp_path / "o") == 2
+    assert "not available" in capsys.readouterr().err
+    assert evaluate(model_dir, data, "--device", "tpu9", "--out", tmp_path / "o") == 2
+    assert "--device" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_corrupt_frame_mid_run_writes_nothing(model_dir, data, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    shutil.copytree(data, bad)
+    png = bad / "Kite_training/sunny/stereo_disparity/trajectory_0001/000004.PNG"
+    png.write_bytes(b"not a png")
+    out = tmp_path / "out"
+    out.mkdir()
+    assert evaluate(model_dir, bad, "--out", out) == 2
+    assert "000004.PNG" in capsys.readouterr().err
+    assert list(out.iterdir()) == [] and leftovers(tmp_path) == []
