@@ -32,7 +32,6 @@ import importlib.util
 import io
 import math
 import os
-import shutil
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -275,9 +274,11 @@ def plot_qualitative(path: Path, picks: list[dict[str, np.ndarray]], class_names
                 ax.set_ylabel(f"frame {int(pick['frame'])}", fontsize=8)
     if palette is not None and class_names:
         handles = [Patch(color=np.asarray(palette[i]) / 255.0, label=n) for i, n in enumerate(class_names)]
-        fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 7), fontsize=8, frameon=False)
-    fig.text(0.01, 0.005, "depth: turbo colour map, linear from 0 m (red) to 80 m (dark blue)", fontsize=7)
-    fig.tight_layout(rect=(0, 0.06 if palette is not None else 0.02, 1, 1))
+        fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 0.022), ncol=min(len(handles), 7),
+                   fontsize=8, frameon=False)
+    fig.text(0.5, 0.006, "depth: turbo colour map, linear from 0 m (red) to 80 m (dark blue)", fontsize=7,
+             ha="center")
+    fig.tight_layout(rect=(0, 0.075 if palette is not None else 0.03, 1, 1))
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)
@@ -502,11 +503,13 @@ def run_demo(
                 "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
                 "cosemdepth_version": __version__,
             }
-            cmd = ["cosemdepth demo", f"--out {out}", f"--size {size}", f"--frames {frames}", f"--seed {seed}"]
+            cmd = ["cosemdepth demo", f"--out {out}", f"--size {size}"]
             if model is not None:
                 cmd.append(f"--model {model}")
             if data_root is not None:
                 cmd.append(f"--data-root {data_root}")
+            else:
+                cmd += [f"--frames {frames}", f"--seed {seed}", f"--climate {climate}"]
             metrics["command"] = " ".join(cmd)
             if names:
                 plot_iou(tmp / "iou.png", names, em.get("iou") or [math.nan] * len(names),

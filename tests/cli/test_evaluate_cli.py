@@ -101,3 +101,20 @@ def test_a_corrupt_frame_mid_run_writes_nothing(model_dir, data, tmp_path, capsy
     assert evaluate(model_dir, bad, "--out", out) == 2
     assert "000004.PNG" in capsys.readouterr().err
     assert list(out.iterdir()) == [] and leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("command, preset, expected", [("evaluate", None, "PASSIVE"), ("demo", "ACTIVE", "ACTIVE"),
+                                                       ("convert", None, None)])
+def test_openmp_threads_sleep_while_waiting(command, preset, expected):
+    """evaluate/predict/demo set OMP_WAIT_POLICY=PASSIVE before torch loads (unless the user chose a policy)."""
+    import os
+    import subprocess
+
+    code = ("import os, sys\nfrom cosemdepth.cli.main import main\ntry:\n    main([sys.argv[1], '--help'])\n"
+            "except SystemExit:\n    pass\nprint(os.environ.get('OMP_WAIT_POLICY'))")
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    if preset:
+        env["OMP_WAIT_POLICY"] = preset
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[2] / "src")
+    out = subprocess.run([sys.executable, "-c", code, command], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split("\n")[-2] == str(expected)

@@ -41,7 +41,21 @@ def positive_int(text: str) -> int:
 def add_model_args(parser: argparse.ArgumentParser, required: bool = True) -> None:
     parser.add_argument("--model", required=required, metavar="MODEL",
                         help="a model folder (config.json + model.safetensors) or an official TensorFlow checkpoint")
+    add_device_args(parser)
+
+
+def add_device_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:N or mps")
+    parser.add_argument("--threads", type=positive_int, default=None, metavar="N",
+                        help="CPU threads for torch (default: torch's choice, usually the number of cores)")
+
+
+def apply_threads(args: argparse.Namespace) -> None:
+    """``torch.set_num_threads(args.threads)`` when given."""
+    if getattr(args, "threads", None):
+        import torch
+
+        torch.set_num_threads(args.threads)
 
 
 def add_split_args(parser: argparse.ArgumentParser, required: bool = True) -> None:
@@ -83,5 +97,5 @@ def open_split(args: argparse.Namespace, size):
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size)
 
 
-__all__ = ["SPLIT_DATASETS", "add_model_args", "add_run_args", "add_split_args", "load", "open_split", "parse_size",
-           "positive_int"]
+__all__ = ["SPLIT_DATASETS", "add_device_args", "add_model_args", "add_run_args", "add_split_args", "apply_threads",
+           "load", "open_split", "parse_size", "positive_int"]

@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ._shared import positive_int
+from ._shared import add_device_args, apply_threads, positive_int
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -34,7 +34,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data-root", type=Path, default=None, metavar="ROOT",
                         help="evaluate on this existing Mid-Air-format dataset (split CSVs in ROOT/splits) instead "
                         "of generating a flight")
-    parser.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:N or mps")
+    add_device_args(parser)
     parser.add_argument("--video", default="mp4", choices=("mp4", "gif", "none"),
                         help="flight video format (default mp4; GIF when no ffmpeg)")
     parser.add_argument("--overwrite", action="store_true", help="replace a non-empty --out folder")
@@ -42,6 +42,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    apply_threads(args)
     from ..demo import run_demo
     from ..errors import ConfigError
 

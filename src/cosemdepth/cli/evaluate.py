@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._shared import add_model_args, add_run_args, add_split_args, load, open_split, parse_size
+from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, open_split, parse_size
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -26,6 +26,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    apply_threads(args)
     import contextlib
     from pathlib import Path
 

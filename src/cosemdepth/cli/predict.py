@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError
-from ._shared import add_model_args, add_run_args, add_split_args, load, parse_size
+from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, parse_size
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -69,6 +69,7 @@ def _open(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    apply_threads(args)
     from ..evaluation.predict import predict
     from ..io.staging import StagedDir
     from ..evaluation.predict import MANIFEST
