@@ -118,3 +118,38 @@ def test_openmp_threads_sleep_while_waiting(command, preset, expected):
     env["PYTHONPATH"] = str(Path(__file__).resolve().parents[2] / "src")
     out = subprocess.run([sys.executable, "-c", code, command], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split("\n")[-2] == str(expected)
+
+
+def test_semantic_only_dataset_aeroscapes(tmp_path, capsys):
+    """M4Semantic with 12 classes on a tiny Aeroscapes: every image counts (each is its own reset), no depth."""
+    import numpy as np
+    from PIL import Image
+
+    rng = np.random.default_rng(0)
+    root = tmp_path / "aeroscapes"
+    (root / "JPEGImages").mkdir(parents=True)
+    (root / "SegmentationClass").mkdir()
+    (root / "ImageSets").mkdir()
+    names = [f"img{i}" for i in range(3)]
+    for n in names:
+        Image.fromarray(rng.integers(0, 255, (24, 40, 3), dtype=np.uint8)).save(root / "JPEGImages" / f"{n}.jpg")
+        Image.fromarray(rng.integers(0, 12, (24, 40), dtype=np.uint8)).save(root / "SegmentationClass" / f"{n}.png")
+    (root / "ImageSets" / "val.txt").write_text("\n".join(names) + "\n")
+    sem = tiny_model(tmp_path / "sem", arch="m4semantic")  # 7 classes: refused
+    assert main(["evaluate", "--model", str(sem), "--dataset", "aeroscapes", "--root", str(root)]) == 2
+    assert "7 classes but the aeroscapes labels have 12" in capsys.readouterr().err
+
+    import torch
+
+    from cosemdepth import build_model, save_model
+
+    torch.manual_seed(0)
+    save_model(build_model(arch="m4semantic", levels=2, num_classes=12), tmp_path / "sem12")
+    out = tmp_path / "out"
+    assert main(["evaluate", "--model", str(tmp_path / "sem12"), "--dataset", "aeroscapes", "--root", str(root),
+                 "--size", "32x64", "--out", str(out), "--no-progress"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["metrics"]["semantic_frames"] == 3 and "rmse" not in m["metrics"]
+    assert m["protocol"]["reset_frames_excluded"] is False and m["dataset"]["split"] == "val"
+    assert list(m["per_class_iou"])[:2] == ["background", "person"] and len(m["confusion_matrix"]) == 12
+    assert sum(map(sum, m["confusion_matrix"])) == 3 * 32 * 64

@@ -198,3 +198,20 @@ def test_a_corrupt_frame_mid_run_leaves_nothing(model_dir, data, tmp_path, capsy
     assert "000008.JPEG" in err
     assert not (tmp_path / "deep").exists()  # nor the parent folder it created
     assert leftovers(tmp_path) == []
+
+
+def test_two_trajectories_per_batch_give_the_same_files(model_dir, data, tmp_path):
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert predict("--model", model_dir, *split_args(data), "--out", one, "--video", "none") == 0
+    assert predict("--model", model_dir, *split_args(data), "--out", two, "--video", "mp4",
+                   "--trajectories-per-batch", 2) == 0
+    a = json.loads((one / "predictions.json").read_text())
+    b = json.loads((two / "predictions.json").read_text())
+    key = lambda f: (f["trajectory"], f["frame"])  # noqa: E731
+    assert sorted(map(key, a["frames"])) == sorted(map(key, b["frames"]))
+    for f in b["frames"]:
+        np.testing.assert_allclose(np.load(two / f["files"]["depth"]), np.load(one / f["files"]["depth"]),
+                                   rtol=1e-4, atol=1e-4)
+    import imageio_ffmpeg
+
+    assert [imageio_ffmpeg.count_frames_and_secs(str(two / t["video"]))[0] for t in b["trajectories"]] == [3, 3]
