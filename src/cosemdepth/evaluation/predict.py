@@ -31,7 +31,7 @@ import torch
 from ..io.atomic import atomic_write_text
 from ..io.staging import StagedDir
 from .classes import class_info
-from .evaluator import _model_config, dataset_modalities, to_json
+from .evaluator import _model_config, to_json
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
 from .visualize import (
     DEPTH_PNG_SCALE,
@@ -155,8 +155,7 @@ def _sources(dataset, indices) -> dict[int, str]:
         return out
     for i in indices:
         ti, row = windows[i]
-        t = trajs[ti]
-        out[i] = str(t._path(t.rgb[row])) if hasattr(t, "_path") else str(t.rgb[row])
+        out[i] = str(trajs[ti].frame(row).rgb)
     return out
 
 
@@ -207,7 +206,6 @@ def predict(
     schedule = make_schedule(groups, lanes)
     if not schedule:
         raise ConfigError("predict: the dataset has no frame")
-    dataset_modalities(dataset)
     start = time.perf_counter()
     with staged as tmp:
         writer = PredictionWriter(tmp, num_classes=cfg.num_classes if cfg.has_semantic else None,

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Iterator, Sequence
 
 import torch
@@ -113,7 +113,6 @@ class StreamBatch:
     semantic: torch.Tensor | None
     labels: torch.Tensor | None
     seconds: float
-    extra: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.indices)
