@@ -1,0 +1,101 @@
+"""Arguments and helpers shared by ``evaluate``, ``predict`` and ``demo``: model, dataset, device, size."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..errors import ConfigError
+
+#: Datasets with ground truth and split files (flights are opened by ``predict --flight``).
+SPLIT_DATASETS = ("midair", "synthair", "topair", "aeroscapes")
+
+
+def parse_size(text: str) -> int | tuple[int, int]:
+    """``"384"`` -> 384; ``"720x1280"`` -> (720, 1280) (height x width)."""
+    try:
+        if "x" in text.lower():
+            h, w = text.lower().split("x")
+            size: int | tuple[int, int] = (int(h), int(w))
+            vals = list(size)
+        else:
+            size = int(text)
+            vals = [size]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected S or HxW in pixels, got {text!r}") from None
+    if any(v < 8 for v in vals):
+        raise argparse.ArgumentTypeError(f"sizes must be at least 8 pixels, got {text!r}")
+    return size
+
+
+def positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return v
+
+
+def add_model_args(parser: argparse.ArgumentParser, required: bool = True) -> None:
+    parser.add_argument("--model", required=required, metavar="MODEL",
+                        help="a model folder (config.json + model.safetensors) or an official TensorFlow checkpoint")
+    add_device_args(parser)
+
+
+def add_device_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:N or mps")
+    parser.add_argument("--threads", type=positive_int, default=None, metavar="N",
+                        help="CPU threads for torch (default: torch's choice, usually the number of cores)")
+
+
+def apply_threads(args: argparse.Namespace) -> None:
+    """``torch.set_num_threads(args.threads)`` when given."""
+    if getattr(args, "threads", None):
+        import torch
+
+        torch.set_num_threads(args.threads)
+
+
+def add_split_args(parser: argparse.ArgumentParser, required: bool = True) -> None:
+    parser.add_argument("--dataset", choices=SPLIT_DATASETS, required=required, metavar="NAME",
+                        help=f"dataset: {', '.join(SPLIT_DATASETS)}")
+    parser.add_argument("--root", type=Path, required=required, metavar="ROOT", help="dataset root folder")
+    parser.add_argument("--split-dir", type=Path, default=None, metavar="D",
+                        help="folder of the split CSVs (required for midair; default ROOT/splits for synthair and "
+                        "topair, ROOT/ImageSets for aeroscapes)")
+    parser.add_argument("--split", default=None, help="split to use (default test; val for aeroscapes)")
+
+
+def add_run_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--max-frames", type=positive_int, default=None, metavar="N",
+                        help="only the first N frames of the split (in order)")
+    parser.add_argument("--trajectories-per-batch", type=positive_int, default=1, metavar="B", dest="lanes",
+                        help="stream B trajectories at once as one batch, with per-sample resets (default 1, as "
+                        "the original)")
+    parser.add_argument("--workers", type=int, default=0, metavar="N",
+                        help="data-loading worker processes (default 0: in the main process)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def load(model_path, device_name: str):
+    """``(model, device)``: the model at ``model_path`` on the device named ``device_name``, in eval mode."""
+    from ..io.model_io import load_model
+    from ..evaluation.resources import resolve_device
+
+    device = resolve_device(device_name)
+    return load_model(model_path, device=device), device
+
+
+def open_split(args: argparse.Namespace, size):
+    """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1)."""
+    from ..data import open_dataset
+
+    if args.workers < 0:
+        raise ConfigError(f"--workers must be >= 0, got {args.workers}")
+    return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size)
+
+
+__all__ = ["SPLIT_DATASETS", "add_device_args", "add_model_args", "add_run_args", "add_split_args", "apply_threads",
+           "load", "open_split", "parse_size", "positive_int"]

@@ -1,0 +1,55 @@
+"""``cosemdepth demo --out DIR``: the shipped Co-SemDepth on a held-out SynthAir flight, against two baselines.
+
+Writes ``DIR/metrics.json``, ``DIR/report.md``, ``DIR/iou.png``, ``DIR/qualitative.png`` and ``DIR/flight.mp4`` and
+prints where the report is. See :mod:`cosemdepth.demo`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ._shared import add_device_args, apply_threads, positive_int
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    from ..demo import DEFAULT_CLIMATE, DEFAULT_FRAMES, DEFAULT_MODEL, DEFAULT_SEED, DEFAULT_SIZE
+
+    parser.add_argument("--out", required=True, type=Path, metavar="DIR",
+                        help="report folder (new, empty, or a previous demo report, which is replaced)")
+    parser.add_argument("--model", default=None, metavar="DIR",
+                        help=f"model folder (default: the shipped weights, {DEFAULT_MODEL}/ in the repository)")
+    parser.add_argument("--size", type=positive_int, default=None, metavar="S",
+                        help=f"image size in pixels (default: the model's training size if recorded, else "
+                        f"{DEFAULT_SIZE})")
+    parser.add_argument("--frames", type=positive_int, default=DEFAULT_FRAMES, metavar="F",
+                        help=f"frames in the held-out flight (default {DEFAULT_FRAMES})")
+    parser.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="K",
+                        help=f"world seed of the held-out flight (default {DEFAULT_SEED})")
+    parser.add_argument("--climate", default=DEFAULT_CLIMATE, help=f"SynthAir climate (default {DEFAULT_CLIMATE})")
+    parser.add_argument("--data-dir", type=Path, default=None, metavar="DIR",
+                        help="generate the flight here and keep it (a re-run with the same arguments reuses it); "
+                        "default: a temporary folder")
+    parser.add_argument("--data-root", type=Path, default=None, metavar="ROOT",
+                        help="evaluate on this existing Mid-Air-format dataset (split CSVs in ROOT/splits) instead "
+                        "of generating a flight")
+    add_device_args(parser)
+    parser.add_argument("--video", default="mp4", choices=("mp4", "gif", "none"),
+                        help="flight video format (default mp4; GIF when no ffmpeg)")
+    parser.add_argument("--overwrite", action="store_true", help="replace a non-empty --out folder")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    apply_threads(args)
+    from ..demo import run_demo
+    from ..errors import ConfigError
+
+    if args.data_root is not None and args.data_dir is not None:
+        raise ConfigError("give at most one of --data-root (use an existing dataset) and --data-dir (generate here)")
+    run_demo(args.out, model=args.model, size=args.size, frames=args.frames, seed=args.seed, climate=args.climate,
+             data_root=args.data_root, data_dir=args.data_dir, device=args.device,
+             video=None if args.video == "none" else args.video, overwrite=args.overwrite,
+             progress=not args.no_progress and sys.stderr.isatty())
+    return 0

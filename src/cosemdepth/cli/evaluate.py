@@ -1,0 +1,53 @@
+"""``cosemdepth evaluate``: the test protocol of the original (spec 10.3) on a dataset split.
+
+    cosemdepth evaluate --model MODEL --dataset NAME --root ROOT [--split-dir D] [--split test] [--size 384]
+                        [--out DIR] [--device cpu] [--max-frames N] [--trajectories-per-batch B]
+
+Prints the results table; with ``--out DIR`` also writes ``DIR/metrics.json`` and ``DIR/metrics.md`` (both renamed
+into place together at the end; nothing is written if the run fails).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, open_split, parse_size
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    add_model_args(parser)
+    add_split_args(parser)
+    parser.add_argument("--size", type=parse_size, default=None, metavar="S",
+                        help="network input size, S or HxW (default 384; native for aeroscapes)")
+    parser.add_argument("--out", default=None, metavar="DIR",
+                        help="write metrics.json and metrics.md into DIR (created if needed)")
+    add_run_args(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    apply_threads(args)
+    import contextlib
+    from pathlib import Path
+
+    from ..evaluation.evaluator import evaluate
+    from ..io.staging import OutputFiles
+
+    files_ctx = OutputFiles(args.out, "--out folder") if args.out else contextlib.nullcontext()
+    with files_ctx as files:
+        dataset = open_split(args, args.size)
+        model, device = load(args.model, args.device)
+        result = evaluate(model, dataset, lanes=args.lanes, max_frames=args.max_frames, num_workers=args.workers,
+                          progress=not args.no_progress and sys.stderr.isatty(), dataset_name=args.dataset)
+        result.info["model"].update(path=str(args.model), name=Path(str(args.model)).name)
+        result.info["dataset"].update(root=str(args.root), split=args.split or ("val" if args.dataset ==
+                                      "aeroscapes" else "test"),
+                                      split_dir=None if args.split_dir is None else str(args.split_dir))
+        text = result.to_markdown()
+        print(text)
+        if files is not None:
+            files.add_text("metrics.json", result.to_json())
+            files.add_text("metrics.md", text)
+    if args.out:
+        print(f"wrote {Path(args.out) / 'metrics.json'} and {Path(args.out) / 'metrics.md'}")
+    return 0

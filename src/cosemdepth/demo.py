@@ -1,0 +1,528 @@
+"""The end-to-end demo (``cosemdepth demo``): a trained Co-SemDepth on a held-out SynthAir flight, against baselines.
+
+Steps:
+
+1. load the model (default: the shipped weights ``weights/synthair-cosemdepth/``, trained with ``cosemdepth train``
+   on SynthAir; a clear error if they are missing);
+2. build a held-out SynthAir flight with ``cosemdepth synth`` (one trajectory of ``frames`` evaluated frames at
+   ``size``, with a world seed the training data did not use) - or use an existing Mid-Air-format dataset
+   (``data_root``);
+3. evaluate the model with the test protocol (spec 10.3: streamed frame by frame, the reset frame excluded);
+4. evaluate two trivial baselines on the same frames: *constant depth* (the median of all evaluated ground-truth
+   depths, clipped to [0, 80] m as the metrics clip them, predicted everywhere) and *majority class* (the most
+   frequent ground-truth class, predicted everywhere);
+5. write the report folder: ``metrics.json`` (schema below), ``report.md``, ``iou.png`` (per-class IoU chart),
+   ``qualitative.png`` (RGB | GT depth | predicted depth | GT labels | predicted labels for a few frames) and
+   ``flight.mp4`` (side-by-side video; ``flight.gif`` without ffmpeg).
+
+``metrics.json``::
+
+    {"model": {"miou": ..., "abs_rel": ..., "rmse": ..., "delta1": ...},
+     "baselines": {"majority_class": {"miou": ...}, "constant_depth": {"abs_rel": ..., "rmse": ..., "delta1": ...}},
+     ...more keys: "details", "flight", "timings", "machine", "date"}
+
+mIoU and delta1 are fractions in [0, 1]. The report folder is written under a temporary name and renamed at the end.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import importlib.util
+import io
+import math
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .errors import CheckpointError, ConfigError, DatasetError
+
+#: Where the shipped weights live, relative to the repository root (or the current folder).
+DEFAULT_MODEL = Path("weights") / "synthair-cosemdepth"
+DEFAULT_SIZE = 128
+DEFAULT_FRAMES = 150
+#: World seed of the held-out flight (the shipped weights are trained on other seeds).
+DEFAULT_SEED = 1001
+DEFAULT_CLIMATE = "sunny"
+REPORT_MARKER = "report.md"
+QUALITATIVE_FRAMES = 4
+
+
+# ---------------------------------------------------------------------------------------------------- model
+
+
+def default_model_candidates() -> list[Path]:
+    """``./weights/synthair-cosemdepth`` and ``<repository>/weights/synthair-cosemdepth`` (source checkout)."""
+    repo = Path(__file__).resolve().parents[2]
+    out = [Path.cwd() / DEFAULT_MODEL, repo / DEFAULT_MODEL]
+    return list(dict.fromkeys(out))
+
+
+def resolve_model_path(model: str | os.PathLike | None) -> Path:
+    """The model folder to use: ``model`` as given, else the first existing default candidate."""
+    if model is not None:
+        return Path(model)
+    for c in default_model_candidates():
+        if c.exists():
+            return c
+    raise CheckpointError(
+        f"the demo's trained weights were not found (looked for {', '.join(str(c) for c in default_model_candidates())}). "
+        "They ship with the repository in weights/synthair-cosemdepth/; run the demo from the repository, or pass "
+        "--model DIR (a model folder written by `cosemdepth train` or `cosemdepth convert`)"
+    )
+
+
+def _training_size(meta: dict[str, Any]) -> int | None:
+    """The image size recorded in a model folder's ``source`` (if the trainer recorded one)."""
+    src = meta.get("source") or {}
+    for d in (src, src.get("data") or {}, src.get("config") or {}, (src.get("config") or {}).get("data") or {}):
+        v = d.get("size") if isinstance(d, dict) else None
+        if isinstance(v, int) and v > 0:
+            return v
+    return None
+
+
+# ---------------------------------------------------------------------------------------------------- flight
+
+
+def synth_available() -> bool:
+    return importlib.util.find_spec("cosemdepth.cli.synth") is not None
+
+
+def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climate: str, quiet: bool = True) -> Path:
+    """Render one SynthAir trajectory of ``frames`` CSV rows with ``cosemdepth synth``; returns the dataset root."""
+    from .cli.main import main
+
+    if not synth_available():
+        raise ConfigError("this installation has no `cosemdepth synth` command to build the SynthAir flight; pass "
+                          "--data-root ROOT to evaluate on an existing Mid-Air-format dataset (splits in ROOT/splits)")
+    argv = ["synth", "--out", str(data_dir), "--trajectories", "1", "--frames", str(4 * (frames + 1)),
+            "--size", str(size), "--seed", str(seed), "--climates", climate, "--no-progress"]
+    sink = io.StringIO()
+    with contextlib.redirect_stdout(sink) if quiet else contextlib.nullcontext():
+        rc = main(argv)
+    if rc != 0:
+        raise DatasetError(f"`cosemdepth {' '.join(argv)}` failed (exit status {rc}); see the message above")
+    return data_dir
+
+
+def open_flight_split(root: Path, size: int, split_dir: Path | None = None):
+    """The first of the test, val and train splits of ``root`` (splits in ``root/splits``) that has trajectories."""
+    from .data import open_dataset
+
+    split_dir = split_dir or root / "splits"
+    errors = []
+    for split in ("test", "val", "train"):
+        try:
+            return open_dataset("synthair", root, split_dir=split_dir, split=split, seq_len=1, size=size), split
+        except DatasetError as e:
+            errors.append(str(e))
+    raise DatasetError(f"{root}: no split with trajectories under {split_dir} ({'; '.join(errors)})")
+
+
+# ---------------------------------------------------------------------------------------------------- baselines
+
+
+@dataclass
+class DemoCollector:
+    """Stream callback: keeps the evaluated ground truth (for the baselines), a few frames for the qualitative
+    strip, and writes the side-by-side video."""
+
+    total_frames: int
+    num_classes: int | None
+    palette: np.ndarray | None
+    video: Any = None
+    qualitative: int = QUALITATIVE_FRAMES
+    gt_depths: list[torch.Tensor] = field(default_factory=list)
+    label_hist: np.ndarray | None = None
+    picks: list[dict[str, np.ndarray]] = field(default_factory=list)
+    seen: int = 0
+
+    def __post_init__(self) -> None:
+        n = self.total_frames
+        k = min(self.qualitative, n)
+        self.targets = sorted({int(round(x)) for x in np.linspace(0.1 * n, n - 1, k)}) if k else []
+        if self.num_classes:
+            self.label_hist = np.zeros(self.num_classes, dtype=np.int64)
+
+    def __call__(self, batch, include: torch.Tensor) -> None:
+        from .evaluation.visualize import colorize_depth, colorize_labels, rgb_to_uint8, side_by_side
+
+        for b in range(len(batch)):
+            pos = self.seen
+            self.seen += 1
+            inc = bool(include[b])
+            if inc and batch.gt_depth is not None:
+                self.gt_depths.append(batch.gt_depth[b, 0].detach().float().cpu())
+            if inc and batch.gt_labels is not None and self.label_hist is not None:
+                self.label_hist += np.bincount(batch.gt_labels[b].cpu().numpy().ravel(),
+                                               minlength=self.num_classes)[: self.num_classes]
+            rgb = rgb_to_uint8(batch.rgb[b].float().cpu().numpy())
+            maps: dict[str, np.ndarray] = {"rgb": rgb}
+            if batch.gt_depth is not None:
+                maps["gt_depth"] = colorize_depth(batch.gt_depth[b, 0].float().cpu().numpy())
+            if batch.depth is not None:
+                maps["depth"] = colorize_depth(batch.depth[b, 0].float().cpu().numpy())
+            if self.palette is not None and batch.gt_labels is not None:
+                maps["gt_labels"] = colorize_labels(batch.gt_labels[b].cpu().numpy(), self.palette)
+            if self.palette is not None and batch.labels is not None:
+                maps["labels"] = colorize_labels(batch.labels[b].cpu().numpy(), self.palette)
+            if self.video is not None:
+                titles = {"rgb": "RGB", "depth": "predicted depth", "labels": "predicted labels",
+                          "gt_depth": "GT depth", "gt_labels": "GT labels"}
+                order = ("rgb", "depth", "labels", "gt_depth", "gt_labels")
+                self.video.write(side_by_side([(titles[k], maps[k]) for k in order if k in maps]))
+            if inc and self.targets and pos >= self.targets[0] and len(self.picks) < self.qualitative:
+                self.targets.pop(0)
+                maps["frame"] = np.array(int(batch.frame[b]))
+                self.picks.append(maps)
+
+    def constant_depth(self) -> dict[str, float] | None:
+        """Metrics of the constant median-depth prediction over the evaluated frames (spec 10.1 protocol)."""
+        from .evaluation.metrics import EPS, EVAL_MAX_DEPTH, DepthMetrics
+
+        if not self.gt_depths:
+            return None
+        g = torch.stack(self.gt_depths).to(torch.float64).clamp(0.0, EVAL_MAX_DEPTH)
+        valid = g[g > EPS]
+        if valid.numel() == 0:
+            return None
+        median = float(np.median(valid.numpy()))
+        dm = DepthMetrics()
+        for gt in self.gt_depths:
+            dm.update(gt, torch.full_like(gt, median))
+        res = dm.compute()
+        return {"abs_rel": res["abs_rel"], "rmse": res["rmse"], "delta1": res["delta1"], "sq_rel": res["sq_rel"],
+                "rmse_log": res["rmse_log"], "delta2": res["delta2"], "delta3": res["delta3"], "depth_m": median}
+
+    def majority_class(self) -> dict[str, Any] | None:
+        """mIoU (Keras MeanIoU semantics) of predicting the most frequent GT class everywhere."""
+        from .evaluation.metrics import ConfusionMatrix
+
+        if self.label_hist is None or self.label_hist.sum() == 0:
+            return None
+        c = int(np.argmax(self.label_hist))
+        cm = ConfusionMatrix(self.num_classes)
+        cm.matrix[:, c] = torch.from_numpy(self.label_hist)
+        return {"miou": cm.miou(), "class": c, "iou": [float(x) for x in cm.iou()]}
+
+
+# ---------------------------------------------------------------------------------------------------- figures
+
+
+def plot_iou(path: Path, class_names, model_iou, baseline_iou, model_miou, baseline_miou) -> None:
+    """Per-class IoU bar chart (model vs majority-class baseline), written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from .io.atomic import atomic_path
+
+    n = len(class_names)
+    x = np.arange(n)
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * n + 2), 3.6), dpi=110)
+    vals = [np.nan_to_num(np.asarray(v, dtype=float) * 100, nan=0.0) for v in (model_iou, baseline_iou)]
+    ax.bar(x - 0.2, vals[0], 0.4, label=f"Co-SemDepth (mIoU {100 * model_miou:.1f}%)", color="#3b6fb6")
+    if baseline_iou is not None:
+        ax.bar(x + 0.2, vals[1], 0.4, label=f"majority class (mIoU {100 * baseline_miou:.1f}%)", color="#bbbbbb")
+    for i, v in enumerate(model_iou):
+        if v is None or (isinstance(v, float) and math.isnan(v)):
+            ax.text(x[i] - 0.2, 1, "n/a", ha="center", fontsize=7, rotation=90)
+    ax.set_xticks(x, class_names, rotation=20)
+    ax.set_ylabel("IoU (%)")
+    ax.set_ylim(0, 100)
+    ax.set_title("Per-class IoU on the held-out flight")
+    ax.legend(fontsize=8, loc="upper right")
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def plot_qualitative(path: Path, picks: list[dict[str, np.ndarray]], class_names, palette) -> None:
+    """The strip: one row per picked frame, RGB | GT depth | predicted depth | GT labels | predicted labels."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    from .io.atomic import atomic_path
+
+    cols = [("rgb", "RGB"), ("gt_depth", "GT depth"), ("depth", "predicted depth"), ("gt_labels", "GT labels"),
+            ("labels", "predicted labels")]
+    cols = [c for c in cols if picks and c[0] in picks[0]]
+    rows = max(len(picks), 1)
+    fig, axes = plt.subplots(rows, len(cols), figsize=(2.2 * len(cols), 2.2 * rows + 0.6), dpi=100, squeeze=False)
+    for r, pick in enumerate(picks):
+        for c, (key, title) in enumerate(cols):
+            ax = axes[r][c]
+            ax.imshow(pick[key], interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(title, fontsize=9)
+            if c == 0:
+                ax.set_ylabel(f"frame {int(pick['frame'])}", fontsize=8)
+    if palette is not None and class_names:
+        handles = [Patch(color=np.asarray(palette[i]) / 255.0, label=n) for i, n in enumerate(class_names)]
+        fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 0.022), ncol=min(len(handles), 7),
+                   fontsize=8, frameon=False)
+    fig.text(0.5, 0.006, "depth: turbo colour map, linear from 0 m (red) to 80 m (dark blue)", fontsize=7,
+             ha="center")
+    fig.tight_layout(rect=(0, 0.075 if palette is not None else 0.03, 1, 1))
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------------- report
+
+
+def _pct(v) -> str:
+    return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{100 * v:.2f}%"
+
+
+def _num(v, spec=".4f") -> str:
+    return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
+
+
+def report_markdown(m: dict[str, Any]) -> str:
+    """``report.md`` from the content of ``metrics.json``."""
+    model, base = m["model"], m["baselines"]
+    det = m["details"]
+    ev = det["evaluation"]
+    fl = m["flight"]
+    mach = m["machine"]
+    tm = m["timings"]
+    maj, const = base["majority_class"], base["constant_depth"]
+    maj_name = det.get("majority_class_name") or "–"
+    lines = [
+        "# cosemdepth demo: Co-SemDepth on a held-out SynthAir flight",
+        "",
+        f"{m['date']} on {mach.get('cpu')} ({mach.get('cpu_cores')} cores, {mach.get('torch_threads')} torch threads, "
+        f"device {mach.get('device')}), torch {mach.get('torch')}, cosemdepth {m.get('cosemdepth_version')}.",
+        "",
+        f"Flight: {fl['description']}. {ev['protocol']['frames_streamed']} frames streamed frame by frame, "
+        f"{ev['protocol']['frames_evaluated']} evaluated (reset frames excluded, spec 10.3).",
+        f"Model: `{det['model_path']}` ({ev['model']['arch']}, {ev['params']:,} parameters).",
+        "",
+        "## Results",
+        "",
+        "| | mIoU | AbsRel | RMSE (m) | δ<1.25 | SqRel | RMSE_log | δ<1.25² | δ<1.25³ |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    em = ev["metrics"]
+    lines.append(f"| **Co-SemDepth** | {_pct(model['miou'])} | {_num(model['abs_rel'])} | {_num(model['rmse'], '.3f')} "
+                 f"| {_pct(model['delta1'])} | {_num(em.get('sq_rel'))} | {_num(em.get('rmse_log'))} | "
+                 f"{_pct(em.get('delta2'))} | {_pct(em.get('delta3'))} |")
+    lines.append(f"| majority class ({maj_name} everywhere) | {_pct(maj['miou'])} | – | – | – | – | – | – | – |")
+    cd = det.get("constant_depth") or {}
+    lines.append(f"| constant depth ({_num(cd.get('depth_m'), '.2f')} m everywhere) | – | {_num(const['abs_rel'])} | "
+                 f"{_num(const['rmse'], '.3f')} | {_pct(const['delta1'])} | {_num(cd.get('sq_rel'))} | "
+                 f"{_num(cd.get('rmse_log'))} | {_pct(cd.get('delta2'))} | {_pct(cd.get('delta3'))} |")
+    ratios = m.get("comparison", {})
+    lines += ["", "Against the baselines:", ""]
+    if ratios.get("miou_ratio") is not None:
+        lines.append(f"- mIoU is {ratios['miou_ratio']:.2f} x the majority-class baseline's (target: at least 2 x)")
+    if ratios.get("abs_rel_ratio") is not None:
+        lines.append(f"- AbsRel is {ratios['abs_rel_ratio']:.2f} x the constant-depth baseline's "
+                     "(target: at most 0.5 x)")
+    names = det.get("class_names") or []
+    if names:
+        lines += ["", "## Per-class IoU", "", "| class | " + " | ".join(names) + " |",
+                  "|---" * (len(names) + 1) + "|",
+                  "| Co-SemDepth | " + " | ".join(_pct(v) for v in det["model_iou"]) + " |",
+                  "| majority class | " + " | ".join(_pct(v) for v in det.get("majority_iou") or []) + " |",
+                  "", "![per-class IoU](iou.png)"]
+    lines += ["", "## Qualitative", "", "![RGB, GT depth, predicted depth, GT labels, predicted labels]"
+              "(qualitative.png)", ""]
+    if m.get("files", {}).get("video"):
+        lines.append(f"The whole flight: [{m['files']['video']}]({m['files']['video']}) "
+                     "(RGB | predicted depth | predicted labels | GT depth | GT labels).")
+    lines += ["", "## Timings", "", "| step | seconds |", "|---|---|"]
+    for k, v in tm.items():
+        lines.append(f"| {k.replace('_', ' ')} | {v:.1f} |")
+    lines += ["", f"Model speed: {_num(ev['speed']['ms_per_frame'], '.1f')} ms/frame at {fl['size']}x{fl['size']} "
+              f"(model step only, batch 1, float32); peak memory {_num(ev.get('peak_memory_mb'), '.0f')} MiB "
+              f"({ev.get('peak_memory_method')}).", "",
+              "## Reproduce", "", "```bash", m["command"], "```", ""]
+    return "\n".join(lines)
+
+
+def _ratio(a, b) -> float | None:
+    if a is None or b is None or not (isinstance(a, float) and isinstance(b, float)):
+        return None
+    if math.isnan(a) or math.isnan(b) or b == 0:
+        return None
+    return a / b
+
+
+def run_demo(
+    out: str | os.PathLike,
+    *,
+    model: str | os.PathLike | None = None,
+    size: int | None = None,
+    frames: int = DEFAULT_FRAMES,
+    seed: int = DEFAULT_SEED,
+    climate: str = DEFAULT_CLIMATE,
+    data_root: str | os.PathLike | None = None,
+    data_dir: str | os.PathLike | None = None,
+    device: str = "cpu",
+    video: str | None = "mp4",
+    overwrite: bool = False,
+    progress: bool = True,
+    log=print,
+) -> dict[str, Any]:
+    """Run the demo and write the report folder ``out``; returns the content of ``metrics.json``.
+
+    Args:
+        out: report folder (new, empty, or a previous demo report, which is replaced).
+        model: model folder (default: the shipped ``weights/synthair-cosemdepth``).
+        size: image size (default: the model's training size if its folder records one, else 128).
+        frames: evaluated-flight length in CSV rows (frames at 6.25 Hz). seed: world seed. climate: SynthAir climate.
+        data_root: evaluate on this existing Mid-Air-format dataset (splits in ``data_root/splits``) instead of
+            generating one.
+        data_dir: where to generate the flight (kept; re-running with the same arguments reuses it); default a
+            temporary folder, deleted at the end.
+        device: torch device. video: ``"mp4"``, ``"gif"`` or None. overwrite: replace a non-empty ``out``.
+        progress: progress bar. log: where to print progress lines.
+    """
+    from . import __version__
+    from .evaluation.classes import class_info
+    from .evaluation.evaluator import Evaluator, to_json
+    from .evaluation.resources import machine_info, resolve_device
+    from .evaluation.visualize import VideoWriter
+    from .io.atomic import atomic_write_text
+    from .io.model_io import load_model, read_config_file
+    from .io.staging import StagedDir
+
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    if not isinstance(frames, int) or frames < 2:
+        raise ConfigError(f"--frames must be an integer >= 2 (the first frame is a reset), got {frames!r}")
+    if size is not None and (not isinstance(size, int) or size < 32):
+        raise ConfigError(f"--size must be an integer >= 32, got {size!r}")
+    if video not in (None, "mp4", "gif"):
+        raise ConfigError(f"--video must be mp4, gif or none, got {video!r}")
+    staged = StagedDir(out, REPORT_MARKER, overwrite=overwrite, what="--out folder")
+    staged.check()
+    dev = resolve_device(device)
+
+    t = time.perf_counter()
+    model_path = resolve_model_path(model)
+    net = load_model(model_path, device=dev)
+    try:
+        _, meta = read_config_file(model_path)
+    except CheckpointError:
+        meta = {}
+    cfg = net.config
+    if size is None:
+        size = _training_size(meta) or DEFAULT_SIZE
+    timings["load_model"] = time.perf_counter() - t
+    log(f"model: {model_path} ({cfg.arch}, {net.num_parameters():,} parameters)")
+
+    with contextlib.ExitStack() as stack:
+        t = time.perf_counter()
+        if data_root is not None:
+            root = Path(data_root)
+            description = f"the Mid-Air-format dataset {root}"
+            timings["generate_flight"] = 0.0
+        else:
+            if data_dir is not None:
+                root = Path(data_dir)
+            else:
+                root = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cosemdepth-demo-"))) / "synthair"
+            log(f"building a held-out SynthAir flight: {frames} frames at {size}x{size}, seed {seed}, {climate} "
+                f"(in {root})")
+            generate_flight(root, size=size, frames=frames, seed=seed, climate=climate)
+            description = (f"SynthAir, world seed {seed}, climate {climate}, one trajectory of {frames} frames at "
+                           f"{size}x{size}")
+            timings["generate_flight"] = time.perf_counter() - t
+        dataset, split = open_flight_split(root, size)
+
+        with staged as tmp:
+            names, palette = class_info(cfg.num_classes, "synthair") if cfg.has_semantic else ((), None)
+            writer = VideoWriter(tmp / "flight", fps=8.0, fmt=video) if video else None
+            try:
+                collector = DemoCollector(total_frames=dataset.num_frames if hasattr(dataset, "num_frames")
+                                          else len(dataset), num_classes=cfg.num_classes if cfg.has_semantic
+                                          else None, palette=palette, video=writer)
+                t = time.perf_counter()
+                log(f"evaluating on {len(dataset)} frames ({split} split of {root}) ...")
+                evaluator = Evaluator(net, dataset, progress=progress, callbacks=[collector], dataset_name="synthair")
+                result = evaluator.run()
+                timings["evaluate"] = time.perf_counter() - t
+                video_path = writer.close() if writer is not None else None
+            except BaseException:
+                if writer is not None:
+                    writer.abort()
+                raise
+            t = time.perf_counter()
+            em = result.metrics
+            const = collector.constant_depth()
+            maj = collector.majority_class()
+            model_block = {"miou": em.get("miou"), "abs_rel": em.get("abs_rel"), "rmse": em.get("rmse"),
+                           "delta1": em.get("delta1")}
+            metrics: dict[str, Any] = {
+                "model": model_block,
+                "baselines": {
+                    "majority_class": {"miou": None if maj is None else maj["miou"]},
+                    "constant_depth": {k: None if const is None else const[k] for k in ("abs_rel", "rmse", "delta1")},
+                },
+                "comparison": {
+                    "miou_ratio": _ratio(model_block["miou"], None if maj is None else maj["miou"]),
+                    "abs_rel_ratio": _ratio(model_block["abs_rel"], None if const is None else const["abs_rel"]),
+                },
+                "details": {
+                    "model_path": str(model_path),
+                    "model_source": meta.get("source"),
+                    "class_names": list(names),
+                    "model_iou": em.get("iou"),
+                    "majority_iou": None if maj is None else maj["iou"],
+                    "majority_class": None if maj is None else maj["class"],
+                    "majority_class_name": None if maj is None or not names else names[maj["class"]],
+                    "constant_depth": const,
+                    "evaluation": result.to_dict(),
+                },
+                "flight": {"description": description, "root": str(root), "split": split, "size": size,
+                           "frames": frames if data_root is None else None, "seed": seed if data_root is None
+                           else None, "climate": climate if data_root is None else None},
+                "files": {"report": "report.md", "iou_chart": "iou.png" if names else None,
+                          "qualitative": "qualitative.png",
+                          "video": None if video_path is None else video_path.name},
+                "machine": machine_info(dev),
+                "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
+                "cosemdepth_version": __version__,
+            }
+            cmd = ["cosemdepth demo", f"--out {out}", f"--size {size}"]
+            if model is not None:
+                cmd.append(f"--model {model}")
+            if data_root is not None:
+                cmd.append(f"--data-root {data_root}")
+            else:
+                cmd += [f"--frames {frames}", f"--seed {seed}", f"--climate {climate}"]
+            metrics["command"] = " ".join(cmd)
+            if names:
+                plot_iou(tmp / "iou.png", names, em.get("iou") or [math.nan] * len(names),
+                         None if maj is None else maj["iou"], em.get("miou", math.nan),
+                         math.nan if maj is None else maj["miou"])
+            plot_qualitative(tmp / "qualitative.png", collector.picks, names, palette)
+            timings["report"] = time.perf_counter() - t
+            timings["total"] = time.perf_counter() - t_start
+            metrics["timings"] = timings
+            atomic_write_text(tmp / "metrics.json", to_json(metrics))
+            atomic_write_text(tmp / REPORT_MARKER, report_markdown(metrics))
+    log(f"Report: {Path(out) / REPORT_MARKER}  (metrics: {Path(out) / 'metrics.json'})")
+    return metrics
+
+
+__all__ = ["DEFAULT_MODEL", "DemoCollector", "generate_flight", "resolve_model_path", "run_demo"]

@@ -1,0 +1,354 @@
+"""The test protocol of the original (spec 10.3) with every metric of spec 10, speed, size and memory.
+
+Each trajectory of the split is streamed frame by frame with the model's explicit state (spec 6.2); frames that start
+a trajectory (``reset``; Mid-Air's CSV ``id == 0``) are run (they initialise the state) but left out of **all**
+metrics. Depth metrics are per-frame values averaged over the evaluated frames (spec 10.1); mIoU comes from one global
+confusion matrix (spec 10.2). What is evaluated follows the model and the data: depth when the model predicts depth
+and the dataset has depth, segmentation when the model predicts classes and the dataset has labels (M4Depth,
+M4Semantic, Aeroscapes).
+
+Datasets of independent images (Aeroscapes: every image is its own reset) would have no frame left under the reset
+rule; there every frame counts (the semantic decoder does not use time). ``exclude_resets`` overrides this.
+
+Speed: ``ms_per_frame`` is the mean wall time of ``model.step`` per frame (synchronised on CUDA) over the steps after
+``warmup`` steps, without data loading; with several trajectories per batch it is the step time divided by the batch.
+
+Usage::
+
+    from cosemdepth import load_model
+    from cosemdepth.data import open_dataset
+    from cosemdepth.evaluation.evaluator import evaluate
+    result = evaluate(load_model("weights/synthair-cosemdepth"), open_dataset("synthair", "data/synthair", size=128))
+    print(result.to_markdown())
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import re
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Sequence
+
+import torch
+
+from ..errors import ConfigError
+from .classes import DATASET_CLASSES, class_info
+from .metrics import ALL_DEPTH_METRICS, EvaluationMetrics, format_markdown_table
+from .resources import PeakMemory, machine_info
+from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
+
+#: Callback run on every step: ``(batch, include [B] bool) -> None``.
+FrameCallback = Callable[[StreamBatch, torch.Tensor], None]
+
+
+def dataset_modalities(dataset) -> tuple[bool, bool]:
+    """``(has_depth, has_labels)`` of a sequence dataset (from its trajectories, else from its first item)."""
+    trajs = getattr(dataset, "trajectories", None)
+    if trajs:
+        return trajs[0].depth is not None, trajs[0].semantic is not None
+    item = dataset[0]
+    return "depth" in item, "semantic" in item
+
+
+def _model_config(model):
+    cfg = getattr(model, "config", None)
+    if cfg is None or not hasattr(cfg, "has_depth"):
+        raise ConfigError(f"evaluate needs a cosemdepth model with a ModelConfig in .config, got {type(model).__name__}")
+    return cfg
+
+
+def _finite_or_none(x: Any) -> Any:
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _finite_or_none(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite_or_none(v) for v in x]
+    return x
+
+
+_NUMBER_LIST = re.compile(r"\[(?:\s*(?:-?[0-9.eE+-]+|null|true|false)\s*,)*\s*(?:-?[0-9.eE+-]+|null|true|false)\s*\]")
+
+
+def to_json(data: Any) -> str:
+    """Indented JSON text with NaN/inf written as ``null`` (strict JSON); lists of numbers on one line."""
+    text = json.dumps(_finite_or_none(data), indent=2, allow_nan=False)
+    text = _NUMBER_LIST.sub(lambda m: "[" + ", ".join(v.strip() for v in m.group(0)[1:-1].split(",")) + "]", text)
+    return text + "\n"
+
+
+@dataclass
+class EvaluationResult:
+    """What :func:`evaluate` measured.
+
+    Attributes:
+        metrics: depth metrics (``abs_rel``, ``sq_rel``, ``rmse``, ``rmse_log`` (the original's quirky mask),
+            ``rmse_log_fixed``, ``delta1..3`` as fractions, ``depth_frames``) and/or ``miou`` (fraction), ``iou``
+            (per-class list, NaN for a class absent from GT and prediction), ``semantic_frames``.
+        confusion_matrix: ``[N, N]`` int64 counts (rows ground truth, columns prediction) or None.
+        class_names: names of the N classes (or empty).
+        params: parameter count; ms_per_frame: see the module docstring; peak_memory_mb and memory_method.
+        info: model, dataset, protocol and machine descriptions.
+    """
+
+    metrics: dict[str, Any]
+    confusion_matrix: torch.Tensor | None
+    class_names: tuple[str, ...]
+    params: int
+    ms_per_frame: float
+    peak_memory_mb: float | None
+    memory_method: str
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def table_row(self) -> dict[str, Any]:
+        """The flat dict :func:`~cosemdepth.evaluation.metrics.format_markdown_table` takes."""
+        return {**self.metrics, "params": self.params, "ms_per_frame": self.ms_per_frame}
+
+    def to_dict(self) -> dict[str, Any]:
+        m = dict(self.metrics)
+        out: dict[str, Any] = {"metrics": {k: v for k, v in m.items() if k != "iou"}}
+        if "iou" in m:
+            out["per_class_iou"] = dict(zip(self.class_names, m["iou"]))
+            out["class_names"] = list(self.class_names)
+        if self.confusion_matrix is not None:
+            out["confusion_matrix"] = self.confusion_matrix.tolist()
+        out["params"] = self.params
+        out["speed"] = {"ms_per_frame": self.ms_per_frame, **self.info.get("speed", {})}
+        out["peak_memory_mb"] = self.peak_memory_mb
+        out["peak_memory_method"] = self.memory_method
+        out.update({k: v for k, v in self.info.items() if k != "speed"})
+        return out
+
+    def to_json(self) -> str:
+        return to_json(self.to_dict())
+
+    def to_markdown(self, name: str | None = None) -> str:
+        """A report: the paper-style tables (with SqRel and both RMSE_log variants), the confusion matrix, settings."""
+        info = self.info
+        name = name or info.get("model", {}).get("name", "model")
+        ds = info.get("dataset", {})
+        proto = info.get("protocol", {})
+        lines = [f"# Evaluation of {name} on {ds.get('name', '?')} ({ds.get('split', '?')})", ""]
+        lines.append(format_markdown_table({name: self.table_row()}, self.class_names or None, extra_columns=True))
+        if self.confusion_matrix is not None:
+            names = list(self.class_names)
+            lines += ["", "Confusion matrix (rows: ground truth, columns: prediction; pixels):", ""]
+            lines.append("| GT \\ pred | " + " | ".join(names) + " |")
+            lines.append("|---" * (len(names) + 1) + "|")
+            for n, row in zip(names, self.confusion_matrix.tolist()):
+                lines.append(f"| {n} | " + " | ".join(str(v) for v in row) + " |")
+        mach = info.get("machine", {})
+        speed = info.get("speed", {})
+        lines += [
+            "",
+            "Settings:",
+            "",
+            f"- model: {info.get('model', {}).get('path', '?')} ({info.get('model', {}).get('arch', '?')}, "
+            f"{self.params:,} parameters)",
+            f"- dataset: {ds.get('name')} at {ds.get('root')}, split {ds.get('split')}, "
+            f"{'x'.join(str(v) for v in ds.get('size') or ['?'])} px, "
+            f"{proto.get('frames_streamed')} frames streamed in {proto.get('trajectories')} trajectories, "
+            f"{proto.get('frames_evaluated')} evaluated",
+            f"- protocol: each trajectory streamed frame by frame ({proto.get('lanes')} at a time); "
+            + ("reset frames excluded from all metrics (spec 10.3)" if proto.get("reset_frames_excluded")
+               else "every frame counted (a dataset of independent images)"),
+            f"- speed: {_fmt(self.ms_per_frame, '.1f')} ms/frame (model step only, {speed.get('timed_frames')} "
+            f"frames after {speed.get('warmup_steps')} warm-up steps) on {mach.get('device')}: {mach.get('cpu')}"
+            + (f", {mach.get('gpu')}" if mach.get("gpu") else "")
+            + f", {mach.get('torch_threads')} threads, torch {mach.get('torch')}, float32, batch "
+            f"{proto.get('lanes')}",
+            f"- peak memory: {_fmt(self.peak_memory_mb, '.1f')} MiB ({self.memory_method})",
+            f"- date: {info.get('date')}",
+            "",
+            "RMSE_log is the original's (its mask drops every pixel with ground truth <= 1 m, spec 15.4); "
+            "RMSE_log (fixed) uses the plain valid mask. Depth metrics are per-frame values averaged over frames; "
+            "ground truth is clipped to [0, 80] m and predictions to [0.001, 80] m (spec 9.7, 10.1).",
+        ]
+        return "\n".join(lines) + "\n"
+
+
+def _fmt(v: Any, spec: str) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "–"
+    return format(v, spec)
+
+
+class Evaluator:
+    """Runs the test protocol; see the module docstring and :func:`evaluate` for the arguments."""
+
+    def __init__(
+        self,
+        model,
+        dataset,
+        *,
+        lanes: int = 1,
+        max_frames: int | None = None,
+        num_workers: int = 0,
+        exclude_resets: bool | None = None,
+        warmup: int = 2,
+        progress: bool = False,
+        callbacks: Iterable[FrameCallback] = (),
+        dataset_name: str | None = None,
+    ) -> None:
+        self.model = model
+        self.dataset = dataset
+        self.cfg = _model_config(model)
+        self.lanes = lanes
+        self.max_frames = max_frames
+        self.num_workers = num_workers
+        self.warmup = max(int(warmup), 0)
+        self.progress = progress
+        self.callbacks = list(callbacks)
+        self.dataset_name = dataset_name or getattr(dataset, "name", None) or ""
+        self.groups = trajectory_rows(dataset, max_frames)
+        self.schedule = make_schedule(self.groups, lanes)
+        if not self.schedule:
+            raise ConfigError("evaluate: the dataset has no frame to stream")
+        has_depth, has_labels = dataset_modalities(dataset)
+        self.eval_depth = self.cfg.has_depth and has_depth
+        self.eval_semantic = self.cfg.has_semantic and has_labels
+        if not (self.eval_depth or self.eval_semantic):
+            what = [w for w, has in (("depth", self.cfg.has_depth), ("class labels", self.cfg.has_semantic)) if has]
+            raise ConfigError(
+                f"nothing to evaluate: the {self.cfg.arch} model predicts {' and '.join(what)}, and the dataset "
+                f"{self.dataset_name!r} has no {' and no '.join(what)} ground truth"
+            )
+        if self.eval_semantic:
+            expected = DATASET_CLASSES.get(self.dataset_name)
+            if expected is not None and expected != self.cfg.num_classes:
+                raise ConfigError(
+                    f"the model predicts {self.cfg.num_classes} classes but the {self.dataset_name} labels have "
+                    f"{expected}; evaluate it on a dataset with the same class set"
+                )
+        if exclude_resets is None:
+            trajs = getattr(dataset, "trajectories", None) or []
+            every_reset = bool(trajs) and all(bool(t.reset.all()) for t in trajs)
+            exclude_resets = not every_reset
+        self.exclude_resets = bool(exclude_resets)
+        self.class_names, self.palette = class_info(self.cfg.num_classes, self.dataset_name)
+
+    @property
+    def num_frames(self) -> int:
+        return sum(len(s.indices) for s in self.schedule)
+
+    def run(self) -> EvaluationResult:
+        from tqdm.auto import tqdm
+
+        metrics = EvaluationMetrics(self.cfg.num_classes if self.eval_semantic else None, depth=self.eval_depth)
+        device = next((p.device for p in self.model.parameters()), torch.device("cpu"))
+        timed_seconds = 0.0
+        timed_frames = 0
+        frames = evaluated = resets = 0
+        start = time.perf_counter()
+        bar = tqdm(total=self.num_frames, unit="frame", desc="evaluate", disable=not self.progress, leave=False)
+        with PeakMemory(device) as mem:
+            for k, batch in enumerate(stream(self.model, self.dataset, schedule=self.schedule,
+                                             num_workers=self.num_workers)):
+                include = ~batch.reset if self.exclude_resets else torch.ones_like(batch.reset)
+                metrics.update(
+                    gt_depth=batch.gt_depth if self.eval_depth else None,
+                    pred_depth=batch.depth if self.eval_depth else None,
+                    gt_labels=batch.gt_labels if self.eval_semantic else None,
+                    pred_semantic=batch.labels if self.eval_semantic else None,
+                    include=include,
+                )
+                for cb in self.callbacks:
+                    cb(batch, include)
+                n = len(batch)
+                frames += n
+                evaluated += int(include.sum())
+                resets += int(batch.reset.sum())
+                if k >= self.warmup or len(self.schedule) <= self.warmup:
+                    timed_seconds += batch.seconds
+                    timed_frames += n
+                bar.update(n)
+                if timed_frames:
+                    bar.set_postfix(ms_per_frame=f"{1000 * timed_seconds / timed_frames:.1f}", refresh=False)
+        bar.close()
+        wall = time.perf_counter() - start
+        values = metrics.compute()
+        confusion = metrics.semantic.matrix.clone() if metrics.semantic is not None else None
+        params = sum(p.numel() for p in self.model.parameters())
+        ms = 1000.0 * timed_seconds / timed_frames if timed_frames else math.nan
+        ds = self.dataset
+        info = {
+            "model": {"arch": self.cfg.arch, "levels": self.cfg.levels,
+                      "num_classes": self.cfg.num_classes if self.cfg.has_semantic else None},
+            "dataset": {"name": self.dataset_name, "size": _dataset_size(ds), "split": None, "root": None},
+            "protocol": {
+                "lanes": self.lanes,
+                "trajectories": len(self.groups),
+                "frames_streamed": frames,
+                "reset_frames": resets,
+                "frames_evaluated": evaluated,
+                "reset_frames_excluded": self.exclude_resets,
+                "depth_evaluated": self.eval_depth,
+                "semantic_evaluated": self.eval_semantic,
+                "max_frames": self.max_frames,
+            },
+            "speed": {"timed_frames": timed_frames, "warmup_steps": min(self.warmup, len(self.schedule)),
+                      "wall_seconds": wall},
+            "machine": machine_info(device),
+            "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
+        }
+        from .. import __version__
+
+        info["cosemdepth_version"] = __version__
+        return EvaluationResult(
+            metrics=values,
+            confusion_matrix=confusion,
+            class_names=tuple(self.class_names) if self.eval_semantic else (),
+            params=int(params),
+            ms_per_frame=ms,
+            peak_memory_mb=mem.peak_mb,
+            memory_method=mem.method,
+            info=info,
+        )
+
+
+def _dataset_size(ds) -> list[int] | None:
+    loader = getattr(ds, "load_frame", None)
+    size = getattr(loader, "size", None)
+    if size is None:
+        return None
+    return [int(s) for s in size] if isinstance(size, (tuple, list)) else [int(size), int(size)]
+
+
+def evaluate(
+    model,
+    dataset,
+    *,
+    lanes: int = 1,
+    max_frames: int | None = None,
+    num_workers: int = 0,
+    exclude_resets: bool | None = None,
+    warmup: int = 2,
+    progress: bool = False,
+    callbacks: Sequence[FrameCallback] = (),
+    dataset_name: str | None = None,
+) -> EvaluationResult:
+    """Evaluate ``model`` on ``dataset`` with the test protocol (see the module docstring).
+
+    Args:
+        model: a model from :func:`cosemdepth.load_model` / :func:`cosemdepth.models.build_model` (eval mode).
+        dataset: ``open_dataset(name, root, split=..., seq_len=1, size=...)`` (stream mode, single frames).
+        lanes: trajectories streamed at once as one batch, with per-sample resets (1 = the original's batch 1).
+        max_frames: evaluate only the first N rows of the split (in order).
+        num_workers: DataLoader workers reading frames.
+        exclude_resets: leave reset frames out of the metrics (default: yes, unless every frame is a reset).
+        warmup: steps left out of the timing.
+        progress: show a progress bar (tqdm, on stderr).
+        callbacks: ``f(batch, include)`` run after every step (e.g. writers, baselines).
+        dataset_name: dataset name for class names/palette and class-count checks (default ``dataset.name``).
+    Returns:
+        :class:`EvaluationResult`.
+    """
+    return Evaluator(model, dataset, lanes=lanes, max_frames=max_frames, num_workers=num_workers,
+                     exclude_resets=exclude_resets, warmup=warmup, progress=progress, callbacks=callbacks,
+                     dataset_name=dataset_name).run()
+
+
+__all__ = ["ALL_DEPTH_METRICS", "EvaluationResult", "Evaluator", "dataset_modalities", "evaluate", "to_json"]

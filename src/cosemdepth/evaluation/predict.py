@@ -1,0 +1,256 @@
+"""Run a model over a dataset split or your own flight and write every output (``cosemdepth predict``).
+
+Output folder (one sub-folder per trajectory; ``NNNNNN`` is the frame's row in its trajectory)::
+
+    OUT/predictions.json                       what was run, the encodings below, and every frame's files
+    OUT/<trajectory>/depth/NNNNNN.npy          predicted depth, float32 [H, W], metres (the model's output as is)
+    OUT/<trajectory>/depth_png/NNNNNN.png      16-bit PNG, uint16 = round(depth_m * 256), saturated to [0, 65535]
+                                               (1/256 m steps up to 255.996 m; depth_m = png / 256)
+    OUT/<trajectory>/labels/NNNNNN.png         8-bit PNG of class indices (argmax)
+    OUT/<trajectory>/labels_color/NNNNNN.png   RGB PNG, the dataset's palette (Mid-Air/SynthAir: spec 9.5)
+    OUT/<trajectory>/side_by_side/NNNNNN.png   RGB | depth | labels | GT depth | GT labels (GT when known)
+    OUT/<trajectory>/video.mp4                 the side-by-side frames as a video (GIF without ffmpeg)
+
+Depth outputs are absent for M4Semantic, label outputs for M4Depth. The first frame of a trajectory is a reset:
+its depth is the initial value (1000 m), as in the original.
+
+The folder is written under a temporary name beside ``OUT`` and renamed to ``OUT`` at the end (each file is also
+written atomically): a run that fails leaves nothing behind; a previous output of ``predict`` in ``OUT`` is replaced.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..io.atomic import atomic_write_text
+from ..io.staging import StagedDir
+from .classes import class_info
+from .evaluator import _model_config, to_json
+from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
+from .visualize import (
+    DEPTH_PNG_SCALE,
+    VideoWriter,
+    colorize_depth,
+    colorize_labels,
+    depth_to_png16,
+    rgb_to_uint8,
+    save_npy,
+    save_png,
+    side_by_side,
+)
+
+MANIFEST = "predictions.json"
+VIDEO_FORMATS = ("mp4", "gif", "none")
+
+
+def safe_relpath(name: str) -> str:
+    """A trajectory name as a relative folder path: path parts kept, odd characters replaced by ``_``."""
+    parts = [re.sub(r"[^A-Za-z0-9._-]+", "_", p) for p in re.split(r"[/\\]+", str(name))]
+    parts = [p for p in parts if p not in ("", ".", "..")]
+    return "/".join(parts) or "trajectory"
+
+
+class PredictionWriter:
+    """Writes the files of every frame of a stream (a callback for :func:`stream` batches).
+
+    Args:
+        folder: output folder (the staging folder of :func:`predict`).
+        num_classes, dataset_name: for the palette; depth_range: ``(near, far)`` of the depth colour map (metres).
+        video: ``"mp4"``, ``"gif"`` or ``None``; fps: video frame rate.
+        sources: dataset index -> source image path (recorded in the manifest).
+    """
+
+    def __init__(self, folder: Path, *, num_classes: int | None, dataset_name: str | None = None,
+                 video: str | None = "mp4", fps: float = 8.0, depth_range: tuple[float, float] = (0.0, 80.0),
+                 sources: dict[int, str] | None = None) -> None:
+        self.folder = Path(folder)
+        self.video = video
+        self.fps = fps
+        self.depth_range = depth_range
+        self.names, self.palette = class_info(num_classes, dataset_name) if num_classes else ((), None)
+        self.sources = sources or {}
+        self.frames: list[dict[str, Any]] = []
+        self.trajectories: dict[str, dict[str, Any]] = {}
+        self._videos: dict[str, VideoWriter] = {}
+
+    def __call__(self, batch: StreamBatch, include: torch.Tensor | None = None) -> None:
+        for b in range(len(batch)):
+            self.write_frame(batch, b)
+
+    def write_frame(self, batch: StreamBatch, b: int) -> dict[str, Any]:
+        traj = batch.trajectory[b]
+        rel = safe_relpath(traj)
+        if traj not in self.trajectories:
+            if rel in {t["folder"] for t in self.trajectories.values()}:
+                rel = f"{rel}_{len(self.trajectories)}"
+            self.trajectories[traj] = {"name": traj, "folder": rel, "frames": 0}
+        entry = self.trajectories[traj]
+        rel = entry["folder"]
+        stem = f"{int(batch.frame[b]):06d}"
+        base = self.folder / rel
+        files: dict[str, str] = {}
+        rgb = rgb_to_uint8(batch.rgb[b].float().cpu().numpy())
+        panels = [("RGB", rgb)]
+        if batch.depth is not None:
+            depth = batch.depth[b, 0].float().cpu().numpy().astype(np.float32)
+            files["depth"] = f"{rel}/depth/{stem}.npy"
+            save_npy(self.folder / files["depth"], depth)
+            files["depth_png"] = f"{rel}/depth_png/{stem}.png"
+            save_png(self.folder / files["depth_png"], depth_to_png16(depth))
+            panels.append(("depth", colorize_depth(depth, *self.depth_range)))
+        if batch.labels is not None:
+            labels = batch.labels[b].cpu().numpy().astype(np.uint8)
+            files["labels"] = f"{rel}/labels/{stem}.png"
+            save_png(self.folder / files["labels"], labels)
+            color = colorize_labels(labels, self.palette)
+            files["labels_color"] = f"{rel}/labels_color/{stem}.png"
+            save_png(self.folder / files["labels_color"], color)
+            panels.append(("labels", color))
+        if batch.gt_depth is not None:
+            panels.append(("GT depth", colorize_depth(batch.gt_depth[b, 0].float().cpu().numpy(), *self.depth_range)))
+        if batch.gt_labels is not None and self.palette is not None:
+            gt = batch.gt_labels[b].cpu().numpy()
+            if gt.size and int(gt.max()) < len(self.palette) and int(gt.min()) >= 0:
+                panels.append(("GT labels", colorize_labels(gt, self.palette)))
+        sbs = side_by_side(panels)
+        files["side_by_side"] = f"{rel}/side_by_side/{stem}.png"
+        save_png(self.folder / files["side_by_side"], sbs)
+        if self.video:
+            writer = self._videos.get(traj)
+            if writer is None:
+                writer = self._videos[traj] = VideoWriter(base / "video", fps=self.fps, fmt=self.video)
+            writer.write(sbs)
+        record = {"trajectory": traj, "frame": int(batch.frame[b]), "reset": bool(batch.reset[b]), "files": files}
+        src = self.sources.get(batch.indices[b])
+        if src is not None:
+            record["source"] = src
+        self.frames.append(record)
+        entry["frames"] += 1
+        return record
+
+    def close(self) -> None:
+        """Finish the videos."""
+        for traj, writer in list(self._videos.items()):
+            path = writer.close()
+            self.trajectories[traj]["video"] = path.relative_to(self.folder).as_posix()
+            del self._videos[traj]
+
+    def abort(self) -> None:
+        for writer in self._videos.values():
+            writer.abort()
+        self._videos.clear()
+
+
+def _sources(dataset, indices) -> dict[int, str]:
+    out = {}
+    windows = getattr(dataset, "windows", None)
+    trajs = getattr(dataset, "trajectories", None)
+    if windows is None or trajs is None:
+        return out
+    for i in indices:
+        ti, row = windows[i]
+        out[i] = str(trajs[ti].frame(row).rgb)
+    return out
+
+
+def predict(
+    model,
+    dataset,
+    out: str | Path,
+    *,
+    video: str | None = "mp4",
+    fps: float = 8.0,
+    max_frames: int | None = None,
+    lanes: int = 1,
+    num_workers: int = 0,
+    overwrite: bool = False,
+    progress: bool = False,
+    dataset_name: str | None = None,
+    info: dict[str, Any] | None = None,
+    depth_range: tuple[float, float] = (0.0, 80.0),
+) -> dict[str, Any]:
+    """Stream ``model`` over ``dataset`` and write every output into ``out`` (see the module docstring).
+
+    Args:
+        model: a loaded model (eval mode). dataset: stream-mode single frames (``open_dataset(..., seq_len=1)``).
+        out: output folder (must not exist, be empty, or hold a previous ``predict`` output, unless ``overwrite``).
+        video: ``"mp4"`` (GIF when no ffmpeg), ``"gif"`` or ``None``/``"none"``.
+        fps: video frame rate. max_frames: only the first N rows. lanes, num_workers: as :func:`stream`.
+        overwrite: replace a non-empty ``out`` that is not a previous prediction output.
+        progress: progress bar. dataset_name: for the palette. info: extra entries of ``predictions.json``.
+        depth_range: near/far metres of the depth colour map.
+    Returns:
+        the manifest (also written to ``out/predictions.json``).
+    """
+    from tqdm.auto import tqdm
+
+    from ..errors import ConfigError
+
+    if video == "none":
+        video = None
+    if video not in (None, "mp4", "gif"):
+        raise ConfigError(f"--video must be one of {VIDEO_FORMATS}, got {video!r}")
+    if not fps > 0:
+        raise ConfigError(f"--fps must be positive, got {fps}")
+    cfg = _model_config(model)
+    name = dataset_name or getattr(dataset, "name", None) or ""
+    staged = StagedDir(out, MANIFEST, overwrite=overwrite, what="--out folder")
+    staged.check()
+    groups = trajectory_rows(dataset, max_frames)
+    schedule = make_schedule(groups, lanes)
+    if not schedule:
+        raise ConfigError("predict: the dataset has no frame")
+    start = time.perf_counter()
+    with staged as tmp:
+        writer = PredictionWriter(tmp, num_classes=cfg.num_classes if cfg.has_semantic else None,
+                                  dataset_name=name, video=video, fps=fps, depth_range=depth_range,
+                                  sources=_sources(dataset, [i for g in groups for i in g]))
+        bar = tqdm(total=sum(len(g) for g in groups), unit="frame", desc="predict", disable=not progress,
+                   leave=False)
+        model_seconds = 0.0
+        try:
+            for batch in stream(model, dataset, schedule=schedule, num_workers=num_workers):
+                writer(batch)
+                model_seconds += batch.seconds
+                bar.update(len(batch))
+            writer.close()
+        except BaseException:
+            writer.abort()
+            raise
+        finally:
+            bar.close()
+        manifest: dict[str, Any] = {
+            "format": "cosemdepth-predictions",
+            **(info or {}),
+            "model": {**(info or {}).get("model", {}), "arch": cfg.arch},
+            "dataset": {**(info or {}).get("dataset", {}), "name": name},
+            "encodings": {
+                "depth": "depth/*.npy: float32 [H, W], metres, the model output as is",
+                "depth_png": f"depth_png/*.png: uint16 = round(depth_m * {DEPTH_PNG_SCALE:g}) saturated to "
+                f"[0, 65535]; depth_m = value / {DEPTH_PNG_SCALE:g}",
+                "depth_png_scale": DEPTH_PNG_SCALE,
+                "labels": "labels/*.png: uint8 class index (argmax of the probabilities)",
+                "labels_color": "labels_color/*.png: RGB, palette below",
+                "side_by_side": "side_by_side/*.png: RGB | depth (turbo colour map, linear, red 0 m to blue 80 m) | labels | GT when known",
+            },
+            "class_names": list(writer.names),
+            "palette": None if writer.palette is None else np.asarray(writer.palette).tolist(),
+            "video": video,
+            "fps": fps,
+            "frames_written": len(writer.frames),
+            "model_seconds": model_seconds,
+            "wall_seconds": time.perf_counter() - start,
+            "trajectories": list(writer.trajectories.values()),
+            "frames": writer.frames,
+        }
+        atomic_write_text(tmp / MANIFEST, to_json(manifest))
+    return manifest
+
+
+__all__ = ["MANIFEST", "PredictionWriter", "predict", "safe_relpath"]

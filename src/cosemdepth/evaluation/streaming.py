@@ -1,0 +1,213 @@
+"""Stream a model over the trajectories of a dataset, frame by frame, with its explicit state (spec 6.2, 10.3).
+
+This is the loop shared by ``cosemdepth evaluate``, ``predict`` and ``demo``. The dataset must yield single frames in
+stream mode (``open_dataset(..., seq_len=1)`` on a test split: every CSV row, in order, with ``reset`` on the rows that
+start a trajectory).
+
+With ``lanes = 1`` (the original's protocol) the trajectories are processed one after the other, batch 1. With
+``lanes = B > 1`` up to B trajectories run side by side as one batch: each lane takes the next trajectory when its
+own ends (with a per-sample reset), and when no trajectory is left a lane is dropped and its rows are removed from
+the state. Every trajectory still sees exactly the same frames in the same order with the same resets, so the
+outputs are those of batch 1 (up to floating-point summation order).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Iterator, Sequence
+
+import torch
+
+from ..errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Step:
+    """One model step: dataset ``indices`` (one per lane), the ``lanes`` they run in, and which start a trajectory in
+    their lane (``starts``)."""
+
+    indices: tuple[int, ...]
+    lanes: tuple[int, ...]
+    starts: tuple[bool, ...]
+
+
+def trajectory_rows(dataset, max_frames: int | None = None) -> list[list[int]]:
+    """Dataset indices grouped by trajectory, in dataset order; only indices ``< max_frames`` when given.
+
+    The dataset must be a stream-mode :class:`~cosemdepth.data.sequence.SequenceDataset` with ``seq_len = 1``.
+    """
+    seq_len = getattr(dataset, "seq_len", None)
+    windows = getattr(dataset, "windows", None)
+    if windows is None or seq_len is None:
+        raise ConfigError(f"streaming needs a sequence dataset from open_dataset(), got {type(dataset).__name__}")
+    if seq_len != 1 or getattr(dataset, "mode", "stream") != "stream":
+        raise ConfigError(
+            f"streaming evaluation needs single frames in stream mode (open_dataset(..., seq_len=1) on a test "
+            f"split), got seq_len={seq_len}, mode={getattr(dataset, 'mode', None)!r}"
+        )
+    if max_frames is not None and (not isinstance(max_frames, int) or max_frames < 1):
+        raise ConfigError(f"max_frames must be a positive integer, got {max_frames!r}")
+    n = len(windows) if max_frames is None else min(len(windows), max_frames)
+    groups: list[list[int]] = []
+    last = None
+    for i in range(n):
+        ti = windows[i][0]
+        if ti != last:
+            groups.append([])
+            last = ti
+        groups[-1].append(i)
+    return groups
+
+
+def make_schedule(groups: Sequence[Sequence[int]], lanes: int = 1) -> list[Step]:
+    """Schedule trajectories (lists of dataset indices) on ``lanes`` parallel lanes; see the module docstring."""
+    if not isinstance(lanes, int) or lanes < 1:
+        raise ConfigError(f"the number of trajectories streamed at once must be a positive integer, got {lanes!r}")
+    queue = deque(list(g) for g in groups if len(g))
+    active: dict[int, deque] = {}
+    for lane in range(lanes):
+        if queue:
+            active[lane] = deque(queue.popleft())
+    fresh = set(active)
+    steps: list[Step] = []
+    while active:
+        order = sorted(active)
+        steps.append(Step(tuple(active[k].popleft() for k in order), tuple(order), tuple(k in fresh for k in order)))
+        fresh = set()
+        for k in order:
+            if not active[k]:
+                if queue:
+                    active[k] = deque(queue.popleft())
+                    fresh.add(k)
+                else:
+                    del active[k]
+    return steps
+
+
+@dataclass
+class StreamBatch:
+    """The inputs, ground truth and predictions of one step (B frames, one per lane); tensors on the model's device.
+
+    Attributes:
+        indices: dataset index of each frame; trajectory: trajectory names; frame: row in the trajectory ``[B]``.
+        reset: ``[B]`` bool, the frame starts a trajectory (the model reset its state); such frames are left out of
+            the metrics of the test protocol (spec 10.3).
+        rgb: ``[B, 3, H, W]``; intrinsics ``[B, 4]``.
+        gt_depth: ``[B, 1, H, W]`` metres or None; gt_labels: ``[B, H, W]`` int64 or None.
+        depth: predicted ``[B, 1, H, W]`` metres or None; semantic: ``[B, N, H, W]`` probabilities or None;
+            labels: ``[B, H, W]`` int64 argmax or None.
+        seconds: wall time of the model step (synchronised on CUDA).
+    """
+
+    indices: list[int]
+    trajectory: list[str]
+    frame: torch.Tensor
+    reset: torch.Tensor
+    rgb: torch.Tensor
+    intrinsics: torch.Tensor
+    gt_depth: torch.Tensor | None
+    gt_labels: torch.Tensor | None
+    depth: torch.Tensor | None
+    semantic: torch.Tensor | None
+    labels: torch.Tensor | None
+    seconds: float
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+
+def _slice_state(state, rows: list[int]):
+    if state is None or not getattr(state, "features", ()):
+        return state
+    idx = torch.tensor(rows, device=state.features[0].device)
+    return type(state)(tuple(t.index_select(0, idx) for t in state.features),
+                       tuple(t.index_select(0, idx) for t in state.depths))
+
+
+def _model_device(model) -> torch.device:
+    for p in model.parameters():
+        return p.device
+    return torch.device("cpu")
+
+
+def _model_dtype(model) -> torch.dtype:
+    for p in model.parameters():
+        if p.is_floating_point():
+            return p.dtype
+    return torch.float32
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def stream(
+    model,
+    dataset,
+    *,
+    lanes: int = 1,
+    max_frames: int | None = None,
+    num_workers: int = 0,
+    schedule: Sequence[Step] | None = None,
+) -> Iterator[StreamBatch]:
+    """Run ``model.step`` over ``dataset`` (see the module docstring) and yield one :class:`StreamBatch` per step.
+
+    Args:
+        model: a :class:`~cosemdepth.models.SceneModel` (or anything with the same ``step`` and ``parameters``).
+        dataset: stream-mode, ``seq_len = 1`` dataset from :func:`cosemdepth.data.open_dataset`.
+        lanes: trajectories streamed side by side (batch size); 1 as the original.
+        max_frames: only the first ``max_frames`` rows of the dataset (in order).
+        num_workers: DataLoader worker processes reading the frames (0: in this process).
+        schedule: a precomputed :func:`make_schedule` result (default: computed from the dataset).
+    """
+    from torch.utils.data import DataLoader
+
+    from ..data.loader import collate
+
+    if schedule is None:
+        schedule = make_schedule(trajectory_rows(dataset, max_frames), lanes)
+    device = _model_device(model)
+    dtype = _model_dtype(model)
+    loader = DataLoader(dataset, batch_sampler=[list(s.indices) for s in schedule], collate_fn=collate,
+                        num_workers=num_workers)
+    state = None
+    prev_lanes: tuple[int, ...] = ()
+    with torch.inference_mode():
+        for step, batch in zip(schedule, loader):
+            if prev_lanes and step.lanes != prev_lanes:
+                pos = {lane: i for i, lane in enumerate(prev_lanes)}
+                state = _slice_state(state, [pos[lane] for lane in step.lanes])
+            prev_lanes = step.lanes
+            rgb = batch["rgb"][:, 0].to(device=device, dtype=dtype)
+            rot = batch["rot"][:, 0].to(device=device, dtype=dtype)
+            trans = batch["trans"][:, 0].to(device=device, dtype=dtype)
+            intr = batch["intrinsics"].to(device=device, dtype=dtype)
+            reset = batch["reset"][:, 0] | torch.tensor(step.starts, dtype=torch.bool)
+            reset_dev = reset.to(device)
+            _sync(device)
+            t0 = time.perf_counter()
+            out, state = model.step(rgb, rot, trans, intr, reset_dev, state)
+            _sync(device)
+            seconds = time.perf_counter() - t0
+            gt_depth = batch.get("depth")
+            gt_labels = batch.get("semantic")
+            yield StreamBatch(
+                indices=list(step.indices),
+                trajectory=list(batch["trajectory"]),
+                frame=batch["frame"][:, 0],
+                reset=reset,
+                rgb=rgb,
+                intrinsics=intr,
+                gt_depth=None if gt_depth is None else gt_depth[:, 0].to(device),
+                gt_labels=None if gt_labels is None else gt_labels[:, 0].to(device),
+                depth=out.depth,
+                semantic=out.semantic,
+                labels=None if out.semantic is None else out.semantic.argmax(dim=1),
+                seconds=seconds,
+            )
+
+
+__all__ = ["Step", "StreamBatch", "make_schedule", "stream", "trajectory_rows"]

@@ -1,0 +1,206 @@
+"""Pictures and videos of predictions: colour-mapped depth, colourised labels, side-by-side panels, a flight video,
+and the 16-bit depth PNG encoding.
+
+Depth PNG (``depth_to_png16``): ``uint16 = round(depth_m * 256)``, saturating to ``[0, 65535]``: a resolution of
+1/256 m (3.9 mm) up to 255.996 m; 0 means a depth <= 1/512 m (or a negative/NaN prediction). Decode with
+``depth_m = png / 256`` (:func:`png16_to_depth`). This is the KITTI depth-map convention.
+
+Depth colour map (``colorize_depth``): linear between ``near`` (0 m, red) and ``far`` (80 m, the evaluation cap, dark
+blue), matplotlib's ``turbo``: the same scale for every frame, so that videos do not flicker.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import shutil
+import warnings
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..io.atomic import atomic_open, atomic_path
+
+#: Metres -> 16-bit PNG units: ``uint16 = round(depth_m * DEPTH_PNG_SCALE)``.
+DEPTH_PNG_SCALE = 256.0
+DEPTH_PNG_MAX_M = 65535 / DEPTH_PNG_SCALE
+
+
+def depth_to_png16(depth: np.ndarray) -> np.ndarray:
+    """``[H, W]`` metres -> ``[H, W]`` uint16 ``round(depth * 256)`` saturated to [0, 65535]; NaN -> 0."""
+    d = np.nan_to_num(np.asarray(depth, dtype=np.float64), nan=0.0, posinf=DEPTH_PNG_MAX_M, neginf=0.0)
+    return np.clip(np.rint(d * DEPTH_PNG_SCALE), 0, 65535).astype(np.uint16)
+
+
+def png16_to_depth(png: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`depth_to_png16`: ``[H, W]`` uint16 -> float32 metres."""
+    return (np.asarray(png).astype(np.float32) / np.float32(DEPTH_PNG_SCALE)).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=8)
+def _lut(name: str) -> np.ndarray:
+    from matplotlib import colormaps
+
+    return (colormaps[name](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0 + 0.5).astype(np.uint8)
+
+
+def colorize_depth(depth: np.ndarray, near: float = 0.0, far: float = 80.0, cmap: str = "turbo") -> np.ndarray:
+    """``[H, W]`` metres -> ``[H, W, 3]`` uint8: linear scale, ``near`` at the top of ``cmap`` (red for turbo) to
+    ``far`` at its bottom (dark blue); values outside are clipped, NaN shows as ``far``."""
+    if not far > near:
+        raise ValueError(f"colorize_depth: far ({far}) must be greater than near ({near})")
+    d = np.nan_to_num(np.asarray(depth, dtype=np.float64), nan=far, posinf=far, neginf=near)
+    v = 1.0 - (np.clip(d, near, far) - near) / (far - near)
+    return _lut(cmap)[np.clip(np.rint(v * 255), 0, 255).astype(np.intp)]
+
+
+def colorize_labels(labels: np.ndarray, palette: np.ndarray) -> np.ndarray:
+    """``[H, W]`` class indices -> ``[H, W, 3]`` uint8 with ``palette [N, 3]``."""
+    return np.asarray(palette, dtype=np.uint8)[np.asarray(labels, dtype=np.intp)]
+
+
+def rgb_to_uint8(rgb: np.ndarray) -> np.ndarray:
+    """``[3, H, W]`` floats in [0, 1] (values outside are clipped) -> ``[H, W, 3]`` uint8."""
+    return (np.clip(np.asarray(rgb, dtype=np.float32), 0.0, 1.0).transpose(1, 2, 0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def _caption(width: int, text: str, height: int) -> np.ndarray:
+    from PIL import Image, ImageDraw
+
+    img = Image.new("RGB", (width, height), (24, 24, 24))
+    ImageDraw.Draw(img).text((3, max(0, (height - 11) // 2)), text, fill=(235, 235, 235))
+    return np.asarray(img)
+
+
+def side_by_side(panels: Sequence[tuple[str, np.ndarray]], caption_height: int = 14, gap: int = 2) -> np.ndarray:
+    """Panels ``[(title, [H, W, 3] uint8), ...]`` of the same height side by side, each with its title above."""
+    if not panels:
+        raise ValueError("side_by_side needs at least one panel")
+    h = panels[0][1].shape[0]
+    cols = []
+    for i, (title, img) in enumerate(panels):
+        if img.shape[0] != h:
+            raise ValueError(f"panel {title!r} has height {img.shape[0]}, expected {h}")
+        col = np.concatenate([_caption(img.shape[1], title, caption_height), img], axis=0) if caption_height else img
+        cols.append(col)
+        if gap and i < len(panels) - 1:
+            cols.append(np.zeros((col.shape[0], gap, 3), dtype=np.uint8))
+    return np.concatenate(cols, axis=1)
+
+
+def save_png(path: str | os.PathLike, array: np.ndarray) -> None:
+    """Write ``array`` (``[H, W]`` uint8/uint16 or ``[H, W, 3]`` uint8) as a PNG, atomically."""
+    from PIL import Image
+
+    with atomic_path(path) as tmp:
+        Image.fromarray(np.ascontiguousarray(array)).save(tmp, format="PNG")
+
+
+def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
+    """``np.save`` atomically."""
+    with atomic_open(path, "wb") as f:
+        np.save(f, np.ascontiguousarray(array))
+
+
+def ffmpeg_exe() -> str | None:
+    """Path of the ffmpeg binary of imageio-ffmpeg (or on PATH), or None."""
+    try:
+        import imageio_ffmpeg
+
+        return imageio_ffmpeg.get_ffmpeg_exe()
+    except Exception:  # noqa: BLE001 - any failure means "no ffmpeg"
+        return shutil.which("ffmpeg")
+
+
+class VideoWriter:
+    """Stream frames (``[H, W, 3]`` uint8, all the same size) into an MP4 (H.264, imageio-ffmpeg's ``write_frames``)
+    or a GIF (Pillow).
+
+    ``fmt="mp4"`` falls back to GIF (with a warning) when no ffmpeg is available; :attr:`path` is the file finally
+    written. The file is written under a temporary name and renamed on :meth:`close`; :meth:`abort` deletes it.
+    Odd frame sizes are padded by one black row/column for H.264.
+    """
+
+    def __init__(self, path: str | os.PathLike, fps: float = 8.0, fmt: str = "mp4") -> None:
+        if fmt not in ("mp4", "gif"):
+            raise ValueError(f"video format must be 'mp4' or 'gif', got {fmt!r}")
+        self.fps = float(fps)
+        self.exe = ffmpeg_exe() if fmt == "mp4" else None
+        if fmt == "mp4" and self.exe is None:
+            warnings.warn("no ffmpeg found (imageio-ffmpeg); writing a GIF instead of an MP4", stacklevel=2)
+            fmt = "gif"
+        self.fmt = fmt
+        self.path = Path(path).with_suffix("." + fmt)
+        self._ctx = atomic_path(self.path)
+        self._tmp = self._ctx.__enter__()
+        self._proc = None  # imageio-ffmpeg's write_frames generator
+        self._gif: list = []
+        self._size: tuple[int, int] | None = None
+        self.frames = 0
+
+    def _start_ffmpeg(self, w: int, h: int) -> None:
+        import imageio_ffmpeg
+
+        self._proc = imageio_ffmpeg.write_frames(
+            str(self._tmp), (w, h), fps=self.fps, codec="libx264", quality=None, macro_block_size=2,
+            ffmpeg_log_level="error", output_params=["-crf", "20", "-preset", "veryfast", "-movflags", "+faststart"],
+        )
+        self._proc.send(None)  # start ffmpeg
+
+    def write(self, frame: np.ndarray) -> None:
+        frame = np.asarray(frame, dtype=np.uint8)
+        if self.fmt == "mp4":
+            h, w = frame.shape[:2]
+            frame = np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)))
+        size = (frame.shape[1], frame.shape[0])
+        if self._size is None:
+            self._size = size
+            if self.fmt == "mp4":
+                self._start_ffmpeg(*size)
+        elif size != self._size:
+            raise ValueError(f"video frames must all have the same size: {size} after {self._size}")
+        if self.fmt == "mp4":
+            assert self._proc is not None
+            self._proc.send(np.ascontiguousarray(frame))
+        else:
+            from PIL import Image
+
+            self._gif.append(Image.fromarray(frame).quantize(colors=255, method=Image.Quantize.MEDIANCUT))
+        self.frames += 1
+
+    def close(self) -> Path:
+        """Finish the file and move it into place; returns its path."""
+        try:
+            if self.frames == 0:
+                raise ValueError(f"{self.path}: no frame was written")
+            if self.fmt == "mp4":
+                assert self._proc is not None
+                self._proc.close()  # waits for ffmpeg; raises if it failed
+            else:
+                first, rest = self._gif[0], self._gif[1:]
+                first.save(self._tmp, format="GIF", save_all=True, append_images=rest,
+                           duration=max(int(round(1000 / self.fps)), 20), loop=0)
+                self._gif = []
+        except BaseException as e:
+            self._ctx.__exit__(type(e), e, e.__traceback__)
+            raise
+        self._ctx.__exit__(None, None, None)
+        return self.path
+
+    def abort(self) -> None:
+        """Stop and delete the temporary file."""
+        if self._proc is not None:
+            self._proc.close()
+            self._proc = None
+        err = RuntimeError("aborted")
+        try:
+            self._ctx.__exit__(RuntimeError, err, None)
+        except RuntimeError:
+            pass
+
+
+__all__ = [
+    "DEPTH_PNG_MAX_M", "DEPTH_PNG_SCALE", "VideoWriter", "colorize_depth", "colorize_labels", "depth_to_png16",
+    "ffmpeg_exe", "png16_to_depth", "rgb_to_uint8", "save_npy", "save_png", "side_by_side",
+]

@@ -1,0 +1,47 @@
+import pytest
+
+from cosemdepth.errors import ConfigError
+from cosemdepth.evaluation.streaming import Step, make_schedule, trajectory_rows
+
+from _fakes import fake_dataset
+
+
+def test_one_lane_runs_trajectories_one_after_the_other():
+    steps = make_schedule([[0, 1, 2], [3, 4]], lanes=1)
+    assert steps == [Step((0,), (0,), (True,)), Step((1,), (0,), (False,)), Step((2,), (0,), (False,)),
+                     Step((3,), (0,), (True,)), Step((4,), (0,), (False,))]
+
+
+def test_lanes_refill_then_shrink():
+    steps = make_schedule([[0, 1, 2], [3], [4, 5], [6]], lanes=2)
+    assert [(s.indices, s.lanes, s.starts) for s in steps] == [
+        ((0, 3), (0, 1), (True, True)),
+        ((1, 4), (0, 1), (False, True)),  # lane 1 finished trajectory [3] and took [4, 5]
+        ((2, 5), (0, 1), (False, False)),
+        ((6,), (0,), (True,)),  # lane 0 took [6]; lane 1 had nothing left and was dropped
+    ]
+    # every index exactly once, each trajectory in order
+    flat = [i for s in steps for i in s.indices]
+    assert sorted(flat) == list(range(7))
+
+
+def test_more_lanes_than_trajectories():
+    steps = make_schedule([[0, 1], [2]], lanes=5)
+    assert [(s.indices, s.lanes) for s in steps] == [((0, 2), (0, 1)), ((1,), (0,))]
+
+
+def test_trajectory_rows_and_max_frames():
+    ds = fake_dataset()
+    assert trajectory_rows(ds) == [[0, 1, 2], [3, 4]]
+    assert trajectory_rows(ds, max_frames=4) == [[0, 1, 2], [3]]
+
+
+def test_bad_arguments():
+    with pytest.raises(ConfigError, match="positive integer"):
+        make_schedule([[0]], lanes=0)
+    ds = fake_dataset()
+    ds.seq_len = 2
+    with pytest.raises(ConfigError, match="seq_len=1"):
+        trajectory_rows(ds)
+    with pytest.raises(ConfigError, match="sequence dataset"):
+        trajectory_rows([1, 2, 3])

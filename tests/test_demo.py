@@ -1,0 +1,179 @@
+"""``cosemdepth demo``: the whole pipeline on a tiny dataset with a tiny random model; the metrics.json schema; the
+baselines against an independent computation; clear errors."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "evaluation"))
+from _outputs import leftovers, tiny_midair, tiny_model, torch_threads  # noqa: E402
+
+from cosemdepth import demo as demo_mod  # noqa: E402
+from cosemdepth.cli.main import main  # noqa: E402
+from cosemdepth.data import open_dataset  # noqa: E402
+from cosemdepth.errors import CheckpointError, ConfigError  # noqa: E402
+
+SIZE = 32
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    with torch_threads(1):
+        yield
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory):
+    return tiny_model(tmp_path_factory.mktemp("m") / "tiny")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return tiny_midair(tmp_path_factory.mktemp("d") / "flight", trajectories=(0,), frames=28)  # 6 rows
+
+
+def check_schema(m):
+    assert set(m["model"]) == {"miou", "abs_rel", "rmse", "delta1"}
+    assert set(m["baselines"]) == {"majority_class", "constant_depth"}
+    assert set(m["baselines"]["majority_class"]) == {"miou"}
+    assert set(m["baselines"]["constant_depth"]) == {"abs_rel", "rmse", "delta1"}
+    for v in (m["model"]["miou"], m["model"]["delta1"], m["baselines"]["majority_class"]["miou"],
+              m["baselines"]["constant_depth"]["delta1"]):
+        assert isinstance(v, float) and 0.0 <= v <= 1.0
+    for v in (m["model"]["abs_rel"], m["model"]["rmse"], m["baselines"]["constant_depth"]["abs_rel"],
+              m["baselines"]["constant_depth"]["rmse"]):
+        assert isinstance(v, float) and v >= 0
+
+
+def independent_baselines(root):
+    """Spec 10 by hand on the non-reset frames: constant median depth, majority class."""
+    ds = open_dataset("synthair", root, split="test", seq_len=1, size=SIZE)
+    items = [ds[i] for i in range(len(ds)) if not bool(ds[i]["reset"][0])]
+    gts = [np.clip(it["depth"][0, 0].double().numpy(), 0, 80) for it in items]
+    allg = np.concatenate([g.ravel() for g in gts])
+    med = np.median(allg[allg > 1e-6])
+    e = np.clip(med, 0.001, 80)
+    abs_rel = np.mean([np.mean(np.abs(g - e)[g > 1e-6] / (g[g > 1e-6] + 1e-6)) for g in gts])
+    rmse = np.mean([np.sqrt(np.mean((g - e)[g > 1e-6] ** 2)) for g in gts])
+    delta1 = np.mean([np.mean(np.maximum(g / e, e / g)[g > 1e-6] < 1.25) for g in gts])
+    labels = np.concatenate([it["semantic"][0].numpy().ravel() for it in items])
+    counts = np.bincount(labels, minlength=7)
+    # predicting class c everywhere: IoU_c = n_c / N, every other class present in GT has IoU 0, absent ones excluded
+    miou = counts.max() / counts.sum() / np.count_nonzero(counts)
+    return {"abs_rel": abs_rel, "rmse": rmse, "delta1": delta1, "miou": miou, "frames": len(items)}
+
+
+def test_demo_end_to_end_on_a_given_dataset(model_dir, data, tmp_path, capsys):
+    out = tmp_path / "report"
+    rc = main(["demo", "--out", str(out), "--model", str(model_dir), "--data-root", str(data), "--size", str(SIZE),
+               "--no-progress"])
+    assert rc == 0
+    assert f"Report: {out / 'report.md'}" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["flight.mp4", "iou.png", "metrics.json", "qualitative.png",
+                                                     "report.md"]
+    m = json.loads((out / "metrics.json").read_text())
+    check_schema(m)
+    ref = independent_baselines(data)
+    assert m["details"]["evaluation"]["protocol"]["frames_evaluated"] == ref["frames"] == 5
+    cd = m["baselines"]["constant_depth"]
+    for k in ("abs_rel", "rmse", "delta1"):
+        assert cd[k] == pytest.approx(ref[k], rel=1e-6), k
+    assert m["baselines"]["majority_class"]["miou"] == pytest.approx(ref["miou"], rel=1e-12)
+    # the model's numbers are those of the evaluator on the same frames
+    from cosemdepth import load_model
+    from cosemdepth.evaluation.evaluator import evaluate
+
+    ev = evaluate(load_model(model_dir), open_dataset("synthair", data, split="test", seq_len=1, size=SIZE))
+    for k in ("miou", "abs_rel", "rmse", "delta1"):
+        assert m["model"][k] == pytest.approx(ev.metrics[k], rel=1e-9), k
+    import imageio_ffmpeg
+
+    assert imageio_ffmpeg.count_frames_and_secs(str(out / "flight.mp4"))[0] == 6
+    from PIL import Image
+
+    assert Image.open(out / "iou.png").size[0] > 100 and Image.open(out / "qualitative.png").size[1] > 100
+    report = (out / "report.md").read_text()
+    assert "| **Co-SemDepth** |" in report and "majority class" in report and "constant depth" in report
+    assert "![per-class IoU](iou.png)" in report and "## Timings" in report
+    assert leftovers(tmp_path) == []
+
+    # a second run replaces the report
+    rc = main(["demo", "--out", str(out), "--model", str(model_dir), "--data-root", str(data), "--size", str(SIZE),
+               "--no-progress", "--video", "none"])
+    assert rc == 0 and not (out / "flight.mp4").exists() and leftovers(tmp_path) == []
+
+
+def test_demo_generates_the_flight_with_the_synth_command(model_dir, tmp_path, monkeypatch):
+    """The generation path, with ``cosemdepth synth`` replaced by the test writer (same Mid-Air format)."""
+    calls = []
+
+    def fake_main(argv):
+        calls.append(argv)
+        out = Path(argv[argv.index("--out") + 1])
+        frames = int(argv[argv.index("--frames") + 1])
+        tiny_midair(out, trajectories=(0,), frames=frames, size=int(argv[argv.index("--size") + 1]))
+        return 0
+
+    monkeypatch.setattr("cosemdepth.cli.main.main", fake_main)
+    monkeypatch.setattr(demo_mod, "synth_available", lambda: True)
+    m = demo_mod.run_demo(tmp_path / "r", model=model_dir, size=SIZE, frames=5, seed=7, climate="foggy",
+                          video=None, progress=False, log=lambda *a: None)
+    assert calls == [["synth", "--out", calls[0][2], "--trajectories", "1", "--frames", "24", "--size", "32",
+                      "--seed", "7", "--climates", "foggy", "--no-progress"]]
+    assert not Path(calls[0][2]).exists()  # the temporary flight is deleted
+    check_schema(m)
+    assert m["details"]["evaluation"]["protocol"]["frames_streamed"] == 5
+    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["model"] == pytest.approx(m["model"])
+
+
+def test_synth_failure_and_missing_synth(model_dir, tmp_path, monkeypatch):
+    monkeypatch.setattr(demo_mod, "synth_available", lambda: False)
+    with pytest.raises(ConfigError, match="--data-root"):
+        demo_mod.run_demo(tmp_path / "r", model=model_dir, size=SIZE, frames=3, log=lambda *a: None)
+    monkeypatch.setattr(demo_mod, "synth_available", lambda: True)
+    monkeypatch.setattr("cosemdepth.cli.main.main", lambda argv: 2)
+    with pytest.raises(Exception, match="failed"):
+        demo_mod.run_demo(tmp_path / "r", model=model_dir, size=SIZE, frames=3, log=lambda *a: None)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_missing_shipped_weights_is_a_clear_error(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(demo_mod, "default_model_candidates", lambda: [tmp_path / "weights" / "x"])
+    with pytest.raises(CheckpointError, match="trained weights were not found.*--model DIR"):
+        demo_mod.resolve_model_path(None)
+    assert main(["demo", "--out", str(tmp_path / "r")]) == 2
+    assert "weights were not found" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+
+
+def test_bad_outputs_and_arguments(model_dir, data, tmp_path, capsys):
+    f = tmp_path / "file"
+    f.write_text("mine")
+    assert main(["demo", "--out", str(f), "--model", str(model_dir), "--data-root", str(data)]) == 2
+    assert "exists and is not a folder" in capsys.readouterr().err and f.read_text() == "mine"
+    assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--data-root", str(data),
+                 "--data-dir", str(tmp_path / "d")]) == 2
+    assert "at most one" in capsys.readouterr().err
+    assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--frames", "1"]) == 2
+    assert "--frames" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_majority_and_constant_baselines_by_hand():
+    c = demo_mod.DemoCollector(total_frames=2, num_classes=3, palette=None)
+    c.gt_depths = [torch.tensor([[10.0, 20.0], [40.0, 0.0]]), torch.tensor([[100.0, 30.0], [30.0, 30.0]])]
+    c.label_hist = np.array([5, 2, 0])
+    # valid clipped GT: 10, 20, 40, 80, 30, 30, 30 -> median 30
+    cd = c.constant_depth()
+    assert cd["depth_m"] == 30.0
+    f1 = (20 / 10 + 10 / 20 + 10 / 40) / 3  # AbsRel of frame 1 (the 0 is invalid)
+    f2 = (50 / 80) / 4
+    assert cd["abs_rel"] == pytest.approx((f1 + f2) / 2, rel=1e-5)
+    assert cd["delta1"] == pytest.approx((0 + 3 / 4) / 2)  # ratios 3, 1.5, 1.33 | 2.67, 1, 1, 1
+    maj = c.majority_class()
+    # class 0 everywhere: IoU_0 = 5 / 7, IoU_1 = 0, class 2 absent from both -> left out
+    assert maj["class"] == 0 and maj["miou"] == pytest.approx((5 / 7 + 0) / 2)
