@@ -1,0 +1,197 @@
+"""Camera flights: smooth 6-DoF low-altitude trajectories sampled as Mid-Air ground truth (100 Hz, NED).
+
+Body axes are x forward, y right, z down; the attitude is the unit quaternion ``(w, x, y, z)`` of the body -> world
+(NED) rotation; positions are metres in NED (``x`` north, ``y`` east, ``z`` down). Camera frame ``n`` (25 Hz) is
+ground-truth sample ``4 n``.
+
+A flight is built from uniform cubic B-splines of random control values (speed, turn rate, altitude above ground,
+camera pitch, roll and yaw offsets). The altitude is lifted wherever the flight would come closer than a margin to
+trees, boulders or buildings, then smoothed in a way that keeps that margin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..quaternion import qconj, qmul
+from .terrain import CELL, GRID, PERIOD
+from .world import World
+
+GT_RATE = 100.0
+MODES = ("road", "village", "lake", "free")
+#: Minimum distance (metres) kept between the camera and the conservative surface envelope below it.
+CLEARANCE = 1.2
+
+
+@dataclass
+class Flight:
+    mode: str
+    attitude: np.ndarray  # [N, 4] (w, x, y, z) body -> world (NED)
+    position: np.ndarray  # [N, 3] NED metres
+    velocity: np.ndarray  # [N, 3] NED m/s
+    acceleration: np.ndarray  # [N, 3] NED m/s^2
+    angular_velocity: np.ndarray  # [N, 3] body rad/s
+    altitude: np.ndarray  # [N] metres above the terrain/water surface
+
+    def __len__(self) -> int:
+        return len(self.position)
+
+
+def bspline(control: np.ndarray, knot_spacing: float, times: np.ndarray, t0: float) -> np.ndarray:
+    """Uniform cubic B-spline with control values ``control [M, ...]`` (knot ``k`` at ``t0 + k * spacing``)."""
+    u = (times - t0) / knot_spacing
+    k = np.clip(np.floor(u).astype(np.int64), 1, len(control) - 3)
+    f = (u - k)[(...,) + (None,) * (control.ndim - 1)]
+    b0 = (1 - f) ** 3 / 6
+    b1 = (3 * f**3 - 6 * f**2 + 4) / 6
+    b2 = (-3 * f**3 + 3 * f**2 + 3 * f + 1) / 6
+    b3 = f**3 / 6
+    return b0 * control[k - 1] + b1 * control[k] + b2 * control[k + 1] + b3 * control[k + 2]
+
+
+def euler_to_quaternion(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
+    """ZYX (yaw, pitch, roll) angles in radians -> quaternions ``[N, 4]`` body -> NED (aerospace convention)."""
+    z = np.zeros_like(yaw)
+    qz = np.stack([np.cos(yaw / 2), z, z, np.sin(yaw / 2)], -1)
+    qy = np.stack([np.cos(pitch / 2), z, np.sin(pitch / 2), z], -1)
+    qx = np.stack([np.cos(roll / 2), np.sin(roll / 2), z, z], -1)
+    return qmul(qmul(qz, qy), qx)
+
+
+def _smooth(signal: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian smoothing (truncated at 3 sigma, edges replicated); ``sigma`` in samples."""
+    r = int(np.ceil(3 * sigma))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    k /= k.sum()
+    padded = np.concatenate([np.full(r, signal[0]), signal, np.full(r, signal[-1])])
+    return np.convolve(padded, k, mode="valid")
+
+
+def _max_filter(signal: np.ndarray, radius: int) -> np.ndarray:
+    padded = np.concatenate([np.full(radius, signal[0]), signal, np.full(radius, signal[-1])])
+    win = np.lib.stride_tricks.sliding_window_view(padded, 2 * radius + 1)
+    return win.max(axis=1)
+
+
+def envelope_near(world: World, x: np.ndarray, y: np.ndarray, radius_cells: int = 2) -> np.ndarray:
+    """Conservative maximum surface height (terrain, water, trees, boulders) within about
+    ``radius_cells * CELL`` metres of points ``(x, y)``, from the renderer's level-0 envelope."""
+    env = world.env_max[: GRID * GRID].numpy().reshape(GRID, GRID)
+    i0 = np.floor(np.asarray(x) / CELL).astype(np.int64)
+    j0 = np.floor(np.asarray(y) / CELL).astype(np.int64)
+    out = np.full(np.shape(x), -np.inf)
+    for a in range(-radius_cells, radius_cells + 1):
+        for b in range(-radius_cells, radius_cells + 1):
+            out = np.maximum(out, env[(i0 + a) % GRID, (j0 + b) % GRID])
+    return out
+
+
+def buildings_near(world: World, x: np.ndarray, y: np.ndarray, margin: float = 6.0) -> np.ndarray:
+    """Highest building roof within ``margin`` metres of the footprint around points ``(x, y)`` (-inf if none)."""
+    b = world.buildings
+    out = np.full(np.shape(x), -np.inf)
+    for i in range(len(b)):
+        dx = (np.asarray(x) - b.center[i, 0] + PERIOD / 2) % PERIOD - PERIOD / 2
+        dy = (np.asarray(y) - b.center[i, 1] + PERIOD / 2) % PERIOD - PERIOD / 2
+        r = np.linalg.norm(b.corners[i, 0, :2] - b.center[i, :2]) + margin
+        out = np.where(dx * dx + dy * dy < r * r, np.maximum(out, b.top[i]), out)
+    return out
+
+
+def _spline_times(duration: float, spacing: float):
+    n = int(np.ceil((duration + 6.0) / spacing)) + 4
+    return n, -3.0 - spacing
+
+
+def _choose_start(world: World, rng: np.random.Generator, mode: str):
+    """Start point and initial heading for a flight mode."""
+    t = world.terrain
+    if mode == "road":
+        k = int(rng.integers(len(t.roads.axis)))
+        s = rng.uniform(0, PERIOD)
+        if len(world.buildings) and rng.uniform() < 0.5:
+            # start near a building by the road
+            c = world.buildings.center[rng.integers(len(world.buildings))]
+            s = c[0] if t.roads.axis[k] == 0 else c[1]
+        return {"road": k, "s": s, "direction": rng.choice([-1.0, 1.0])}
+    if mode == "village" and len(world.buildings):
+        c = world.buildings.center[rng.integers(len(world.buildings))]
+        ang = rng.uniform(0, 2 * np.pi)
+        dist = rng.uniform(60, 160)
+        x0, y0 = c[0] - dist * np.cos(ang), c[1] - dist * np.sin(ang)
+        return {"xy": (x0, y0), "heading": ang + rng.normal(0, 0.15)}
+    if mode == "lake":
+        wet = np.flatnonzero(t.height.ravel() < t.water_level - 1.0)
+        if wet.size:
+            cell = wet[rng.integers(wet.size)]
+            cx, cy = (cell // GRID) * CELL, (cell % GRID) * CELL
+            ang = rng.uniform(0, 2 * np.pi)
+            dist = rng.uniform(80, 200)
+            return {"xy": (cx - dist * np.cos(ang), cy - dist * np.sin(ang)), "heading": ang + rng.normal(0, 0.2)}
+    return {"xy": tuple(rng.uniform(0, PERIOD, 2)), "heading": rng.uniform(0, 2 * np.pi)}
+
+
+def make_flight(world: World, rng: np.random.Generator, n_frames: int, mode: str) -> Flight:
+    """A flight of ``n_frames`` camera frames (25 Hz), i.e. ``4 n_frames`` ground-truth samples (100 Hz)."""
+    n = 4 * n_frames
+    dt = 1.0 / GT_RATE
+    times = np.arange(n) * dt
+    duration = n * dt
+    ks = 1.5
+    m, t0 = _spline_times(duration, ks)
+
+    speed = bspline(rng.uniform(4.0, 13.0, m), ks, times, t0)
+    start = _choose_start(world, rng, mode)
+    if "road" in start:
+        roads = world.terrain.roads
+        k, direction = start["road"], start["direction"]
+        s = start["s"] + direction * np.concatenate([[0.0], np.cumsum(speed[:-1] * dt)])
+        lateral_off = bspline(rng.uniform(-14.0, 14.0, m), 3.0, times, t0 * 2)
+        pts = np.array([roads.point(k, si) for si in s])
+        tang = np.array([roads.tangent(k, si) for si in s]) * direction
+        normal = np.stack([-tang[:, 1], tang[:, 0]], 1)
+        xy = pts + normal * lateral_off[:, None]
+    else:
+        turn_max = np.radians(18.0 if mode == "free" else 8.0)
+        turn = bspline(rng.uniform(-turn_max, turn_max, m), ks, times, t0)
+        heading = start["heading"] + np.concatenate([[0.0], np.cumsum(turn[:-1] * dt)])
+        step = np.stack([np.cos(heading), np.sin(heading)], 1) * (speed * dt)[:, None]
+        xy = np.array(start["xy"]) + np.concatenate([np.zeros((1, 2)), np.cumsum(step[:-1], axis=0)])
+
+    # heading of the path (central differences of the smooth horizontal path)
+    vel_xy = np.gradient(xy, dt, axis=0)
+    path_heading = np.unwrap(np.arctan2(vel_xy[:, 1], vel_xy[:, 0]))
+
+    ground = world.terrain.surface_at(xy[:, 0], xy[:, 1])
+    low = rng.uniform(size=m) < 0.25
+    alt_ctrl = np.where(low, rng.uniform(3.0, 7.0, m), np.exp(rng.uniform(np.log(7.0), np.log(60.0), m)))
+    target = ground + bspline(alt_ctrl, 2.0, times, -5.0)
+    obstacle = np.maximum(envelope_near(world, xy[:, 0], xy[:, 1]), buildings_near(world, xy[:, 0], xy[:, 1]))
+    required = np.maximum(target, obstacle + CLEARANCE)
+    # smooth the terrain-following altitude, then lift it back above every required point: a max filter of
+    # half-width w followed by a Gaussian truncated at 3 sigma <= w never goes below the input
+    sigma = 0.45 * GT_RATE
+    smooth_target = _smooth(target, sigma)
+    lifted = np.maximum(smooth_target, required)
+    up = _smooth(_max_filter(lifted, int(np.ceil(3 * sigma))), sigma)
+    altitude_up = np.maximum(up, required)  # equal to `up` up to rounding
+
+    # attitude: yaw follows the path with a small offset, the camera looks down, rolls into turns
+    yaw = path_heading + np.radians(bspline(rng.uniform(-8.0, 8.0, m), ks, times, t0))
+    turn_rate = np.gradient(path_heading, dt)
+    pitch_down = bspline(rng.uniform(10.0, 30.0, m), 2.0, times, -5.0)
+    pitch = -np.radians(pitch_down)
+    hspeed = np.linalg.norm(vel_xy, axis=1)
+    bank = np.arctan(hspeed * _smooth(turn_rate, 0.2 * GT_RATE) / 9.81)
+    roll = np.clip(0.8 * bank + np.radians(bspline(rng.uniform(-6.0, 6.0, m), ks, times, t0)), -0.5, 0.5)
+    attitude = euler_to_quaternion(yaw, pitch, roll)
+    attitude /= np.linalg.norm(attitude, axis=1, keepdims=True)
+
+    position = np.stack([xy[:, 0], xy[:, 1], -altitude_up], 1)
+    velocity = np.gradient(position, dt, axis=0)
+    acceleration = np.gradient(velocity, dt, axis=0)
+    dq = np.gradient(attitude, dt, axis=0)
+    angular_velocity = 2.0 * qmul(qconj(attitude), dq)[:, 1:]
+    return Flight(mode, attitude, position, velocity, acceleration, angular_velocity, altitude_up - ground)
