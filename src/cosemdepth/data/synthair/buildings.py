@@ -116,7 +116,7 @@ class _Placer:
         return True
 
 
-def build_buildings(rng: np.random.Generator, terrain: Terrain, villages: int = 16, farms: int = 36) -> Buildings:
+def build_buildings(rng: np.random.Generator, terrain: Terrain, villages: int = 26, farms: int = 70) -> Buildings:
     """Place villages along the roads and farms in the open; clears trees and boulders around every building."""
     placer = _Placer(rng, terrain)
     roads = terrain.roads

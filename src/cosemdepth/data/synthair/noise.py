@@ -20,7 +20,7 @@ def fractal_field(rng: np.random.Generator, n: int, spacing: float, beta: float,
         cutoff: wavelength in metres above which the spectrum flattens (``k_c = 1 / cutoff``).
         upsample: synthesise on an ``n / upsample`` grid and interpolate (bilinear) up to ``n``; for smooth fields.
     Returns:
-        ``[n, n]`` float64 field with zero mean and unit standard deviation.
+        ``[n, n]`` float32 field with zero mean and unit standard deviation.
     """
     m = n // upsample
     kx = np.fft.fftfreq(m, d=spacing * upsample)
@@ -28,18 +28,19 @@ def fractal_field(rng: np.random.Generator, n: int, spacing: float, beta: float,
     k2 = kx[:, None] ** 2 + ky[None, :] ** 2
     amp = (k2 + (1.0 / cutoff) ** 2) ** (-beta / 2)
     amp[0, 0] = 0.0
-    spec = (rng.standard_normal(amp.shape) + 1j * rng.standard_normal(amp.shape)) * amp
-    field = np.fft.irfft2(spec, s=(m, m))
+    spec = ((rng.standard_normal(amp.shape) + 1j * rng.standard_normal(amp.shape)) * amp).astype(np.complex64)
+    field = np.fft.irfft2(spec, s=(m, m)).astype(np.float32)
     if upsample > 1:
         field = upsample_periodic(field, upsample)
-    field -= field.mean()
-    return field / field.std()
+    field -= field.mean(dtype=np.float64)
+    field /= field.std(dtype=np.float64)
+    return field
 
 
 def upsample_periodic(field: np.ndarray, factor: int) -> np.ndarray:
     """Bilinear upsampling of a periodic grid by an integer factor (sample ``k`` of the result lies at ``k / factor``
     in input cells)."""
-    f = np.arange(factor) / factor
+    f = (np.arange(factor) / factor).astype(field.dtype)
     out = field
     for axis in (0, 1):
         a = np.moveaxis(out, axis, 0)
@@ -100,5 +101,9 @@ def bilinear_periodic(field: np.ndarray, x: np.ndarray, y: np.ndarray, spacing: 
 
 
 def smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
-    t = np.clip((np.asarray(x, dtype=np.float64) - e0) / (e1 - e0), 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
+    """Hermite step from 0 at ``e0`` to 1 at ``e1`` (float32 in, float32 out; float64 otherwise)."""
+    x = np.asarray(x)
+    dt = np.float32 if x.dtype == np.float32 else np.float64
+    t = (x - dt(e0)) * dt(1.0 / (e1 - e0))
+    np.clip(t, 0.0, 1.0, out=t)
+    return t * t * (dt(3.0) - dt(2.0) * t)

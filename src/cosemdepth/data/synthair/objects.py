@@ -19,6 +19,8 @@ TILE = 1024
 TEXEL = 0.25
 TILE_PERIOD = TILE * TEXEL
 GATE_SHARPNESS = 8.0
+#: Density levels of the per-cell object envelope.
+ENVELOPE_LEVELS = 17
 
 #: Object kinds (layers).
 TREE, BOULDER = 0, 1
@@ -31,8 +33,8 @@ class ObjectTile:
     ident: np.ndarray  # [2, TILE, TILE] random value in [0, 1) of the covering object (colour variation)
     top: np.ndarray  # [2, TILE, TILE] full height of the covering object (for self-shading), metres
     grad: np.ndarray  # [2, 2, TILE, TILE] d height / d (x, y) per layer
-    cell_max: np.ndarray  # [2, C, C] max height per world cell (C = TILE_PERIOD / CELL), texel corners included
-    cell_gate_min: np.ndarray  # [2, C, C] min gate value of the texels of that cell
+    cell_envelope: np.ndarray  # [2, Q, C, C] per world cell (C = TILE_PERIOD / CELL): max gated object height
+    #                            over the texels a bilinear sample in the cell touches, for density q / (Q - 1)
 
 
 def _rasterize(layer_h, layer_g, layer_id, layer_top, cx, cy, radius, profile, gate, ident, top):
@@ -129,27 +131,24 @@ def build_object_tile(rng: np.random.Generator) -> ObjectTile:
         ]
     )
 
-    # Per world cell (CELL metres): max height and min gate over the texels a bilinear sample in it can touch.
+    # Per world cell (CELL metres) and density level: the largest gated height a sample in the cell can reach
+    # (the gate grows with the density, so the envelope of density d is the value at the next level above d).
     per = int(round(CELL / TEXEL))
     c = TILE // per
-    cell_max = np.zeros((2, c, c))
-    cell_gate = np.zeros((2, c, c))
+    envelope = np.zeros((2, ENVELOPE_LEVELS, c, c))
     for layer in range(2):
-        hh = np.where(h[layer] > 0, h[layer], 0.0)
-        gg = np.where(h[layer] > 0, g[layer], 2.0)
-        # include the far-corner texel row/column of each cell
-        hx = np.maximum(hh, np.roll(hh, -1, 0))
-        hx = np.maximum(hx, np.roll(hx, -1, 1))
-        gx = np.minimum(gg, np.roll(gg, -1, 0))
-        gx = np.minimum(gx, np.roll(gx, -1, 1))
-        cell_max[layer] = hx.reshape(c, per, c, per).max(axis=(1, 3))
-        cell_gate[layer] = gx.reshape(c, per, c, per).min(axis=(1, 3))
+        for q in range(ENVELOPE_LEVELS):
+            dens = q / (ENVELOPE_LEVELS - 1)
+            gated = h[layer] * np.clip((dens - g[layer]) * GATE_SHARPNESS, 0.0, 1.0)
+            # include the far-corner texel row/column of each cell
+            gated = np.maximum(gated, np.roll(gated, -1, 0))
+            gated = np.maximum(gated, np.roll(gated, -1, 1))
+            envelope[layer, q] = gated.reshape(c, per, c, per).max(axis=(1, 3))
     return ObjectTile(
         height=h.astype(np.float32),
         gate=g.astype(np.float32),
         ident=ident.astype(np.float32),
         top=top.astype(np.float32),
         grad=grad.astype(np.float32),
-        cell_max=cell_max,
-        cell_gate_min=cell_gate,
+        cell_envelope=envelope,
     )

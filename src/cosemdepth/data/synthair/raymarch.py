@@ -26,6 +26,8 @@ BISECTIONS = 5
 _NUDGE = 2e-3
 _MAX_ITERATIONS = 4000
 _START_LEVEL = 3
+#: Level of detail (see Lod): pixel footprints (metres) where trees start to morph into the canopy, and over which.
+LOD_START, LOD_WIDTH = 0.6, 1.8
 _SAMPLE_INDEX = torch.arange(FINE_SAMPLES)
 
 
@@ -58,10 +60,11 @@ class SurfaceSample:
     """The height field at points ``[R]``, with what the shader needs."""
 
     terrain: torch.Tensor  # terrain height T
-    tree: torch.Tensor  # gated tree height above T
-    boulder: torch.Tensor  # gated boulder height above T
+    tree: torch.Tensor  # gated tree height above T (level of detail applied)
+    boulder: torch.Tensor  # gated boulder height above T (level of detail applied)
     tree_density: torch.Tensor
     boulder_density: torch.Tensor
+    lod: torch.Tensor  # level-of-detail weight in [0, 1] (0: every tree and boulder, 1: smooth canopy only)
     gate_tree: torch.Tensor  # [4, R] per tile corner
     gate_boulder: torch.Tensor  # [4, R]
     tile_values: torch.Tensor  # [4, 4, R] tile surface values (tree h, tree gate, boulder h, boulder gate) per corner
@@ -69,26 +72,56 @@ class SurfaceSample:
     tile_coords: torch.Tensor  # [2, R] tile texel coordinates
 
 
-def sample_surface(world: World, xy: torch.Tensor) -> SurfaceSample:
-    """Sample the height field at world points ``xy [2, R]``."""
+@dataclass(frozen=True)
+class Lod:
+    """Level of detail of the trees and boulders for one camera.
+
+    Where a pixel covers more than ``LOD_START`` metres (at horizontal distance ``r`` from the camera a pixel
+    covers ``r * pixel_angle``), trees morph into a smooth canopy and boulders sink into the ground, fully at
+    ``LOD_START + LOD_WIDTH``. Far trees thus have no silhouettes smaller than a pixel to alias from frame to frame.
+    The surface never rises above its full-detail envelope (the canopy is part of it).
+    """
+
+    camera_xy: torch.Tensor  # [2, 1] wrapped camera position
+    pixel_angle: float  # radians per pixel
+
+    def weight(self, xy: torch.Tensor) -> torch.Tensor:
+        dxy = xy - self.camera_xy
+        r = (dxy * dxy).sum(0).sqrt()
+        return ((r * self.pixel_angle - LOD_START) / LOD_WIDTH).clamp_(0.0, 1.0)
+
+
+def sample_surface(world: World, xy: torch.Tensor, lod: Lod | None = None) -> SurfaceSample:
+    """Sample the height field at world points ``xy [2, R]`` (with ``lod``: as seen from that camera)."""
     vals, w = bilinear_corners(world.surf, GRID, xy / CELL)
-    terrain, dens_t, dens_b = (vals * w).sum(1)
+    terrain, dens_t, dens_b, canopy = (vals * w).sum(1)
     tc = xy / TEXEL
     tv, tw = bilinear_corners(world.tile_surf, TILE, tc)
     gate_t = ((dens_t - tv[1]) * GATE_SHARPNESS).clamp_(0.0, 1.0)
     gate_b = ((dens_b - tv[3]) * GATE_SHARPNESS).clamp_(0.0, 1.0)
     tree = (tv[0] * gate_t * tw).sum(0)
     boulder = (tv[2] * gate_b * tw).sum(0)
-    return SurfaceSample(terrain, tree, boulder, dens_t, dens_b, gate_t, gate_b, tv, tw, tc)
+    if lod is None:
+        lw = torch.zeros_like(tree)
+    else:
+        lw = lod.weight(xy)
+        tree = tree + (canopy - tree) * lw
+        boulder = boulder * (1.0 - lw)
+    return SurfaceSample(terrain, tree, boulder, dens_t, dens_b, lw, gate_t, gate_b, tv, tw, tc)
 
 
-def surface_height(world: World, xy: torch.Tensor) -> torch.Tensor:
-    """``S(x, y) = max(T + max(tree, boulder), W)`` at world points ``xy [2, R]``."""
+def surface_height(world: World, xy: torch.Tensor, lod: Lod | None = None) -> torch.Tensor:
+    """``S(x, y) = max(T + max(tree, boulder), W)`` at world points ``xy [2, R]`` (with ``lod``: as seen from
+    that camera)."""
     vals, w = bilinear_corners(world.surf, GRID, xy / CELL)
-    terrain, dens_t, dens_b = (vals * w).sum(1)
+    terrain, dens_t, dens_b, canopy = (vals * w).sum(1)
     tv, tw = bilinear_corners(world.tile_surf, TILE, xy / TEXEL)
     tree = (tv[0] * ((dens_t - tv[1]) * GATE_SHARPNESS).clamp_(0.0, 1.0) * tw).sum(0)
     boulder = (tv[2] * ((dens_b - tv[3]) * GATE_SHARPNESS).clamp_(0.0, 1.0) * tw).sum(0)
+    if lod is not None:
+        lw = lod.weight(xy)
+        tree = tree + (canopy - tree) * lw
+        boulder = boulder * (1.0 - lw)
     return (terrain + torch.maximum(tree, boulder)).clamp_(min=world.water_level)
 
 
@@ -171,7 +204,8 @@ def beam_start(world: World, origin: torch.Tensor, d: torch.Tensor, block: int =
 
 
 def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_limit: torch.Tensor,
-                      t_start: torch.Tensor | None = None, level_start: torch.Tensor | None = None) -> torch.Tensor:
+                      t_start: torch.Tensor | None = None, level_start: torch.Tensor | None = None,
+                      pixel_angle: float | None = None) -> torch.Tensor:
     """First intersection of rays with the height field.
 
     Args:
@@ -179,12 +213,14 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
         d: ``[R, 3]`` float32 unit directions.
         t_limit: ``[R]`` the search stops there (``T_MAX`` or a nearer building).
         t_start, level_start: ``[R]`` where to start (no hit before ``t_start``; see :func:`beam_start`).
+        pixel_angle: radians per pixel, for the level of detail (:class:`Lod`); None: full detail everywhere.
     Returns:
         ``[R]`` hit distance along the ray, ``inf`` where there is none before ``t_limit``.
     """
     n_rays = d.shape[0]
     oz = float(origin[2])
     o_xy = origin[:2].reshape(2, 1).float()
+    lod = None if pixel_angle is None else Lod(o_xy, float(pixel_angle))
     tiny = 1e-9
     dxy = d[:, :2].T.contiguous()
     dxy = torch.where(dxy.abs() < tiny, torch.full_like(dxy, tiny), dxy)
@@ -242,7 +278,7 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
             fs = state[:, f_idx]
             fc = cell[f_idx]
             lo, hi = _fine_test(world, o_xy, oz, fs[_D], fs[_DZ], fs[_T], te[f_idx], m[f_idx],
-                                world.env_min0[fc], world.env_objects[fc])
+                                world.env_min0[fc], world.env_objects[fc], lod)
             got = torch.isfinite(hi)
             gi = f_idx[got]
             bracket[0, ids[gi]] = lo[got]
@@ -259,10 +295,10 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
         ids = ids[keep]
         state = state[:, keep]
 
-    return _refine(world, o_xy, oz, d, bracket)
+    return _refine(world, o_xy, oz, d, bracket, lod)
 
 
-def _refine(world, o_xy, oz, d, bracket):
+def _refine(world, o_xy, oz, d, bracket, lod):
     """Refine brackets ``f(lo) > 0 >= f(hi)`` of ``f(t) = ray height - S``: bisection, then one false-position
     step between the last two evaluated points."""
     t_hit = torch.full((d.shape[0],), float("inf"))
@@ -276,7 +312,7 @@ def _refine(world, o_xy, oz, d, bracket):
     f_lo, f_hi = nan, nan
     for _ in range(BISECTIONS):
         mid = 0.5 * (lo + hi)
-        fm = (oz + mid * dz) - surface_height(world, o_xy + mid * dxy)
+        fm = (oz + mid * dz) - surface_height(world, o_xy + mid * dxy, lod)
         under = fm <= 0
         hi = torch.where(under, mid, hi)
         lo = torch.where(under, lo, mid)
@@ -291,7 +327,7 @@ def _refine(world, o_xy, oz, d, bracket):
 stats: dict[str, int] = {}
 
 
-def _fine_test(world, o_xy, oz, dxy, dz, t0, t1, m_max, m_min, has_obj):
+def _fine_test(world, o_xy, oz, dxy, dz, t0, t1, m_max, m_min, has_obj, lod):
     """Search one 2 m cell for the first crossing of the ray below the surface.
 
     The ray is clipped to the part of the cell between the heights of the cell's maximum and minimum surface. In a
@@ -328,7 +364,7 @@ def _fine_test(world, o_xy, oz, dxy, dz, t0, t1, m_max, m_min, has_obj):
     if ts.numel() == 0:
         return lo, hi
     rows = torch.cat([one, many.repeat_interleave(FINE_SAMPLES)])
-    f = (oz + ts * dz[rows]) - surface_height(world, o_xy + ts * dxy[:, rows])
+    f = (oz + ts * dz[rows]) - surface_height(world, o_xy + ts * dxy[:, rows], lod)
     below = f <= 0
     n_one = one.numel()
     g1 = one[below[:n_one]]

@@ -115,7 +115,8 @@ def render_frame(world: World, climate: Climate, attitude: np.ndarray, position:
     flat_d = d.reshape(-1, 3)
     t_lim = torch.clamp(t_b.reshape(-1), max=T_MAX)
     t0, l0 = beam_start(world, o32, d)
-    t_h = march_heightfield(world, o32, flat_d, t_lim, t0.reshape(-1), l0.reshape(-1))
+    pixel_angle = 1.0 / (width / 2.0 * s)
+    t_h = march_heightfield(world, o32, flat_d, t_lim, t0.reshape(-1), l0.reshape(-1), pixel_angle)
     hit_h = torch.isfinite(t_h)
     hit_b = (~hit_h) & torch.isfinite(t_b.reshape(-1))
     dist = torch.where(hit_h, t_h, torch.where(hit_b, t_b.reshape(-1), torch.full_like(t_h, float("inf"))))
@@ -123,11 +124,10 @@ def render_frame(world: World, climate: Climate, attitude: np.ndarray, position:
     n = flat_d.shape[0]
     rgb = torch.zeros((n, 3))
     labels = torch.full((n,), SKY, dtype=torch.uint8)
-    pixel_angle = 1.0 / (width / 2.0 * s)
     hi = hit_h.nonzero().squeeze(1)
     if hi.numel():
         p = o32 + flat_d[hi] * t_h[hi].unsqueeze(1)
-        c, lab = shade_heightfield(world, climate, p, flat_d[hi], t_h[hi], pixel_angle)
+        c, lab = shade_heightfield(world, climate, p, flat_d[hi], t_h[hi], pixel_angle, o32[:2])
         rgb[hi] = c
         labels[hi] = lab
     bi = hit_b.nonzero().squeeze(1)

@@ -15,7 +15,7 @@ import torch
 
 from .climate import Climate
 from .objects import TEXEL, TILE
-from .raymarch import bilinear_corners, sample_surface
+from .raymarch import Lod, bilinear_corners, sample_surface
 from .terrain import CELL, GRID, ROAD_HALF_WIDTH
 from .world import World
 
@@ -23,6 +23,10 @@ from .world import World
 SKY, TREES, DIRT, VEGETATION, ROCKY, BOULDERS, WATER, CONSTRUCTION, ROAD = 0, 2, 3, 4, 5, 6, 8, 9, 10
 
 _NOISE_N = 256
+#: An octave is gone once the pixel footprint reaches this fraction of its wavelength (it starts fading at half).
+BAND_LIMIT = 0.25
+#: Pixel size (metres) where the far-field pre-filtering of trees and boulders starts, and over which it fades in.
+FAR_START, FAR_WIDTH = 0.3, 0.9
 
 
 @functools.lru_cache(maxsize=1)
@@ -49,32 +53,32 @@ def value_noise(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 
 def fbm(u: torch.Tensor, v: torch.Tensor, footprint: torch.Tensor, wavelength: float, octaves: int,
         salt: int = 0) -> torch.Tensor:
-    """Band-limited fractal noise of world coordinates ``(u, v)`` (metres); roughly in ``[-1, 1]``.
+    """Band-limited fractal noise of world coordinates ``(u, v)`` (metres); standard deviation about 0.5.
 
     Octave ``k`` has wavelength ``wavelength / 2**k``; it fades out as the pixel ``footprint`` (metres) grows
-    from 1/4 to 1/2 of its wavelength (an octave that is faded out everywhere is not evaluated).
+    from 1/8 to 1/4 of its wavelength, i.e. detail finer than about 4 pixels is removed (an octave that is faded
+    out everywhere is not evaluated).
     """
     total = torch.zeros_like(u)
-    norm = 0.0
+    power = 0.0
     amp = 1.0
     fp_min = float(footprint.min()) if footprint.numel() else 0.0
     for k in range(octaves):
         freq = (2.0**k) / wavelength
-        norm += amp
-        if fp_min * freq >= 0.5:
-            break
-        weight = (2.0 - 4.0 * footprint * freq).clamp(0.0, 1.0)
+        power += amp * amp
+        amp_k = amp
+        amp *= 0.55
+        if fp_min * freq >= BAND_LIMIT:
+            continue  # faded out everywhere
+        weight = (2.0 - footprint * (freq * 2.0 / BAND_LIMIT)).clamp(0.0, 1.0)
         # rotate each octave (3-4-5 rotation) and shift it so that lattices do not line up
         uu, vv = u * freq, v * freq
         if k % 2:
             uu, vv = 0.8 * uu - 0.6 * vv, 0.6 * uu + 0.8 * vv
         off = 17.31 * (k + 1) + 53.7 * salt
-        total = total + amp * weight * value_noise(uu + off, vv + 0.61 * off)
-        amp *= 0.55
-    for _ in range(k + 1, octaves):
-        amp *= 0.55
-        norm += amp
-    return total / norm
+        total = total + amp_k * weight * value_noise(uu + off, vv + 0.61 * off)
+    # value noise has a standard deviation of about 0.35: scale the full sum to about 0.5
+    return total * (1.4 / power**0.5)
 
 
 def box_coverage(dist: torch.Tensor, half_width: float, footprint: torch.Tensor) -> torch.Tensor:
@@ -99,6 +103,11 @@ def _rgb(c) -> torch.Tensor:
     return torch.tensor(c, dtype=torch.float32)
 
 
+def _mod(x: torch.Tensor) -> torch.Tensor:
+    """Brightness multiplier ``1 + x`` (kept positive), shaped ``[R, 1]``."""
+    return (1.0 + x).clamp(min=0.3).unsqueeze(-1)
+
+
 def _mix(a, b, w):
     return a + (b - a) * w.unsqueeze(-1)
 
@@ -121,7 +130,7 @@ def sky_colour(climate: Climate, d: torch.Tensor, pixel_angle: float, clouds: bo
         v = d[:, 1] / ez * height
         fp = height * pixel_angle / (ez * ez)
         n = fbm(u, v, fp, 2400.0, 5, salt=7)
-        thr = 0.55 - 1.1 * climate.cloud_cover
+        thr = 0.8 - 1.6 * climate.cloud_cover
         dens = ((n - thr) / 0.35).clamp(0.0, 1.0) * ((d[:, 2] - 0.01) / 0.12).clamp(0.0, 1.0)
         shade = 0.85 + 0.15 * fbm(u * 1.7, v * 1.7, fp * 1.7, 900.0, 3, salt=9)
         cloud = _rgb(climate.cloud_colour) * shade.unsqueeze(-1) + _rgb(climate.sun_glow) * (0.3 * glow).unsqueeze(-1)
@@ -137,7 +146,10 @@ def fog_colour(climate: Climate, d: torch.Tensor) -> torch.Tensor:
 
 
 def apply_fog(climate: Climate, colour: torch.Tensor, d: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
-    f = 1.0 - torch.exp(-climate.fog_density * dist)
+    """Fade to the fog colour with the fraction ``1 - exp(-(dist / fog_distance)^2)``: the Gaussian fall-off keeps
+    the near field clear, where a distance-dependent fog would change the most from frame to frame."""
+    r = dist / climate.fog_distance
+    f = 1.0 - torch.exp(-r * r)
     return _mix(colour, fog_colour(climate, d), f)
 
 
@@ -159,7 +171,7 @@ def _lighting(climate: Climate, normal: torch.Tensor, direct_occ: torch.Tensor, 
 
 
 def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.Tensor, dist: torch.Tensor,
-                      pixel_angle: float):
+                      pixel_angle: float, camera_xy: torch.Tensor | None = None):
     """Colour (linear, fog not applied) and Mid-Air label of height-field hits.
 
     Args:
@@ -170,9 +182,11 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
     """
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     xy = p[:, :2].T.contiguous()
-    s = sample_surface(world, xy)
+    lod = None if camera_xy is None else Lod(camera_xy.reshape(2, 1), pixel_angle)
+    s = sample_surface(world, xy, lod)
     vals, w = bilinear_corners(world.shade, GRID, xy / CELL)
-    gtx, gty, rock, dirt, fshade, tint, road_d = (vals * w).sum(1)
+    f = (vals * w).sum(1)
+    grads, (rock, dirt, fshade, tint, road_d) = f[:8].view(4, 2, -1), f[8:]
     tv, tw = s.tile_values, s.tile_weights
     sv, _ = bilinear_corners(world.tile_shade, TILE, s.tile_coords)  # [8, 4, R]
     wg_t = tw * s.gate_tree
@@ -196,11 +210,17 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
     is_road = is_ground & (road_d < ROAD_HALF_WIDTH)
 
     up = torch.ones_like(x)
+    fp0 = dist * pixel_angle
+    # terrain normal from the gradient smoothed to the footprint: level k of NORMAL_SMOOTHING from footprint
+    # NORMAL_FOOTPRINT[k] (metres), linearly in between
+    n_coarse = torch.stack([-grads[0, 0], -grads[0, 1], up], 1)
+    cos_inc = (-(d * n_coarse).sum(1) / n_coarse.norm(dim=1)).clamp(min=0.05)
+    # footprint: geometric mean of the pixel's extent across (fp0) and along (fp0 / cos) the view direction
+    fp = fp0 / cos_inc.sqrt()
+    level = _footprint_level(fp)
+    gtx, gty = _blend_levels(grads, level)
     n_terrain = torch.stack([-gtx, -gty, up], 1)
     n_terrain = n_terrain / n_terrain.norm(dim=1, keepdim=True)
-    fp0 = dist * pixel_angle
-    cos_inc = (-(d * n_terrain).sum(1)).clamp(min=0.25)
-    fp = fp0 / cos_inc
     # object normals lose their detail as the footprint grows past the crown scale (level of detail)
     lod = (1.5 - fp / 0.6).clamp(0.25, 1.0)
     ogx = torch.where(is_tree, tree_grad_x, bould_grad_x) * lod
@@ -209,24 +229,24 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
     n_obj = n_obj / n_obj.norm(dim=1, keepdim=True)
     normal = torch.where(is_obj.unsqueeze(1), n_obj, n_terrain)
     normal = torch.where(is_water.unsqueeze(1), torch.tensor([0.0, 0.0, 1.0]), normal)
-    fp = torch.where(is_obj, fp0 / (-(d * normal).sum(1)).clamp(min=0.35), fp)
+    fp = torch.where(is_obj, fp0 / (-(d * normal).sum(1)).clamp(min=0.05).sqrt(), fp)
 
     # ground textures
     n_lo = fbm(x, y, fp, 48.0, 4, salt=1)
     n_mid = fbm(x, y, fp, 7.0, 3, salt=12)
     n_hi = fbm(x, y, fp, 2.0, 4, salt=2)
-    grass = _mix(_rgb((0.055, 0.11, 0.03)), _rgb((0.17, 0.19, 0.055)),
-                 (0.5 + 0.45 * tint + 0.45 * n_lo + 0.3 * n_mid).clamp(0, 1))
-    grass = grass * (1.0 + 0.3 * n_mid + 0.4 * n_hi).unsqueeze(-1)
-    dirt_c = _mix(_rgb((0.20, 0.14, 0.085)), _rgb((0.36, 0.28, 0.18)), (0.5 + 0.6 * n_lo + 0.3 * n_mid).clamp(0, 1))
-    dirt_c = dirt_c * (1.0 + 0.45 * n_hi).unsqueeze(-1)
+    grass = _mix(_rgb((0.05, 0.10, 0.028)), _rgb((0.17, 0.19, 0.055)),
+                 (0.5 + 0.45 * tint + 0.5 * n_lo + 0.45 * n_mid).clamp(0, 1))
+    grass = grass * _mod(0.3 * n_mid + 0.35 * n_hi)
+    dirt_c = _mix(_rgb((0.15, 0.11, 0.07)), _rgb((0.29, 0.22, 0.14)), (0.5 + 0.6 * n_lo + 0.45 * n_mid).clamp(0, 1))
+    dirt_c = dirt_c * _mod(0.25 * n_mid + 0.35 * n_hi)
     rock_c = _mix(_rgb((0.13, 0.125, 0.12)), _rgb((0.27, 0.26, 0.24)), (0.5 + 0.7 * n_lo + 0.3 * n_mid).clamp(0, 1))
     strata = fbm(x * 0.15 + z * 2.0, y * 0.15 - z * 2.0, fp * 2.0, 2.0, 3, salt=3)
-    rock_c = rock_c * (1.0 + 0.35 * n_hi + 0.25 * strata).unsqueeze(-1)
+    rock_c = rock_c * _mod(0.3 * n_hi + 0.2 * strata)
     ground = _mix(grass, dirt_c, ((dirt - 0.45) / 0.1).clamp(0, 1))
     ground = _mix(ground, rock_c, ((rock - 0.45) / 0.1).clamp(0, 1))
     # roads: asphalt, a dashed centre line and solid edge lines (box-filtered)
-    asphalt = _rgb((0.085, 0.085, 0.09)) * (1.0 + 0.25 * n_hi + 0.15 * n_lo).unsqueeze(-1)
+    asphalt = _rgb((0.085, 0.085, 0.09)) * _mod(0.25 * n_hi + 0.15 * n_mid + 0.1 * n_lo)
     road_cov = box_coverage(road_d, ROAD_HALF_WIDTH, fp)
     edge = box_coverage(road_d - (ROAD_HALF_WIDTH - 0.35), 0.09, fp)
     along = _road_along(world, x, y)
@@ -244,20 +264,21 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
     vert = normal[:, 2].abs()
     leaf = leaf_h * vert + leaf_v * (1 - vert)
     tree_c = _mix(_rgb((0.025, 0.06, 0.025)), _rgb((0.085, 0.14, 0.035)), tid)
-    tree_c = tree_c * (1.0 + 0.5 * leaf + 0.15 * n_lo).unsqueeze(-1)
+    tree_c = tree_c * _mod(0.4 * leaf + 0.1 * n_lo)
     tree_rel = (s.tree / tree_top.clamp(min=0.5)).clamp(0.0, 1.0)
     # boulders
     bid = 0.5 + (bould_id - 0.5) * id_fade
     boulder_c = _rgb((0.20, 0.195, 0.185)) * (0.7 + 0.6 * bid).unsqueeze(-1)
     stone = fbm(x + 0.7 * z, y - 0.7 * z, fp, 1.5, 4, salt=6)
     lichen = ((fbm(x, y + z, fp, 2.5, 2, salt=8) - 0.2) / 0.3).clamp(0, 1) * (0.5 + 0.5 * normal[:, 2])
-    boulder_c = boulder_c * (1.0 + 0.35 * stone).unsqueeze(-1)
+    boulder_c = boulder_c * _mod(0.3 * stone)
     boulder_c = _mix(boulder_c, _rgb((0.20, 0.22, 0.12)), lichen * 0.6)
     bould_rel = (s.boulder / bould_top.clamp(min=0.2)).clamp(0.0, 1.0)
     # water: deeper is darker, slow world-fixed ripples
     depth_w = (w_level - s.terrain).clamp(min=0.0)
     water_c = _mix(_rgb((0.10, 0.12, 0.085)), _rgb((0.018, 0.05, 0.065)), (depth_w / 2.5).clamp(0, 1))
-    water_c = water_c + _rgb(climate.zenith) * 0.12 + _rgb(climate.zenith).mul(0.05) * n_hi.unsqueeze(-1)
+    waves = fbm(x, y, fp, 16.0, 6, salt=13)
+    water_c = (water_c + _rgb(climate.zenith) * 0.1) * _mod(0.4 * waves + 0.15 * n_lo)
 
     albedo = torch.where(is_tree.unsqueeze(1), tree_c, ground)
     albedo = torch.where(is_boulder.unsqueeze(1), boulder_c, albedo)
@@ -265,12 +286,27 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
 
     direct_occ = torch.ones_like(x) - 0.75 * fshade
     ambient_occ = torch.ones_like(x) - 0.5 * fshade
-    direct_occ = torch.where(is_tree, 0.35 + 0.65 * tree_rel, direct_occ)
-    ambient_occ = torch.where(is_tree, 0.3 + 0.7 * tree_rel, ambient_occ)
+    direct_occ = torch.where(is_tree, 0.5 + 0.5 * tree_rel, direct_occ)
+    ambient_occ = torch.where(is_tree, 0.45 + 0.55 * tree_rel, ambient_occ)
     direct_occ = torch.where(is_boulder, 0.6 + 0.4 * bould_rel, direct_occ)
     ambient_occ = torch.where(is_boulder, 0.55 + 0.45 * bould_rel, ambient_occ)
     light = _lighting(climate, normal, direct_occ, ambient_occ)
     rgb = albedo * light
+
+    # far field: trees and boulders shrink below a pixel and would sparkle from frame to frame; there every
+    # sample returns the mean colour of the ground, trees and boulders around (pre-filtering by coverage)
+    far = s.lod if camera_xy is not None else ((fp0 - FAR_START) / FAR_WIDTH).clamp(0.0, 1.0)
+    if bool((far > 0).any()):
+        cov_t = (0.7 * fshade).clamp(0.0, 0.9)
+        cov_b = torch.minimum((0.06 * s.boulder_density).clamp(min=0.0), 1.0 - cov_t)
+        ground_lit = ground * _lighting(climate, n_terrain, 1.0 - 0.75 * fshade, 1.0 - 0.5 * fshade)
+        tree_mean = _mix(_rgb((0.025, 0.06, 0.025)), _rgb((0.085, 0.14, 0.035)), torch.full_like(x, 0.5))
+        tree_lit = tree_mean * _lighting(climate, n_terrain, torch.full_like(x, 0.8), torch.full_like(x, 0.7))
+        bould_lit = _rgb((0.20, 0.195, 0.185)) * _lighting(climate, n_terrain, torch.full_like(x, 0.85),
+                                                          torch.full_like(x, 0.8))
+        mean = ground_lit * (1.0 - cov_t - cov_b).unsqueeze(-1) + tree_lit * cov_t.unsqueeze(-1)
+        mean = mean + bould_lit * cov_b.unsqueeze(-1)
+        rgb = torch.where(is_water.unsqueeze(1), rgb, _mix(rgb, mean, far))
 
     labels = torch.full(x.shape, VEGETATION, dtype=torch.uint8)
     labels[is_ground & (dirt > 0.5)] = DIRT
@@ -280,6 +316,28 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
     labels[is_boulder] = BOULDERS
     labels[is_water] = WATER
     return rgb, labels
+
+
+#: Pixel footprints (metres) at which the shading normals use smoothing level 0, 1, 2, 3 of the terrain.
+NORMAL_FOOTPRINT = (1.0, 2.0, 5.0, 12.0)
+
+
+def _footprint_level(fp: torch.Tensor) -> torch.Tensor:
+    """Fractional smoothing level in [0, 3] for pixel footprints ``fp``."""
+    level = torch.zeros_like(fp)
+    for k in range(3):
+        lo, hi = NORMAL_FOOTPRINT[k], NORMAL_FOOTPRINT[k + 1]
+        level = level + ((fp - lo) / (hi - lo)).clamp(0.0, 1.0)
+    return level
+
+
+def _blend_levels(grads: torch.Tensor, level: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Interpolate ``grads [4, 2, R]`` between levels at fractional ``level [R]``."""
+    out = grads[0]
+    for k in range(1, 4):
+        wk = (level - (k - 1)).clamp(0.0, 1.0)
+        out = out + (grads[k] - out) * wk
+    return out[0], out[1]
 
 
 def _road_along(world: World, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -324,9 +382,9 @@ def shade_buildings(world: World, climate: Climate, p: torch.Tensor, d: torch.Te
     height = z - base
     win = periodic_coverage(along, 3.2, 0.6, fp) * periodic_coverage(height - 1.6, 3.0, 0.65, fp)
     win = win * ((height - 0.8) / 0.3).clamp(0, 1)
-    wall = _mix(wall_c * (1.0 + 0.12 * n_hi).unsqueeze(-1), _rgb((0.05, 0.06, 0.07)), win * 0.9)
+    wall = _mix(wall_c * _mod(0.1 * n_hi), _rgb((0.05, 0.06, 0.07)), win * 0.9)
     tiles = periodic_coverage(z * 3.0, 1.0, 0.08, fp * 3.0)
-    roof_col = roof_c * (1.0 + 0.15 * n_hi - 0.25 * tiles).unsqueeze(-1)
+    roof_col = roof_c * _mod(0.12 * n_hi - 0.25 * tiles)
     albedo = torch.where(roof.unsqueeze(1), roof_col, wall)
     ones = torch.ones_like(x)
     return albedo * _lighting(climate, normal, ones, ones)

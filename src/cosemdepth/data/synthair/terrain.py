@@ -21,6 +21,8 @@ PERIOD = GRID * CELL
 #: Road half width (asphalt), and the width over which the terrain blends back from the road level.
 ROAD_HALF_WIDTH = 3.5
 ROAD_EMBANKMENT = 22.0
+#: Half width (cells) of the band around a road where the terrain is levelled and road distances are exact.
+ROAD_BAND = 80
 
 
 @dataclass
@@ -134,6 +136,37 @@ def _make_roads(rng: np.random.Generator, height: np.ndarray, water_level: float
     return Roads(np.array(axis), np.array(lateral), np.array(slope), np.array(road_h))
 
 
+def _blend_roads(height: np.ndarray, roads: Roads) -> tuple[np.ndarray, np.ndarray]:
+    """Level the terrain along the roads (embankments and cuttings no steeper than about 1:1.5), and the distance
+    of every grid cell to the nearest road centre line (capped at ``ROAD_BAND`` cells)."""
+    f32 = np.float32
+    blend_w = np.zeros_like(height)
+    blend_h = np.zeros_like(height)
+    road_distance = np.full(height.shape, f32(ROAD_BAND * CELL))
+    rows = np.arange(GRID)[:, None]
+    offsets = np.arange(-ROAD_BAND, ROAD_BAND + 1)[None, :]
+    e0 = ROAD_HALF_WIDTH + 1.5
+    for k in range(len(roads.axis)):
+        # the cells of a band around the road: along-road index = grid row (axis 0) or column (axis 1)
+        lat = roads.lateral[k][:, None]
+        centre = np.round(lat / CELL).astype(np.int64)
+        lat_idx = centre + offsets  # [GRID, band]
+        dl = lat_idx * CELL - lat
+        d = (np.abs(dl) / np.sqrt(1.0 + roads.slope[k][:, None] ** 2)).astype(f32)
+        ii, jj = (rows, lat_idx % GRID) if roads.axis[k] == 0 else (lat_idx % GRID, rows)
+        rh = roads.height[k][:, None].astype(f32)
+        width = np.maximum(f32(ROAD_EMBANKMENT), f32(1.5) * np.abs(height[ii, jj] - rh))
+        a = f32(1.0) - np.clip((d - f32(e0)) / width, 0.0, 1.0)
+        a = a * a * (f32(3.0) - f32(2.0) * a)
+        blend_w[ii, jj] += a
+        blend_h[ii, jj] += a * rh
+        road_distance[ii, jj] = np.minimum(road_distance[ii, jj], d)
+    on_road = blend_w > 0
+    mix_h = np.where(on_road, blend_h / np.maximum(blend_w, f32(1e-9)), f32(0.0))
+    height = np.where(on_road, height + (mix_h - height) * np.minimum(blend_w, f32(1.0)), height)
+    return height, road_distance
+
+
 def build_terrain(rng: np.random.Generator) -> Terrain:
     """Generate the terrain, lakes, roads and ground-cover fields (a few seconds)."""
     hills = fractal_field(rng, GRID, CELL, beta=2.3, cutoff=1400.0)
@@ -142,40 +175,16 @@ def build_terrain(rng: np.random.Generator) -> Terrain:
     ridge = np.clip(1.0 - np.abs(fractal_field(rng, GRID, CELL, beta=2.0, cutoff=500.0, upsample=2)), 0.0, 1.0)
     height = 32.0 * hills + 1.5 * detail + 40.0 * mountain_mask * ridge**2
     # Valleys flatter than hill tops (lakes and fields in the lows).
-    low = np.quantile(height, 0.35)
-    height = np.where(height < low, low - 0.55 * (low - height), height)
+    low = np.float32(np.quantile(height, 0.35))
+    height = np.where(height < low, low - np.float32(0.55) * (low - height), height).astype(np.float32)
     water_level = float(np.quantile(height, 0.075))
 
     roads = _make_roads(rng, height, water_level)
-    blend_w = np.zeros_like(height)
-    blend_h = np.zeros_like(height)
-    road_distance = np.full_like(height, np.inf)
-    coord = np.arange(GRID) * CELL
-    for k in range(len(roads.axis)):
-        # on the grid the along-road coordinate is a grid coordinate, so the tables apply row/column-wise
-        shape = (GRID, 1) if roads.axis[k] == 0 else (1, GRID)
-        lat_coord = coord.reshape((1, GRID) if roads.axis[k] == 0 else (GRID, 1))
-        c = roads.lateral[k].reshape(shape)
-        g = roads.slope[k].reshape(shape)
-        dl = np.mod(lat_coord - c + PERIOD / 2, PERIOD) - PERIOD / 2
-        d = np.abs(dl) / np.sqrt(1.0 + g * g)
-        rh = roads.height[k].reshape(shape)
-        # embankments and cuttings no steeper than about 1:1.5
-        width = np.maximum(ROAD_EMBANKMENT, 1.5 * np.abs(height - rh))
-        e0 = ROAD_HALF_WIDTH + 1.5
-        a = 1.0 - np.clip((d - e0) / width, 0.0, 1.0)
-        a = a * a * (3 - 2 * a)
-        blend_w += a
-        blend_h += a * rh
-        road_distance = np.minimum(road_distance, d)
-    on_road = blend_w > 0
-    mix_h = np.where(on_road, blend_h / np.maximum(blend_w, 1e-9), 0.0)
-    height = np.where(on_road, height + (mix_h - height) * np.minimum(blend_w, 1.0), height)
-
+    height, road_distance = _blend_roads(height, roads)
     gx, gy = gradient(height)
     slope = np.hypot(gx, gy)
     wet = height < water_level + 0.05
-    shore = smoothstep(water_level + 2.5, water_level + 0.3, height) * (1 - wet)
+    shore = smoothstep(water_level + 2.5, water_level + 0.3, height) * (~wet)
 
     rock_noise = fractal_field(rng, GRID, CELL, beta=1.9, cutoff=300.0, upsample=2)
     rock = np.clip(
@@ -195,7 +204,7 @@ def build_terrain(rng: np.random.Generator) -> Terrain:
     tree_density *= 1.0 - smoothstep(0.9, 1.3, slope)
 
     boulder_noise = fractal_field(rng, GRID, CELL, beta=1.8, cutoff=250.0, upsample=2)
-    boulder_density = 0.06 + 0.55 * rock + 0.35 * smoothstep(0.6, 1.4, boulder_noise)
+    boulder_density = 0.18 + 0.55 * rock + 0.45 * smoothstep(0.3, 1.2, boulder_noise)
     boulder_density *= smoothstep(ROAD_HALF_WIDTH + 1.0, ROAD_HALF_WIDTH + 4.0, road_distance)
     boulder_density *= smoothstep(water_level - 0.2, water_level + 0.6, height)
     boulder_density = np.clip(boulder_density, 0.0, 1.0)

@@ -22,7 +22,7 @@ from .world import World
 GT_RATE = 100.0
 MODES = ("road", "village", "lake", "free")
 #: Minimum distance (metres) kept between the camera and the conservative surface envelope below it.
-CLEARANCE = 1.2
+CLEARANCE = 1.0
 
 
 @dataclass
@@ -111,15 +111,19 @@ def _choose_start(world: World, rng: np.random.Generator, mode: str):
     if mode == "road":
         k = int(rng.integers(len(t.roads.axis)))
         s = rng.uniform(0, PERIOD)
-        if len(world.buildings) and rng.uniform() < 0.5:
-            # start near a building by the road
+        if len(world.buildings) and rng.uniform() < 0.75:
+            # start on the road nearest to a building, level with it
             c = world.buildings.center[rng.integers(len(world.buildings))]
-            s = c[0] if t.roads.axis[k] == 0 else c[1]
-        return {"road": k, "s": s, "direction": rng.choice([-1.0, 1.0])}
+            dist, which = t.roads.distance(np.array([c[0]]), np.array([c[1]]))
+            if dist[0] < 150.0:
+                k = int(which[0])
+                s = c[0] if t.roads.axis[k] == 0 else c[1]
+                s -= rng.uniform(20.0, 80.0)
+        return {"road": k, "s": s, "direction": 1.0}
     if mode == "village" and len(world.buildings):
         c = world.buildings.center[rng.integers(len(world.buildings))]
         ang = rng.uniform(0, 2 * np.pi)
-        dist = rng.uniform(60, 160)
+        dist = rng.uniform(40, 120)
         x0, y0 = c[0] - dist * np.cos(ang), c[1] - dist * np.sin(ang)
         return {"xy": (x0, y0), "heading": ang + rng.normal(0, 0.15)}
     if mode == "lake":
@@ -165,10 +169,18 @@ def make_flight(world: World, rng: np.random.Generator, n_frames: int, mode: str
     path_heading = np.unwrap(np.arctan2(vel_xy[:, 1], vel_xy[:, 0]))
 
     ground = world.terrain.surface_at(xy[:, 0], xy[:, 1])
-    low = rng.uniform(size=m) < 0.25
-    alt_ctrl = np.where(low, rng.uniform(3.0, 7.0, m), np.exp(rng.uniform(np.log(7.0), np.log(60.0), m)))
-    target = ground + bspline(alt_ctrl, 2.0, times, -5.0)
-    obstacle = np.maximum(envelope_near(world, xy[:, 0], xy[:, 1]), buildings_near(world, xy[:, 0], xy[:, 1]))
+    # Height above the ground or the tree tops (the smoothed surface envelope): a per-flight base (log-uniform),
+    # slow variations, and in a third of the flights a dip down to the ground or the tree tops.
+    canopy = _smooth(np.maximum(envelope_near(world, xy[:, 0], xy[:, 1], 2), ground), 0.5 * GT_RATE)
+    hi_alt = 25.0 if mode == "village" else 45.0
+    base = np.exp(rng.uniform(np.log(6.0), np.log(hi_alt)))
+    alt = bspline(base * np.exp(rng.uniform(-0.5, 0.5, m)), 2.0, times, -5.0)
+    if rng.uniform() < 1 / 3:
+        centre = rng.uniform(0.15, 0.85) * duration
+        width = rng.uniform(1.0, 2.5)
+        alt = alt + (1.0 - alt) * np.exp(-0.5 * ((times - centre) / width) ** 2)
+    target = np.maximum(ground, canopy) + np.clip(alt, 1.0, 80.0)
+    obstacle = np.maximum(envelope_near(world, xy[:, 0], xy[:, 1], 1), buildings_near(world, xy[:, 0], xy[:, 1]))
     required = np.maximum(target, obstacle + CLEARANCE)
     # smooth the terrain-following altitude, then lift it back above every required point: a max filter of
     # half-width w followed by a Gaussian truncated at 3 sigma <= w never goes below the input

@@ -13,7 +13,7 @@ import torch
 
 from .buildings import Buildings, build_buildings
 from .objects import TILE, TILE_PERIOD, ObjectTile, build_object_tile
-from .noise import max_filter_periodic
+from .noise import blur_periodic_2d, max_filter_periodic
 from .terrain import CELL, GRID, PERIOD, Terrain, build_terrain, finish_forest_shade, gradient
 
 #: Coarsest level of the max pyramid (cells of CELL * 2**LEVELS metres).
@@ -21,6 +21,11 @@ LEVELS = 7
 
 #: Margin added to the envelopes so that float32 rounding never makes them non-conservative.
 ENV_MARGIN = 0.02
+
+#: Gaussian smoothing (grid cells) of the terrain for the shading normals of growing pixel footprints.
+NORMAL_SMOOTHING = (0.0, 1.0, 2.5, 6.0)
+#: Height of the smooth canopy of dense forests (level of detail of far trees), metres.
+CANOPY_HEIGHT = 9.0
 
 
 @dataclass
@@ -30,8 +35,9 @@ class World:
     tile: ObjectTile
     buildings: Buildings
     # renderer tables, channel first ([C, cells]; cell (i, j) is column i * side + j):
-    surf: torch.Tensor  # [3, GRID*GRID] float32: terrain height, tree density, boulder density
-    shade: torch.Tensor  # [7, GRID*GRID] float32: dT/dx, dT/dy, rock, dirt, forest shade, tint, road distance
+    surf: torch.Tensor  # [4, GRID*GRID] float32: terrain height, tree density, boulder density, canopy height
+    shade: torch.Tensor  # [13, GRID*GRID] float32: dT/dx, dT/dy at the 4 smoothings of NORMAL_SMOOTHING, rock,
+    #                      dirt, forest shade, tint, road distance
     tile_surf: torch.Tensor  # [4, TILE*TILE] float32: tree h, tree gate, boulder h, boulder gate
     tile_shade: torch.Tensor  # [8, TILE*TILE] float32: tree grad x, y, boulder grad x, y, tree id, boulder id,
     #                                                  tree full height, boulder full height
@@ -59,15 +65,27 @@ def _corner_min(a: np.ndarray) -> np.ndarray:
     return np.minimum(m, np.roll(m, -1, 1))
 
 
-def _envelopes(terrain: Terrain, tile: ObjectTile, height32: np.ndarray, dens_t: np.ndarray, dens_b: np.ndarray):
+def canopy_height(tree_density: np.ndarray) -> np.ndarray:
+    """The smooth canopy that far trees morph into (level of detail): CANOPY_HEIGHT where the forest is dense,
+    nothing where trees are sparse. ``[GRID, GRID]`` float32, metres above the terrain."""
+    dens = blur_periodic_2d(tree_density.astype(np.float64), 2.0)
+    t = np.clip((dens - 0.25) / 0.6, 0.0, 1.0)
+    return (CANOPY_HEIGHT * t * t * (3 - 2 * t)).astype(np.float32)
+
+
+def _envelopes(terrain: Terrain, tile: ObjectTile, height32: np.ndarray, dens_t: np.ndarray, dens_b: np.ndarray,
+               canopy: np.ndarray):
     w = np.float32(terrain.water_level)
-    reps = GRID // tile.cell_max.shape[1]
+    q_levels = tile.cell_envelope.shape[1]
+    c = tile.cell_envelope.shape[2]
+    ii = (np.arange(GRID) % c)[:, None]
+    jj = (np.arange(GRID) % c)[None, :]
     obj = np.zeros((GRID, GRID), dtype=np.float64)
     for layer, dens in ((0, dens_t), (1, dens_b)):
-        cmax = np.tile(tile.cell_max[layer], (reps, reps))
-        gmin = np.tile(tile.cell_gate_min[layer], (reps, reps))
-        present = _corner_max(dens.astype(np.float64)) > gmin
-        obj = np.maximum(obj, np.where(present, cmax, 0.0))
+        # conservative: the density level at or above the cell's largest corner density
+        q = np.clip(np.ceil(_corner_max(dens.astype(np.float64)) * (q_levels - 1) - 1e-9), 0, q_levels - 1)
+        obj = np.maximum(obj, tile.cell_envelope[layer][q.astype(np.int64), ii, jj])
+    obj = np.maximum(obj, _corner_max(canopy.astype(np.float64)))  # far trees morph into the canopy
     env0 = np.maximum(_corner_max(height32.astype(np.float64)) + obj, w) + ENV_MARGIN
     envmin = np.maximum(_corner_min(height32.astype(np.float64)), w) - ENV_MARGIN
     levels = [env0]
@@ -95,18 +113,23 @@ def build_world(seed: int) -> World:
     h32 = terrain.height.astype(np.float32)
     dt32 = terrain.tree_density.astype(np.float32)
     db32 = terrain.boulder_density.astype(np.float32)
-    gx, gy = gradient(terrain.height)
-    surf = np.stack([h32, dt32, db32]).reshape(3, -1)
+    canopy = canopy_height(terrain.tree_density)
+    surf = np.stack([h32, dt32, db32, canopy]).reshape(4, -1)
+    # terrain gradients at increasing smoothing (shading normals are band-limited by the pixel footprint)
+    grads = []
+    for sigma in NORMAL_SMOOTHING:
+        smooth = terrain.height if sigma == 0 else blur_periodic_2d(terrain.height.astype(np.float64), sigma)
+        grads.extend(gradient(smooth))
     shade = np.stack(
-        [gx, gy, terrain.rock, terrain.dirt, terrain.forest_shade, terrain.tint,
+        [*grads, terrain.rock, terrain.dirt, terrain.forest_shade, terrain.tint,
          np.minimum(terrain.road_distance, 1e4)]
-    ).astype(np.float32).reshape(7, -1)
+    ).astype(np.float32).reshape(len(grads) + 5, -1)
     tile_surf = np.stack([tile.height[0], tile.gate[0], tile.height[1], tile.gate[1]]).reshape(4, -1)
     tile_shade = np.stack(
         [tile.grad[0, 0], tile.grad[0, 1], tile.grad[1, 0], tile.grad[1, 1], tile.ident[0], tile.ident[1],
          tile.top[0], tile.top[1]]
     ).reshape(8, -1)
-    env, env_dil, envmin, env_obj, offsets, sizes, max_h = _envelopes(terrain, tile, h32, dt32, db32)
+    env, env_dil, envmin, env_obj, offsets, sizes, max_h = _envelopes(terrain, tile, h32, dt32, db32, canopy)
     return World(
         seed=seed,
         terrain=terrain,
