@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from cosemdepth.data.synthair.climate import CLIMATES, get_climate
-from cosemdepth.data.synthair.raymarch import surface_height
+from cosemdepth.data.synthair.raymarch import Lod, surface_height
 from cosemdepth.data.synthair.render import SKY_DEPTH, render_frame
 from cosemdepth.data.synthair.terrain import CELL, GRID
 
@@ -111,7 +111,9 @@ def test_depth_points_lie_on_the_surface(world, flight_frames):
     def clearance(pos, ned, depth):
         pts = pos + ned * depth[:, None]
         xy = torch.tensor(np.stack([pts[:, 0], pts[:, 1]]), dtype=torch.float32)
-        return -pts[:, 2] - surface_height(world, xy).double().numpy()
+        # the renderer's level of detail for this camera (far trees morph into the canopy)
+        lod = Lod(torch.tensor(pos[:2], dtype=torch.float32).reshape(2, 1), 2.0 / size)
+        return -pts[:, 2] - surface_height(world, xy, lod).double().numpy()
 
     for att, pos, f in flight_frames:
         size = f.depth.shape[0]
@@ -141,7 +143,7 @@ def test_labels_match_the_geometry(world, flight_frames):
         ned = np.stack([np.ones_like(right), right, down], -1) @ rot.T
         pts = pos + ned * f.depth[..., None].astype(np.float64)
         xy = torch.tensor(np.stack([pts[..., 0].ravel(), pts[..., 1].ravel()]), dtype=torch.float32)
-        smp = sample_surface(world, xy)
+        smp = sample_surface(world, xy, Lod(torch.tensor(pos[:2], dtype=torch.float32).reshape(2, 1), 2.0 / size))
         obj = torch.maximum(smp.tree, smp.boulder).numpy().reshape(size, size)
         lab = f.labels
         assert (obj[lab == 2] > 0.01).all() and (obj[lab == 6] > 0.01).all()
@@ -162,8 +164,9 @@ def test_rendering_is_deterministic(world, flight_frames):
 def test_supersampling_keeps_depth_and_labels_of_the_pixel_centre(world, flight_frames):
     att, pos, f = flight_frames[1]
     ss = render_frame(world, get_climate(CLIMATES[1]), att, pos, 64, 64, supersample=3)
-    assert np.array_equal(ss.labels, f.labels)
-    np.testing.assert_allclose(ss.depth, f.depth, rtol=1e-5)
+    # the same rays, searched from other start points (the beams differ): the same hits but for a few grazing ones
+    assert (ss.labels == f.labels).mean() > 0.995
+    assert (np.abs(ss.depth / f.depth - 1) < 1e-4).mean() > 0.99
     assert np.abs(ss.rgb.astype(int) - f.rgb.astype(int)).mean() < 8
     with pytest.raises(ValueError, match="supersample"):
         render_frame(world, get_climate("sunny"), att, pos, 16, 16, supersample=2)

@@ -15,8 +15,8 @@ from .terrain import CELL, GRID, PERIOD, ROAD_HALF_WIDTH, Terrain
 N_PLANES = 7
 
 WALL_COLOURS = np.array(
-    [(0.80, 0.78, 0.72), (0.74, 0.66, 0.55), (0.62, 0.36, 0.27), (0.58, 0.58, 0.56), (0.85, 0.82, 0.70),
-     (0.55, 0.45, 0.35)]
+    [(0.62, 0.60, 0.55), (0.60, 0.53, 0.44), (0.50, 0.29, 0.22), (0.46, 0.46, 0.45), (0.66, 0.63, 0.54),
+     (0.45, 0.37, 0.29)]
 )
 ROOF_COLOURS = np.array(
     [(0.55, 0.22, 0.15), (0.30, 0.30, 0.32), (0.42, 0.30, 0.22), (0.62, 0.32, 0.20), (0.25, 0.27, 0.30)]
@@ -116,7 +116,7 @@ class _Placer:
         return True
 
 
-def build_buildings(rng: np.random.Generator, terrain: Terrain, villages: int = 26, farms: int = 70) -> Buildings:
+def build_buildings(rng: np.random.Generator, terrain: Terrain, villages: int = 40, farms: int = 90) -> Buildings:
     """Place villages along the roads and farms in the open; clears trees and boulders around every building."""
     placer = _Placer(rng, terrain)
     roads = terrain.roads

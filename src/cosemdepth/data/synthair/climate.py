@@ -55,10 +55,10 @@ PRESETS: dict[str, Climate] = {
         cloud_colour=(0.8, 0.8, 0.8), exposure=1.45,
     ),
     "sunset": Climate(
-        name="sunset", sun_elevation=7.0, sun_azimuth=255.0, sun_colour=(2.6, 1.45, 0.62),
-        sky_light=(0.38, 0.36, 0.50), ground_light=(0.18, 0.12, 0.08), zenith=(0.16, 0.22, 0.48),
+        name="sunset", sun_elevation=9.0, sun_azimuth=255.0, sun_colour=(2.6, 1.45, 0.62),
+        sky_light=(0.48, 0.44, 0.56), ground_light=(0.20, 0.14, 0.09), zenith=(0.16, 0.22, 0.48),
         horizon=(0.95, 0.58, 0.34), sun_glow=(1.6, 0.8, 0.3), fog_distance=1300.0, cloud_cover=0.35,
-        cloud_colour=(0.95, 0.60, 0.45), exposure=1.35,
+        cloud_colour=(0.95, 0.60, 0.45), exposure=1.6,
     ),
 }
 

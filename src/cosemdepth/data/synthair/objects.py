@@ -104,10 +104,10 @@ def build_object_tile(rng: np.random.Generator) -> ObjectTile:
         _rasterize(h[TREE], g[TREE], ident[TREE], top[TREE], x, y, radius * 1.15, profile,
                    rng.uniform(), rng.uniform(), height)
 
-    # Boulders: irregular flattened domes, 0.6 to 3 m in radius, 9 m apart on average.
-    px, py, nn = _jittered(rng, 28)
+    # Boulders: irregular flattened domes, 0.6 to 3.2 m in radius, 7.3 m apart on average.
+    px, py, nn = _jittered(rng, 35)
     for x, y, d in zip(px, py, nn):
-        radius = min(0.6 + 2.4 * rng.uniform() ** 1.6, 0.45 * d)
+        radius = min(0.6 + 2.6 * rng.uniform() ** 1.4, 0.45 * d)
         height = radius * rng.uniform(0.55, 0.95)
         ph1, ph2 = rng.uniform(0, 2 * np.pi, 2)
 

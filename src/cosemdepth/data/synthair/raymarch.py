@@ -21,11 +21,16 @@ from .world import LEVELS, World
 #: Rays stop at this distance (metres); the world repeats every 4096 m, so this stays below half of it.
 T_MAX = 2000.0
 #: Samples per 2 m cell where a ray may hit, and bisection steps.
-FINE_SAMPLES = 4
+FINE_SAMPLES = 3
 BISECTIONS = 5
 _NUDGE = 2e-3
 _MAX_ITERATIONS = 4000
 _START_LEVEL = 3
+#: Rays still searching after this many steps are finished by dense sampling (see _scan_tail).
+TAIL_ITERATION = 100
+SCAN_CHUNK = 32
+SCAN_MIN_STEP = 0.5
+SCAN_PIXEL_FRACTION = 0.5
 #: Level of detail (see Lod): pixel footprints (metres) where trees start to morph into the canopy, and over which.
 LOD_START, LOD_WIDTH = 0.6, 1.8
 _SAMPLE_INDEX = torch.arange(FINE_SAMPLES)
@@ -77,12 +82,13 @@ class Lod:
     """Level of detail of the trees and boulders for one camera.
 
     Where a pixel covers more than ``LOD_START`` metres (at horizontal distance ``r`` from the camera a pixel
-    covers ``r * pixel_angle``), trees morph into a smooth canopy and boulders sink into the ground, fully at
-    ``LOD_START + LOD_WIDTH``. Far trees thus have no silhouettes smaller than a pixel to alias from frame to frame.
+    covers ``r * pixel_angle``), trees morph into a smooth canopy, fully at ``LOD_START + LOD_WIDTH``. Far trees
+    thus have no silhouettes smaller than a pixel to alias from frame to frame (boulders keep their shape; their
+    colour is averaged in the far field, see shading).
     The surface never rises above its full-detail envelope (the canopy is part of it).
     """
 
-    camera_xy: torch.Tensor  # [2, 1] wrapped camera position
+    camera_xy: torch.Tensor  # [2, R] (or [2, 1]) wrapped camera position of each sample
     pixel_angle: float  # radians per pixel
 
     def weight(self, xy: torch.Tensor) -> torch.Tensor:
@@ -106,7 +112,6 @@ def sample_surface(world: World, xy: torch.Tensor, lod: Lod | None = None) -> Su
     else:
         lw = lod.weight(xy)
         tree = tree + (canopy - tree) * lw
-        boulder = boulder * (1.0 - lw)
     return SurfaceSample(terrain, tree, boulder, dens_t, dens_b, lw, gate_t, gate_b, tv, tw, tc)
 
 
@@ -121,15 +126,10 @@ def surface_height(world: World, xy: torch.Tensor, lod: Lod | None = None) -> to
     if lod is not None:
         lw = lod.weight(xy)
         tree = tree + (canopy - tree) * lw
-        boulder = boulder * (1.0 - lw)
     return (terrain + torch.maximum(tree, boulder)).clamp_(min=world.water_level)
 
 
-# rows of the per-ray state of march_heightfield
-_D, _INV, _STEP, _NUDGE_ROWS, _DZ, _TLIM, _T, _LEV = slice(0, 2), slice(2, 4), slice(4, 6), slice(6, 8), 8, 9, 10, 11
-
-
-def beam_start(world: World, origin: torch.Tensor, d: torch.Tensor, block: int = 8):
+def beam_start(world: World, origins: torch.Tensor, d: torch.Tensor, block: int = 8):
     """Conservative start distances for blocks of rays (cone tracing through the dilated max pyramid).
 
     The rays of a ``block x block`` pixel block have unit directions within ``kappa`` of the block's axis ``a``
@@ -140,23 +140,24 @@ def beam_start(world: World, origin: torch.Tensor, d: torch.Tensor, block: int =
     parameter reached so far.
 
     Args:
-        origin: ``[3]`` ray origin (x, y, up), x and y wrapped.
-        d: ``[H, W, 3]`` unit ray directions of the image.
+        origins: ``[B, 3]`` ray origin (x, y, up) of each image, x and y wrapped.
+        d: ``[B, H, W, 3]`` unit ray directions of the images.
     Returns:
-        ``(t_start [H, W], level_start [H, W] float)``.
+        ``(t_start [B, H, W], level_start [B, H, W] float)``.
     """
-    h, w, _ = d.shape
+    nbatch, h, w, _ = d.shape
     hb, wb = -(-h // block), -(-w // block)
-    pad = torch.nn.functional.pad(d.permute(2, 0, 1), (0, wb * block - w, 0, hb * block - h), mode="replicate")
-    corners = pad.reshape(3, hb, block, wb, block)[:, :, [0, -1]][:, :, :, :, [0, -1]]  # [3, hb, 2, wb, 2]
-    axis = corners.sum(dim=(2, 4))
-    axis = axis / axis.norm(dim=0, keepdim=True)  # [3, hb, wb]
-    chord = (corners - axis[:, :, None, :, None]).norm(dim=0).amax(dim=(1, 3))  # [hb, wb]
+    pad = torch.nn.functional.pad(d.permute(0, 3, 1, 2), (0, wb * block - w, 0, hb * block - h), mode="replicate")
+    pad = pad.permute(1, 0, 2, 3)  # [3, B, H', W']
+    corners = pad.reshape(3, nbatch, hb, block, wb, block)[:, :, :, [0, -1]][:, :, :, :, :, [0, -1]]
+    axis = corners.sum(dim=(3, 5))
+    axis = axis / axis.norm(dim=0, keepdim=True)  # [3, B, hb, wb]
+    chord = (corners - axis[:, :, :, None, :, None]).norm(dim=0).amax(dim=(2, 4))  # [B, hb, wb]
     kappa = (chord * 1.05 + 1e-4).reshape(-1)
     a = axis.reshape(3, -1)
     nb = a.shape[1]
-    oz = float(origin[2])
-    o_xy = origin[:2].reshape(2, 1).float()
+    org = origins.float().T.repeat_interleave(hb * wb, dim=1)  # [3, nb]
+    o_xy, oz = org[:2], org[2]
     tiny = 1e-9
     axy = torch.where(a[:2].abs() < tiny, torch.full_like(a[:2], tiny), a[:2])
     az = a[2]
@@ -198,9 +199,18 @@ def beam_start(world: World, origin: torch.Tensor, d: torch.Tensor, block: int =
         active = active[keep]
         t, lev, kappa = new_t[keep], new_lev[keep], kappa[keep]
         axy, az, inv, step, nudge = axy[:, keep], az[keep], inv[:, keep], step[:, keep], nudge[:, keep]
-    t_img = t_out.reshape(hb, 1, wb, 1).expand(hb, block, wb, block).reshape(hb * block, wb * block)[:h, :w]
-    l_img = lev_out.reshape(hb, 1, wb, 1).expand(hb, block, wb, block).reshape(hb * block, wb * block)[:h, :w]
-    return t_img, l_img
+        o_xy, oz = o_xy[:, keep], oz[keep]
+
+    def to_image(v):
+        v = v.reshape(nbatch, hb, 1, wb, 1).expand(nbatch, hb, block, wb, block)
+        return v.reshape(nbatch, hb * block, wb * block)[:, :h, :w]
+
+    return to_image(t_out), to_image(lev_out)
+
+
+# rows of the per-ray state of march_heightfield
+_O, _OZ, _D, _INV, _STEP, _NUDGE_ROWS = slice(0, 2), 2, slice(3, 5), slice(5, 7), slice(7, 9), slice(9, 11)
+_DZ, _TLIM, _T, _LEV = 11, 12, 13, 14
 
 
 def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_limit: torch.Tensor,
@@ -209,7 +219,8 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
     """First intersection of rays with the height field.
 
     Args:
-        origin: ``[3]`` float32 ray origin ``(x, y, up)``, with ``x, y`` wrapped into ``[0, PERIOD)``.
+        origin: ``[3]`` or ``[R, 3]`` float32 ray origins ``(x, y, up)``, with ``x, y`` wrapped into
+            ``[0, PERIOD)`` (one per ray lets several cameras share one call).
         d: ``[R, 3]`` float32 unit directions.
         t_limit: ``[R]`` the search stops there (``T_MAX`` or a nearer building).
         t_start, level_start: ``[R]`` where to start (no hit before ``t_start``; see :func:`beam_start`).
@@ -218,9 +229,7 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
         ``[R]`` hit distance along the ray, ``inf`` where there is none before ``t_limit``.
     """
     n_rays = d.shape[0]
-    oz = float(origin[2])
-    o_xy = origin[:2].reshape(2, 1).float()
-    lod = None if pixel_angle is None else Lod(o_xy, float(pixel_angle))
+    org = origin.float().reshape(-1, 3).expand(n_rays, 3).T  # [3, R]
     tiny = 1e-9
     dxy = d[:, :2].T.contiguous()
     dxy = torch.where(dxy.abs() < tiny, torch.full_like(dxy, tiny), dxy)
@@ -229,7 +238,7 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
     # indexing operation and x/y work is a single [2, R] operation
     state = torch.cat(
         [
-            dxy, 1.0 / dxy, positive.float(), torch.where(positive, _NUDGE, -_NUDGE),
+            org, dxy, 1.0 / dxy, positive.float(), torch.where(positive, _NUDGE, -_NUDGE),
             d[:, 2].reshape(1, -1), t_limit.reshape(1, -1).float(),
             torch.zeros(1, n_rays) if t_start is None else t_start.reshape(1, -1).float(),
             torch.full((1, n_rays), float(_START_LEVEL)) if level_start is None else level_start.reshape(1, -1),
@@ -243,12 +252,18 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
     bracket = torch.full((2, n_rays), float("inf"))
     stats.update(iterations=0, ray_steps=0, fine_rays=0)
 
-    for _ in range(_MAX_ITERATIONS):
+    for it in range(_MAX_ITERATIONS):
         if ids.numel() == 0:
+            break
+        if it >= TAIL_ITERATION:
+            # the last rays (long grazing ones): per-iteration overhead would dominate, so sample them densely. The
+            # switch depends on the iteration only (every live ray takes one step per iteration), so a ray's result
+            # does not depend on the other rays of the batch.
+            _scan_tail(world, state, ids, bracket, pixel_angle)
             break
         stats["iterations"] += 1
         stats["ray_steps"] += ids.numel()
-        dxy, inv, step, nudge = state[_D], state[_INV], state[_STEP], state[_NUDGE_ROWS]
+        o_xy, oz, dxy, inv, step, nudge = state[_O], state[_OZ], state[_D], state[_INV], state[_STEP], state[_NUDGE_ROWS]
         dz, tlim, t, lev = state[_DZ], state[_TLIM], state[_T], state[_LEV]
         li = lev.long()
         cs = world.level_size[li]
@@ -277,7 +292,8 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
             stats["fine_rays"] += f_idx.numel()
             fs = state[:, f_idx]
             fc = cell[f_idx]
-            lo, hi = _fine_test(world, o_xy, oz, fs[_D], fs[_DZ], fs[_T], te[f_idx], m[f_idx],
+            lod = None if pixel_angle is None else Lod(fs[_O], float(pixel_angle))
+            lo, hi = _fine_test(world, fs[_O], fs[_OZ], fs[_D], fs[_DZ], fs[_T], te[f_idx], m[f_idx],
                                 world.env_min0[fc], world.env_objects[fc], lod)
             got = torch.isfinite(hi)
             gi = f_idx[got]
@@ -295,10 +311,10 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
         ids = ids[keep]
         state = state[:, keep]
 
-    return _refine(world, o_xy, oz, d, bracket, lod)
+    return _refine(world, org, d, bracket, pixel_angle)
 
 
-def _refine(world, o_xy, oz, d, bracket, lod):
+def _refine(world, org, d, bracket, pixel_angle):
     """Refine brackets ``f(lo) > 0 >= f(hi)`` of ``f(t) = ray height - S``: bisection, then one false-position
     step between the last two evaluated points."""
     t_hit = torch.full((d.shape[0],), float("inf"))
@@ -308,6 +324,8 @@ def _refine(world, o_xy, oz, d, bracket, lod):
     lo, hi = bracket[0, h], bracket[1, h]
     hd = d[h].T.contiguous()
     dxy, dz = hd[:2], hd[2]
+    o_xy, oz = org[:2, h], org[2, h]
+    lod = None if pixel_angle is None else Lod(o_xy, float(pixel_angle))
     nan = torch.full_like(lo, float("nan"))
     f_lo, f_hi = nan, nan
     for _ in range(BISECTIONS):
@@ -318,7 +336,17 @@ def _refine(world, o_xy, oz, d, bracket, lod):
         lo = torch.where(under, lo, mid)
         f_hi = torch.where(under, fm, f_hi)
         f_lo = torch.where(under, f_lo, fm)
-    both = torch.isfinite(f_lo) & torch.isfinite(f_hi) & (f_lo > f_hi)
+    # evaluate the ends that no bisection step landed on, then one false-position step
+    miss = torch.isnan(f_lo) | torch.isnan(f_hi)
+    m = miss.nonzero().squeeze(1)
+    if m.numel():
+        ends = torch.cat([lo[m], hi[m]])
+        mm = torch.cat([m, m])
+        lod_m = None if lod is None else Lod(lod.camera_xy[:, mm], lod.pixel_angle)
+        fe = (oz[mm] + ends * dz[mm]) - surface_height(world, o_xy[:, mm] + ends * dxy[:, mm], lod_m)
+        f_lo[m] = torch.where(torch.isnan(f_lo[m]), fe[: m.numel()], f_lo[m])
+        f_hi[m] = torch.where(torch.isnan(f_hi[m]), fe[m.numel():], f_hi[m])
+    both = (f_lo > 0) & (f_hi <= 0)
     frac = torch.where(both, f_lo / torch.where(both, f_lo - f_hi, torch.ones_like(f_lo)), torch.ones_like(lo))
     t_hit[h] = lo + (hi - lo) * frac.clamp(0.0, 1.0)
     return t_hit
@@ -327,7 +355,54 @@ def _refine(world, o_xy, oz, d, bracket, lod):
 stats: dict[str, int] = {}
 
 
+def _scan_tail(world, state, ids, bracket, pixel_angle):
+    """Find the first crossing of the remaining rays by dense sampling from their current distance to their limit.
+
+    Samples are ``max(SCAN_MIN_STEP, SCAN_PIXEL_FRACTION * t * pixel_angle)`` apart (at most half a pixel
+    footprint), so only surface features smaller than about half a pixel can be missed. Writes ``bracket``.
+    """
+    angle = pixel_angle if pixel_angle is not None else 1.0 / 192.0
+    frac = SCAN_PIXEL_FRACTION * angle
+    o_xy, oz, dxy, dz = state[_O], state[_OZ], state[_D], state[_DZ]
+    tlim, t = state[_TLIM], state[_T].clone()
+    lod = None if pixel_angle is None else Lod(o_xy, float(pixel_angle))
+    top = world.max_height + 1.0
+    live = torch.arange(ids.numel())
+    prev = t
+    for _ in range(_MAX_ITERATIONS):
+        if live.numel() == 0:
+            break
+        ts = []
+        cur = prev
+        for _k in range(SCAN_CHUNK):
+            cur = cur + torch.clamp(cur * frac, min=SCAN_MIN_STEP)
+            ts.append(cur)
+        ts = torch.stack(ts, 1)  # [L, K]
+        ts = torch.minimum(ts, tlim[live].unsqueeze(1))
+        k = ts.shape[1]
+        rows = live.repeat_interleave(k)
+        flat = ts.reshape(-1)
+        lod_rows = None if lod is None else Lod(o_xy[:, rows], lod.pixel_angle)
+        f = (oz[rows] + flat * dz[rows]) - surface_height(world, o_xy[:, rows] + flat * dxy[:, rows], lod_rows)
+        below = (f <= 0).view(-1, k)
+        first = torch.where(below, torch.arange(k), k).amin(1)
+        hit = first < k
+        if bool(hit.any()):
+            hr = hit.nonzero().squeeze(1)
+            kk = first[hr]
+            hi_t = ts[hr, kk]
+            lo_t = torch.where(kk > 0, ts[hr, (kk - 1).clamp(min=0)], prev[hr])
+            bracket[0, ids[live[hr]]] = lo_t
+            bracket[1, ids[live[hr]]] = hi_t
+        last = ts[:, -1]
+        gone = hit | (last >= tlim[live]) | ((dz[live] >= 0) & (oz[live] + last * dz[live] > top))
+        keep = (~gone).nonzero().squeeze(1)
+        live = live[keep]
+        prev = last[keep]
+
+
 def _fine_test(world, o_xy, oz, dxy, dz, t0, t1, m_max, m_min, has_obj, lod):
+    # o_xy [2, F], oz [F]: per-ray origins
     """Search one 2 m cell for the first crossing of the ray below the surface.
 
     The ray is clipped to the part of the cell between the heights of the cell's maximum and minimum surface. In a
@@ -339,7 +414,7 @@ def _fine_test(world, o_xy, oz, dxy, dz, t0, t1, m_max, m_min, has_obj, lod):
     rising = dz > 0
     safe_dz = torch.where(dz == 0, torch.ones_like(dz), dz)
     t_at_max = (m_max - oz) / safe_dz
-    t_at_min = (m_min - oz) / safe_dz
+    t_at_min = (m_min - oz) / safe_dz  # oz: [F]
     lo_t = torch.where(falling, torch.maximum(t0, t_at_max), t0)
     hi_t = torch.where(falling, torch.minimum(t1, t_at_min), t1)
     hi_t = torch.where(rising, torch.minimum(hi_t, t_at_max), hi_t)
@@ -364,7 +439,8 @@ def _fine_test(world, o_xy, oz, dxy, dz, t0, t1, m_max, m_min, has_obj, lod):
     if ts.numel() == 0:
         return lo, hi
     rows = torch.cat([one, many.repeat_interleave(FINE_SAMPLES)])
-    f = (oz + ts * dz[rows]) - surface_height(world, o_xy + ts * dxy[:, rows], lod)
+    lod_rows = None if lod is None else Lod(lod.camera_xy[:, rows], lod.pixel_angle)
+    f = (oz[rows] + ts * dz[rows]) - surface_height(world, o_xy[:, rows] + ts * dxy[:, rows], lod_rows)
     below = f <= 0
     n_one = one.numel()
     g1 = one[below[:n_one]]

@@ -171,7 +171,9 @@ def _lighting(climate: Climate, normal: torch.Tensor, direct_occ: torch.Tensor, 
 
 
 def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.Tensor, dist: torch.Tensor,
-                      pixel_angle: float, camera_xy: torch.Tensor | None = None):
+                      pixel_angle: float, camera_xy: torch.Tensor | None = None, lod_angle: float | None = None):
+    # camera_xy: [2, R] (or [2, 1]) wrapped camera position of each hit, and lod_angle (default pixel_angle):
+    # the level of detail of the geometry (raymarch.Lod)
     """Colour (linear, fog not applied) and Mid-Air label of height-field hits.
 
     Args:
@@ -182,7 +184,7 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
     """
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     xy = p[:, :2].T.contiguous()
-    lod = None if camera_xy is None else Lod(camera_xy.reshape(2, 1), pixel_angle)
+    lod = None if camera_xy is None else Lod(camera_xy.reshape(2, -1), lod_angle or pixel_angle)
     s = sample_surface(world, xy, lod)
     vals, w = bilinear_corners(world.shade, GRID, xy / CELL)
     f = (vals * w).sum(1)
@@ -237,12 +239,12 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
     n_hi = fbm(x, y, fp, 2.0, 4, salt=2)
     grass = _mix(_rgb((0.05, 0.10, 0.028)), _rgb((0.17, 0.19, 0.055)),
                  (0.5 + 0.45 * tint + 0.5 * n_lo + 0.45 * n_mid).clamp(0, 1))
-    grass = grass * _mod(0.3 * n_mid + 0.35 * n_hi)
+    grass = grass * _mod(0.35 * n_mid + 0.55 * n_hi)
     dirt_c = _mix(_rgb((0.15, 0.11, 0.07)), _rgb((0.29, 0.22, 0.14)), (0.5 + 0.6 * n_lo + 0.45 * n_mid).clamp(0, 1))
-    dirt_c = dirt_c * _mod(0.25 * n_mid + 0.35 * n_hi)
+    dirt_c = dirt_c * _mod(0.3 * n_mid + 0.5 * n_hi)
     rock_c = _mix(_rgb((0.13, 0.125, 0.12)), _rgb((0.27, 0.26, 0.24)), (0.5 + 0.7 * n_lo + 0.3 * n_mid).clamp(0, 1))
     strata = fbm(x * 0.15 + z * 2.0, y * 0.15 - z * 2.0, fp * 2.0, 2.0, 3, salt=3)
-    rock_c = rock_c * _mod(0.3 * n_hi + 0.2 * strata)
+    rock_c = rock_c * _mod(0.45 * n_hi + 0.25 * strata)
     ground = _mix(grass, dirt_c, ((dirt - 0.45) / 0.1).clamp(0, 1))
     ground = _mix(ground, rock_c, ((rock - 0.45) / 0.1).clamp(0, 1))
     # roads: asphalt, a dashed centre line and solid edge lines (box-filtered)

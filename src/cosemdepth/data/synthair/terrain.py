@@ -204,7 +204,7 @@ def build_terrain(rng: np.random.Generator) -> Terrain:
     tree_density *= 1.0 - smoothstep(0.9, 1.3, slope)
 
     boulder_noise = fractal_field(rng, GRID, CELL, beta=1.8, cutoff=250.0, upsample=2)
-    boulder_density = 0.18 + 0.55 * rock + 0.45 * smoothstep(0.3, 1.2, boulder_noise)
+    boulder_density = 0.25 + 0.55 * rock + 0.5 * smoothstep(0.2, 1.1, boulder_noise)
     boulder_density *= smoothstep(ROAD_HALF_WIDTH + 1.0, ROAD_HALF_WIDTH + 4.0, road_distance)
     boulder_density *= smoothstep(water_level - 0.2, water_level + 0.6, height)
     boulder_density = np.clip(boulder_density, 0.0, 1.0)

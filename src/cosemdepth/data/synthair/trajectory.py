@@ -22,7 +22,9 @@ from .world import World
 GT_RATE = 100.0
 MODES = ("road", "village", "lake", "free")
 #: Minimum distance (metres) kept between the camera and the conservative surface envelope below it.
-CLEARANCE = 1.0
+CLEARANCE = 0.5
+#: Fraction of the flights that dip down to the ground or the tree tops once.
+DIP_PROBABILITY = 0.5
 
 
 @dataclass
@@ -88,6 +90,20 @@ def envelope_near(world: World, x: np.ndarray, y: np.ndarray, radius_cells: int 
     return out
 
 
+def surface_max_near(world: World, xy: np.ndarray, radius: float) -> np.ndarray:
+    """Highest point of the height field (terrain, water, trees, boulders; full detail) at ``xy [N, 2]`` and on
+    two rings around it (radius/2 and radius, 8 points each)."""
+    import torch
+
+    from .raymarch import surface_height
+
+    ang = np.arange(8) * (np.pi / 4)
+    ring = np.concatenate([[[0.0, 0.0]], *[r * np.stack([np.cos(ang), np.sin(ang)], 1) for r in (radius / 2, radius)]])
+    pts = xy[:, None, :] + ring[None]  # [N, 17, 2]
+    flat = torch.tensor(pts.reshape(-1, 2).T, dtype=torch.float32)
+    return surface_height(world, flat).double().numpy().reshape(len(xy), -1).max(axis=1)
+
+
 def buildings_near(world: World, x: np.ndarray, y: np.ndarray, margin: float = 6.0) -> np.ndarray:
     """Highest building roof within ``margin`` metres of the footprint around points ``(x, y)`` (-inf if none)."""
     b = world.buildings
@@ -123,7 +139,7 @@ def _choose_start(world: World, rng: np.random.Generator, mode: str):
     if mode == "village" and len(world.buildings):
         c = world.buildings.center[rng.integers(len(world.buildings))]
         ang = rng.uniform(0, 2 * np.pi)
-        dist = rng.uniform(40, 120)
+        dist = rng.uniform(25, 80)
         x0, y0 = c[0] - dist * np.cos(ang), c[1] - dist * np.sin(ang)
         return {"xy": (x0, y0), "heading": ang + rng.normal(0, 0.15)}
     if mode == "lake":
@@ -170,30 +186,34 @@ def make_flight(world: World, rng: np.random.Generator, n_frames: int, mode: str
 
     ground = world.terrain.surface_at(xy[:, 0], xy[:, 1])
     # Height above the ground or the tree tops (the smoothed surface envelope): a per-flight base (log-uniform),
-    # slow variations, and in a third of the flights a dip down to the ground or the tree tops.
-    canopy = _smooth(np.maximum(envelope_near(world, xy[:, 0], xy[:, 1], 2), ground), 0.5 * GT_RATE)
+    # slow variations, and in half of the flights a dip down to the ground or the tree tops.
+    canopy = _smooth(surface_max_near(world, xy, 3.0), 0.5 * GT_RATE)
     hi_alt = 25.0 if mode == "village" else 45.0
     base = np.exp(rng.uniform(np.log(6.0), np.log(hi_alt)))
     alt = bspline(base * np.exp(rng.uniform(-0.5, 0.5, m)), 2.0, times, -5.0)
-    if rng.uniform() < 1 / 3:
+    dip = np.zeros(n)
+    if rng.uniform() < DIP_PROBABILITY:
         centre = rng.uniform(0.15, 0.85) * duration
         width = rng.uniform(1.0, 2.5)
-        alt = alt + (1.0 - alt) * np.exp(-0.5 * ((times - centre) / width) ** 2)
-    target = np.maximum(ground, canopy) + np.clip(alt, 1.0, 80.0)
-    obstacle = np.maximum(envelope_near(world, xy[:, 0], xy[:, 1], 1), buildings_near(world, xy[:, 0], xy[:, 1]))
+        dip = np.exp(-0.5 * ((times - centre) / width) ** 2)
+        alt = alt + (0.3 - alt) * dip
+    target = np.maximum(ground, canopy) + np.clip(alt, 0.3, 80.0)
+    # never inside or right on top of anything: the exact surface under the camera and around it (1 m), roofs
+    obstacle = np.maximum(surface_max_near(world, xy, 1.0), buildings_near(world, xy[:, 0], xy[:, 1]))
     required = np.maximum(target, obstacle + CLEARANCE)
-    # smooth the terrain-following altitude, then lift it back above every required point: a max filter of
-    # half-width w followed by a Gaussian truncated at 3 sigma <= w never goes below the input
+    # smooth the altitude, then lift it where it comes too close to an obstacle: the lift is a max filter of the
+    # deficit (half-width w) followed by a Gaussian truncated at 3 sigma <= w, which never falls below the deficit
     sigma = 0.45 * GT_RATE
     smooth_target = _smooth(target, sigma)
-    lifted = np.maximum(smooth_target, required)
-    up = _smooth(_max_filter(lifted, int(np.ceil(3 * sigma))), sigma)
-    altitude_up = np.maximum(up, required)  # equal to `up` up to rounding
+    deficit = np.maximum(required - smooth_target, 0.0)
+    lift = _smooth(_max_filter(deficit, int(np.ceil(3 * sigma))), sigma)
+    altitude_up = np.maximum(smooth_target + lift, required)  # equal to the sum up to rounding
 
     # attitude: yaw follows the path with a small offset, the camera looks down, rolls into turns
     yaw = path_heading + np.radians(bspline(rng.uniform(-8.0, 8.0, m), ks, times, t0))
     turn_rate = np.gradient(path_heading, dt)
-    pitch_down = bspline(rng.uniform(10.0, 30.0, m), 2.0, times, -5.0)
+    # the camera looks down more during a dip (the view then reaches the ground right under the drone)
+    pitch_down = bspline(rng.uniform(10.0, 30.0, m), 2.0, times, -5.0) + 30.0 * dip
     pitch = -np.radians(pitch_down)
     hspeed = np.linalg.norm(vel_xy, axis=1)
     bank = np.arctan(hspeed * _smooth(turn_rate, 0.2 * GT_RATE) / 9.81)
