@@ -30,8 +30,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         "frames the split CSVs use, 4, 8, 12, ...)")
     parser.add_argument("--supersample", type=int, default=1, choices=(1, 3, 5), help="colour rays per pixel "
                         "per axis (antialiasing; depth and labels always come from the pixel centre)")
-    parser.add_argument("--jpeg-quality", type=int, default=98, help="JPEG quality (default 98; 4:4:4, photo-consistency "
-                        "between frames suffers below about 95)")
+    parser.add_argument("--jpeg-quality", type=int, default=98,
+                        help="JPEG quality (default 98, 4:4:4 chroma; photo-consistency suffers below about 95)")
     parser.add_argument("--workers", type=int, default=1, help="render processes (default 1)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 

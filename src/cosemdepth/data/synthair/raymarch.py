@@ -263,7 +263,8 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
             break
         stats["iterations"] += 1
         stats["ray_steps"] += ids.numel()
-        o_xy, oz, dxy, inv, step, nudge = state[_O], state[_OZ], state[_D], state[_INV], state[_STEP], state[_NUDGE_ROWS]
+        o_xy, oz, dxy, inv = state[_O], state[_OZ], state[_D], state[_INV]
+        step, nudge = state[_STEP], state[_NUDGE_ROWS]
         dz, tlim, t, lev = state[_DZ], state[_TLIM], state[_T], state[_LEV]
         li = lev.long()
         cs = world.level_size[li]

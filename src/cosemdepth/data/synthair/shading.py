@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from .climate import Climate
-from .objects import TEXEL, TILE
+from .objects import TILE
 from .raymarch import Lod, bilinear_corners, sample_surface
 from .terrain import CELL, GRID, ROAD_HALF_WIDTH
 from .world import World

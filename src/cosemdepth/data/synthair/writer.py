@@ -20,8 +20,7 @@ from __future__ import annotations
 import io
 import json
 import multiprocessing
-import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +30,7 @@ from ...io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ..midair import format as fmt
 from ..midair.splits import GT_PER_ROW, generate_splits
 from .climate import CLIMATES, get_climate
+from .trajectory import Flight
 
 ENVIRONMENT = "SynthAir"
 #: Version of the generator's output; bump whenever the same arguments would give different files.
@@ -158,7 +158,8 @@ def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
     from PIL import Image
 
     buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8)).save(buf, format="JPEG", quality=quality, subsampling=0, optimize=False)
+    img = Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8))
+    img.save(buf, format="JPEG", quality=quality, subsampling=0, optimize=False)
     return buf.getvalue()
 
 
@@ -259,7 +260,7 @@ def _write_sensor_records(path: Path, flights: dict[int, PlannedFlight], frames:
 
 @dataclass(frozen=True)
 class PlannedFlight:
-    flight: "Flight"  # noqa: F821 (trajectory.Flight)
+    flight: Flight
     sun_azimuth: float  # degrees; the climate's sun direction varies a little between trajectories
 
 
