@@ -75,8 +75,8 @@ _TYPES = {
     # name: (roof kind, length range, width range, wall height range, roof pitch range in degrees)
     "house": ("gable", (9, 15), (7, 10), (3.0, 6.0), (28, 42)),
     "barn": ("gable", (16, 30), (10, 15), (5.0, 8.0), (20, 30)),
-    "block": ("flat", (12, 26), (10, 16), (8.0, 18.0), (0, 0)),
-    "tower": ("flat", (4, 7), (4, 7), (12.0, 24.0), (0, 0)),
+    "block": ("flat", (12, 24), (10, 14), (7.0, 13.0), (0, 0)),
+    "tower": ("flat", (4, 6), (4, 6), (8.0, 14.0), (0, 0)),
     "shed": ("flat", (5, 9), (4, 6), (2.5, 3.5), (0, 0)),
 }
 

@@ -52,10 +52,10 @@ def value_noise(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 
 
 def fbm(u: torch.Tensor, v: torch.Tensor, footprint: torch.Tensor, wavelength: float, octaves: int,
-        salt: int = 0) -> torch.Tensor:
+        salt: int = 0, gain: float = 0.55) -> torch.Tensor:
     """Band-limited fractal noise of world coordinates ``(u, v)`` (metres); standard deviation about 0.5.
 
-    Octave ``k`` has wavelength ``wavelength / 2**k``; it fades out as the pixel ``footprint`` (metres) grows
+    Octave ``k`` has wavelength ``wavelength / 2**k`` and amplitude ``gain**k``; it fades out as the pixel ``footprint`` (metres) grows
     from 1/8 to 1/4 of its wavelength, i.e. detail finer than about 4 pixels is removed (an octave that is faded
     out everywhere is not evaluated).
     """
@@ -67,7 +67,7 @@ def fbm(u: torch.Tensor, v: torch.Tensor, footprint: torch.Tensor, wavelength: f
         freq = (2.0**k) / wavelength
         power += amp * amp
         amp_k = amp
-        amp *= 0.55
+        amp *= gain
         if fp_min * freq >= BAND_LIMIT:
             continue  # faded out everywhere
         weight = (2.0 - footprint * (freq * 2.0 / BAND_LIMIT)).clamp(0.0, 1.0)
@@ -236,7 +236,7 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
     # ground textures
     n_lo = fbm(x, y, fp, 48.0, 4, salt=1)
     n_mid = fbm(x, y, fp, 7.0, 3, salt=12)
-    n_hi = fbm(x, y, fp, 2.0, 4, salt=2)
+    n_hi = fbm(x, y, fp, 2.0, 5, salt=2, gain=0.8)
     grass = _mix(_rgb((0.05, 0.10, 0.028)), _rgb((0.17, 0.19, 0.055)),
                  (0.5 + 0.45 * tint + 0.5 * n_lo + 0.45 * n_mid).clamp(0, 1))
     grass = grass * _mod(0.35 * n_mid + 0.55 * n_hi)
