@@ -2,10 +2,14 @@
 
 The surface is the height field ``S(x, y) = max(T + obj, W)`` (terrain ``T``, gated tree/boulder heights ``obj``,
 water level ``W``). Rays traverse a max pyramid of ``S`` (cells of 2 m to 256 m): a ray skips a cell whenever its
-lowest point in the cell is above the cell's maximum, goes up a level after skipping and down a level otherwise.
-In a 2 m cell that it cannot skip, the ray is sampled densely between the heights of the cell's maximum and
-minimum, and the first sign change of ``ray height - S`` is refined by bisection to a sub-millimetre hit.
-Buildings are convex polyhedra intersected analytically.
+lowest point in the cell is above the cell's maximum, goes up a level when it leaves the parent cell and down a
+level when it cannot skip. In a 2 m cell that it cannot skip, the ray is sampled between the heights of the cell's
+maximum and minimum, and the first sign change of ``ray height - S`` is refined by bisection and a false-position
+step. Rays start where cones traced for 8 x 8 pixel blocks (:func:`beam_start`) prove them clear, and the few rays
+still searching after ``TAIL_ITERATION`` steps (long grazing ones) are finished by dense sampling. Trees far from
+the camera morph into a smooth canopy (:class:`Lod`). Buildings are convex polyhedra intersected analytically.
+
+Every ray's result depends on that ray alone (not on the other rays of the call), so frames can be batched.
 """
 
 from __future__ import annotations
@@ -33,7 +37,6 @@ SCAN_MIN_STEP = 0.5
 SCAN_PIXEL_FRACTION = 0.5
 #: Level of detail (see Lod): pixel footprints (metres) where trees start to morph into the canopy, and over which.
 LOD_START, LOD_WIDTH = 0.6, 1.8
-_SAMPLE_INDEX = torch.arange(FINE_SAMPLES)
 
 
 def bilinear_corners(table: torch.Tensor, n: int, g: torch.Tensor):
@@ -41,15 +44,16 @@ def bilinear_corners(table: torch.Tensor, n: int, g: torch.Tensor):
 
     Args:
         table: ``[C, n * n]`` (channel-first; cell ``(i, j)`` is column ``i * n + j``).
+        n: cells per side, a power of two.
         g: ``[2, R]`` grid coordinates (cell units, any real values; the grid wraps).
     Returns:
         ``(values [C, 4, R], weights [4, R])``, corners in the order (i0, j0), (i1, j0), (i0, j1), (i1, j1).
     """
     fl = torch.floor(g)
     frac = g - fl
-    i0 = fl.long().remainder_(n)  # [2, R]
-    i1 = i0 + 1
-    i1[i1 == n] = 0
+    mask = n - 1  # n is a power of two: & wraps negative indices too
+    i0 = fl.long() & mask  # [2, R]
+    i1 = (i0 + 1) & mask
     rows = torch.stack([i0[0], i1[0]]) * n  # [2, R] (i0 n, i1 n)
     cols = torch.stack([i0[1], i1[1]])  # [2, R] (j0, j1)
     idx = (rows.unsqueeze(0) + cols.unsqueeze(1)).reshape(-1)  # order (j0: i0, i1), (j1: i0, i1)
@@ -183,7 +187,7 @@ def beam_start(world: World, origins: torch.Tensor, d: torch.Tensor, block: int 
         rho = kappa * te
         fits = rho + 4 * _NUDGE <= cs
         z_low = oz + torch.minimum(t * az, te * az) - rho
-        cij = ixy.long().remainder_(n)
+        cij = ixy.long() & (n - 1)
         m = world.env_dilated[world.level_offset[li] + cij[0] * n + cij[1]]
         clear = fits & (z_low > m)
         finer_ok = (li > 0) & (rho + 4 * _NUDGE <= sizes[(li - 1).clamp(min=0)])
@@ -274,7 +278,8 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
         te, exit_axis = txy.min(0)
         te = torch.minimum(te, tlim)
         z_low = oz + torch.where(dz < 0, te, t) * dz
-        cell_ij = ixy.long().remainder_(n)
+        ij = ixy.long()
+        cell_ij = ij & (n - 1)  # level sizes are powers of two
         cell = world.level_offset[li] + cell_ij[0] * n + cell_ij[1]
         m = world.env_max[cell]
         above = z_low > m
@@ -282,7 +287,7 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
         advanced = torch.maximum(te, t + 1e-4)
         # after an advance go up a level only if the ray left the parent cell (else the parent, which could not
         # be skipped, would be tested again for nothing)
-        odd = torch.remainder(ixy, 2.0) == step  # [2, R] the exit face is also a face of the parent cell
+        odd = (ij & 1).float() == step  # [2, R] the exit face is also a face of the parent cell
         leaves_parent = odd.gather(0, exit_axis.unsqueeze(0)).squeeze(0)
         lev_after = torch.where(leaves_parent, (lev + 1).clamp_(max=float(LEVELS)), lev)
         new_t = torch.where(above, advanced, t)
@@ -353,6 +358,16 @@ def _refine(world, org, d, bracket, pixel_angle):
     return t_hit
 
 
+def _first_true(b: torch.Tensor) -> torch.Tensor:
+    """Index of the first True of each row of ``b [R, K]`` (``K`` where none); cheaper than a reduction for small K."""
+    k = b.shape[1]
+    first = torch.full((b.shape[0],), k, dtype=torch.int64)
+    for j in range(k - 1, -1, -1):
+        first = torch.where(b[:, j], j, first)
+    return first
+
+
+#: Counters of the last march_heightfield call (iterations, ray steps, fine tests), for benchmarks and tuning.
 stats: dict[str, int] = {}
 
 
@@ -386,7 +401,7 @@ def _scan_tail(world, state, ids, bracket, pixel_angle):
         lod_rows = None if lod is None else Lod(o_xy[:, rows], lod.pixel_angle)
         f = (oz[rows] + flat * dz[rows]) - surface_height(world, o_xy[:, rows] + flat * dxy[:, rows], lod_rows)
         below = (f <= 0).view(-1, k)
-        first = torch.where(below, torch.arange(k), k).amin(1)
+        first = _first_true(below)
         hit = first < k
         if bool(hit.any()):
             hr = hit.nonzero().squeeze(1)
@@ -449,7 +464,7 @@ def _fine_test(world, o_xy, oz, dxy, dz, t0, t1, m_max, m_min, has_obj, lod):
     hi[g1] = hi_t[g1]
     if many.numel():
         bm = below[n_one:].view(-1, FINE_SAMPLES)
-        first = torch.where(bm, _SAMPLE_INDEX, FINE_SAMPLES).amin(1)
+        first = _first_true(bm)
         hit_rows = (first < FINE_SAMPLES).nonzero().squeeze(1)
         kk = first[hit_rows]
         gm = many[hit_rows]

@@ -1,9 +1,11 @@
 """Materials, textures, lighting, sky and fog.
 
-Every colour is a function of the world point that a ray hits (plus the light of the climate), never of the
-viewpoint, except the fog (a function of the distance) and the sky (a function of the direction only, i.e. it is
-infinitely far). Textures are sums of value-noise octaves in world metres; an octave whose wavelength is not larger
-than about 4 pixel footprints is faded out (band limiting), so that a surface does not shimmer from frame to frame.
+Every colour is a function of the world point that a ray hits (plus the light of the climate), not of the viewing
+direction: no reflections or highlights. What depends on the camera does so smoothly with the distance: the fog,
+the band limiting (texture octaves finer than about 4 pixel footprints fade out, so that surfaces do not shimmer
+from frame to frame) and the far field (trees, boulders and ground averaged by coverage where they are smaller
+than a pixel, in step with the level of detail of the geometry, ``raymarch.Lod``). The sky depends on the
+direction only (it is infinitely far).
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ SKY, TREES, DIRT, VEGETATION, ROCKY, BOULDERS, WATER, CONSTRUCTION, ROAD = 0, 2,
 _NOISE_N = 256
 #: An octave is gone once the pixel footprint reaches this fraction of its wavelength (it starts fading at half).
 BAND_LIMIT = 0.25
-#: Pixel size (metres) where the far-field pre-filtering of trees and boulders starts, and over which it fades in.
+#: Without a camera position (no level of detail), the pixel size (metres) where the far-field averaging of trees and
+#: boulders starts, and over which it fades in. With one, the averaging follows the level of detail (raymarch.Lod).
 FAR_START, FAR_WIDTH = 0.3, 0.9
 
 
@@ -233,58 +236,26 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
     normal = torch.where(is_water.unsqueeze(1), torch.tensor([0.0, 0.0, 1.0]), normal)
     fp = torch.where(is_obj, fp0 / (-(d * normal).sum(1)).clamp(min=0.05).sqrt(), fp)
 
-    # ground textures
-    n_lo = fbm(x, y, fp, 48.0, 4, salt=1)
-    n_mid = fbm(x, y, fp, 7.0, 3, salt=12)
-    n_hi = fbm(x, y, fp, 2.0, 5, salt=2, gain=0.8)
-    grass = _mix(_rgb((0.05, 0.10, 0.028)), _rgb((0.17, 0.19, 0.055)),
-                 (0.5 + 0.45 * tint + 0.5 * n_lo + 0.45 * n_mid).clamp(0, 1))
-    grass = grass * _mod(0.35 * n_mid + 0.55 * n_hi)
-    dirt_c = _mix(_rgb((0.15, 0.11, 0.07)), _rgb((0.29, 0.22, 0.14)), (0.5 + 0.6 * n_lo + 0.45 * n_mid).clamp(0, 1))
-    dirt_c = dirt_c * _mod(0.3 * n_mid + 0.5 * n_hi)
-    rock_c = _mix(_rgb((0.13, 0.125, 0.12)), _rgb((0.27, 0.26, 0.24)), (0.5 + 0.7 * n_lo + 0.3 * n_mid).clamp(0, 1))
-    strata = fbm(x * 0.15 + z * 2.0, y * 0.15 - z * 2.0, fp * 2.0, 2.0, 3, salt=3)
-    rock_c = rock_c * _mod(0.45 * n_hi + 0.25 * strata)
-    ground = _mix(grass, dirt_c, ((dirt - 0.45) / 0.1).clamp(0, 1))
-    ground = _mix(ground, rock_c, ((rock - 0.45) / 0.1).clamp(0, 1))
-    # roads: asphalt, a dashed centre line and solid edge lines (box-filtered)
-    asphalt = _rgb((0.085, 0.085, 0.09)) * _mod(0.25 * n_hi + 0.15 * n_mid + 0.1 * n_lo)
-    road_cov = box_coverage(road_d, ROAD_HALF_WIDTH, fp)
-    edge = box_coverage(road_d - (ROAD_HALF_WIDTH - 0.35), 0.09, fp)
-    along = _road_along(world, x, y)
-    centre = box_coverage(road_d, 0.08, fp) * periodic_coverage(along, 9.0, 1.5, fp)
-    paint = (edge + centre).clamp(0, 1)
-    road_c = _mix(asphalt, _rgb((0.65, 0.65, 0.6)), paint)
-    ground = _mix(ground, road_c, road_cov)
-    ground = ground * (1.0 - 0.35 * fshade).unsqueeze(-1)
-
-    # trees: per-tree hue, leaf clumps (two vertical planes and the ground plane), darker low in the crown
-    id_fade = (1.5 - fp / 2.0).clamp(0.0, 1.0)
-    tid = 0.5 + (tree_id - 0.5) * id_fade
-    leaf_v = fbm(x + y, z, fp, 1.2, 3, salt=4)
-    leaf_h = fbm(x, y, fp, 1.2, 3, salt=5)
-    vert = normal[:, 2].abs()
-    leaf = leaf_h * vert + leaf_v * (1 - vert)
-    tree_c = _mix(_rgb((0.025, 0.06, 0.025)), _rgb((0.085, 0.14, 0.035)), tid)
-    tree_c = tree_c * _mod(0.4 * leaf + 0.1 * n_lo)
+    # albedos, each computed only where it is needed (the ground also under trees and boulders: far field)
+    n = x.shape[0]
+    ground = torch.zeros((n, 3))
+    land = (~is_water).nonzero().squeeze(1)
+    n_lo = torch.zeros(n)
+    if land.numel():
+        ground[land], n_lo[land] = _ground_albedo(world, x[land], y[land], z[land], fp[land], tint[land], dirt[land],
+                                                  rock[land], road_d[land], fshade[land])
+    albedo = ground.clone()
+    ti = is_tree.nonzero().squeeze(1)
+    if ti.numel():
+        albedo[ti] = _tree_albedo(x[ti], y[ti], z[ti], fp[ti], tree_id[ti], normal[ti], n_lo[ti])
+    bi = is_boulder.nonzero().squeeze(1)
+    if bi.numel():
+        albedo[bi] = _boulder_albedo(x[bi], y[bi], z[bi], fp[bi], bould_id[bi], normal[bi])
+    wi = is_water.nonzero().squeeze(1)
+    if wi.numel():
+        albedo[wi] = _water_albedo(climate, x[wi], y[wi], fp[wi], w_level - s.terrain[wi])
     tree_rel = (s.tree / tree_top.clamp(min=0.5)).clamp(0.0, 1.0)
-    # boulders
-    bid = 0.5 + (bould_id - 0.5) * id_fade
-    boulder_c = _rgb((0.20, 0.195, 0.185)) * (0.7 + 0.6 * bid).unsqueeze(-1)
-    stone = fbm(x + 0.7 * z, y - 0.7 * z, fp, 1.5, 4, salt=6)
-    lichen = ((fbm(x, y + z, fp, 2.5, 2, salt=8) - 0.2) / 0.3).clamp(0, 1) * (0.5 + 0.5 * normal[:, 2])
-    boulder_c = boulder_c * _mod(0.3 * stone)
-    boulder_c = _mix(boulder_c, _rgb((0.20, 0.22, 0.12)), lichen * 0.6)
     bould_rel = (s.boulder / bould_top.clamp(min=0.2)).clamp(0.0, 1.0)
-    # water: deeper is darker, slow world-fixed ripples
-    depth_w = (w_level - s.terrain).clamp(min=0.0)
-    water_c = _mix(_rgb((0.10, 0.12, 0.085)), _rgb((0.018, 0.05, 0.065)), (depth_w / 2.5).clamp(0, 1))
-    waves = fbm(x, y, fp, 16.0, 6, salt=13)
-    water_c = (water_c + _rgb(climate.zenith) * 0.1) * _mod(0.4 * waves + 0.15 * n_lo)
-
-    albedo = torch.where(is_tree.unsqueeze(1), tree_c, ground)
-    albedo = torch.where(is_boulder.unsqueeze(1), boulder_c, albedo)
-    albedo = torch.where(is_water.unsqueeze(1), water_c, albedo)
 
     direct_occ = torch.ones_like(x) - 0.75 * fshade
     ambient_occ = torch.ones_like(x) - 0.5 * fshade
@@ -340,6 +311,74 @@ def _blend_levels(grads: torch.Tensor, level: torch.Tensor) -> tuple[torch.Tenso
         wk = (level - (k - 1)).clamp(0.0, 1.0)
         out = out + (grads[k] - out) * wk
     return out[0], out[1]
+
+
+def _ground_albedo(world, x, y, z, fp, tint, dirt, rock, road_d, fshade):
+    """Grass, dirt and rocky ground (blended at the class borders), roads with their paint, darker under trees.
+    Returns ``(albedo [R, 3], large-scale noise [R])``."""
+    n_lo = fbm(x, y, fp, 48.0, 4, salt=1)
+    n_mid = fbm(x, y, fp, 7.0, 3, salt=12)
+    n_hi = fbm(x, y, fp, 2.0, 5, salt=2, gain=0.8)
+    grass = _mix(_rgb((0.05, 0.10, 0.028)), _rgb((0.17, 0.19, 0.055)),
+                 (0.5 + 0.45 * tint + 0.5 * n_lo + 0.45 * n_mid).clamp(0, 1))
+    grass = grass * _mod(0.35 * n_mid + 0.55 * n_hi)
+    dirt_c = _mix(_rgb((0.15, 0.11, 0.07)), _rgb((0.29, 0.22, 0.14)), (0.5 + 0.6 * n_lo + 0.45 * n_mid).clamp(0, 1))
+    dirt_c = dirt_c * _mod(0.3 * n_mid + 0.5 * n_hi)
+    ground = _mix(grass, dirt_c, ((dirt - 0.45) / 0.1).clamp(0, 1))
+    rocky = (rock > 0.45).nonzero().squeeze(1)
+    if rocky.numel():
+        r = rocky
+        rock_c = _mix(_rgb((0.13, 0.125, 0.12)), _rgb((0.27, 0.26, 0.24)),
+                      (0.5 + 0.7 * n_lo[r] + 0.3 * n_mid[r]).clamp(0, 1))
+        strata = fbm(x[r] * 0.15 + z[r] * 2.0, y[r] * 0.15 - z[r] * 2.0, fp[r] * 2.0, 2.0, 3, salt=3)
+        rock_c = rock_c * _mod(0.45 * n_hi[r] + 0.25 * strata)
+        ground[r] = _mix(ground[r], rock_c, ((rock[r] - 0.45) / 0.1).clamp(0, 1))
+    # roads: asphalt, a dashed centre line and solid edge lines (box-filtered)
+    near_road = (road_d < ROAD_HALF_WIDTH + fp).nonzero().squeeze(1)
+    if near_road.numel():
+        r = near_road
+        asphalt = _rgb((0.085, 0.085, 0.09)) * _mod(0.25 * n_hi[r] + 0.15 * n_mid[r] + 0.1 * n_lo[r])
+        road_cov = box_coverage(road_d[r], ROAD_HALF_WIDTH, fp[r])
+        edge = box_coverage(road_d[r] - (ROAD_HALF_WIDTH - 0.35), 0.09, fp[r])
+        along = _road_along(world, x[r], y[r])
+        centre = box_coverage(road_d[r], 0.08, fp[r]) * periodic_coverage(along, 9.0, 1.5, fp[r])
+        paint = (edge + centre).clamp(0, 1)
+        road_c = _mix(asphalt, _rgb((0.65, 0.65, 0.6)), paint)
+        ground[r] = _mix(ground[r], road_c, road_cov)
+    return ground * (1.0 - 0.35 * fshade).unsqueeze(-1), n_lo
+
+
+def _tree_albedo(x, y, z, fp, tree_id, normal, n_lo):
+    """Per-tree hue (faded out where trees are small in the image) and leaf clumps (ground plane and a vertical
+    plane, blended by the normal)."""
+    id_fade = (1.5 - fp / 2.0).clamp(0.0, 1.0)
+    tid = 0.5 + (tree_id - 0.5) * id_fade
+    leaf_v = fbm(x + y, z, fp, 1.2, 3, salt=4)
+    leaf_h = fbm(x, y, fp, 1.2, 3, salt=5)
+    vert = normal[:, 2].abs()
+    leaf = leaf_h * vert + leaf_v * (1 - vert)
+    tree_c = _mix(_rgb((0.025, 0.06, 0.025)), _rgb((0.085, 0.14, 0.035)), tid)
+    return tree_c * _mod(0.4 * leaf + 0.1 * n_lo)
+
+
+def _boulder_albedo(x, y, z, fp, bould_id, normal):
+    """Grey stone with per-boulder brightness, grain and lichen on the upper faces."""
+    id_fade = (1.5 - fp / 2.0).clamp(0.0, 1.0)
+    bid = 0.5 + (bould_id - 0.5) * id_fade
+    boulder_c = _rgb((0.20, 0.195, 0.185)) * (0.7 + 0.6 * bid).unsqueeze(-1)
+    stone = fbm(x + 0.7 * z, y - 0.7 * z, fp, 1.5, 4, salt=6)
+    lichen = ((fbm(x, y + z, fp, 2.5, 2, salt=8) - 0.2) / 0.3).clamp(0, 1) * (0.5 + 0.5 * normal[:, 2])
+    boulder_c = boulder_c * _mod(0.3 * stone)
+    return _mix(boulder_c, _rgb((0.20, 0.22, 0.12)), lichen * 0.6)
+
+
+def _water_albedo(climate, x, y, fp, water_depth):
+    """Shallow water brownish, deep water dark, slow world-fixed waves (no reflections: view independent)."""
+    depth_w = water_depth.clamp(min=0.0)
+    water_c = _mix(_rgb((0.10, 0.12, 0.085)), _rgb((0.018, 0.05, 0.065)), (depth_w / 2.5).clamp(0, 1))
+    waves = fbm(x, y, fp, 16.0, 6, salt=13)
+    n_lo = fbm(x, y, fp, 48.0, 2, salt=1)
+    return (water_c + _rgb(climate.zenith) * 0.1) * _mod(0.4 * waves + 0.15 * n_lo)
 
 
 def _road_along(world: World, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:

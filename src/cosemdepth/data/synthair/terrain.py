@@ -97,11 +97,6 @@ class Terrain:
         return np.maximum(self.height_at(x, y), self.water_level)
 
 
-def grid_coords() -> tuple[np.ndarray, np.ndarray]:
-    c = np.arange(GRID) * CELL
-    return np.meshgrid(c, c, indexing="ij")
-
-
 def gradient(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Central differences of a periodic grid field, per metre: ``(d/dx, d/dy)``."""
     gx = (np.roll(field, -1, 0) - np.roll(field, 1, 0)) / (2 * CELL)

@@ -4,9 +4,9 @@ Body axes are x forward, y right, z down; the attitude is the unit quaternion ``
 (NED) rotation; positions are metres in NED (``x`` north, ``y`` east, ``z`` down). Camera frame ``n`` (25 Hz) is
 ground-truth sample ``4 n``.
 
-A flight is built from uniform cubic B-splines of random control values (speed, turn rate, altitude above ground,
-camera pitch, roll and yaw offsets). The altitude is lifted wherever the flight would come closer than a margin to
-trees, boulders or buildings, then smoothed in a way that keeps that margin.
+A flight is built from uniform cubic B-splines of random control values (speed, turn rate, height above the ground
+or the tree tops, camera pitch, roll and yaw offsets). The altitude is smoothed, then lifted (smoothly) wherever it
+would come closer than ``CLEARANCE`` to the surface under the camera (and within 1 m of it) or to a roof.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from .world import World
 
 GT_RATE = 100.0
 MODES = ("road", "village", "lake", "free")
-#: Minimum distance (metres) kept between the camera and the conservative surface envelope below it.
+#: Minimum height (metres) of the camera above the surface under it and within 1 m of it (trees, boulders, roofs).
 CLEARANCE = 0.5
 #: Fraction of the flights that dip down to the ground or the tree tops once.
 DIP_PROBABILITY = 0.5
@@ -75,19 +75,6 @@ def _max_filter(signal: np.ndarray, radius: int) -> np.ndarray:
     padded = np.concatenate([np.full(radius, signal[0]), signal, np.full(radius, signal[-1])])
     win = np.lib.stride_tricks.sliding_window_view(padded, 2 * radius + 1)
     return win.max(axis=1)
-
-
-def envelope_near(world: World, x: np.ndarray, y: np.ndarray, radius_cells: int = 2) -> np.ndarray:
-    """Conservative maximum surface height (terrain, water, trees, boulders) within about
-    ``radius_cells * CELL`` metres of points ``(x, y)``, from the renderer's level-0 envelope."""
-    env = world.env_max[: GRID * GRID].numpy().reshape(GRID, GRID)
-    i0 = np.floor(np.asarray(x) / CELL).astype(np.int64)
-    j0 = np.floor(np.asarray(y) / CELL).astype(np.int64)
-    out = np.full(np.shape(x), -np.inf)
-    for a in range(-radius_cells, radius_cells + 1):
-        for b in range(-radius_cells, radius_cells + 1):
-            out = np.maximum(out, env[(i0 + a) % GRID, (j0 + b) % GRID])
-    return out
 
 
 def surface_max_near(world: World, xy: np.ndarray, radius: float) -> np.ndarray:
