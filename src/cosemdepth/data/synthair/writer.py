@@ -213,6 +213,13 @@ def _frame_paths(root: Path, climate: str, number: int, frame: int) -> tuple[Pat
     )
 
 
+def _init_worker(cfg: SynthConfig) -> None:
+    from .world import get_world
+
+    if "world" not in _WORKER_STATE:
+        _WORKER_STATE.update(cfg=cfg, world=get_world(cfg.seed))
+
+
 def _render_task(task: _Task) -> int:
     import torch
 
@@ -315,14 +322,18 @@ def generate(cfg: SynthConfig, progress: bool = True) -> dict:
                 tasks.append(_Task(climate, number, ks, tuple(tuple(f.attitude[4 * k]) for k in ks),
                                    tuple(tuple(f.position[4 * k]) for k in ks), planned.sun_azimuth))
 
+    import torch
+
     _WORKER_STATE.update(cfg=cfg, world=world)
     written = 0
     total = sum(len(t.frames) for t in tasks)
     bar = tqdm(total=total, desc="synthair", unit="frame", disable=not progress)
+    threads = torch.get_num_threads()
     try:
         if cfg.workers > 1 and len(tasks) > 1:
+            # fork shares the world with the workers; elsewhere each worker builds it (deterministic)
             ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else None)
-            with ctx.Pool(cfg.workers) as pool:
+            with ctx.Pool(cfg.workers, initializer=_init_worker, initargs=(cfg,)) as pool:
                 for task, n in zip(tasks, pool.imap(_render_task, tasks, chunksize=1)):
                     written += n
                     bar.update(len(task.frames))
@@ -333,6 +344,7 @@ def generate(cfg: SynthConfig, progress: bool = True) -> dict:
     finally:
         bar.close()
         _WORKER_STATE.clear()
+        torch.set_num_threads(threads)
 
     splits = generate_splits(out, out / SPLITS_DIR, rule="generic")
     meta["complete"] = True
