@@ -90,6 +90,7 @@ def test_flights_are_smooth_low_altitude_forward_flights(world, default_like):
             forward = rot[:, :, 0]
             vel = np.diff(pos, axis=0) * 100
             assert ((vel * forward[:-1]).sum(1) > 0).mean() > 0.95  # flying forwards
+            assert np.abs(vel[:, 2]).max() < 10.0 and np.linalg.norm(vel[:, :2], axis=1).max() < 16.0
             pitch_down = np.degrees(np.arcsin(np.clip(forward[:, 2], -1, 1)))
             assert pitch_down.min() > 2.0 and pitch_down.max() < 75.0  # looking down, not at the feet
             rolls.append(np.degrees(np.arctan2(rot[:, 2, 1], rot[:, 2, 2])))

@@ -328,7 +328,7 @@ def _ground_albedo(world, x, y, z, fp, tint, dirt, rock, road_d, fshade):
     rocky = (rock > 0.45).nonzero().squeeze(1)
     if rocky.numel():
         r = rocky
-        rock_c = _mix(_rgb((0.13, 0.125, 0.12)), _rgb((0.27, 0.26, 0.24)),
+        rock_c = _mix(_rgb((0.10, 0.095, 0.09)), _rgb((0.21, 0.20, 0.185)),
                       (0.5 + 0.7 * n_lo[r] + 0.3 * n_mid[r]).clamp(0, 1))
         strata = fbm(x[r] * 0.15 + z[r] * 2.0, y[r] * 0.15 - z[r] * 2.0, fp[r] * 2.0, 2.0, 3, salt=3)
         rock_c = rock_c * _mod(0.45 * n_hi[r] + 0.25 * strata)

@@ -25,6 +25,8 @@ MODES = ("road", "village", "lake", "free")
 CLEARANCE = 0.5
 #: Fraction of the flights that dip down to the ground or the tree tops once.
 DIP_PROBABILITY = 0.5
+#: Height (metres) above the ground or the tree tops at the bottom of a dip.
+DIP_HEIGHT = 0.6
 
 
 @dataclass
@@ -174,33 +176,43 @@ def make_flight(world: World, rng: np.random.Generator, n_frames: int, mode: str
     ground = world.terrain.surface_at(xy[:, 0], xy[:, 1])
     # Height above the ground or the tree tops (the smoothed surface envelope): a per-flight base (log-uniform),
     # slow variations, and in half of the flights a dip down to the ground or the tree tops.
-    canopy = _smooth(surface_max_near(world, xy, 3.0), 0.5 * GT_RATE)
+    # (a running max first, so that the flight does not sink into the gaps between tree tops)
+    canopy = _smooth(_max_filter(surface_max_near(world, xy, 3.0), int(0.75 * GT_RATE)), 0.25 * GT_RATE)
     hi_alt = 25.0 if mode == "village" else 45.0
     base = np.exp(rng.uniform(np.log(6.0), np.log(hi_alt)))
     alt = bspline(base * np.exp(rng.uniform(-0.5, 0.5, m)), 2.0, times, -5.0)
     dip = np.zeros(n)
     if rng.uniform() < DIP_PROBABILITY:
-        centre = rng.uniform(0.15, 0.85) * duration
-        width = rng.uniform(1.0, 2.5)
+        # over the most open stretch of the middle of the flight (no diving between trees)
+        jitter = rng.uniform(0.0, 1.0, n)
+        middle = (times >= 0.15 * duration) & (times <= 0.85 * duration)
+        clutter = np.where(middle, canopy - ground + jitter, np.inf)
+        ci = int(np.argmin(clutter))
+        centre = times[ci]
+        # slow enough to descend and climb back at about 2.5 m/s at most (Gaussian: max slope ~ drop / (1.65 w))
+        width = max(rng.uniform(1.0, 2.5), (alt[ci] - DIP_HEIGHT) / 4.0)
         dip = np.exp(-0.5 * ((times - centre) / width) ** 2)
-        alt = alt + (0.3 - alt) * dip
-    target = np.maximum(ground, canopy) + np.clip(alt, 0.3, 80.0)
+        alt = alt + (DIP_HEIGHT - alt) * dip
+    # a dip comes down to the ground itself (the clearance below keeps it off trees and boulders)
+    reference = np.maximum(ground, canopy) * (1.0 - dip) + ground * dip
+    target = reference + np.clip(alt, DIP_HEIGHT, 80.0)
     # never inside or right on top of anything: the exact surface under the camera and around it (1 m), roofs
     obstacle = np.maximum(surface_max_near(world, xy, 1.0), buildings_near(world, xy[:, 0], xy[:, 1]))
     required = np.maximum(target, obstacle + CLEARANCE)
     # smooth the altitude, then lift it where it comes too close to an obstacle: the lift is a max filter of the
     # deficit (half-width w) followed by a Gaussian truncated at 3 sigma <= w, which never falls below the deficit
-    sigma = 0.45 * GT_RATE
+    sigma = 0.7 * GT_RATE
     smooth_target = _smooth(target, sigma)
     deficit = np.maximum(required - smooth_target, 0.0)
-    lift = _smooth(_max_filter(deficit, int(np.ceil(3 * sigma))), sigma)
+    lift_sigma = 0.9 * GT_RATE
+    lift = _smooth(_max_filter(deficit, int(np.ceil(3 * lift_sigma))), lift_sigma)
     altitude_up = np.maximum(smooth_target + lift, required)  # equal to the sum up to rounding
 
     # attitude: yaw follows the path with a small offset, the camera looks down, rolls into turns
     yaw = path_heading + np.radians(bspline(rng.uniform(-8.0, 8.0, m), ks, times, t0))
     turn_rate = np.gradient(path_heading, dt)
     # the camera looks down more during a dip (the view then reaches the ground right under the drone)
-    pitch_down = bspline(rng.uniform(10.0, 30.0, m), 2.0, times, -5.0) + 30.0 * dip
+    pitch_down = bspline(rng.uniform(10.0, 30.0, m), 2.0, times, -5.0) + 20.0 * dip
     pitch = -np.radians(pitch_down)
     hspeed = np.linalg.norm(vel_xy, axis=1)
     bank = np.arctan(hspeed * _smooth(turn_rate, 0.2 * GT_RATE) / 9.81)
