@@ -276,3 +276,16 @@ def test_converted_checkpoint_reproduces_tensorflow_outputs(tfref_dir):
                 assert torch.all(out.depth == 1000.0)  # reset frame
             assert rel.median().item() < 1e-4, t
             assert rel.quantile(0.99).item() < 2e-2, t
+
+
+def test_weights_stored_in_float16_load_as_float32(tmp_path):
+    from cosemdepth.models import build_model
+
+    cfg = ModelConfig(arch="m4semantic", levels=2, num_classes=3)
+    model = build_model(cfg)
+    half = {k: v.half() for k, v in model.state_dict().items()}
+    save_weights(half, cfg, tmp_path / "m")
+    loaded = load_model(tmp_path / "m")
+    for k, v in loaded.state_dict().items():
+        assert v.dtype == torch.float32, k
+        assert torch.equal(v, half[k].float()), k

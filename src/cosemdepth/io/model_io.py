@@ -217,9 +217,13 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
         origin = str(_model_dir(p))
     from ..models import build_model  # imported late: the checks above do not need the model code
 
-    model = build_model(cfg)
+    # Build on the meta device (no random initialisation to throw away) and adopt the loaded tensors, in float32
+    # whatever precision they were stored in.
+    with torch.device("meta"):
+        model = build_model(cfg)
+    state_dict = {k: v.float() if v.is_floating_point() else v for k, v in state_dict.items()}
     try:
-        model.load_state_dict(state_dict, strict=True)
+        model.load_state_dict(state_dict, strict=True, assign=True)
     except RuntimeError as e:
         raise CheckpointError(f"{origin}: weights do not fit the {cfg.arch} model: {e}") from e
     return model.eval().to(device)
