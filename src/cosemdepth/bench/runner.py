@@ -1,0 +1,238 @@
+"""Timing of streaming inference: per-step wall time (and process CPU time), warm-up excluded.
+
+One measurement = one (architecture, device, precision, path, batch, resolution): build the model, select the path
+(``fast`` with a dtype, or ``reference``), stream ``warmup`` frames (the first one resets) and then ``iters`` timed
+frames that continue the trajectory. With batch B every step processes B frames (B independent streams), so
+``ms/frame = step time / B`` and ``FPS = B / step time``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import platform
+import statistics
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Callable, Optional
+
+import torch
+
+from ..config import ModelConfig
+from ..export.check import synthetic_sequence
+from .memory import PeakMemory
+
+PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
+
+
+@dataclass
+class BenchCase:
+    arch: str
+    batch: int = 1
+    height: int = 384
+    width: int = 384
+    device: str = "cpu"
+    precision: str = "fp32"
+    path: str = "fast"  # "fast" or "reference"
+    warmup: int = 2
+    iters: int = 10
+    levels: int = 5
+    num_classes: int = 7
+
+
+@dataclass
+class BenchResult:
+    case: BenchCase
+    params: int
+    step_ms: list[float] = field(default_factory=list)
+    cpu_ms: list[float] = field(default_factory=list)
+    peak_mem_mb: float = 0.0
+    mem_method: str = ""
+    mem_exact: bool = True
+
+    @property
+    def ms_per_frame(self) -> list[float]:
+        return [t / self.case.batch for t in self.step_ms]
+
+    def summary(self) -> dict:
+        per_frame = sorted(self.ms_per_frame)
+        med = statistics.median(per_frame)
+        d = {
+            **asdict(self.case),
+            "params": self.params,
+            "median_ms_per_frame": round(med, 3),
+            "p90_ms_per_frame": round(percentile(per_frame, 90), 3),
+            "min_ms_per_frame": round(per_frame[0], 3),
+            "fps": round(1000.0 / med, 2),
+            "median_ms_per_step": round(statistics.median(self.step_ms), 3),
+            "median_cpu_ms_per_frame": round(statistics.median(self.cpu_ms) / self.case.batch, 3)
+            if self.cpu_ms
+            else None,
+            "peak_mem_mb": round(self.peak_mem_mb, 1),
+            "mem_method": self.mem_method,
+            "mem_exact": self.mem_exact,
+            "step_ms": [round(t, 3) for t in self.step_ms],
+        }
+        return d
+
+
+def percentile(sorted_values: list[float], q: float) -> float:
+    """Linear-interpolation percentile of an already sorted list (numpy's default rule)."""
+    if not sorted_values:
+        raise ValueError("no values")
+    pos = (len(sorted_values) - 1) * q / 100.0
+    lo = int(pos)
+    hi = min(lo + 1, len(sorted_values) - 1)
+    return sorted_values[lo] + (sorted_values[hi] - sorted_values[lo]) * (pos - lo)
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def build(case: BenchCase, model=None):
+    """The model of ``case`` on its device with its inference path selected (``model``: use these weights)."""
+    from ..models import build_model
+
+    if model is None:
+        torch.manual_seed(0)
+        model = build_model(ModelConfig(arch=case.arch, levels=case.levels, num_classes=case.num_classes))
+    model = model.to(case.device).eval()
+    if case.path == "fast":
+        model.optimize("fast", dtype=PRECISIONS[case.precision])
+    elif case.path == "reference":
+        if case.precision != "fp32":
+            raise ValueError("the reference path runs in fp32 only")
+        model.optimize("reference")
+    else:
+        raise ValueError(f"path must be 'fast' or 'reference', got {case.path!r}")
+    return model
+
+
+def make_frames(case: BenchCase, n: int = 4):
+    """``n`` synthetic frames (cycled while streaming) on the case's device."""
+    rgb, rot, trans, intr = synthetic_sequence(case.batch, n, case.height, case.width, seed=1)
+    dev = torch.device(case.device)
+    return rgb.to(dev), rot.to(dev), trans.to(dev), intr.to(dev)
+
+
+def time_stream(
+    steps: list[Callable[..., object]],
+    case: BenchCase,
+    frames=None,
+) -> tuple[list[float], list[float]]:
+    """Stream through every callable of ``steps`` in turn per frame (one model, or several run one after the other);
+    returns per-frame wall and process-CPU milliseconds of the timed frames."""
+    dev = torch.device(case.device)
+    rgb, rot, trans, intr = frames if frames is not None else make_frames(case)
+    n = rgb.shape[1]
+    states = [None] * len(steps)
+    no_reset = torch.zeros(case.batch, dtype=torch.bool, device=dev)
+    all_reset = torch.ones(case.batch, dtype=torch.bool, device=dev)
+    wall, cpu = [], []
+    with torch.inference_mode():
+        for k in range(case.warmup + case.iters):
+            i = k % n
+            reset = all_reset if k == 0 else no_reset
+            _sync(dev)
+            t0, c0 = time.perf_counter(), time.process_time()
+            for s, fn in enumerate(steps):
+                _, states[s] = fn(rgb[:, i], rot[:, i], trans[:, i], intr, reset, states[s])
+            _sync(dev)
+            t1, c1 = time.perf_counter(), time.process_time()
+            if k >= case.warmup:
+                wall.append((t1 - t0) * 1e3)
+                cpu.append((c1 - c0) * 1e3)
+    return wall, cpu
+
+
+def run_case(case: BenchCase, model=None) -> BenchResult:
+    """Build, warm up and time one case; peak memory covers model construction and streaming."""
+    dev = torch.device(case.device)
+    frames = make_frames(case)
+    with PeakMemory(dev) as pm:
+        m = build(case, model)
+        wall, cpu = time_stream([m.step], case, frames)
+    res = BenchResult(case, m.num_parameters(), wall, cpu, pm.extra / 2**20, pm.method, pm.exact)
+    del m
+    return res
+
+
+def run_separate(case: BenchCase) -> BenchResult:
+    """M4Depth then M4Semantic on every frame (two models resident): the baseline of the joint-vs-separate check."""
+    dev = torch.device(case.device)
+    frames = make_frames(case)
+    with PeakMemory(dev) as pm:
+        cases = [BenchCase(**{**asdict(case), "arch": a}) for a in ("m4depth", "m4semantic")]
+        models = [build(c) for c in cases]
+        wall, cpu = time_stream([m.step for m in models], case, frames)
+    params = sum(m.num_parameters() for m in models)
+    res = BenchResult(BenchCase(**{**asdict(case), "arch": "m4depth+m4semantic"}), params, wall, cpu)
+    res.peak_mem_mb, res.mem_method, res.mem_exact = pm.extra / 2**20, pm.method, pm.exact
+    return res
+
+
+def joint_vs_separate(joint: BenchResult, separate: BenchResult) -> dict:
+    j, s = joint.summary(), separate.summary()
+    return {
+        "precision": joint.case.precision,
+        "path": joint.case.path,
+        "batch": joint.case.batch,
+        "height": joint.case.height,
+        "width": joint.case.width,
+        "device": joint.case.device,
+        "joint_median_ms_per_frame": j["median_ms_per_frame"],
+        "separate_median_ms_per_frame": s["median_ms_per_frame"],
+        "joint_params": j["params"],
+        "separate_params": s["params"],
+        "joint_peak_mem_mb": j["peak_mem_mb"],
+        "separate_peak_mem_mb": s["peak_mem_mb"],
+        "joint_faster": j["median_ms_per_frame"] < s["median_ms_per_frame"],
+        "joint_smaller_memory": j["peak_mem_mb"] < s["peak_mem_mb"],
+        "joint_fewer_params": j["params"] < s["params"],
+    }
+
+
+def hardware_info(device: str = "cpu") -> dict:
+    """What the numbers were measured on."""
+    info = {
+        "date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "cpu": _cpu_name(),
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "cpu_capability": _cpu_capability(),
+        "loadavg_start": _loadavg(),
+    }
+    if torch.device(device).type == "cuda" and torch.cuda.is_available():
+        info["gpu"] = torch.cuda.get_device_name(torch.device(device))
+        info["cuda"] = torch.version.cuda
+    return info
+
+
+def _cpu_capability() -> Optional[str]:
+    try:
+        return torch.backends.cpu.get_cpu_capability()
+    except Exception:  # pragma: no cover
+        return None
+
+
+def _cpu_name() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def _loadavg() -> Optional[list[float]]:
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:  # pragma: no cover
+        return None

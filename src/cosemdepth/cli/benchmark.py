@@ -1,0 +1,145 @@
+"""``cosemdepth benchmark``: streaming speed and peak memory of Co-SemDepth, M4Depth and M4Semantic.
+
+Default run (a few minutes on a 2-core CPU): the three models at 384x384 on the fast path in fp32 and bf16 (fp16
+instead of bf16 on CUDA), batch 1 streaming (10 timed frames after 2 warm-up frames) and batched 8 and 32 (fewer
+timed steps: ``--batched-iters``), the fp32 reference path at batch 1 for comparison, and the joint-vs-separate
+comparison at batch 1. Writes JSON and Markdown.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+
+import torch
+
+from ..config import ARCHITECTURES
+from ..errors import ConfigError
+from ._common import parse_size
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--models", nargs="+", choices=ARCHITECTURES, default=list(ARCHITECTURES))
+    parser.add_argument("--model", metavar="DIR", help="time these weights (its architecture) instead of --models")
+    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), help="input size (default 384 384)")
+    parser.add_argument("--batch", nargs="+", type=int, default=[1, 8, 32], help="batch sizes (default 1 8 32)")
+    parser.add_argument(
+        "--precision",
+        nargs="+",
+        choices=["fp32", "bf16", "fp16"],
+        help="fast-path precisions (default: fp32 bf16 on CPU, fp32 fp16 bf16 on CUDA)",
+    )
+    parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default: CUDA when present)")
+    parser.add_argument("--no-reference", action="store_true", help="skip the reference-path (fp32, batch 1) rows")
+    parser.add_argument("--no-joint", action="store_true", help="skip the joint-vs-separate comparison")
+    parser.add_argument("--warmup", type=int, default=2, help="warm-up frames at batch 1 (default 2)")
+    parser.add_argument("--iters", type=int, default=10, help="timed frames at batch 1 (default 10)")
+    parser.add_argument("--batched-warmup", type=int, default=1, help="warm-up steps at batch > 1 (default 1)")
+    parser.add_argument("--batched-iters", type=int, default=3, help="timed steps at batch > 1 (default 3)")
+    parser.add_argument("--threads", type=int, help="torch CPU threads (default: PyTorch's choice)")
+    parser.add_argument("--json", metavar="FILE", default="benchmark.json", help="JSON output (default benchmark.json)")
+    parser.add_argument("--md", metavar="FILE", default="benchmark.md", help="Markdown output (default benchmark.md)")
+
+
+def resolve_device(name: str) -> str:
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    try:
+        dev = torch.device(name)
+    except RuntimeError as e:
+        raise ConfigError(f"--device {name!r} is not a device name: {e}") from e
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"--device {name}: CUDA is not available in this PyTorch/machine")
+    if dev.type not in ("cpu", "cuda"):
+        raise ConfigError(f"--device must be cpu or cuda, got {name!r}")
+    return str(dev)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..bench.memory import use_mmap_for_large_allocations
+    from ..bench.report import markdown, write_report
+    from ..bench.runner import BenchCase, hardware_info, joint_vs_separate, run_case, run_separate, _loadavg
+
+    h, w = parse_size(args.size)
+    device = resolve_device(args.device)
+    cuda = device.startswith("cuda")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    for name, v in (("--iters", args.iters), ("--batched-iters", args.batched_iters)):
+        if v < 1:
+            raise ConfigError(f"{name} must be at least 1, got {v}")
+    if any(b < 1 for b in args.batch):
+        raise ConfigError(f"--batch values must be at least 1, got {args.batch}")
+    precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16"])
+    if "fp16" in precisions and not cuda:
+        raise ConfigError("--precision fp16 is for CUDA; on CPU use bf16")
+    use_mmap_for_large_allocations()
+
+    weights = None
+    models = args.models
+    if args.model:
+        from ._common import load_or_build
+
+        weights = load_or_build(argparse.Namespace(model=args.model))
+        models = [weights.config.arch]
+
+    def case(arch, batch, precision, path="fast"):
+        big = batch > 1
+        cfg = weights.config if weights is not None else None
+        return BenchCase(
+            arch=arch,
+            batch=batch,
+            height=h,
+            width=w,
+            device=device,
+            precision=precision,
+            path=path,
+            warmup=args.batched_warmup if big else args.warmup,
+            iters=args.batched_iters if big else args.iters,
+            levels=cfg.levels if cfg else 5,
+            num_classes=cfg.num_classes if cfg else 7,
+        )
+
+    report = {"meta": hardware_info(device), "results": [], "joint_vs_separate": []}
+    report["meta"]["command"] = "cosemdepth benchmark " + " ".join(shlex.quote(a) for a in sys.argv[2:])
+    report["meta"]["resolution"] = [h, w]
+
+    def record(res):
+        s = res.summary()
+        report["results"].append(s)
+        print(
+            f"{s['arch']:>20} {s['device']:>6} {s['precision']:>5} {s['path']:>9} b={s['batch']:<3} "
+            f"{s['median_ms_per_frame']:8.1f} ms/frame (p90 {s['p90_ms_per_frame']:.1f}) {s['fps']:8.1f} FPS "
+            f"peak {s['peak_mem_mb']:.0f} MB",
+            flush=True,
+        )
+        return res
+
+    joint = {}
+    for arch in models:
+        if not args.no_reference:
+            record(run_case(case(arch, 1, "fp32", "reference"), _copy(weights)))
+        for precision in precisions:
+            for batch in args.batch:
+                res = record(run_case(case(arch, batch, precision), _copy(weights)))
+                if arch == "cosemdepth" and batch == 1:
+                    joint[precision] = res
+    if not args.no_joint and weights is None and "cosemdepth" in models:
+        for precision, res in joint.items():
+            sep = record(run_separate(case("cosemdepth", 1, precision)))
+            report["joint_vs_separate"].append(joint_vs_separate(res, sep))
+    report["meta"]["loadavg_end"] = _loadavg()
+    write_report(report, args.json, args.md)
+    print(f"wrote {args.json} and {args.md}")
+    if report["joint_vs_separate"]:
+        print(markdown({**report, "results": []}).split("Joint vs separate", 1)[-1])
+    return 0
+
+
+def _copy(model):
+    if model is None:
+        return None
+    import copy
+
+    return copy.deepcopy(model)
