@@ -4,8 +4,9 @@ What changes with respect to the reference path (and what does not):
 
 * convolutions run on channels-last tensors with pre-packed weights and the LeakyReLU fused into the kernel
   (:class:`PackedConv`); the 3x3 "same" padding, the TF asymmetric stride-2 padding and the weights are unchanged;
-* the spatial cost volume is computed by :func:`spatial_cost_volume_fast` (channel loop over all window offsets at
-  once, half the offsets mirrored) instead of one Python iteration per offset;
+* on the fine levels (up to 32 channels) the spatial cost volume is computed by :func:`spatial_cost_volume_fast`
+  (channel loop over all window offsets at once, half the offsets mirrored) instead of one Python iteration per
+  offset, and the parallax-sweep correlation accumulates per channel instead of materialising the product;
 * nearest upsampling by an integer factor uses ``F.interpolate`` (pixel replication, identical values);
 * concatenations write straight into one channels-last buffer in the compute dtype;
 * optional reduced precision (``dtype=torch.bfloat16`` / ``torch.float16``): only the six hidden convolutions of
@@ -40,6 +41,7 @@ from ..models.semantic_decoder import SemanticLevel
 from ..ops.cost_volume import (
     parallax_sweep_cost_volume,
     parallax_sweep_cost_volume_fast,
+    spatial_cost_volume,
     spatial_cost_volume_fast,
 )
 from ..ops.normalize import grouped_l2_normalize
@@ -48,6 +50,9 @@ from .convs import PackedConv
 
 _CL = torch.channels_last
 REDUCED_DTYPES = (torch.bfloat16, torch.float16)
+#: The channel-loop cost volumes pay off on the large, thin maps of the fine levels (16 and 32 channels); the coarse
+#: levels have many channels on small maps, where the reference's per-offset loop is cheaper.
+_CHANNEL_LOOP_MAX = 32
 
 
 _DTYPES = {
@@ -210,15 +215,16 @@ class FastEngine:
         candidates = (rho_in + offsets.view(1, -1, 1, 1)).clamp(1e-6, 1e6)
         points = candidate_sample_points(candidates, geom)
         prev = torch.cat([prev_f.contiguous(), prev_para], dim=1)
-        if self.pscv_half:
-            pscv, warped_para = parallax_sweep_cost_volume(f_hat, prev, points, lvl.groups, half=True)
+        if self.pscv_half or lvl.channels > _CHANNEL_LOOP_MAX:
+            pscv, warped_para = parallax_sweep_cost_volume(f_hat, prev, points, lvl.groups, half=self.pscv_half)
         else:
             pscv, warped_para = parallax_sweep_cost_volume_fast(f_hat, prev, points, lvl.groups)
         blocks = [pscv, torch.log(_clamp(rho_in, guard) * lvl.scale)]
         if lvl.use_memory:
             blocks.append(other_in)
         if lvl.use_sncv:
-            blocks.append(spatial_cost_volume_fast(f_hat, lvl.groups, SNCV_RADIUS))
+            sncv = spatial_cost_volume_fast if lvl.channels <= _CHANNEL_LOOP_MAX else spatial_cost_volume
+            blocks.append(sncv(f_hat, lvl.groups, SNCV_RADIUS))
         if lvl.use_time:
             tau = warped_para[:, SEARCH_RANGE : SEARCH_RANGE + 1]
             blocks.append(torch.log(_clamp(tau, guard) * lvl.scale))
