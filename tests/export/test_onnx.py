@@ -85,3 +85,21 @@ def test_single_task_graphs_and_bad_opset(tmp_path):
     with pytest.raises(ConfigError, match="opset"):
         export_onnx(sem, tmp_path / "x.onnx", 16, 16, opset=15)
     assert not (tmp_path / "x.onnx").exists()
+
+
+def test_float_reset_input_for_runtimes_without_bool(tmp_path):
+    m = build_model(arch="m4depth", levels=2).eval()
+    p = export_onnx(m, tmp_path / "d.onnx", 16, 16, reset_float=True)
+    sess = ort.InferenceSession(str(p), providers=["CPUExecutionProvider"])
+    reset_in = [i for i in sess.get_inputs() if i.name == "reset"][0]
+    assert reset_in.type == "tensor(float)"
+    assert [o.name for o in sess.get_outputs()] == ["depth", *state_names(2, "next_state")]
+    rgb, rot, trans, K = synthetic_sequence(1, 2, 16, 16)
+    state = [np.zeros(i.shape, np.float32) for i in sess.get_inputs() if i.name.startswith("state_")]
+    depths = []
+    for k, r in enumerate([1.0, 0.0]):
+        feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy(),
+                 "intrinsics": K.numpy(), "reset": np.array([r], np.float32)}
+        res, state = run_onnx_stream(sess, feeds, state)
+        depths.append(res["depth"])
+    assert np.all(depths[0] == 1000.0) and not np.all(depths[1] == 1000.0)

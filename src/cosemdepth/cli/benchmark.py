@@ -36,7 +36,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=int, default=2, help="warm-up frames at batch 1 (default 2)")
     parser.add_argument("--iters", type=int, default=10, help="timed frames at batch 1 (default 10)")
     parser.add_argument("--batched-warmup", type=int, default=1, help="warm-up steps at batch > 1 (default 1)")
-    parser.add_argument("--batched-iters", type=int, default=3, help="timed steps at batch > 1 (default 3)")
+    parser.add_argument("--batched-iters", type=int, default=2, help="timed steps at batch > 1 (default 2)")
     parser.add_argument("--threads", type=int, help="torch CPU threads (default: PyTorch's choice)")
     parser.add_argument("--json", metavar="FILE", default="benchmark.json", help="JSON output (default benchmark.json)")
     parser.add_argument("--md", metavar="FILE", default="benchmark.md", help="Markdown output (default benchmark.md)")

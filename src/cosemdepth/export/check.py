@@ -60,6 +60,9 @@ def run_onnx_stream(session, inputs: dict[str, np.ndarray], state: list[np.ndarr
     """One call of an exported step; returns ``(outputs by name, next state list)``."""
     names_in = [i.name for i in session.get_inputs()]
     feeds = {k: v for k, v in inputs.items() if k in names_in}  # M4Semantic's graph takes the image only
+    reset_in = [i for i in session.get_inputs() if i.name == "reset"]
+    if reset_in and reset_in[0].type == "tensor(float)" and "reset" in feeds:
+        feeds["reset"] = feeds["reset"].astype(np.float32)
     state_inputs = [n for n in names_in if n.startswith("state_")]
     feeds.update(zip(state_inputs, state))
     names = [o.name for o in session.get_outputs()]

@@ -51,11 +51,14 @@ class StreamingStep(nn.Module):
     """``forward(rgb, rot, trans, intrinsics, reset, *state) -> (depth?, semantic?, *next_state)``, a pure function of
     its inputs: :meth:`SceneModel.step` with the state flattened, in static mode."""
 
-    def __init__(self, model):
+    def __init__(self, model, reset_float: bool = False):
         super().__init__()
         self.model = model
+        self.reset_float = reset_float
 
     def forward(self, rgb, rot, trans, intrinsics, reset, *state):
+        if self.reset_float:
+            reset = reset > 0.5
         st = StreamState.unflatten(state) if state else None
         out, new = self.model.step(rgb, rot, trans, intrinsics, reset, st)
         outs = [t for t in (out.depth, out.semantic) if t is not None]
@@ -80,6 +83,8 @@ class StreamingStep(nn.Module):
         trans = torch.tensor([0.0, 0.0, 1.0], **kw).expand(batch, 3).contiguous()
         intr = torch.tensor([width / 2, height / 2, width / 2, height / 2], **kw).expand(batch, 4).contiguous()
         rst = torch.full((batch,), reset, dtype=torch.bool, device=p.device)
+        if self.reset_float:
+            rst = rst.float()
         state = [torch.zeros(s, **kw) for s in state_shapes(self.model, batch, height, width)]
         return (rgb, rot, trans, intr, rst, *state)
 
@@ -92,6 +97,7 @@ def export_onnx(
     batch: int = 1,
     opset: int = DEFAULT_OPSET,
     dynamic_batch: bool = False,
+    reset_float: bool = False,
 ) -> Path:
     """Export ``model``'s streaming step to an ONNX file (written atomically).
 
@@ -102,6 +108,7 @@ def export_onnx(
         batch: batch size of the example (fixed unless ``dynamic_batch``).
         opset: ONNX opset, at least 16 (GridSample).
         dynamic_batch: mark the batch axis dynamic.
+        reset_float: take ``reset`` as float32 (1 = reset) instead of bool, for runtimes without bool inputs.
     Returns:
         the path written.
     """
@@ -112,7 +119,7 @@ def export_onnx(
     path = Path(path)
     saved = _freeze_for_export(model)
     try:
-        step = StreamingStep(model).eval()
+        step = StreamingStep(model, reset_float=reset_float).eval()
         args = step.example_inputs(batch, height, width)
         in_names, out_names = step.names()
         dynamic_axes = {n: {0: "batch"} for n in in_names + out_names} if dynamic_batch else None

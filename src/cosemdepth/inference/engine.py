@@ -214,7 +214,7 @@ class FastEngine:
         offsets = torch.arange(-SEARCH_RANGE, SEARCH_RANGE + 1, device=rho_in.device, dtype=rho_in.dtype)
         candidates = (rho_in + offsets.view(1, -1, 1, 1)).clamp(1e-6, 1e6)
         points = candidate_sample_points(candidates, geom)
-        prev = torch.cat([prev_f.contiguous(), prev_para], dim=1)
+        prev = torch.cat([prev_f, prev_para], dim=1)
         if self.pscv_half or lvl.channels > _CHANNEL_LOOP_MAX:
             pscv, warped_para = parallax_sweep_cost_volume(f_hat, prev, points, lvl.groups, half=self.pscv_half)
         else:
@@ -258,7 +258,9 @@ class FastEngine:
         for j in range(n - 1, -1, -1):
             spec = self.depth_levels[j]
             lvl = spec.module
-            f_hat = grouped_l2_normalize(feats[j], lvl.groups, guard=self.guard) if lvl.normalize else feats[j]
+            # NCHW for the cost volumes (one layout change here instead of one per cost volume and per frame)
+            feat = feats[j].contiguous()
+            f_hat = grouped_l2_normalize(feat, lvl.groups, guard=self.guard) if lvl.normalize else feat
             rho_in, depth_in, other_in = lvl.coarse_inputs(coarse, f_hat)
             if all_reset:
                 out = DepthLevelOutput(rho_in, depth_in, other_in)
@@ -344,7 +346,7 @@ class FastEngine:
         for spec in self.depth_levels:
             h, w = (h + 1) // 2, (w + 1) // 2
             c = spec.module.channels
-            feats.append(torch.zeros(batch, c, h, w, device=self.device).contiguous(memory_format=_CL))
+            feats.append(torch.zeros(batch, c, h, w, device=self.device))
             depths.append(torch.zeros(batch, 1, h, w, device=self.device))
         return StreamState(tuple(feats), tuple(depths))
 

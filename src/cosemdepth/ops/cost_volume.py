@@ -111,11 +111,10 @@ def spatial_cost_volume_fast(
     window = padded.as_strided(
         (b, c, radius + 1, k, h, w), (s_b, s_c, s_h, s_w, s_h, s_w), padded.storage_offset() + radius * s_h
     )
-    half = f.new_zeros(b, groups, radius + 1, k, h, w)
+    out = f.new_zeros(b, k, k, groups, h, w)
+    half = out[:, radius:].permute(0, 3, 1, 2, 4, 5)  # [B, K, r+1, 2r+1, H, W] view: accumulate in place
     for ch in range(c):
         half[:, ch // n].addcmul_(window[:, ch], f[:, ch, None, None])
-    out = f.new_zeros(b, k, k, groups, h, w)
-    out[:, radius:] = half.permute(0, 2, 3, 1, 4, 5)
     for dy in range(1, radius + 1):
         if dy >= h:
             continue  # every target pixel would be outside the image: stays zero
