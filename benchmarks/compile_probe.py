@@ -1,7 +1,10 @@
 """Does torch.compile help on this CPU? Times the static streaming step compiled by Inductor against the eager fast
 engine (fp32 and bf16 hidden layers) at one size, and writes JSON.
 
-    PYTHONPATH=src python benchmarks/compile_probe.py [--size 384 384] [--iters 5] [--threads N] [--out FILE]
+    PYTHONPATH=src python benchmarks/compile_probe.py [--scope step|refiner] [--size 384 384] [--iters 5] [--out FILE]
+
+``--scope refiner`` compiles only the level-1 depth refiner (15 GMAC at 384x384, the largest single block) and
+compares it with the engine's packed refiner, which uses the same fused oneDNN kernels.
 
 What is compiled: the reference modules in static mode (no data-dependent branch), eval, channels-last, under
 ``torch.inference_mode`` with ``torch._inductor.config.freezing = True`` (weights folded and pre-packed, convolutions
@@ -45,8 +48,11 @@ def main(argv=None) -> int:
     p.add_argument("--iters", type=int, default=5)
     p.add_argument("--threads", type=int)
     p.add_argument("--precisions", nargs="+", default=["fp32", "bf16"])
+    p.add_argument("--scope", choices=["step", "refiner"], default="step")
     p.add_argument("--out", default="benchmarks/results/compile_probe.json")
     a = p.parse_args(argv)
+    if a.scope == "refiner":
+        return refiner_probe(a)
     if a.threads:
         torch.set_num_threads(a.threads)
     import torch._inductor.config as inductor_config
@@ -101,6 +107,51 @@ def main(argv=None) -> int:
         model.set_numerics(static=False)
         torch._dynamo.reset()
     report["machine"]["loadavg_end"] = hardware_info("cpu")["loadavg_start"]
+    atomic_write_text(a.out, json.dumps(report, indent=1) + "\n")
+    print(f"wrote {a.out}")
+    return 0
+
+
+def refiner_probe(a) -> int:
+    import torch._inductor.config as inductor_config
+
+    from cosemdepth.inference.engine import _Refiner
+    from cosemdepth.models.layers import Refiner
+
+    inductor_config.freezing = True
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    h, w = ((s + 1) // 2 for s in a.size)
+    torch.manual_seed(0)
+    ref = Refiner(64, 5).eval()
+    x = torch.randn(1, 64, h, w).contiguous(memory_format=torch.channels_last)
+    report = {"scope": "refiner", "input": [1, 64, h, w], "machine": hardware_info("cpu"), "rows": []}
+    for prec in a.precisions:
+        dtype = torch.bfloat16 if prec == "bf16" else torch.float32
+        packed = _Refiner(ref, dtype, torch.device("cpu"), None)
+        amp = torch.autocast("cpu", dtype=torch.bfloat16) if prec == "bf16" else contextlib.nullcontext()
+        compiled = torch.compile(ref.to(memory_format=torch.channels_last))
+        with torch.inference_mode():
+            t0 = time.perf_counter()
+            with amp:
+                y = compiled(x)
+            compile_s = time.perf_counter() - t0
+            eager_ms = timed(lambda k: packed(x), 1, a.iters)
+            with amp:
+                comp_ms = timed(lambda k: compiled(x), 1, a.iters)
+            diff = float((y.float() - packed(x).float()).abs().max())
+        row = {
+            "precision": prec,
+            "packed_eager_median_ms": statistics.median(eager_ms),
+            "compiled_median_ms": statistics.median(comp_ms),
+            "compile_s": round(compile_s, 1),
+            "max_abs_diff": diff,
+            "packed_eager_ms": eager_ms,
+            "compiled_ms": comp_ms,
+        }
+        report["rows"].append(row)
+        print({k: v for k, v in row.items() if not k.endswith("_ms") or "median" in k})
+        torch._dynamo.reset()
     atomic_write_text(a.out, json.dumps(report, indent=1) + "\n")
     print(f"wrote {a.out}")
     return 0

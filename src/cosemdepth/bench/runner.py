@@ -49,6 +49,7 @@ class BenchResult:
     peak_mem_mb: float = 0.0
     mem_method: str = ""
     mem_exact: bool = True
+    loadavg: Optional[list[float]] = None  # 1/5/15-minute load averages when the case started
 
     @property
     def ms_per_frame(self) -> list[float]:
@@ -71,6 +72,7 @@ class BenchResult:
             "peak_mem_mb": round(self.peak_mem_mb, 1),
             "mem_method": self.mem_method,
             "mem_exact": self.mem_exact,
+            "loadavg_at_start": self.loadavg,
             "step_ms": [round(t, 3) for t in self.step_ms],
         }
         return d
@@ -151,10 +153,11 @@ def run_case(case: BenchCase, model=None) -> BenchResult:
     """Build, warm up and time one case; peak memory covers model construction and streaming."""
     dev = torch.device(case.device)
     frames = make_frames(case)
+    load = _loadavg()
     with PeakMemory(dev) as pm:
         m = build(case, model)
         wall, cpu = time_stream([m.step], case, frames)
-    res = BenchResult(case, m.num_parameters(), wall, cpu, pm.extra / 2**20, pm.method, pm.exact)
+    res = BenchResult(case, m.num_parameters(), wall, cpu, pm.extra / 2**20, pm.method, pm.exact, load)
     del m
     return res
 
@@ -163,13 +166,14 @@ def run_separate(case: BenchCase) -> BenchResult:
     """M4Depth then M4Semantic on every frame (two models resident): the baseline of the joint-vs-separate check."""
     dev = torch.device(case.device)
     frames = make_frames(case)
+    load = _loadavg()
     with PeakMemory(dev) as pm:
         cases = [BenchCase(**{**asdict(case), "arch": a}) for a in ("m4depth", "m4semantic")]
         models = [build(c) for c in cases]
         wall, cpu = time_stream([m.step for m in models], case, frames)
     params = sum(m.num_parameters() for m in models)
     res = BenchResult(BenchCase(**{**asdict(case), "arch": "m4depth+m4semantic"}), params, wall, cpu)
-    res.peak_mem_mb, res.mem_method, res.mem_exact = pm.extra / 2**20, pm.method, pm.exact
+    res.peak_mem_mb, res.mem_method, res.mem_exact, res.loadavg = pm.extra / 2**20, pm.method, pm.exact, load
     return res
 
 
