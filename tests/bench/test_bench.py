@@ -55,6 +55,6 @@ def test_run_case_joint_vs_separate_and_reports(tmp_path):
     assert json.loads((tmp_path / "b.json").read_text())["results"][0]["arch"] == "cosemdepth"
     md = (tmp_path / "b.md").read_text()
     assert md == markdown(report)
-    assert "| Co-SemDepth | cpu | fp32 | fast | 1 | 16x24 |" in md and "M4Depth + M4Semantic" in md
+    assert "| Co-SemDepth | cpu | fp32 | fast | 1 | 16x24 |" in md and "| - |" in md and "M4Depth + M4Semantic" in md
     with pytest.raises(ValueError, match="reference path"):
         run_case(BenchCase(arch="m4semantic", precision="bf16", path="reference", height=16, width=16))

@@ -28,17 +28,19 @@ def markdown(report: dict) -> str:
         "Streaming (every step continues the trajectory; B independent streams per step), warm-up excluded. "
         "ms/frame = step time / B; FPS = frames per second; CPU ms = process CPU time per frame (all threads); "
         "peak memory = peak resident memory above the process before building the model "
-        "(CPU) or peak CUDA allocation.",
+        "(CPU) or peak CUDA allocation; machine busy = share of all cores used by any process just before the case "
+        "(other users of a shared machine slow a multi-threaded step down far more than their share).",
         "",
         "| model | device | precision | path | batch | resolution | median ms/frame | p90 ms/frame | FPS "
-        "| CPU ms/frame | params | peak memory |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| CPU ms/frame | params | peak memory | machine busy before |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["results"]:
         lines.append(
             f"| {NAMES.get(r['arch'], r['arch'])} | {r['device']} | {r['precision']} | {r['path']} | {r['batch']} "
             f"| {r['height']}x{r['width']} | {r['median_ms_per_frame']:.1f} | {r['p90_ms_per_frame']:.1f} "
-            f"| {r['fps']:.1f} | {_cpu(r)} | {_fmt_params(r['params'])} | {r['peak_mem_mb']:.0f} MB |"
+            f"| {r['fps']:.1f} | {_cpu(r)} | {_fmt_params(r['params'])} | {r['peak_mem_mb']:.0f} MB "
+            f"| {_busy(r)} |"
         )
     jvs = report.get("joint_vs_separate") or []
     if jvs:
@@ -59,6 +61,11 @@ def markdown(report: dict) -> str:
                 f"| {'yes' if j['joint_faster'] else 'no'} | {'yes' if j['joint_smaller_memory'] else 'no'} |"
             )
     return "\n".join(lines) + "\n"
+
+
+def _busy(r: dict) -> str:
+    v = r.get("cpu_busy_before")
+    return "-" if v is None else f"{100 * v:.0f}%"
 
 
 def _cpu(r: dict) -> str:

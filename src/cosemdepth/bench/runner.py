@@ -50,6 +50,7 @@ class BenchResult:
     mem_method: str = ""
     mem_exact: bool = True
     loadavg: Optional[list[float]] = None  # 1/5/15-minute load averages when the case started
+    busy_before: Optional[float] = None  # CPU busy fraction (all processes) just before the case
 
     @property
     def ms_per_frame(self) -> list[float]:
@@ -73,6 +74,7 @@ class BenchResult:
             "mem_method": self.mem_method,
             "mem_exact": self.mem_exact,
             "loadavg_at_start": self.loadavg,
+            "cpu_busy_before": self.busy_before,
             "step_ms": [round(t, 3) for t in self.step_ms],
         }
         return d
@@ -240,3 +242,34 @@ def _loadavg() -> Optional[list[float]]:
         return [round(x, 2) for x in os.getloadavg()]
     except OSError:  # pragma: no cover
         return None
+
+
+def cpu_busy_fraction(window: float = 1.0) -> Optional[float]:
+    """Fraction of all CPU time spent busy (any process) over ``window`` seconds, from /proc/stat; None if unknown."""
+
+    def read():
+        with open("/proc/stat") as f:
+            vals = [int(v) for v in f.readline().split()[1:]]
+        idle = vals[3] + (vals[4] if len(vals) > 4 else 0)
+        return sum(vals), idle
+
+    try:
+        t0, i0 = read()
+        time.sleep(window)
+        t1, i1 = read()
+    except (OSError, ValueError, IndexError):
+        return None
+    return 1.0 - (i1 - i0) / max(t1 - t0, 1)
+
+
+def wait_for_idle(max_busy: float, timeout: float, window: float = 1.0) -> Optional[float]:
+    """Wait (up to ``timeout`` s) until the machine is at most ``max_busy`` busy; returns the last busy fraction.
+
+    On a shared machine other processes preempt the benchmark's threads, and a multi-threaded step waits for its
+    slowest thread: timings taken under load can be many times the quiet ones.
+    """
+    deadline = time.monotonic() + timeout
+    busy = cpu_busy_fraction(window)
+    while busy is not None and busy > max_busy and time.monotonic() < deadline:
+        busy = cpu_busy_fraction(window)
+    return None if busy is None else round(busy, 3)

@@ -38,6 +38,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batched-warmup", type=int, default=1, help="warm-up steps at batch > 1 (default 1)")
     parser.add_argument("--batched-iters", type=int, default=2, help="timed steps at batch > 1 (default 2)")
     parser.add_argument("--threads", type=int, help="torch CPU threads (default: PyTorch's choice)")
+    parser.add_argument(
+        "--wait-idle",
+        type=float,
+        metavar="FRACTION",
+        help="before each case wait until the whole machine is at most this busy (e.g. 0.1), for shared machines",
+    )
+    parser.add_argument("--wait-timeout", type=float, default=600, help="longest wait per case in seconds (600)")
     parser.add_argument("--json", metavar="FILE", default="benchmark.json", help="JSON output (default benchmark.json)")
     parser.add_argument("--md", metavar="FILE", default="benchmark.md", help="Markdown output (default benchmark.md)")
 
@@ -59,7 +66,16 @@ def resolve_device(name: str) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..bench.memory import use_mmap_for_large_allocations
     from ..bench.report import markdown, write_report
-    from ..bench.runner import BenchCase, hardware_info, joint_vs_separate, run_case, run_separate, _loadavg
+    from ..bench.runner import (
+        BenchCase,
+        _loadavg,
+        cpu_busy_fraction,
+        hardware_info,
+        joint_vs_separate,
+        run_case,
+        run_separate,
+        wait_for_idle,
+    )
 
     h, w = parse_size(args.size)
     device = resolve_device(args.device)
@@ -105,13 +121,17 @@ def run(args: argparse.Namespace) -> int:
     report["meta"]["command"] = "cosemdepth benchmark " + " ".join(shlex.quote(a) for a in sys.argv[2:])
     report["meta"]["resolution"] = [h, w]
 
-    def record(res):
+    def idle():
+        return wait_for_idle(args.wait_idle, args.wait_timeout) if args.wait_idle is not None else cpu_busy_fraction(0.5)
+
+    def record(res, busy):
+        res.busy_before = busy
         s = res.summary()
         report["results"].append(s)
         print(
             f"{s['arch']:>20} {s['device']:>6} {s['precision']:>5} {s['path']:>9} b={s['batch']:<3} "
             f"{s['median_ms_per_frame']:8.1f} ms/frame (p90 {s['p90_ms_per_frame']:.1f}) {s['fps']:8.1f} FPS "
-            f"peak {s['peak_mem_mb']:.0f} MB",
+            f"peak {s['peak_mem_mb']:.0f} MB (machine busy {busy})",
             flush=True,
         )
         return res
@@ -119,15 +139,18 @@ def run(args: argparse.Namespace) -> int:
     joint = {}
     for arch in models:
         if not args.no_reference:
-            record(run_case(case(arch, 1, "fp32", "reference"), _copy(weights)))
+            busy = idle()
+            record(run_case(case(arch, 1, "fp32", "reference"), _copy(weights)), busy)
         for precision in precisions:
             for batch in args.batch:
-                res = record(run_case(case(arch, batch, precision), _copy(weights)))
+                busy = idle()
+                res = record(run_case(case(arch, batch, precision), _copy(weights)), busy)
                 if arch == "cosemdepth" and batch == 1:
                     joint[precision] = res
     if not args.no_joint and weights is None and "cosemdepth" in models:
         for precision, res in joint.items():
-            sep = record(run_separate(case("cosemdepth", 1, precision)))
+            busy = idle()
+            sep = record(run_separate(case("cosemdepth", 1, precision)), busy)
             report["joint_vs_separate"].append(joint_vs_separate(res, sep))
     report["meta"]["loadavg_end"] = _loadavg()
     write_report(report, args.json, args.md)
