@@ -1,4 +1,5 @@
 import json
+import os
 
 import numpy as np
 import pytest
@@ -40,6 +41,8 @@ def test_run_case_joint_vs_separate_and_reports(tmp_path):
     assert s["params"] == build_model(levels=3).num_parameters()
     assert len(s["step_ms"]) == 2 and s["p90_ms_per_frame"] >= s["median_ms_per_frame"] >= s["min_ms_per_frame"] > 0
     assert s["fps"] == pytest.approx(1000 / s["median_ms_per_frame"], rel=1e-2)
+    assert len(s["others_cores_per_step"]) == 2 and all(0 <= o <= (os.cpu_count() or 1) + 0.5 for o in s["others_cores_per_step"])
+    assert s["quiet_steps"] == sum(o <= 0.1 for o in s["others_cores_per_step"])
     sep = run_separate(case)
     assert sep.params == build_model(arch="m4depth", levels=3).num_parameters() + build_model(
         arch="m4semantic", levels=3
@@ -55,6 +58,6 @@ def test_run_case_joint_vs_separate_and_reports(tmp_path):
     assert json.loads((tmp_path / "b.json").read_text())["results"][0]["arch"] == "cosemdepth"
     md = (tmp_path / "b.md").read_text()
     assert md == markdown(report)
-    assert "| Co-SemDepth | cpu | fp32 | fast | 1 | 16x24 |" in md and "| - |" in md and "M4Depth + M4Semantic" in md
+    assert "| Co-SemDepth | cpu | fp32 | fast | 1 | 16x24 |" in md and "M4Depth + M4Semantic" in md
     with pytest.raises(ValueError, match="reference path"):
         run_case(BenchCase(arch="m4semantic", precision="bf16", path="reference", height=16, width=16))

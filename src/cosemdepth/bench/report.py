@@ -28,19 +28,20 @@ def markdown(report: dict) -> str:
         "Streaming (every step continues the trajectory; B independent streams per step), warm-up excluded. "
         "ms/frame = step time / B; FPS = frames per second; CPU ms = process CPU time per frame (all threads); "
         "peak memory = peak resident memory above the process before building the model "
-        "(CPU) or peak CUDA allocation; machine busy = share of all cores used by any process just before the case "
-        "(other users of a shared machine slow a multi-threaded step down far more than their share).",
+        "(CPU) or peak CUDA allocation. Quiet median: over the timed steps during which all other processes together "
+        "used at most 0.1 core (from /proc/stat); on a shared machine other users slow a multi-threaded step down far "
+        "more than their share, so this is the figure of the machine itself.",
         "",
-        "| model | device | precision | path | batch | resolution | median ms/frame | p90 ms/frame | FPS "
-        "| CPU ms/frame | params | peak memory | machine busy before |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| model | device | precision | path | batch | resolution | median ms/frame | p90 ms/frame | min ms/frame "
+        "| FPS | quiet median ms/frame (steps) | CPU ms/frame | params | peak memory |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["results"]:
         lines.append(
             f"| {NAMES.get(r['arch'], r['arch'])} | {r['device']} | {r['precision']} | {r['path']} | {r['batch']} "
             f"| {r['height']}x{r['width']} | {r['median_ms_per_frame']:.1f} | {r['p90_ms_per_frame']:.1f} "
-            f"| {r['fps']:.1f} | {_cpu(r)} | {_fmt_params(r['params'])} | {r['peak_mem_mb']:.0f} MB "
-            f"| {_busy(r)} |"
+            f"| {r['min_ms_per_frame']:.1f} | {r['fps']:.1f} | {_quiet(r)} | {_cpu(r)} | {_fmt_params(r['params'])} "
+            f"| {r['peak_mem_mb']:.0f} MB |"
         )
     jvs = report.get("joint_vs_separate") or []
     if jvs:
@@ -63,9 +64,9 @@ def markdown(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _busy(r: dict) -> str:
-    v = r.get("cpu_busy_before")
-    return "-" if v is None else f"{100 * v:.0f}%"
+def _quiet(r: dict) -> str:
+    v = r.get("quiet_median_ms_per_frame")
+    return f"- (0/{r['iters']})" if v is None else f"{v:.1f} ({r['quiet_steps']}/{r['iters']})"
 
 
 def _cpu(r: dict) -> str:

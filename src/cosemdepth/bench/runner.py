@@ -23,6 +23,8 @@ from ..export.check import synthetic_sequence
 from .memory import PeakMemory
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
+#: A timed step is "quiet" when all other processes together used at most this many cores during it.
+QUIET_OTHERS = 0.1
 
 
 @dataclass
@@ -51,6 +53,7 @@ class BenchResult:
     mem_exact: bool = True
     loadavg: Optional[list[float]] = None  # 1/5/15-minute load averages when the case started
     busy_before: Optional[float] = None  # CPU busy fraction (all processes) just before the case
+    others: list[float] = field(default_factory=list)  # cores used by other processes during each timed step
 
     @property
     def ms_per_frame(self) -> list[float]:
@@ -58,6 +61,7 @@ class BenchResult:
 
     def summary(self) -> dict:
         per_frame = sorted(self.ms_per_frame)
+        quiet = [t for t, o in zip(self.ms_per_frame, self.others) if o <= QUIET_OTHERS]
         med = statistics.median(per_frame)
         d = {
             **asdict(self.case),
@@ -73,6 +77,9 @@ class BenchResult:
             "peak_mem_mb": round(self.peak_mem_mb, 1),
             "mem_method": self.mem_method,
             "mem_exact": self.mem_exact,
+            "quiet_steps": len(quiet),
+            "quiet_median_ms_per_frame": round(statistics.median(quiet), 3) if quiet else None,
+            "others_cores_per_step": [round(x, 2) for x in self.others],
             "loadavg_at_start": self.loadavg,
             "cpu_busy_before": self.busy_before,
             "step_ms": [round(t, 3) for t in self.step_ms],
@@ -125,30 +132,37 @@ def time_stream(
     steps: list[Callable[..., object]],
     case: BenchCase,
     frames=None,
-) -> tuple[list[float], list[float]]:
-    """Stream through every callable of ``steps`` in turn per frame (one model, or several run one after the other);
-    returns per-frame wall and process-CPU milliseconds of the timed frames."""
+) -> tuple[list[float], list[float], list[float]]:
+    """Stream through every callable of ``steps`` in turn per frame (one model, or several run one after the other).
+
+    Returns, per timed frame: wall milliseconds, this process's CPU milliseconds, and the cores used meanwhile by all
+    other processes (from /proc/stat; empty where unavailable)."""
     dev = torch.device(case.device)
     rgb, rot, trans, intr = frames if frames is not None else make_frames(case)
     n = rgb.shape[1]
     states = [None] * len(steps)
     no_reset = torch.zeros(case.batch, dtype=torch.bool, device=dev)
     all_reset = torch.ones(case.batch, dtype=torch.bool, device=dev)
-    wall, cpu = [], []
+    wall, cpu, others = [], [], []
     with torch.inference_mode():
         for k in range(case.warmup + case.iters):
             i = k % n
             reset = all_reset if k == 0 else no_reset
             _sync(dev)
+            b0 = _busy_seconds()
             t0, c0 = time.perf_counter(), time.process_time()
             for s, fn in enumerate(steps):
                 _, states[s] = fn(rgb[:, i], rot[:, i], trans[:, i], intr, reset, states[s])
             _sync(dev)
             t1, c1 = time.perf_counter(), time.process_time()
+            b1 = _busy_seconds()
             if k >= case.warmup:
                 wall.append((t1 - t0) * 1e3)
                 cpu.append((c1 - c0) * 1e3)
-    return wall, cpu
+                if b0 is not None and b1 is not None:
+                    # CPU seconds used by every other process during the step, per second of the step
+                    others.append(max(b1 - b0 - (c1 - c0), 0.0) / max(t1 - t0, 1e-9))
+    return wall, cpu, others
 
 
 def run_case(case: BenchCase, model=None) -> BenchResult:
@@ -158,8 +172,9 @@ def run_case(case: BenchCase, model=None) -> BenchResult:
     load = _loadavg()
     with PeakMemory(dev) as pm:
         m = build(case, model)
-        wall, cpu = time_stream([m.step], case, frames)
+        wall, cpu, others = time_stream([m.step], case, frames)
     res = BenchResult(case, m.num_parameters(), wall, cpu, pm.extra / 2**20, pm.method, pm.exact, load)
+    res.others = others
     del m
     return res
 
@@ -172,9 +187,10 @@ def run_separate(case: BenchCase) -> BenchResult:
     with PeakMemory(dev) as pm:
         cases = [BenchCase(**{**asdict(case), "arch": a}) for a in ("m4depth", "m4semantic")]
         models = [build(c) for c in cases]
-        wall, cpu = time_stream([m.step for m in models], case, frames)
+        wall, cpu, others = time_stream([m.step for m in models], case, frames)
     params = sum(m.num_parameters() for m in models)
     res = BenchResult(BenchCase(**{**asdict(case), "arch": "m4depth+m4semantic"}), params, wall, cpu)
+    res.others = others
     res.peak_mem_mb, res.mem_method, res.mem_exact, res.loadavg = pm.extra / 2**20, pm.method, pm.exact, load
     return res
 
@@ -242,6 +258,20 @@ def _loadavg() -> Optional[list[float]]:
         return [round(x, 2) for x in os.getloadavg()]
     except OSError:  # pragma: no cover
         return None
+
+
+_CLK_TCK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def _busy_seconds() -> Optional[float]:
+    """CPU seconds spent busy by all processes since boot (/proc/stat), or None."""
+    try:
+        with open("/proc/stat") as f:
+            vals = [int(v) for v in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    idle = vals[3] + (vals[4] if len(vals) > 4 else 0)
+    return (sum(vals[:8]) - idle) / _CLK_TCK
 
 
 def cpu_busy_fraction(window: float = 1.0) -> Optional[float]:

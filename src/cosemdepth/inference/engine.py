@@ -196,13 +196,14 @@ class FastEngine:
         return feats
 
     def _dinl(self, x: torch.Tensor) -> torch.Tensor:
+        """DINL (spec 2.2) in few passes: ``z = (x - mean) / (var + 1e-12)``, ``z / max(|z|, 1e-6)`` over channels
+        (= the reference's ``sqrt(max(sum z^2, 1e-12))``), then ``gamma * n + beta``."""
         gamma, beta = self.dinl
-        mean = x.mean(dim=(2, 3), keepdim=True)
-        centred = x - mean
-        var = (centred * centred).mean(dim=(2, 3), keepdim=True)
-        z = centred.div_(var + 1e-12)
-        n = z / torch.sqrt((z * z).sum(dim=1, keepdim=True).clamp_min(1e-12))
-        return n.mul_(gamma).add_(beta)
+        z = x - x.mean(dim=(2, 3), keepdim=True)
+        var = (z * z).mean(dim=(2, 3), keepdim=True)  # (torch.var_mean is not vectorised: 40x slower here)
+        z.mul_((var + 1e-12).reciprocal_())
+        rnorm = torch.linalg.vector_norm(z, dim=1, keepdim=True).clamp_min_(1e-6).reciprocal_()
+        return torch.addcmul(beta, z.mul_(rnorm), gamma)
 
     # ------------------------------------------------------------------ depth
     def _depth_refine(self, spec: _DepthLevelSpec, f_hat, rho_in, other_in, R, trans, intrinsics, prev_f, prev_d):
