@@ -61,3 +61,9 @@ def test_run_case_joint_vs_separate_and_reports(tmp_path):
     assert "| Co-SemDepth | cpu | fp32 | fast | 1 | 16x24 |" in md and "M4Depth + M4Semantic" in md
     with pytest.raises(ValueError, match="reference path"):
         run_case(BenchCase(arch="m4semantic", precision="bf16", path="reference", height=16, width=16))
+
+
+def test_graph_path_runs_the_static_program_on_cpu():
+    case = BenchCase(arch="m4depth", height=16, width=16, warmup=1, iters=2, levels=2, path="graph", batch=2)
+    s = run_case(case).summary()
+    assert s["path"] == "graph" and len(s["step_ms"]) == 2 and s["params"] > 0

@@ -7,7 +7,7 @@ from cosemdepth.models import StreamState, build_model
 from cosemdepth.ops.padding import Conv2dSame
 
 
-def sequence(b=2, t=5, h=40, w=56, seed=0):
+def sequence(b=2, t=4, h=32, w=48, seed=0):
     g = torch.Generator().manual_seed(seed)
     coarse = torch.rand(b * t, 3, h // 8, w // 8, generator=g)
     rgb = torch.nn.functional.interpolate(coarse, size=(h, w), mode="bilinear").view(b, t, 3, h, w)
@@ -50,10 +50,10 @@ def test_fp32_fast_step_equals_reference_step_from_the_same_state(models, arch):
     m = models[arch]
     engine = FastEngine(m)
     rgb, q, tr, K = sequence()
-    rs = resets(2, 5)
+    rs = resets(2, 4)
     state = None
     with torch.no_grad():
-        for k in range(5):
+        for k in range(4):
             fast, fast_state = engine.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
             ref, state = m.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
             for key, maps in ref.levels.items():
@@ -75,14 +75,14 @@ def test_fp32_fast_step_equals_reference_step_from_the_same_state(models, arch):
 def test_fp32_fast_streams_like_the_reference_over_frames_with_a_reset():
     torch.manual_seed(4)
     m = tame(build_model().eval())
-    rgb, q, tr, K = sequence(t=7)
-    rs = resets(2, 7, extra=((1, 3),))
+    rgb, q, tr, K = sequence(t=6)
+    rs = resets(2, 6, extra=((1, 3),))
     outs = {}
     for mode in ("reference", "fast"):
         m.optimize(mode)
         state, outs[mode] = None, []
         with torch.no_grad():
-            for k in range(7):
+            for k in range(6):
                 out, state = m.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
                 outs[mode].append(out)
     m.optimize("reference")
@@ -90,7 +90,7 @@ def test_fp32_fast_streams_like_the_reference_over_frames_with_a_reset():
         assert rel(a.depth, b.depth) < 1e-3, k
         torch.testing.assert_close(a.semantic, b.semantic, rtol=0, atol=1e-5)
     assert torch.all(outs["fast"][3].depth[1] == 1000.0)  # the reset sample outputs the init depth
-    assert outs["fast"][6].depth.std() > 0  # and the model does depend on the input
+    assert outs["fast"][5].depth.std() > 0  # and the model does depend on the input
 
 
 def test_bf16_refiners_stay_close_and_outputs_are_float32(models):
@@ -169,7 +169,7 @@ def test_fast_and_reference_states_are_interchangeable(models):
 
 def test_static_engine_needs_a_state_and_gives_zero_state_shapes(models):
     engine = FastEngine(models["cosemdepth"], static=True)
-    rgb, q, tr, K = sequence(b=1, t=1, h=40, w=56)
+    rgb, q, tr, K = sequence(b=1, t=1, h=40, w=56)  # odd sizes down the pyramid
     with pytest.raises(ValueError, match="explicit state"):
         engine.step(rgb[:, 0], q[:, 0], tr[:, 0], K, torch.tensor([True]), None)
     zero = engine.zero_state(1, 40, 56)

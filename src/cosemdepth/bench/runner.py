@@ -35,7 +35,7 @@ class BenchCase:
     width: int = 384
     device: str = "cpu"
     precision: str = "fp32"
-    path: str = "fast"  # "fast" or "reference"
+    path: str = "fast"  # "fast", "reference", or "graph" (static buffers; a CUDA graph on GPU)
     warmup: int = 2
     iters: int = 10
     levels: int = 5
@@ -110,6 +110,8 @@ def build(case: BenchCase, model=None):
         torch.manual_seed(0)
         model = build_model(ModelConfig(arch=case.arch, levels=case.levels, num_classes=case.num_classes))
     model = model.to(case.device).eval()
+    if case.path == "graph":
+        return _GraphStepper(model, case)
     if case.path == "fast":
         model.optimize("fast", dtype=PRECISIONS[case.precision])
     elif case.path == "reference":
@@ -117,8 +119,26 @@ def build(case: BenchCase, model=None):
             raise ValueError("the reference path runs in fp32 only")
         model.optimize("reference")
     else:
-        raise ValueError(f"path must be 'fast' or 'reference', got {case.path!r}")
+        raise ValueError(f"path must be 'fast', 'graph' or 'reference', got {case.path!r}")
     return model
+
+
+class _GraphStepper:
+    """``step`` over a :class:`StaticStreamer` (a CUDA graph on GPU; the same static program eagerly on CPU)."""
+
+    def __init__(self, model, case: BenchCase):
+        from ..inference.graphs import make_streamer
+
+        self.model = model
+        self.streamer = make_streamer(
+            model, case.batch, case.height, case.width, dtype=PRECISIONS[case.precision], device=case.device
+        )
+
+    def step(self, rgb, rot, trans, intrinsics, reset, state):
+        return self.streamer.step(rgb, rot, trans, intrinsics, reset), None
+
+    def num_parameters(self) -> int:
+        return self.model.num_parameters()
 
 
 def make_frames(case: BenchCase, n: int = 4):

@@ -3,7 +3,8 @@
 Default run (a few minutes on a 2-core CPU): the three models at 384x384 on the fast path in fp32 and bf16 (fp16
 instead of bf16 on CUDA), batch 1 streaming (10 timed frames after 2 warm-up frames) and batched 8 and 32 (fewer
 timed steps: ``--batched-iters``), the fp32 reference path at batch 1 for comparison, and the joint-vs-separate
-comparison at batch 1. Writes JSON and Markdown.
+comparison at batch 1. On CUDA every fast row also gets a CUDA-graph row (``path = graph``: static shapes, state in
+persistent buffers, one graph replay per step). Writes JSON and Markdown.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default: CUDA when present)")
     parser.add_argument("--no-reference", action="store_true", help="skip the reference-path (fp32, batch 1) rows")
     parser.add_argument("--no-joint", action="store_true", help="skip the joint-vs-separate comparison")
+    parser.add_argument("--no-graph", action="store_true", help="on CUDA, skip the CUDA-graph rows")
     parser.add_argument("--warmup", type=int, default=2, help="warm-up frames at batch 1 (default 2)")
     parser.add_argument("--iters", type=int, default=10, help="timed frames at batch 1 (default 10)")
     parser.add_argument("--batched-warmup", type=int, default=1, help="warm-up steps at batch > 1 (default 1)")
@@ -146,6 +148,9 @@ def run(args: argparse.Namespace) -> int:
             for batch in args.batch:
                 busy = idle()
                 record(run_case(case(arch, batch, precision), _copy(weights)), busy)
+                if cuda and not args.no_graph:
+                    busy = idle()
+                    record(run_case(case(arch, batch, precision, "graph"), _copy(weights)), busy)
                 if arch == "cosemdepth" and batch == 1:
                     joint_precisions.append(precision)
     if not args.no_joint and weights is None and "cosemdepth" in models:
