@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from cosemdepth.bench.memory import PeakMemory, peak_rss_bytes, reset_peak_rss, rss_bytes, use_mmap_for_large_allocations
+from cosemdepth.bench.memory import PeakMemory, peak_rss_bytes, reset_peak_rss, rss_bytes
 from cosemdepth.bench.report import markdown, write_report
 from cosemdepth.bench.runner import BenchCase, joint_vs_separate, percentile, run_case, run_separate
 
@@ -19,7 +19,6 @@ def test_percentile_matches_numpy():
 
 
 def test_peak_memory_sees_a_temporary_allocation():
-    use_mmap_for_large_allocations()
     with PeakMemory("cpu") as pm:
         x = torch.ones(64 * 2**20 // 4)  # 64 MiB, touched
         del x

@@ -1,14 +1,19 @@
 """Process memory without psutil: Linux ``/proc/self/status`` and ``getrusage``; CUDA allocator statistics.
 
-CPU method: glibc is told to serve every allocation above 64 KiB with ``mmap`` (``mallopt(M_MMAP_THRESHOLD)``, which
-also stops glibc from raising that threshold after frees), so freed tensors go back to the system and the resident
-set follows the live memory. Before a measurement the peak resident set (``VmHWM``) is reset through
-``/proc/self/clear_refs`` (Linux >= 4.0); the peak of the measurement is ``VmHWM`` afterwards. Where the reset is
-not permitted the lifetime peak (``ru_maxrss``) is all there is, and the result says so.
+CPU method: before a measurement, garbage is collected and glibc hands its free heap pages back to the system
+(``malloc_trim``), so the resident set is the live memory; the peak resident set (``VmHWM``) is then reset through
+``/proc/self/clear_refs`` (Linux >= 4.0), and the peak of the measurement is ``VmHWM`` afterwards. Where the reset
+is not permitted the lifetime peak (``ru_maxrss``) is all there is, and the result says so.
+
+:func:`use_mmap_for_large_allocations` makes glibc return every freed block above 64 KiB at once, so that the
+resident set follows the live memory at every instant (``benchmarks/memory_flat.py`` uses it). Do not use it while
+timing: every large tensor then costs an ``mmap``, page faults and an ``munmap`` (it made a 384x384 step 1.7x
+slower here).
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import gc
@@ -38,6 +43,21 @@ def use_mmap_for_large_allocations(threshold: int = 64 * 1024) -> bool:
     if libc is None or not hasattr(libc, "mallopt"):
         return False
     return bool(libc.mallopt(_M_MMAP_THRESHOLD, threshold))
+
+
+#: glibc's largest dynamic mmap threshold on 64-bit systems (its steady state after large frees).
+_GLIBC_MMAP_THRESHOLD_MAX = 32 * 1024 * 1024
+
+
+@contextlib.contextmanager
+def exact_rss():
+    """Within the block, freed blocks above 64 KiB go back to the system at once (slow: for memory passes only);
+    afterwards the threshold is 32 MiB, glibc's usual steady state."""
+    use_mmap_for_large_allocations(64 * 1024)
+    try:
+        yield
+    finally:
+        use_mmap_for_large_allocations(_GLIBC_MMAP_THRESHOLD_MAX)
 
 
 def trim() -> None:

@@ -67,7 +67,6 @@ def resolve_device(name: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..bench.memory import use_mmap_for_large_allocations
     from ..bench.report import markdown, write_report
     from ..bench.runner import (
         BenchCase,
@@ -93,7 +92,6 @@ def run(args: argparse.Namespace) -> int:
     precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16"])
     if "fp16" in precisions and not cuda:
         raise ConfigError("--precision fp16 is for CUDA; on CPU use bf16")
-    use_mmap_for_large_allocations()
 
     weights = None
     models = args.models
@@ -143,14 +141,14 @@ def run(args: argparse.Namespace) -> int:
     for arch in models:
         if not args.no_reference:
             busy = idle()
-            record(run_case(case(arch, 1, "fp32", "reference"), _copy(weights)), busy)
+            record(run_case(case(arch, 1, "fp32", "reference"), weights), busy)
         for precision in precisions:
             for batch in args.batch:
                 busy = idle()
-                record(run_case(case(arch, batch, precision), _copy(weights)), busy)
+                record(run_case(case(arch, batch, precision), weights), busy)
                 if cuda and not args.no_graph:
                     busy = idle()
-                    record(run_case(case(arch, batch, precision, "graph"), _copy(weights)), busy)
+                    record(run_case(case(arch, batch, precision, "graph"), weights), busy)
                 if arch == "cosemdepth" and batch == 1:
                     joint_precisions.append(precision)
     if not args.no_joint and weights is None and "cosemdepth" in models:
@@ -173,10 +171,3 @@ def run(args: argparse.Namespace) -> int:
         print(markdown({**report, "results": []}).split("Joint vs separate", 1)[-1])
     return 0
 
-
-def _copy(model):
-    if model is None:
-        return None
-    import copy
-
-    return copy.deepcopy(model)
