@@ -49,15 +49,15 @@ def markdown(report: dict) -> str:
             "",
             "Joint vs separate (Co-SemDepth vs M4Depth then M4Semantic on every frame, both loaded):",
             "",
-            "| precision | path | batch | resolution | joint ms/frame | separate ms/frame | joint params | separate params "
-            "| joint peak memory | separate peak memory | joint faster | joint smaller |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| precision | path | batch | resolution | joint ms/frame | separate ms/frame | time basis | joint params "
+            "| separate params | joint peak memory | separate peak memory | joint faster | joint smaller |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for j in jvs:
             lines.append(
                 f"| {j['precision']} | {j['path']} | {j['batch']} | {j['height']}x{j['width']} "
                 f"| {j['joint_median_ms_per_frame']:.1f} | {j['separate_median_ms_per_frame']:.1f} "
-                f"| {_fmt_params(j['joint_params'])} | {_fmt_params(j['separate_params'])} "
+                f"| {j.get('time_basis', 'all steps')} | {_fmt_params(j['joint_params'])} | {_fmt_params(j['separate_params'])} "
                 f"| {j['joint_peak_mem_mb']:.0f} MB | {j['separate_peak_mem_mb']:.0f} MB "
                 f"| {'yes' if j['joint_faster'] else 'no'} | {'yes' if j['joint_smaller_memory'] else 'no'} |"
             )

@@ -162,8 +162,12 @@ def run(args: argparse.Namespace) -> int:
             res = run_case(c)
             res.busy_before = busy
             busy = idle()
-            sep = record(run_separate(c), busy)
+            sep = run_separate(c)
             report["joint_vs_separate"].append(joint_vs_separate(res, sep))
+            res.case = BenchCase(**{**asdict(c), "path": "fast (joint-vs-separate run)"})
+            sep.case = BenchCase(**{**asdict(sep.case), "path": "fast (joint-vs-separate run)"})
+            record(res, res.busy_before)
+            record(sep, busy)
     report["meta"]["loadavg_end"] = _loadavg()
     write_report(report, args.json, args.md)
     print(f"wrote {args.json} and {args.md}")
