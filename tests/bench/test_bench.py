@@ -32,19 +32,19 @@ def test_peak_memory_sees_a_temporary_allocation():
 
 
 def test_run_case_joint_vs_separate_and_reports(tmp_path):
-    case = BenchCase(arch="cosemdepth", height=16, width=24, warmup=1, iters=2, levels=3)
+    case = BenchCase(arch="cosemdepth", height=16, width=24, warmup=1, iters=2, levels=2)
     res = run_case(case)
     s = res.summary()
     from cosemdepth.models import build_model
 
-    assert s["params"] == build_model(levels=3).num_parameters()
+    assert s["params"] == build_model(levels=2).num_parameters()
     assert len(s["step_ms"]) == 2 and s["p90_ms_per_frame"] >= s["median_ms_per_frame"] >= s["min_ms_per_frame"] > 0
     assert s["fps"] == pytest.approx(1000 / s["median_ms_per_frame"], rel=1e-2)
     assert len(s["others_cores_per_step"]) == 2 and all(0 <= o <= (os.cpu_count() or 1) + 0.5 for o in s["others_cores_per_step"])
     assert s["quiet_steps"] == sum(o <= 0.1 for o in s["others_cores_per_step"])
     sep = run_separate(case)
-    assert sep.params == build_model(arch="m4depth", levels=3).num_parameters() + build_model(
-        arch="m4semantic", levels=3
+    assert sep.params == build_model(arch="m4depth", levels=2).num_parameters() + build_model(
+        arch="m4semantic", levels=2
     ).num_parameters()
     cmp = joint_vs_separate(res, sep)
     assert cmp["joint_fewer_params"] and cmp["joint_params"] == s["params"]

@@ -25,15 +25,18 @@ def test_export_command_errors_name_the_argument(tmp_path, capsys):
 def test_benchmark_command_writes_json_and_markdown(tmp_path):
     j, md = tmp_path / "b.json", tmp_path / "b.md"
     rc = main(
-        ["benchmark", "--models", "m4semantic", "--size", "16", "16", "--batch", "1", "2", "--iters", "2",
-         "--batched-iters", "1", "--warmup", "1", "--json", str(j), "--md", str(md)]
+        ["benchmark", "--models", "m4semantic", "--levels", "2", "--size", "16", "16", "--batch", "1", "2",
+         "--iters", "2", "--batched-iters", "1", "--warmup", "1", "--json", str(j), "--md", str(md)]
     )
     assert rc == 0
     rep = json.loads(j.read_text())
     rows = {(r["path"], r["precision"], r["batch"]) for r in rep["results"]}
     assert rows == {("reference", "fp32", 1), ("fast", "fp32", 1), ("fast", "fp32", 2), ("fast", "bf16", 1),
                     ("fast", "bf16", 2)}
-    assert all(r["height"] == 16 and r["params"] == 2_611_495 for r in rep["results"])
+    from cosemdepth.models import build_model
+
+    params = build_model(arch="m4semantic", levels=2).num_parameters()
+    assert all(r["height"] == 16 and r["levels"] == 2 and r["params"] == params for r in rep["results"])
     assert rep["meta"]["cpu_count"] >= 1 and "M4Semantic" in md.read_text()
 
 

@@ -25,6 +25,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", nargs="+", choices=ARCHITECTURES, default=list(ARCHITECTURES))
     parser.add_argument("--model", metavar="DIR", help="time these weights (its architecture) instead of --models")
     parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), help="input size (default 384 384)")
+    parser.add_argument("--levels", type=int, default=5, help="pyramid levels of the --models (default 5)")
     parser.add_argument("--batch", nargs="+", type=int, default=[1, 8, 32], help="batch sizes (default 1 8 32)")
     parser.add_argument(
         "--precision",
@@ -114,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
             path=path,
             warmup=args.batched_warmup if big else args.warmup,
             iters=args.batched_iters if big else args.iters,
-            levels=cfg.levels if cfg else 5,
+            levels=cfg.levels if cfg else args.levels,
             num_classes=cfg.num_classes if cfg else 7,
         )
 
