@@ -1,6 +1,5 @@
 import pytest
 import torch
-import torch.nn.functional as F
 
 from cosemdepth.ops.cost_volume import (
     parallax_sweep_cost_volume,

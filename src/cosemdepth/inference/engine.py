@@ -20,6 +20,7 @@ convolutions and the cost volume), which the tests check. Everything runs withou
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Optional
 
@@ -27,15 +28,9 @@ import torch
 import torch.nn.functional as F
 
 from ..geometry.camera import level_intrinsics
-from ..geometry.parallax import (
-    PARALLAX_EPS,
-    candidate_sample_points,
-    epipolar_geometry,
-    parallax_to_depth,
-    prev_depth_to_parallax,
-)
+from ..geometry.parallax import epipolar_geometry
 from ..geometry.rotation import quaternion_to_matrix
-from ..models.depth_decoder import INIT_DEPTH, LOG_PARALLAX_CLIP, SEARCH_RANGE, SNCV_RADIUS, DepthLevel
+from ..models.depth_decoder import INIT_DEPTH, DepthLevel, RefineOps
 from ..models.outputs import DepthLevelOutput, SemanticLevelOutput, StepOutput, StreamState
 from ..models.semantic_decoder import SemanticLevel
 from ..ops.cost_volume import (
@@ -119,6 +114,22 @@ def _concat_channels_last(blocks: list[torch.Tensor], dtype: torch.dtype) -> tor
 class _DepthLevelSpec:
     module: DepthLevel
     refiner: _Refiner
+    ops: RefineOps
+
+
+def _fast_pscv(feat, prev, points, groups, half):
+    return parallax_sweep_cost_volume_fast(feat, prev, points, groups)
+
+
+def _depth_ops(level: DepthLevel, refiner: _Refiner, pscv_half: bool) -> RefineOps:
+    """The fast operations of one depth level (channel-loop cost volumes on the thin fine levels only)."""
+    thin = level.channels <= _CHANNEL_LOOP_MAX
+    return RefineOps(
+        pscv=_fast_pscv if thin and not pscv_half else parallax_sweep_cost_volume,
+        sncv=spatial_cost_volume_fast if thin else spatial_cost_volume,
+        concat=functools.partial(_concat_channels_last, dtype=refiner.dtype),
+        refiner=refiner,
+    )
 
 
 @dataclass
@@ -173,9 +184,10 @@ class FastEngine:
         if dd is not None:
             self.guard = dd.guard
             self.pscv_half = dd.pscv_half
-            self.depth_levels = [
-                _DepthLevelSpec(lvl, _Refiner(lvl.refiner, dtype, self.device, use_mkldnn)) for lvl in dd.levels
-            ]
+            self.depth_levels = []
+            for lvl in dd.levels:
+                refiner = _Refiner(lvl.refiner, dtype, self.device, use_mkldnn)
+                self.depth_levels.append(_DepthLevelSpec(lvl, refiner, _depth_ops(lvl, refiner, self.pscv_half)))
         if sd is not None:
             self.sem_guard = sd.guard
             self.semantic_levels = [
@@ -208,31 +220,9 @@ class FastEngine:
     # ------------------------------------------------------------------ depth
     def _depth_refine(self, spec: _DepthLevelSpec, f_hat, rho_in, other_in, R, trans, intrinsics, prev_f, prev_d):
         lvl = spec.module
-        guard = self.guard
         h, w = f_hat.shape[-2:]
-        geom = epipolar_geometry(h, w, R, trans, level_intrinsics(intrinsics, lvl.level), guard=guard, hypot=True)
-        prev_para = prev_depth_to_parallax(prev_d, trans, geom.intrinsics, guard=guard)
-        offsets = torch.arange(-SEARCH_RANGE, SEARCH_RANGE + 1, device=rho_in.device, dtype=rho_in.dtype)
-        candidates = (rho_in + offsets.view(1, -1, 1, 1)).clamp(1e-6, 1e6)
-        points = candidate_sample_points(candidates, geom)
-        prev = torch.cat([prev_f, prev_para], dim=1)
-        if self.pscv_half or lvl.channels > _CHANNEL_LOOP_MAX:
-            pscv, warped_para = parallax_sweep_cost_volume(f_hat, prev, points, lvl.groups, half=self.pscv_half)
-        else:
-            pscv, warped_para = parallax_sweep_cost_volume_fast(f_hat, prev, points, lvl.groups)
-        blocks = [pscv, torch.log(_clamp(rho_in, guard) * lvl.scale)]
-        if lvl.use_memory:
-            blocks.append(other_in)
-        if lvl.use_sncv:
-            sncv = spatial_cost_volume_fast if lvl.channels <= _CHANNEL_LOOP_MAX else spatial_cost_volume
-            blocks.append(sncv(f_hat, lvl.groups, SNCV_RADIUS))
-        if lvl.use_time:
-            tau = warped_para[:, SEARCH_RANGE : SEARCH_RANGE + 1]
-            blocks.append(torch.log(_clamp(tau, guard) * lvl.scale))
-        y = spec.refiner(_concat_channels_last(blocks, spec.refiner.dtype))
-        parallax = torch.exp(y[:, :1].clamp(-LOG_PARALLAX_CLIP, LOG_PARALLAX_CLIP)) / lvl.scale
-        depth = parallax_to_depth(parallax, geom, guard=guard)
-        return DepthLevelOutput(parallax, depth, y[:, 1:5])
+        geom = epipolar_geometry(h, w, R, trans, level_intrinsics(intrinsics, lvl.level), guard=self.guard, hypot=True)
+        return lvl.refine(f_hat, rho_in, other_in, geom, prev_f, prev_d, trans, self.guard, self.pscv_half, spec.ops)
 
     def decode_depth(self, feats, rot, trans, intrinsics, reset, state: Optional[StreamState]):
         prev_f = prev_d = None
@@ -350,10 +340,6 @@ class FastEngine:
             feats.append(torch.zeros(batch, c, h, w, device=self.device))
             depths.append(torch.zeros(batch, 1, h, w, device=self.device))
         return StreamState(tuple(feats), tuple(depths))
-
-
-def _clamp(x: torch.Tensor, guard: bool) -> torch.Tensor:
-    return x.clamp_min(PARALLAX_EPS) if guard else x
 
 
 def _check_state(state: StreamState, feats: list[torch.Tensor]) -> None:
