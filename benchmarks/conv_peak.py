@@ -62,13 +62,16 @@ def main(argv=None) -> int:
                 }
                 rows.append(row)
                 print(row)
-    nnpack = {"available": torch.backends.nnpack.is_available()}
-    try:
-        torch._nnpack_spatial_convolution(torch.randn(1, 64, 32, 32), torch.randn(64, 64, 3, 3), None, [1, 1])
-        nnpack["runs"] = True
-    except RuntimeError as e:
-        nnpack["runs"] = False
-        nnpack["error"] = str(e).splitlines()[0]
+    nnpack = {"available": torch.backends.nnpack.is_available(), "shapes": {}}
+    for cin, cout, hw, bias in [(64, 64, 32, False), (64, 128, 192, False), (64, 128, 192, True), (128, 128, 192, True)]:
+        key = f"{cin}->{cout} at {hw}x{hw}{' +bias' if bias else ''}"
+        try:
+            torch._nnpack_spatial_convolution(
+                torch.randn(1, cin, hw, hw), torch.randn(cout, cin, 3, 3), torch.randn(cout) if bias else None, [1, 1]
+            )
+            nnpack["shapes"][key] = "runs"
+        except RuntimeError as e:
+            nnpack["shapes"][key] = str(e).splitlines()[0]
     print("nnpack", nnpack)
     report = {"conv": "3x3 128->128 at 192x192, batch 1", "gflop": round(gflop, 2), "rows": rows, "nnpack": nnpack,
               "machine": hardware_info("cpu")}
