@@ -3,6 +3,10 @@ through the previous depth, level memory, a refiner and the parallax -> depth de
 
 from __future__ import annotations
 
+import functools
+from dataclasses import dataclass
+from typing import Callable, Optional
+
 import torch
 import torch.nn as nn
 
@@ -41,6 +45,26 @@ def refiner_in_channels(level: int, cfg: ModelConfig) -> int:
     n_cand = 2 * SEARCH_RANGE + 1
     n_sncv = (2 * SNCV_RADIUS + 1) ** 2
     return n_cand * k + 1 + 4 * cfg.level_memory + n_sncv * k * cfg.sncv + 1 * cfg.time_recurrence
+
+
+@dataclass(frozen=True)
+class RefineOps:
+    """The operations of a depth level's normal branch that an inference engine may replace by equivalents.
+
+    Attributes:
+        pscv: ``(feat, prev, points, groups, half) -> (pscv, warped_parallax)`` (see ``parallax_sweep_cost_volume``).
+        sncv: ``(feat, groups, radius) -> volume`` (see ``spatial_cost_volume``).
+        concat: ``blocks -> refiner input`` (channel concatenation).
+        refiner: ``x -> y`` or None for the level's own :class:`Refiner`.
+    """
+
+    pscv: Callable = parallax_sweep_cost_volume
+    sncv: Callable = spatial_cost_volume
+    concat: Callable = functools.partial(torch.cat, dim=1)
+    refiner: Optional[Callable] = None
+
+
+_REFERENCE_OPS = RefineOps()
 
 
 class DepthLevel(nn.Module):
@@ -86,25 +110,26 @@ class DepthLevel(nn.Module):
         trans: torch.Tensor,
         guard: bool,
         pscv_half: bool,
+        ops: Optional["RefineOps"] = None,
     ) -> DepthLevelOutput:
-        """The normal branch (spec 4.6)."""
+        """The normal branch (spec 4.6). ``ops`` swaps the cost volumes, the concatenation and the refiner for
+        equivalent implementations (the fast inference engine); None: the reference ones."""
+        ops = ops or _REFERENCE_OPS
         # Previous frame's depth as parallax w.r.t. the current frame, on the previous grid (stop-gradient).
         prev_para = prev_depth_to_parallax(prev_depth, trans, geom.intrinsics, guard=guard).detach()
         offsets = torch.arange(-SEARCH_RANGE, SEARCH_RANGE + 1, device=rho_in.device, dtype=rho_in.dtype)
         candidates = (rho_in + offsets.view(1, -1, 1, 1)).clamp(1e-6, 1e6)  # [B,9,h,w]
         points = candidate_sample_points(candidates, geom)
-        pscv, warped_para = parallax_sweep_cost_volume(
-            f_hat, torch.cat([prev_feat, prev_para], dim=1), points, self.groups, half=pscv_half
-        )
+        pscv, warped_para = ops.pscv(f_hat, torch.cat([prev_feat, prev_para], dim=1), points, self.groups, pscv_half)
         blocks = [pscv, torch.log(self._guard(rho_in, guard) * self.scale)]
         if self.use_memory:
             blocks.append(other_in)
         if self.use_sncv:
-            blocks.append(spatial_cost_volume(f_hat, self.groups, SNCV_RADIUS))
+            blocks.append(ops.sncv(f_hat, self.groups, SNCV_RADIUS))
         if self.use_time:
             tau = warped_para[:, SEARCH_RANGE : SEARCH_RANGE + 1]  # the unshifted hypothesis
             blocks.append(torch.log(self._guard(tau, guard) * self.scale))
-        y = self.refiner(torch.cat(blocks, dim=1))
+        y = (ops.refiner or self.refiner)(ops.concat(blocks))
         parallax = torch.exp(y[:, :1].clamp(-LOG_PARALLAX_CLIP, LOG_PARALLAX_CLIP)) / self.scale
         depth = parallax_to_depth(parallax, geom, guard=guard)
         return DepthLevelOutput(parallax, depth, y[:, 1:5])

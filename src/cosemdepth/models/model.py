@@ -39,8 +39,51 @@ class SceneModel(nn.Module):
         self.depth_decoder = DepthDecoder(config) if config.has_depth else None
         self.semantic_decoder = SemanticDecoder(config) if config.has_semantic else None
         self.set_numerics(pscv_half=config.pscv_dtype == "float16")
+        self._fast = None  # the fast inference engine, see optimize()
+        self._fast_options: dict | None = None
+        self.register_load_state_dict_post_hook(_rebuild_fast_engine)
 
     default_arch = "cosemdepth"
+
+    # ------------------------------------------------------------------ fast inference switch
+    def optimize(self, mode: str = "fast", dtype: torch.dtype | str = torch.float32, device=None) -> "SceneModel":
+        """Select the streaming inference path of :meth:`step` / :meth:`infer`; returns ``self``.
+
+        * ``mode="fast"``: a :class:`~cosemdepth.inference.FastEngine` built from the current weights (channels-last
+          pre-packed convolutions with fused activations, vectorised cost volumes); with ``dtype=torch.float32`` it
+          gives the reference results up to float rounding (the *safe* setting, which the inference commands use by
+          default). ``dtype=torch.bfloat16`` (CPU or GPU) or ``torch.float16`` (GPU) runs the refiners' hidden
+          convolutions in that precision, faster and less exact: opt in after checking the accuracy of your weights
+          (``benchmarks/fast_accuracy.py``).
+        * ``mode="reference"``: the plain PyTorch modules (the default of a freshly built model).
+
+        The fast path is used only in eval mode and never records gradients; ``forward_sequence`` (training) always
+        runs the reference modules. Loading a state dict rebuilds the engine; so does a change of device.
+        """
+        if mode == "reference":
+            self._fast = None
+            self._fast_options = None
+            return self
+        if mode != "fast":
+            raise ValueError(f"mode must be 'fast' or 'reference', got {mode!r}")
+        from ..inference.engine import FastEngine, parse_dtype
+
+        self._fast_options = {"dtype": parse_dtype(dtype), "device": device}
+        self._fast = FastEngine(self, **self._fast_options)
+        return self
+
+    @property
+    def inference_mode(self) -> str:
+        """``"fast"`` or ``"reference"``: the path :meth:`step` takes in eval mode."""
+        return "reference" if self._fast is None else "fast"
+
+    def _fast_engine(self):
+        if self._fast is None or self.training:
+            return None
+        p = next(self.parameters())
+        if self._fast_options.get("device") is None and self._fast.device != p.device:
+            self._fast = type(self._fast)(self, **self._fast_options)
+        return self._fast
 
     # ------------------------------------------------------------------ numerics switches
     def set_numerics(self, guard: bool | None = None, pscv_half: bool | None = None, static: bool | None = None):
@@ -129,6 +172,9 @@ class SceneModel(nn.Module):
             input size (nearest upsampling of the finest level), ``out.levels`` the per-level maps.
         """
         _check_step(rgb, rot, trans, intrinsics, reset)
+        engine = self._fast_engine()
+        if engine is not None:
+            return engine.step(rgb, rot, trans, intrinsics, reset, state)
         feats = self.encoder(rgb)
         size = tuple(rgb.shape[-2:])
         levels: dict[str, list[torch.Tensor]] = {}
@@ -242,6 +288,12 @@ def build_model(config: ModelConfig | None = None, **overrides) -> SceneModel:
     elif overrides:
         config = ModelConfig.from_dict({**config.to_dict(), **overrides})
     return MODELS[config.arch](config)
+
+
+def _rebuild_fast_engine(module: SceneModel, incompatible_keys) -> None:
+    """``load_state_dict`` post-hook: the fast engine holds copies of the weights, refresh them."""
+    if module._fast is not None:
+        module._fast = type(module._fast)(module, **module._fast_options)
 
 
 # ---------------------------------------------------------------------- input checks

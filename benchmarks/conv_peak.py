@@ -1,0 +1,84 @@
+"""How fast can this machine convolve? The floor under any direct-convolution frame time.
+
+    PYTHONPATH=src python benchmarks/conv_peak.py [--threads 1 2] [--out FILE]
+
+Times the largest convolution of the model (3x3, 128 -> 128 channels at 192x192, 10.9 GFLOP, channels-last, fused
+LeakyReLU, the fast path's kernel) in fp32 and bf16 at each thread count, reports GFLOP/s and the time the model's
+81 GFLOP per 384x384 frame (spec 12.2) would need at that rate. Also records whether NNPACK's Winograd convolution
+runs here. Writes JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+
+from cosemdepth.bench.runner import hardware_info  # noqa: E402
+from cosemdepth.inference.convs import PackedConv  # noqa: E402
+from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
+from cosemdepth.ops.padding import Conv2dSame  # noqa: E402
+
+FRAME_GFLOP = 81.0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--threads", nargs="+", type=int, default=[1, 2])
+    p.add_argument("--iters", type=int, default=10)
+    p.add_argument("--out", default="benchmarks/results/conv_peak.json")
+    a = p.parse_args(argv)
+    conv = Conv2dSame(128, 128, 3)
+    x = torch.randn(1, 128, 192, 192)
+    gflop = 2 * 128 * 128 * 9 * 192 * 192 / 1e9
+    rows = []
+    with torch.inference_mode():
+        for dtype in (torch.float32, torch.bfloat16):
+            packed = PackedConv(conv, dtype, torch.device("cpu"), act=True)
+            xin = x.to(dtype).contiguous(memory_format=torch.channels_last)
+            for th in a.threads:
+                torch.set_num_threads(th)
+                packed(xin)
+                ts = []
+                for _ in range(a.iters):
+                    t0 = time.perf_counter()
+                    packed(xin)
+                    ts.append((time.perf_counter() - t0) * 1e3)
+                best = min(ts)
+                row = {
+                    "dtype": str(dtype).replace("torch.", ""),
+                    "threads": th,
+                    "min_ms": round(best, 2),
+                    "median_ms": round(statistics.median(ts), 2),
+                    "gflops_at_min": round(gflop / best * 1e3, 1),
+                    "frame_conv_floor_ms": round(FRAME_GFLOP / (gflop / best * 1e3) * 1e3, 1),
+                }
+                rows.append(row)
+                print(row)
+    nnpack = {"available": torch.backends.nnpack.is_available(), "shapes": {}}
+    for cin, cout, hw, bias in [(64, 64, 32, False), (64, 128, 192, False), (64, 128, 192, True), (128, 128, 192, True)]:
+        key = f"{cin}->{cout} at {hw}x{hw}{' +bias' if bias else ''}"
+        try:
+            torch._nnpack_spatial_convolution(
+                torch.randn(1, cin, hw, hw), torch.randn(cout, cin, 3, 3), torch.randn(cout) if bias else None, [1, 1]
+            )
+            nnpack["shapes"][key] = "runs"
+        except RuntimeError as e:
+            nnpack["shapes"][key] = str(e).splitlines()[0]
+    print("nnpack", nnpack)
+    report = {"conv": "3x3 128->128 at 192x192, batch 1", "gflop": round(gflop, 2), "rows": rows, "nnpack": nnpack,
+              "machine": hardware_info("cpu")}
+    atomic_write_text(a.out, json.dumps(report, indent=1) + "\n")
+    print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

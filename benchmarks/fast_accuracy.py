@@ -1,0 +1,127 @@
+"""Accuracy of every fast inference mode against the fp32 reference path, with trained weights on a real flight.
+
+    PYTHONPATH=src python benchmarks/fast_accuracy.py --model MODEL_DIR --dataset synthair --root DATA_ROOT \
+        [--split test] [--max-frames N] [--modes fast-fp32 fast-bf16] [--device cpu] [--out FILE]
+
+Streams the split's trajectories frame by frame (as the test protocol, spec 10.3: reset frames count in no metric)
+through the reference path and through each fast mode, computes mIoU and the depth metrics with
+``cosemdepth.evaluation.metrics.EvaluationMetrics``, and checks the acceptance of issue 5: each fast mode within
+0.5 points of mIoU and within 1% (relative) of AbsRel of the fp32 reference. Writes JSON; exit status 1 if a mode
+fails.
+
+Needs ``cosemdepth.io.model_io.load_model`` (model folders) and ``cosemdepth.data.open_dataset`` (dataset readers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+
+from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
+
+MODES = {
+    "reference": ("reference", None),
+    "fast-fp32": ("fast", "float32"),
+    "fast-bf16": ("fast", "bfloat16"),
+    "fast-fp16": ("fast", "float16"),
+}
+MIOU_TOL_POINTS = 0.5
+ABSREL_TOL_REL = 0.01
+
+
+def evaluate(model, dataset, device: torch.device, max_frames: int | None) -> dict:
+    from cosemdepth.evaluation.metrics import EvaluationMetrics
+
+    cfg = model.config
+    metrics = EvaluationMetrics(cfg.num_classes if cfg.has_semantic else None, depth=cfg.has_depth)
+    state = None
+    n = len(dataset) if max_frames is None else min(len(dataset), max_frames)
+    t0 = time.perf_counter()
+    with torch.inference_mode():
+        for i in range(n):
+            item = dataset[i]
+            reset = item["reset"][:1].to(device)
+            out, state = model.step(
+                item["rgb"][:1].to(device),
+                item["rot"][:1].to(device),
+                item["trans"][:1].to(device),
+                item["intrinsics"].view(1, 4).to(device),
+                reset,
+                state,
+            )
+            include = ~reset.cpu()
+            metrics.update(
+                gt_depth=item["depth"][:1] if cfg.has_depth else None,
+                pred_depth=out.depth.float().cpu() if cfg.has_depth else None,
+                gt_labels=item["semantic"][:1] if cfg.has_semantic else None,
+                pred_semantic=out.semantic.float().cpu() if cfg.has_semantic else None,
+                include=include,
+            )
+    res = metrics.compute()
+    res["frames"] = n
+    res["seconds"] = round(time.perf_counter() - t0, 1)
+    return res
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--model", required=True, help="model folder (or official TF checkpoint)")
+    p.add_argument("--dataset", default="synthair", help="dataset name for cosemdepth.data.open_dataset")
+    p.add_argument("--root", required=True, help="dataset root")
+    p.add_argument("--split-dir", help="split folder (default: the dataset's)")
+    p.add_argument("--split", default="test")
+    p.add_argument("--max-frames", type=int, help="stop after this many frames (whole split by default)")
+    p.add_argument("--modes", nargs="+", choices=[m for m in MODES if m != "reference"], default=["fast-fp32", "fast-bf16"])
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--out", default="benchmarks/results/fast_accuracy.json")
+    a = p.parse_args(argv)
+    from cosemdepth.data import open_dataset
+    from cosemdepth.io.model_io import load_model
+
+    device = torch.device(a.device)
+    dataset = open_dataset(a.dataset, a.root, split_dir=a.split_dir, split=a.split, seq_len=1)
+    results = {}
+    for name in ["reference", *a.modes]:
+        path, dtype = MODES[name]
+        model = load_model(a.model, device=device).eval()
+        model.optimize(path, **({"dtype": dtype} if dtype else {}))
+        results[name] = evaluate(model, dataset, device, a.max_frames)
+        print(name, {k: v for k, v in results[name].items() if k in ("miou", "abs_rel", "rmse", "delta1", "seconds")})
+    ref = results["reference"]
+    verdicts = {}
+    for name in a.modes:
+        r = results[name]
+        v = {}
+        if "miou" in ref:
+            v["miou_diff_points"] = 100 * (r["miou"] - ref["miou"])
+            v["miou_ok"] = abs(v["miou_diff_points"]) <= MIOU_TOL_POINTS
+        if "abs_rel" in ref:
+            v["abs_rel_rel_diff"] = (r["abs_rel"] - ref["abs_rel"]) / ref["abs_rel"]
+            v["abs_rel_ok"] = abs(v["abs_rel_rel_diff"]) <= ABSREL_TOL_REL
+        v["ok"] = all(x for k, x in v.items() if k.endswith("_ok"))
+        verdicts[name] = v
+        print(name, v)
+    report = {
+        "model": str(a.model),
+        "dataset": a.dataset,
+        "root": str(a.root),
+        "split": a.split,
+        "device": a.device,
+        "tolerances": {"miou_points": MIOU_TOL_POINTS, "abs_rel_relative": ABSREL_TOL_REL},
+        "results": results,
+        "verdicts": verdicts,
+    }
+    atomic_write_text(a.out, json.dumps(report, indent=1) + "\n")
+    print(f"wrote {a.out}")
+    return 0 if all(v["ok"] for v in verdicts.values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

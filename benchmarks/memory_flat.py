@@ -1,0 +1,117 @@
+"""Stream many frames and check that memory stays flat (no growth beyond warm-up).
+
+    PYTHONPATH=src python benchmarks/memory_flat.py [--frames 10000] [--size 64 64] [--path fast] [--out FILE]
+
+Samples the resident set size (CPU; /proc/self/status VmRSS, with glibc returning large freed blocks at once, see
+cosemdepth.bench.memory) or the CUDA allocation every ``--every`` frames. After ``--warmup`` frames the RSS is the
+baseline; the run passes when the largest later sample exceeds it by at most ``--tolerance-mb`` and a least-squares
+line through the later samples grows by less than that tolerance over the whole run. Resets every
+``--reset-every`` frames, as a flight log with several trajectories would. Writes JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+
+from cosemdepth.bench.memory import rss_bytes, trim, use_mmap_for_large_allocations  # noqa: E402
+from cosemdepth.bench.runner import _cpu_name, hardware_info  # noqa: E402
+from cosemdepth.export.check import synthetic_sequence  # noqa: E402
+from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
+from cosemdepth.models import build_model  # noqa: E402
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--frames", type=int, default=10_000)
+    p.add_argument("--size", nargs=2, type=int, default=[64, 64], metavar=("H", "W"))
+    p.add_argument("--arch", default="cosemdepth")
+    p.add_argument("--path", choices=["fast", "reference"], default="fast")
+    p.add_argument("--precision", choices=["fp32", "bf16"], default="fp32")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--warmup", type=int, default=200)
+    p.add_argument("--every", type=int, default=100)
+    p.add_argument("--reset-every", type=int, default=1000)
+    p.add_argument("--tolerance-mb", type=float, default=2.0)
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--out", default="benchmarks/results/memory_flat.json")
+    a = p.parse_args(argv)
+    torch.set_num_threads(a.threads)
+    use_mmap_for_large_allocations()
+    dev = torch.device(a.device)
+    h, w = a.size
+    torch.manual_seed(0)
+    model = build_model(arch=a.arch).to(dev).eval()
+    model.optimize(a.path, **({"dtype": a.precision} if a.path == "fast" else {}))
+    rgb, rot, trans, intr = (t.to(dev) for t in synthetic_sequence(1, 8, h, w))
+    cuda = dev.type == "cuda"
+
+    def mem() -> int:
+        if cuda:
+            torch.cuda.synchronize(dev)
+            return torch.cuda.memory_allocated(dev)
+        return rss_bytes()
+
+    samples = []  # (frame, bytes)
+    state = None
+    t0 = time.perf_counter()
+    with torch.inference_mode():
+        for k in range(a.frames):
+            i = k % 8
+            reset = torch.tensor([k % a.reset_every == 0], device=dev)
+            _, state = model.step(rgb[:, i], rot[:, i], trans[:, i], intr, reset, state)
+            if (k + 1) % a.every == 0:
+                if not cuda:
+                    trim()
+                samples.append((k + 1, mem()))
+    elapsed = time.perf_counter() - t0
+    after = [(f, b) for f, b in samples if f > a.warmup]
+    base = after[0][1]
+    growth_max = max(b for _, b in after) - base
+    n = len(after)
+    xs = [f for f, _ in after]
+    ys = [b for _, b in after]
+    mx, my = sum(xs) / n, sum(ys) / n
+    slope = sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / max(sum((x - mx) ** 2 for x in xs), 1e-9)
+    trend = slope * (xs[-1] - xs[0])
+    tol = a.tolerance_mb * 2**20
+    ok = growth_max <= tol and abs(trend) <= tol
+    result = {
+        "ok": ok,
+        "frames": a.frames,
+        "size": [h, w],
+        "arch": a.arch,
+        "path": a.path,
+        "precision": a.precision,
+        "device": a.device,
+        "threads": a.threads,
+        "warmup_frames": a.warmup,
+        "reset_every": a.reset_every,
+        "baseline_mb": round(base / 2**20, 2),
+        "max_growth_after_warmup_mb": round(growth_max / 2**20, 3),
+        "trend_over_run_mb": round(trend / 2**20, 3),
+        "tolerance_mb": a.tolerance_mb,
+        "seconds": round(elapsed, 1),
+        "ms_per_frame": round(elapsed / a.frames * 1e3, 2),
+        "method": "torch.cuda.memory_allocated" if cuda else "VmRSS (/proc/self/status) after malloc_trim",
+        "samples_mb": [[f, round(b / 2**20, 2)] for f, b in samples],
+        "machine": {**hardware_info(a.device), "cpu": _cpu_name()},
+    }
+    atomic_write_text(a.out, json.dumps(result, indent=1) + "\n")
+    print(
+        f"{'FLAT' if ok else 'GROWING'}: {a.frames} frames at {h}x{w}, baseline {result['baseline_mb']} MB after "
+        f"{a.warmup} frames, max growth {result['max_growth_after_warmup_mb']} MB, trend "
+        f"{result['trend_over_run_mb']} MB ({result['ms_per_frame']} ms/frame); wrote {a.out}"
+    )
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,178 @@
+"""``cosemdepth benchmark``: streaming speed and peak memory of Co-SemDepth, M4Depth and M4Semantic.
+
+Default run (a few minutes on a 2-core CPU): the three models at 384x384 on the fast path in fp32 and bf16 (fp16
+instead of bf16 on CUDA), batch 1 streaming (10 timed frames after 2 warm-up frames) and batched 8 and 32 (fewer
+timed steps: ``--batched-iters``), the fp32 reference path at batch 1 for comparison, and the joint-vs-separate
+comparison at batch 1. On CUDA every fast row also gets a CUDA-graph row (``path = graph``: static shapes, state in
+persistent buffers, one graph replay per step). Writes JSON and Markdown.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from dataclasses import asdict
+
+import torch
+
+from ..config import ARCHITECTURES
+from ..errors import ConfigError
+from ._common import parse_size
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--models", nargs="+", choices=ARCHITECTURES, default=list(ARCHITECTURES))
+    parser.add_argument("--model", metavar="DIR", help="time these weights (its architecture) instead of --models")
+    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), help="input size (default 384 384)")
+    parser.add_argument("--levels", type=int, default=5, help="pyramid levels of the --models (default 5)")
+    parser.add_argument("--batch", nargs="+", type=int, default=[1, 8, 32], help="batch sizes (default 1 8 32)")
+    parser.add_argument(
+        "--precision",
+        nargs="+",
+        choices=["fp32", "bf16", "fp16"],
+        help="fast-path precisions (default: fp32 bf16 on CPU, fp32 fp16 bf16 on CUDA)",
+    )
+    parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default: CUDA when present)")
+    parser.add_argument("--no-reference", action="store_true", help="skip the reference-path (fp32, batch 1) rows")
+    parser.add_argument("--no-joint", action="store_true", help="skip the joint-vs-separate comparison")
+    parser.add_argument("--no-graph", action="store_true", help="on CUDA, skip the CUDA-graph rows")
+    parser.add_argument("--warmup", type=int, default=2, help="warm-up frames at batch 1 (default 2)")
+    parser.add_argument("--iters", type=int, default=10, help="timed frames at batch 1 (default 10)")
+    parser.add_argument("--batched-warmup", type=int, default=1, help="warm-up steps at batch > 1 (default 1)")
+    parser.add_argument("--batched-iters", type=int, default=2, help="timed steps at batch > 1 (default 2)")
+    parser.add_argument("--threads", type=int, help="torch CPU threads (default: PyTorch's choice)")
+    parser.add_argument(
+        "--wait-idle",
+        type=float,
+        metavar="FRACTION",
+        help="before each case wait until the whole machine is at most this busy (e.g. 0.1), for shared machines",
+    )
+    parser.add_argument("--wait-timeout", type=float, default=600, help="longest wait per case in seconds (600)")
+    parser.add_argument("--json", metavar="FILE", default="benchmark.json", help="JSON output (default benchmark.json)")
+    parser.add_argument("--md", metavar="FILE", default="benchmark.md", help="Markdown output (default benchmark.md)")
+
+
+def resolve_device(name: str) -> str:
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    try:
+        dev = torch.device(name)
+    except RuntimeError as e:
+        raise ConfigError(f"--device {name!r} is not a device name: {e}") from e
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"--device {name}: CUDA is not available in this PyTorch/machine")
+    if dev.type not in ("cpu", "cuda"):
+        raise ConfigError(f"--device must be cpu or cuda, got {name!r}")
+    return str(dev)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..bench.report import markdown, write_report
+    from ..bench.runner import (
+        BenchCase,
+        _loadavg,
+        cpu_busy_fraction,
+        hardware_info,
+        joint_vs_separate,
+        run_case,
+        run_separate,
+        wait_for_idle,
+    )
+
+    h, w = parse_size(args.size)
+    device = resolve_device(args.device)
+    cuda = device.startswith("cuda")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    for name, v in (("--iters", args.iters), ("--batched-iters", args.batched_iters)):
+        if v < 1:
+            raise ConfigError(f"{name} must be at least 1, got {v}")
+    if any(b < 1 for b in args.batch):
+        raise ConfigError(f"--batch values must be at least 1, got {args.batch}")
+    precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16"])
+    if "fp16" in precisions and not cuda:
+        raise ConfigError("--precision fp16 is for CUDA; on CPU use bf16")
+
+    weights = None
+    models = args.models
+    if args.model:
+        from ._common import load_or_build
+
+        weights = load_or_build(argparse.Namespace(model=args.model))
+        models = [weights.config.arch]
+
+    def case(arch, batch, precision, path="fast"):
+        big = batch > 1
+        cfg = weights.config if weights is not None else None
+        return BenchCase(
+            arch=arch,
+            batch=batch,
+            height=h,
+            width=w,
+            device=device,
+            precision=precision,
+            path=path,
+            warmup=args.batched_warmup if big else args.warmup,
+            iters=args.batched_iters if big else args.iters,
+            levels=cfg.levels if cfg else args.levels,
+            num_classes=cfg.num_classes if cfg else 7,
+        )
+
+    report = {"meta": hardware_info(device), "results": [], "joint_vs_separate": []}
+    report["meta"]["command"] = "cosemdepth benchmark " + " ".join(shlex.quote(a) for a in sys.argv[2:])
+    report["meta"]["resolution"] = [h, w]
+
+    def idle():
+        return wait_for_idle(args.wait_idle, args.wait_timeout) if args.wait_idle is not None else cpu_busy_fraction(0.5)
+
+    def record(res, busy):
+        res.busy_before = busy
+        s = res.summary()
+        report["results"].append(s)
+        print(
+            f"{s['arch']:>20} {s['device']:>6} {s['precision']:>5} {s['path']:>9} b={s['batch']:<3} "
+            f"{s['median_ms_per_frame']:8.1f} ms/frame (p90 {s['p90_ms_per_frame']:.1f}) {s['fps']:8.1f} FPS "
+            f"peak {s['peak_mem_mb']:.0f} MB (machine busy {busy})",
+            flush=True,
+        )
+        return res
+
+    joint_precisions = []
+    for arch in models:
+        if not args.no_reference:
+            busy = idle()
+            record(run_case(case(arch, 1, "fp32", "reference"), weights), busy)
+        for precision in precisions:
+            for batch in args.batch:
+                busy = idle()
+                record(run_case(case(arch, batch, precision), weights), busy)
+                if cuda and not args.no_graph:
+                    busy = idle()
+                    record(run_case(case(arch, batch, precision, "graph"), weights), busy)
+                if arch == "cosemdepth" and batch == 1:
+                    joint_precisions.append(precision)
+    if not args.no_joint and weights is None and "cosemdepth" in models:
+        for precision in joint_precisions:
+            c = case("cosemdepth", 1, precision)
+            # one unrecorded round of each first: one-time allocations (oneDNN kernels JIT-compiled and cached for
+            # these shapes, thread pools) would otherwise be charged to whichever runs first
+            run_case(BenchCase(**{**asdict(c), "warmup": 1, "iters": 1}))
+            run_separate(BenchCase(**{**asdict(c), "warmup": 1, "iters": 1}))
+            busy = idle()
+            res = run_case(c)
+            res.busy_before = busy
+            busy = idle()
+            sep = run_separate(c)
+            report["joint_vs_separate"].append(joint_vs_separate(res, sep))
+            res.case = BenchCase(**{**asdict(c), "path": "fast (joint-vs-separate run)"})
+            sep.case = BenchCase(**{**asdict(sep.case), "path": "fast (joint-vs-separate run)"})
+            record(res, res.busy_before)
+            record(sep, busy)
+    report["meta"]["loadavg_end"] = _loadavg()
+    write_report(report, args.json, args.md)
+    print(f"wrote {args.json} and {args.md}")
+    if report["joint_vs_separate"]:
+        print(markdown({**report, "results": []}).split("Joint vs separate", 1)[-1])
+    return 0
+

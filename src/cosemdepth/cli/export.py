@@ -1,0 +1,51 @@
+"""``cosemdepth export --onnx OUT``: the streaming step as an ONNX graph with the state as inputs/outputs."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..errors import ConfigError
+from ._common import add_model_arguments, load_or_build, parse_size
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--onnx", metavar="OUT", required=True, help="output .onnx file")
+    add_model_arguments(parser)
+    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), help="input size (default 384 384)")
+    parser.add_argument("--batch", type=int, default=1, help="batch size (default 1)")
+    parser.add_argument("--dynamic-batch", action="store_true", help="make the batch axis dynamic")
+    parser.add_argument("--opset", type=int, default=17, help="ONNX opset, >= 16 (default 17)")
+    parser.add_argument(
+        "--reset-float", action="store_true", help="take the reset mask as float32 (1 = reset) instead of bool"
+    )
+    parser.add_argument("--check", action="store_true", help="run the file with ONNX Runtime against PyTorch")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..export.onnx import export_onnx
+
+    h, w = parse_size(args.size)
+    if args.batch < 1:
+        raise ConfigError(f"--batch must be at least 1, got {args.batch}")
+    model = load_or_build(args)
+    path = export_onnx(
+        model,
+        args.onnx,
+        h,
+        w,
+        batch=args.batch,
+        opset=args.opset,
+        dynamic_batch=args.dynamic_batch,
+        reset_float=args.reset_float,
+    )
+    print(f"wrote {path} ({model.config.arch}, {h}x{w}, batch {args.batch}, opset {args.opset})")
+    if not args.model:
+        print("note: no --model given, the graph holds freshly initialised weights")
+    if args.check:
+        from ..export.check import compare_onnx
+
+        report = compare_onnx(model, path, frames=6)
+        print(report.summary())
+        if not report.ok:
+            return 1
+    return 0

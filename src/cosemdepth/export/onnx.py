@@ -1,0 +1,167 @@
+"""ONNX export of the streaming step with an explicit state.
+
+The exported graph is one call of :meth:`SceneModel.step` in static mode (no data-dependent branch on the reset
+mask): ONNX Runtime and TensorRT are stateless, so the per-level state goes in as inputs and comes back as outputs.
+
+Inputs: ``rgb [B,3,H,W]`` float32 in [0, 1], ``rot [B,4]`` (w, x, y, z), ``trans [B,3]`` metres, ``intrinsics [B,4]``
+(fx, fy, cx, cy) in pixels of H x W, ``reset [B]`` bool, then ``state_feat_{1..L} [B,C_l,h_l,w_l]`` and
+``state_depth_{1..L} [B,1,h_l,w_l]`` (the flattened :class:`StreamState`; absent for M4Semantic).
+Outputs: ``depth [B,1,H,W]`` metres (not for M4Semantic), ``semantic [B,N,H,W]`` probabilities (not for M4Depth),
+then ``next_state_feat_{1..L}``, ``next_state_depth_{1..L}``: feed them back as the state of the next call.
+
+First frame: zeros for every state input with ``reset=True``. M4Semantic has no temporal input: its graph takes
+``rgb`` only (the exporter drops inputs a graph does not use).
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import torch
+import torch.nn as nn
+
+from ..errors import ConfigError
+from ..io.atomic import atomic_path
+from ..models.outputs import StreamState
+
+#: ONNX opset: GridSample needs 16.
+DEFAULT_OPSET = 17
+
+
+def state_names(levels: int, prefix: str = "state") -> list[str]:
+    """``[prefix_feat_1, .., prefix_feat_L, prefix_depth_1, .., prefix_depth_L]`` (the order of StreamState.flatten)."""
+    return [f"{prefix}_feat_{l}" for l in range(1, levels + 1)] + [f"{prefix}_depth_{l}" for l in range(1, levels + 1)]
+
+
+def state_shapes(model, batch: int, height: int, width: int) -> list[tuple[int, ...]]:
+    """Shapes of the flattened state for a ``batch x 3 x height x width`` input (empty for M4Semantic)."""
+    if model.depth_decoder is None:
+        return []
+    feats, depths = [], []
+    h, w = height, width
+    for c in model.config.encoder_channels:
+        h, w = (h + 1) // 2, (w + 1) // 2
+        feats.append((batch, c, h, w))
+        depths.append((batch, 1, h, w))
+    return feats + depths
+
+
+class StreamingStep(nn.Module):
+    """``forward(rgb, rot, trans, intrinsics, reset, *state) -> (depth?, semantic?, *next_state)``, a pure function of
+    its inputs: :meth:`SceneModel.step` with the state flattened, in static mode."""
+
+    def __init__(self, model, reset_float: bool = False):
+        super().__init__()
+        self.model = model
+        self.reset_float = reset_float
+
+    def forward(self, rgb, rot, trans, intrinsics, reset, *state):
+        if self.reset_float:
+            reset = reset > 0.5
+        st = StreamState.unflatten(state) if state else None
+        out, new = self.model.step(rgb, rot, trans, intrinsics, reset, st)
+        outs = [t for t in (out.depth, out.semantic) if t is not None]
+        return (*outs, *new.flatten())
+
+    def names(self) -> tuple[list[str], list[str]]:
+        """ONNX input and output names."""
+        m = self.model
+        levels = m.config.levels if m.depth_decoder is not None else 0
+        inputs = ["rgb", "rot", "trans", "intrinsics", "reset", *state_names(levels)]
+        outputs = (["depth"] if m.depth_decoder is not None else []) + (
+            ["semantic"] if m.semantic_decoder is not None else []
+        )
+        return inputs, outputs + state_names(levels, "next_state")
+
+    def example_inputs(self, batch: int, height: int, width: int, reset: bool = True) -> tuple[torch.Tensor, ...]:
+        """A first-frame input: a mid-grey image, identity motion with 1 m forward, f = W/2, zero state."""
+        p = next(self.model.parameters())
+        kw = dict(device=p.device, dtype=torch.float32)
+        rgb = torch.full((batch, 3, height, width), 0.5, **kw)
+        rot = torch.tensor([1.0, 0.0, 0.0, 0.0], **kw).expand(batch, 4).contiguous()
+        trans = torch.tensor([0.0, 0.0, 1.0], **kw).expand(batch, 3).contiguous()
+        intr = torch.tensor([width / 2, height / 2, width / 2, height / 2], **kw).expand(batch, 4).contiguous()
+        rst = torch.full((batch,), reset, dtype=torch.bool, device=p.device)
+        if self.reset_float:
+            rst = rst.float()
+        state = [torch.zeros(s, **kw) for s in state_shapes(self.model, batch, height, width)]
+        return (rgb, rot, trans, intr, rst, *state)
+
+
+def export_onnx(
+    model,
+    path: str | Path,
+    height: int = 384,
+    width: int = 384,
+    batch: int = 1,
+    opset: int = DEFAULT_OPSET,
+    dynamic_batch: bool = False,
+    reset_float: bool = False,
+) -> Path:
+    """Export ``model``'s streaming step to an ONNX file (written atomically).
+
+    Args:
+        model: a :class:`SceneModel` (exported in float32 on CPU; the model itself is left as it was).
+        path: output ``.onnx`` file.
+        height, width: input resolution (fixed in the graph; the state shapes depend on it).
+        batch: batch size of the example (fixed unless ``dynamic_batch``).
+        opset: ONNX opset, at least 16 (GridSample).
+        dynamic_batch: mark the batch axis dynamic.
+        reset_float: take ``reset`` as float32 (1 = reset) instead of bool, for runtimes without bool inputs.
+    Returns:
+        the path written.
+    """
+    if opset < 16:
+        raise ConfigError(f"--opset must be at least 16 (GridSample), got {opset}")
+    if height < 1 or width < 1 or batch < 1:
+        raise ConfigError(f"--size and --batch must be positive, got size {height}x{width}, batch {batch}")
+    path = Path(path)
+    saved = _freeze_for_export(model)
+    try:
+        step = StreamingStep(model, reset_float=reset_float).eval()
+        args = step.example_inputs(batch, height, width)
+        in_names, out_names = step.names()
+        dynamic_axes = {n: {0: "batch"} for n in in_names + out_names} if dynamic_batch else None
+        with atomic_path(path) as tmp, torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # tracer warnings about Python shape arithmetic (constant here)
+            torch.onnx.export(
+                step,
+                args,
+                str(tmp),
+                input_names=in_names,
+                output_names=out_names,
+                opset_version=opset,
+                dynamic_axes=dynamic_axes,
+                dynamo=False,
+                do_constant_folding=True,
+            )
+    finally:
+        _restore(model, saved)
+    return path
+
+
+def _freeze_for_export(model) -> dict:
+    """Reference path, eval mode, static numerics, float32 on CPU; returns what to restore."""
+    dd = model.depth_decoder
+    p = next(model.parameters())
+    saved = {
+        "training": model.training,
+        "fast": (model._fast, model._fast_options),
+        "static": None if dd is None else dd.static,
+        "device": p.device,
+        "dtype": p.dtype,
+    }
+    model._fast, model._fast_options = None, None
+    model.eval().float().cpu()
+    if dd is not None:
+        model.set_numerics(static=True)
+    return saved
+
+
+def _restore(model, saved: dict) -> None:
+    model.to(device=saved["device"], dtype=saved["dtype"])
+    model.train(saved["training"])
+    if saved["static"] is not None:
+        model.set_numerics(static=saved["static"])
+    model._fast, model._fast_options = saved["fast"]

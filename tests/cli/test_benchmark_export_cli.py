@@ -1,0 +1,45 @@
+import json
+
+import onnxruntime as ort
+
+from cosemdepth.cli.main import main
+
+
+def test_export_command_writes_a_runnable_graph(tmp_path, capsys):
+    out = tmp_path / "sem.onnx"
+    rc = main(["export", "--onnx", str(out), "--arch", "m4semantic", "--levels", "2", "--size", "16", "24"])
+    assert rc == 0 and out.is_file()
+    sess = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    assert sess.get_inputs()[0].shape == [1, 3, 16, 24] and sess.get_outputs()[0].shape == [1, 7, 16, 24]
+    assert "freshly initialised" in capsys.readouterr().out
+
+
+def test_export_command_errors_name_the_argument(tmp_path, capsys):
+    assert main(["export", "--onnx", str(tmp_path / "a.onnx"), "--size", "4", "4"]) == 2
+    assert "--size" in capsys.readouterr().err
+    assert main(["export", "--onnx", str(tmp_path / "a.onnx"), "--opset", "13", "--arch", "m4semantic"]) == 2
+    assert "--opset" in capsys.readouterr().err
+    assert not (tmp_path / "a.onnx").exists()
+
+
+def test_benchmark_command_writes_json_and_markdown(tmp_path):
+    j, md = tmp_path / "b.json", tmp_path / "b.md"
+    rc = main(
+        ["benchmark", "--models", "m4semantic", "--levels", "2", "--size", "16", "16", "--batch", "1", "2",
+         "--iters", "2", "--batched-iters", "1", "--warmup", "1", "--json", str(j), "--md", str(md)]
+    )
+    assert rc == 0
+    rep = json.loads(j.read_text())
+    rows = {(r["path"], r["precision"], r["batch"]) for r in rep["results"]}
+    assert rows == {("reference", "fp32", 1), ("fast", "fp32", 1), ("fast", "fp32", 2), ("fast", "bf16", 1),
+                    ("fast", "bf16", 2)}
+    from cosemdepth.models import build_model
+
+    params = build_model(arch="m4semantic", levels=2).num_parameters()
+    assert all(r["height"] == 16 and r["levels"] == 2 and r["params"] == params for r in rep["results"])
+    assert rep["meta"]["cpu_count"] >= 1 and "M4Semantic" in md.read_text()
+
+
+def test_benchmark_command_rejects_fp16_on_cpu(capsys):
+    assert main(["benchmark", "--device", "cpu", "--precision", "fp16", "--json", "", "--md", ""]) == 2
+    assert "fp16" in capsys.readouterr().err

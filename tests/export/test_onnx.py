@@ -1,0 +1,106 @@
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+import torch
+
+from cosemdepth.errors import ConfigError
+from cosemdepth.export import export_onnx, state_names
+from cosemdepth.export.check import compare_onnx, run_onnx_stream, synthetic_sequence
+from cosemdepth.models import build_model
+
+H, W = 32, 48
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    torch.manual_seed(11)
+    m = build_model().eval()
+    with torch.no_grad():  # well-conditioned depth (see tests/inference/test_fast_engine.py::tame)
+        for lvl in m.depth_decoder.levels:
+            lvl.refiner.convs[-1].weight.mul_(0.1)
+    m.optimize("fast")  # export must use (and then restore) the reference modules
+    path = export_onnx(m, tmp_path_factory.mktemp("onnx") / "step.onnx", H, W, batch=2)
+    return m, path
+
+
+def test_graph_interface(exported):
+    m, path = exported
+    proto = onnx.load(str(path))
+    onnx.checker.check_model(proto)
+    assert max(o.version for o in proto.opset_import if o.domain in ("", "ai.onnx")) >= 16
+    assert "GridSample" in {n.op_type for n in proto.graph.node}
+    ins = [i.name for i in proto.graph.input]
+    outs = [o.name for o in proto.graph.output]
+    assert ins == ["rgb", "rot", "trans", "intrinsics", "reset", *state_names(5)]
+    assert outs == ["depth", "semantic", *state_names(5, "next_state")]
+    assert m.inference_mode == "fast" and not m.depth_decoder.static  # the model is given back as it was
+
+
+def test_onnxruntime_matches_pytorch_over_streamed_frames_with_a_reset(exported):
+    m, path = exported
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    b, t = 2, 7
+    rgb, rot, trans, K = synthetic_sequence(b, t, H, W, seed=5)
+    reset = torch.zeros(b, t, dtype=torch.bool)
+    reset[:, 0] = True
+    reset[1, 4] = True
+    ort_state = [np.zeros(i.shape, np.float32) for i in sess.get_inputs()[5:]]  # first frame: zeros + reset
+    m.optimize("reference")
+    state = None
+    try:
+        with torch.no_grad():
+            for k in range(t):
+                ref, state = m.step(rgb[:, k], rot[:, k], trans[:, k], K, reset[:, k], state)
+                feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy(),
+                         "intrinsics": K.numpy(), "reset": reset[:, k].numpy()}
+                res, ort_state = run_onnx_stream(sess, feeds, ort_state)
+                d = ref.depth.numpy()
+                assert np.max(np.abs(res["depth"] - d) / np.abs(d)) < 1e-3, k
+                assert np.max(np.abs(res["semantic"] - ref.semantic.numpy())) < 1e-4, k
+                for a, s in zip(ort_state, state.flatten()):
+                    np.testing.assert_allclose(a, s.numpy(), rtol=1e-3, atol=1e-4)
+    finally:
+        m.optimize("fast")
+    assert np.all(res["depth"][1] != 1000.0) and np.std(res["depth"]) > 0
+    assert m.inference_mode == "fast"
+
+
+def test_single_task_graphs_and_bad_opset(tmp_path):
+    sem = build_model(arch="m4semantic", levels=2).eval()
+    p = export_onnx(sem, tmp_path / "sem.onnx", 16, 16)
+    sess = ort.InferenceSession(str(p), providers=["CPUExecutionProvider"])
+    assert [i.name for i in sess.get_inputs()] == ["rgb"]  # no temporal input: the unused ones are dropped
+    assert [o.name for o in sess.get_outputs()] == ["semantic"]
+    x = torch.rand(1, 3, 16, 16)
+    feeds = {"rgb": x.numpy(), "rot": np.array([[1, 0, 0, 0]], np.float32), "trans": np.zeros((1, 3), np.float32),
+             "intrinsics": np.array([[8, 8, 8, 8]], np.float32), "reset": np.array([True])}
+    with torch.no_grad():
+        ref = sem.step(x, torch.tensor([[1.0, 0, 0, 0]]), torch.zeros(1, 3), torch.tensor([[8.0, 8, 8, 8]]))[0]
+    res, state = run_onnx_stream(sess, feeds, [])
+    assert state == []
+    np.testing.assert_allclose(res["semantic"], ref.semantic.numpy(), atol=1e-5)
+    with pytest.raises(ConfigError, match="opset"):
+        export_onnx(sem, tmp_path / "x.onnx", 16, 16, opset=15)
+    assert not (tmp_path / "x.onnx").exists()
+
+
+def test_float_reset_input_for_runtimes_without_bool(tmp_path):
+    m = build_model(arch="m4depth", levels=2).eval()
+    p = export_onnx(m, tmp_path / "d.onnx", 16, 16, reset_float=True)
+    sess = ort.InferenceSession(str(p), providers=["CPUExecutionProvider"])
+    reset_in = [i for i in sess.get_inputs() if i.name == "reset"][0]
+    assert reset_in.type == "tensor(float)"
+    assert [o.name for o in sess.get_outputs()] == ["depth", *state_names(2, "next_state")]
+    rgb, rot, trans, K = synthetic_sequence(1, 2, 16, 16)
+    state = [np.zeros(i.shape, np.float32) for i in sess.get_inputs() if i.name.startswith("state_")]
+    depths = []
+    for k, r in enumerate([1.0, 0.0]):
+        feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy(),
+                 "intrinsics": K.numpy(), "reset": np.array([r], np.float32)}
+        res, state = run_onnx_stream(sess, feeds, state)
+        depths.append(res["depth"])
+    assert np.all(depths[0] == 1000.0) and not np.all(depths[1] == 1000.0)
+    report = compare_onnx(m, p, frames=6)  # what `cosemdepth export --check` runs
+    assert len(report.depth_rel) == 6 and report.ok, report.summary()
+    assert max(report.state_rel) < 1e-3

@@ -1,0 +1,180 @@
+import pytest
+import torch
+
+from cosemdepth.inference import FastEngine
+from cosemdepth.inference.convs import HAS_MKLDNN_POINTWISE, PackedConv
+from cosemdepth.models import StreamState, build_model
+from cosemdepth.ops.padding import Conv2dSame
+
+
+def sequence(b=2, t=4, h=32, w=48, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    coarse = torch.rand(b * t, 3, h // 8, w // 8, generator=g)
+    rgb = torch.nn.functional.interpolate(coarse, size=(h, w), mode="bilinear").view(b, t, 3, h, w)
+    q = torch.nn.functional.normalize(torch.tensor([1.0, 0, 0, 0]) + 0.01 * torch.randn(b, t, 4, generator=g), dim=-1)
+    tr = torch.tensor([0.05, -0.02, 1.0]) + 0.1 * torch.randn(b, t, 3, generator=g)
+    K = torch.tensor([w / 2, h / 2, w / 2, h / 2]).expand(b, 4).contiguous()
+    return rgb, q, tr, K
+
+
+def tame(model, scale=0.1):
+    """Untrained networks predict depths near zero / negative, where the recurrence amplifies float rounding (the TF
+    fixture shows the same); damping the depth refiners' last layer gives a well-conditioned model to compare paths."""
+    with torch.no_grad():
+        if model.depth_decoder is not None:
+            for lvl in model.depth_decoder.levels:
+                lvl.refiner.convs[-1].weight.mul_(scale)
+    return model
+
+
+def resets(b, t, extra=((1, 2),)):
+    r = torch.zeros(b, t, dtype=torch.bool)
+    r[:, 0] = True
+    for i, k in extra:
+        r[i, k] = True
+    return r
+
+
+def rel(a, b):
+    return ((a - b).abs() / b.abs().clamp_min(1e-6)).max().item()
+
+
+@pytest.fixture(scope="module")
+def models():
+    torch.manual_seed(3)
+    return {a: build_model(arch=a).eval() for a in ("cosemdepth", "m4depth", "m4semantic")}
+
+
+@pytest.mark.parametrize("arch", ["cosemdepth", "m4depth", "m4semantic"])
+def test_fp32_fast_step_equals_reference_step_from_the_same_state(models, arch):
+    m = models[arch]
+    engine = FastEngine(m)
+    rgb, q, tr, K = sequence(t=3)
+    rs = resets(2, 3, extra=((1, 1),))  # sample 1 restarts at frame 1
+    state = None
+    with torch.no_grad():
+        for k in range(3):
+            fast, fast_state = engine.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
+            ref, state = m.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
+            for key, maps in ref.levels.items():
+                for a, b in zip(fast.levels[key], maps):
+                    if key == "parallax":
+                        assert rel(a, b) < 1e-4, (key, k)
+                    else:
+                        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4)
+            if ref.depth is not None:  # depth = (|delta| / rho - t_z) / alpha: absolute error where it nears zero
+                torch.testing.assert_close(fast.depth, ref.depth, rtol=1e-4, atol=1e-4)
+            if ref.semantic is not None:
+                torch.testing.assert_close(fast.semantic, ref.semantic, rtol=0, atol=1e-5)
+            for a, b in zip(fast_state.flatten(), state.flatten()):
+                torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+    if arch != "m4semantic":
+        assert torch.all(fast.depth[1] != 1000.0) and torch.all(state.depths[0][1] != 1000.0)
+
+
+def test_fp32_fast_streams_like_the_reference_over_frames_with_a_reset():
+    torch.manual_seed(4)
+    m = tame(build_model().eval())
+    rgb, q, tr, K = sequence(t=6)
+    rs = resets(2, 6, extra=((1, 3),))
+    outs = {}
+    for mode in ("reference", "fast"):
+        m.optimize(mode)
+        state, outs[mode] = None, []
+        with torch.no_grad():
+            for k in range(6):
+                out, state = m.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
+                outs[mode].append(out)
+    m.optimize("reference")
+    for k, (a, b) in enumerate(zip(outs["fast"], outs["reference"])):
+        assert rel(a.depth, b.depth) < 1e-3, k
+        torch.testing.assert_close(a.semantic, b.semantic, rtol=0, atol=1e-5)
+    assert torch.all(outs["fast"][3].depth[1] == 1000.0)  # the reset sample outputs the init depth
+    assert outs["fast"][5].depth.std() > 0  # and the model does depend on the input
+
+
+def test_bf16_refiners_stay_close_and_outputs_are_float32(models):
+    m = models["cosemdepth"]
+    engine = FastEngine(m, dtype=torch.bfloat16)
+    rgb, q, tr, K = sequence()
+    state = None
+    with torch.no_grad():
+        for k in range(3):
+            fast, _ = engine.step(rgb[:, k], q[:, k], tr[:, k], K, resets(2, 3)[:, k], state)
+            ref, state = m.step(rgb[:, k], q[:, k], tr[:, k], K, resets(2, 3)[:, k], state)
+            assert fast.depth.dtype == torch.float32 and fast.semantic.dtype == torch.float32
+            assert rel(fast.levels["parallax"][0], ref.levels["parallax"][0]) < 0.05
+            assert (fast.semantic - ref.semantic).abs().max() < 0.02
+    # it is really reduced precision: not bit-equal to fp32
+    assert (fast.semantic - ref.semantic).abs().max() > 1e-6
+    assert engine.depth_levels[0].refiner.hidden[0].weight.dtype == torch.bfloat16
+    assert engine.depth_levels[0].refiner.last.weight.dtype == torch.float32
+
+
+@pytest.mark.parametrize("use_mkldnn", [False, True] if HAS_MKLDNN_POINTWISE else [False])
+@pytest.mark.parametrize("stride, size, act", [(1, (7, 9), True), (2, (8, 10), True), (2, (7, 9), False)])
+def test_packed_conv_matches_the_module(use_mkldnn, stride, size, act):
+    conv = Conv2dSame(5, 6, 3, stride=stride)
+    x = torch.randn(2, 5, *size)
+    packed = PackedConv(conv, torch.float32, torch.device("cpu"), act=act, use_mkldnn=use_mkldnn)
+    with torch.no_grad():
+        ref = conv(x)
+        ref = torch.nn.functional.leaky_relu(ref, 0.1) if act else ref
+        out = packed(x)
+        torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(packed(x), ref, rtol=1e-5, atol=1e-5)  # second call: cached packed weight
+    assert out.is_contiguous(memory_format=torch.channels_last)
+
+
+def test_optimize_switch_training_and_weight_reload():
+    torch.manual_seed(5)
+    m = build_model(arch="m4semantic").eval()
+    rgb, q, tr, K = sequence(b=1, t=1)
+    args = (rgb[:, 0], q[:, 0], tr[:, 0], K, None, None)
+    with torch.no_grad():
+        ref = m.step(*args)[0].semantic
+        assert m.inference_mode == "reference"
+        fast = m.optimize("fast").step(*args)[0].semantic
+        assert m.inference_mode == "fast"
+        torch.testing.assert_close(fast, ref, rtol=0, atol=1e-5)
+        m.train()  # training mode always takes the reference modules
+        assert torch.equal(m.step(*args)[0].semantic, ref)
+        m.eval()
+        other = build_model(arch="m4semantic").state_dict()
+        m.load_state_dict(other)  # the engine's weight copies follow
+        fast2 = m.step(*args)[0].semantic
+        ref2 = m.optimize("reference").step(*args)[0].semantic
+    assert not torch.allclose(fast2, fast, atol=1e-3)
+    torch.testing.assert_close(fast2, ref2, rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match="mode"):
+        m.optimize("turbo")
+    with pytest.raises(ValueError, match="dtype"):
+        m.optimize("fast", dtype="int8")
+
+
+def test_fast_and_reference_states_are_interchangeable(models):
+    m = models["m4depth"]
+    engine = FastEngine(m)
+    rgb, q, tr, K = sequence(t=3)
+    rs = resets(2, 3, extra=())
+    with torch.no_grad():
+        _, s_fast = engine.step(rgb[:, 0], q[:, 0], tr[:, 0], K, rs[:, 0], None)
+        _, s_ref = m.step(rgb[:, 0], q[:, 0], tr[:, 0], K, rs[:, 0], None)
+        flat = StreamState.unflatten(list(s_fast.flatten()))
+        assert len(s_fast.flatten()) == 10 and flat.features[2].shape == s_ref.features[2].shape
+        a, _ = m.step(rgb[:, 1], q[:, 1], tr[:, 1], K, rs[:, 1], flat)  # reference step on a fast state
+        b, _ = m.step(rgb[:, 1], q[:, 1], tr[:, 1], K, rs[:, 1], s_ref)
+    torch.testing.assert_close(a.depth, b.depth, rtol=1e-4, atol=1e-4)
+
+
+def test_static_engine_needs_a_state_and_gives_zero_state_shapes(models):
+    engine = FastEngine(models["cosemdepth"], static=True)
+    rgb, q, tr, K = sequence(b=1, t=1, h=40, w=56)  # odd sizes down the pyramid
+    with pytest.raises(ValueError, match="explicit state"):
+        engine.step(rgb[:, 0], q[:, 0], tr[:, 0], K, torch.tensor([True]), None)
+    zero = engine.zero_state(1, 40, 56)
+    assert [tuple(f.shape) for f in zero.features] == [(1, 16, 20, 28), (1, 32, 10, 14), (1, 64, 5, 7), (1, 96, 3, 4), (1, 128, 2, 2)]
+    out, state = engine.step(rgb[:, 0], q[:, 0], tr[:, 0], K, torch.tensor([True]), zero)
+    assert torch.all(out.depth == 1000.0) and torch.all(state.depths[1] == 1000.0)
+    with pytest.raises(ValueError, match="dtype"):
+        FastEngine(models["cosemdepth"], dtype=torch.int8)

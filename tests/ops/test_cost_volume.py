@@ -1,0 +1,65 @@
+import pytest
+import torch
+
+from cosemdepth.ops.cost_volume import (
+    parallax_sweep_cost_volume,
+    parallax_sweep_cost_volume_fast,
+    spatial_cost_volume,
+    spatial_cost_volume_fast,
+)
+
+
+def test_sncv_hand_computed_single_channel():
+    # one channel, one group, radius 1: corr_d(p) = f(p) f(p + d), zero outside, LeakyReLU(0.1)
+    f = torch.tensor([[1.0, 2.0], [3.0, -4.0]]).view(1, 1, 2, 2)
+    out = spatial_cost_volume_fast(f, groups=1, radius=1).view(3, 3, 2, 2)
+    expected = torch.zeros(3, 3, 2, 2)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            for y in range(2):
+                for x in range(2):
+                    yy, xx = y + dy, x + dx
+                    if 0 <= yy < 2 and 0 <= xx < 2:
+                        v = f[0, 0, y, x] * f[0, 0, yy, xx]
+                        expected[dy + 1, dx + 1, y, x] = v if v > 0 else 0.1 * v
+    torch.testing.assert_close(out, expected)
+    assert out[1, 1, 1, 1] == 16.0  # centre offset: f^2
+    assert out[2, 2, 0, 0] == pytest.approx(-0.4)  # 1 * -4 through the LeakyReLU
+
+
+@pytest.mark.parametrize(
+    "shape, groups, radius",
+    [((2, 16, 9, 13), 1, 3), ((1, 32, 6, 5), 2, 3), ((1, 24, 2, 3), 4, 3), ((1, 8, 1, 1), 2, 3), ((2, 6, 7, 4), 3, 1)],
+)
+def test_sncv_fast_equals_reference(shape, groups, radius):
+    x = torch.randn(shape)
+    ref = spatial_cost_volume(x, groups, radius)
+    fast = spatial_cost_volume_fast(x.contiguous(memory_format=torch.channels_last), groups, radius)
+    assert fast.shape == ref.shape
+    torch.testing.assert_close(fast, ref, rtol=1e-5, atol=1e-6)
+
+
+def _grid_points(b, s, h, w, shift=(0.0, 0.0)):
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij")
+    pts = torch.stack([xs + shift[0], ys + shift[1]])  # [2,H,W]
+    return pts.expand(b, s, 2, h, w).clone()
+
+
+def test_pscv_fast_identity_warp_is_group_mean_of_products():
+    b, c, h, w, k = 1, 8, 5, 6, 2
+    f, prev = torch.randn(b, c, h, w), torch.randn(b, c + 1, h, w)
+    pscv, warped_para = parallax_sweep_cost_volume_fast(f, prev, _grid_points(b, 3, h, w), k)
+    expected = (f * prev[:, :c]).view(b, k, c // k, h, w).mean(2)  # [B,K,H,W], same for all 3 hypotheses
+    torch.testing.assert_close(pscv.view(b, k, 3, h, w), expected.unsqueeze(2).expand(b, k, 3, h, w))
+    torch.testing.assert_close(warped_para, prev[:, c:].expand(b, 3, h, w))
+
+
+def test_pscv_fast_equals_reference_on_fractional_points():
+    b, c, h, w, s = 2, 16, 7, 9, 9
+    g = torch.Generator().manual_seed(3)
+    f, prev = torch.randn(b, c, h, w, generator=g), torch.randn(b, c + 1, h, w, generator=g)
+    pts = _grid_points(b, s, h, w) + 3 * torch.randn(b, s, 2, h, w, generator=g)  # some fall outside: border clamp
+    ref = parallax_sweep_cost_volume(f, prev, pts, 2)
+    fast = parallax_sweep_cost_volume_fast(f.contiguous(memory_format=torch.channels_last), prev, pts, 2)
+    torch.testing.assert_close(fast[0], ref[0], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(fast[1], ref[1])
