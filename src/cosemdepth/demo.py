@@ -380,6 +380,7 @@ def run_demo(
     video: str | None = "mp4",
     overwrite: bool = False,
     progress: bool = True,
+    fast: bool = True,
     log=print,
 ) -> dict[str, Any]:
     """Run the demo and write the report folder ``out``; returns the content of ``metrics.json``.
@@ -394,7 +395,8 @@ def run_demo(
         data_dir: where to generate the flight (kept; re-running with the same arguments reuses it); default a
             temporary folder, deleted at the end.
         device: torch device. video: ``"mp4"``, ``"gif"`` or None. overwrite: replace a non-empty ``out``.
-        progress: progress bar. log: where to print progress lines.
+        progress: progress bar. fast: the fast fp32 inference path (default; False: the plain modules).
+        log: where to print progress lines.
     """
     from . import __version__
     from .evaluation.classes import class_info
@@ -420,6 +422,8 @@ def run_demo(
     t = time.perf_counter()
     model_path = resolve_model_path(model)
     net = load_model(model_path, device=dev)
+    if fast:
+        net.optimize("fast")
     try:
         _, meta = read_config_file(model_path)
     except CheckpointError:

@@ -93,10 +93,13 @@ def run_cli(*argv):
     return main(["evaluate", *map(str, argv)])
 
 
-def test_evaluate_cli_on_the_converted_tf_model(converted, split, expected, tmp_path, capsys):
+@pytest.mark.parametrize("path, rel", [("reference", 1e-6), ("fast", 1e-4)])
+def test_evaluate_cli_on_the_converted_tf_model(converted, split, expected, tmp_path, capsys, path, rel):
+    # --reference runs the same modules as the independent loop (float-exact); the default fast path agrees up to
+    # float rounding amplified by the time recurrence of an untrained network
     out = tmp_path / "eval"
     rc = run_cli("--model", converted, "--dataset", "midair", "--root", split, "--split-dir", split / "splits",
-                 "--size", SIZE, "--out", out, "--no-progress")
+                 "--size", SIZE, "--out", out, "--no-progress", *(["--reference"] if path == "reference" else []))
     assert rc == 0
     printed = capsys.readouterr().out
     assert "| model | params | ms/frame | mIoU |" in printed
@@ -106,7 +109,7 @@ def test_evaluate_cli_on_the_converted_tf_model(converted, split, expected, tmp_
     assert expected["frames"] == 4  # 2 trajectories x 3 rows, minus the 2 reset rows
     assert m["depth_frames"] == 4 and m["semantic_frames"] == 4
     for k in ("abs_rel", "rmse", "delta1", "rmse_log", "miou"):
-        assert m[k] == pytest.approx(expected[k], rel=1e-6, abs=1e-9), k
+        assert m[k] == pytest.approx(expected[k], rel=rel, abs=1e-9), k
     assert res["params"] == 5_202_528
     assert res["protocol"]["frames_streamed"] == 6 and res["protocol"]["reset_frames"] == 2
     assert len(res["confusion_matrix"]) == 7 and sum(map(sum, res["confusion_matrix"])) == 4 * SIZE * SIZE

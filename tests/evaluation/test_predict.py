@@ -58,7 +58,7 @@ def test_depth_png_encoding_by_hand():
 
 def test_predict_writes_every_artefact_and_they_read_back(model_dir, data, tmp_path):
     out = tmp_path / "pred"
-    assert predict("--model", model_dir, *split_args(data), "--out", out) == 0
+    assert predict("--model", model_dir, *split_args(data), "--out", out, "--reference") == 0
     man = json.loads((out / "predictions.json").read_text())
     assert man["frames_written"] == 6 and man["encodings"]["depth_png_scale"] == 256
     assert [t["name"] for t in man["trajectories"]] == ["Kite_training/sunny/traj_0000",

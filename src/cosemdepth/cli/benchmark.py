@@ -18,7 +18,7 @@ import torch
 
 from ..config import ARCHITECTURES
 from ..errors import ConfigError
-from ._common import parse_size
+from ._shared import parse_size_pair
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         wait_for_idle,
     )
 
-    h, w = parse_size(args.size)
+    h, w = parse_size_pair(args.size)
     device = resolve_device(args.device)
     cuda = device.startswith("cuda")
     if args.threads:
@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     weights = None
     models = args.models
     if args.model:
-        from ._common import load_or_build
+        from ._shared import load_or_build
 
         weights = load_or_build(argparse.Namespace(model=args.model))
         models = [weights.config.arch]

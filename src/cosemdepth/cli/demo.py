@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ._shared import add_device_args, apply_threads, positive_int
+from ._shared import add_device_args, add_reference_arg, apply_threads, positive_int
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -38,6 +38,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--video", default="mp4", choices=("mp4", "gif", "none"),
                         help="flight video format (default mp4; GIF when no ffmpeg)")
     parser.add_argument("--overwrite", action="store_true", help="replace a non-empty --out folder")
+    add_reference_arg(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -50,6 +51,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give at most one of --data-root (use an existing dataset) and --data-dir (generate here)")
     run_demo(args.out, model=args.model, size=args.size, frames=args.frames, seed=args.seed, climate=args.climate,
              data_root=args.data_root, data_dir=args.data_dir, device=args.device,
-             video=None if args.video == "none" else args.video, overwrite=args.overwrite,
+             video=None if args.video == "none" else args.video, overwrite=args.overwrite, fast=not args.reference,
              progress=not args.no_progress and sys.stderr.isatty())
     return 0

@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ConfigError
-from ._common import add_model_arguments, load_or_build, parse_size
+from ._shared import add_model_or_arch_args, load_or_build, parse_size_pair
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--onnx", metavar="OUT", required=True, help="output .onnx file")
-    add_model_arguments(parser)
+    add_model_or_arch_args(parser)
     parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), help="input size (default 384 384)")
     parser.add_argument("--batch", type=int, default=1, help="batch size (default 1)")
     parser.add_argument("--dynamic-batch", action="store_true", help="make the batch axis dynamic")
@@ -24,7 +24,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..export.onnx import export_onnx
 
-    h, w = parse_size(args.size)
+    h, w = parse_size_pair(args.size)
     if args.batch < 1:
         raise ConfigError(f"--batch must be at least 1, got {args.batch}")
     model = load_or_build(args)

@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
 
     StagedDir(args.out, MANIFEST, overwrite=args.overwrite, what="--out folder").check()  # fail before loading
     dataset = _open(args)
-    model, device = load(args.model, args.device)
+    model, device = load(args.model, args.device, fast=not args.reference)
     info = {
         "model": {"path": str(args.model)},
         "dataset": {"root": str(args.images if args.flight else args.root),
