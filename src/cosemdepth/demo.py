@@ -50,6 +50,9 @@ DEFAULT_FRAMES = 150
 #: World seed of the held-out flight (the shipped weights are trained on other seeds).
 DEFAULT_SEED = 1001
 DEFAULT_CLIMATE = "sunny"
+#: Colour rays per pixel of the generated flight: the shipped weights were trained on 3x supersampled SynthAir
+#: (scripts/make_demo_weights.sh), and the held-out flight is rendered the same way.
+DEFAULT_SUPERSAMPLE = 3
 REPORT_MARKER = "report.md"
 QUALITATIVE_FRAMES = 4
 
@@ -95,7 +98,8 @@ def synth_available() -> bool:
     return importlib.util.find_spec("cosemdepth.cli.synth") is not None
 
 
-def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climate: str, quiet: bool = True) -> Path:
+def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climate: str,
+                    supersample: int = DEFAULT_SUPERSAMPLE, quiet: bool = True) -> Path:
     """Render one SynthAir trajectory of ``frames`` CSV rows with ``cosemdepth synth``; returns the dataset root."""
     from .cli.main import main
 
@@ -103,7 +107,8 @@ def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climat
         raise ConfigError("this installation has no `cosemdepth synth` command to build the SynthAir flight; pass "
                           "--data-root ROOT to evaluate on an existing Mid-Air-format dataset (splits in ROOT/splits)")
     argv = ["synth", "--out", str(data_dir), "--trajectories", "1", "--frames", str(4 * (frames + 1)),
-            "--size", str(size), "--seed", str(seed), "--climates", climate, "--no-progress"]
+            "--size", str(size), "--seed", str(seed), "--climates", climate, "--supersample", str(supersample),
+            "--no-progress"]
     sink = io.StringIO()
     with contextlib.redirect_stdout(sink) if quiet else contextlib.nullcontext():
         rc = main(argv)
@@ -374,6 +379,7 @@ def run_demo(
     frames: int = DEFAULT_FRAMES,
     seed: int = DEFAULT_SEED,
     climate: str = DEFAULT_CLIMATE,
+    supersample: int = DEFAULT_SUPERSAMPLE,
     data_root: str | os.PathLike | None = None,
     data_dir: str | os.PathLike | None = None,
     device: str = "cpu",
@@ -390,6 +396,7 @@ def run_demo(
         model: model folder (default: the shipped ``weights/synthair-cosemdepth``).
         size: image size (default: the model's training size if its folder records one, else 128).
         frames: evaluated-flight length in CSV rows (frames at 6.25 Hz). seed: world seed. climate: SynthAir climate.
+        supersample: colour rays per pixel of the generated flight (1, 3 or 5; default 3, as the training data).
         data_root: evaluate on this existing Mid-Air-format dataset (splits in ``data_root/splits``) instead of
             generating one.
         data_dir: where to generate the flight (kept; re-running with the same arguments reuses it); default a
@@ -447,9 +454,9 @@ def run_demo(
                 root = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cosemdepth-demo-"))) / "synthair"
             log(f"building a held-out SynthAir flight: {frames} frames at {size}x{size}, seed {seed}, {climate} "
                 f"(in {root})")
-            generate_flight(root, size=size, frames=frames, seed=seed, climate=climate)
+            generate_flight(root, size=size, frames=frames, seed=seed, climate=climate, supersample=supersample)
             description = (f"SynthAir, world seed {seed}, climate {climate}, one trajectory of {frames} frames at "
-                           f"{size}x{size}")
+                           f"{size}x{size} ({supersample}x supersampled)")
             timings["generate_flight"] = time.perf_counter() - t
         dataset, split = open_flight_split(root, size)
 

@@ -14,7 +14,7 @@ from ._shared import add_device_args, add_reference_arg, apply_threads, positive
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from ..demo import DEFAULT_CLIMATE, DEFAULT_FRAMES, DEFAULT_MODEL, DEFAULT_SEED, DEFAULT_SIZE
+    from ..demo import DEFAULT_CLIMATE, DEFAULT_FRAMES, DEFAULT_MODEL, DEFAULT_SEED, DEFAULT_SIZE, DEFAULT_SUPERSAMPLE
 
     parser.add_argument("--out", required=True, type=Path, metavar="DIR",
                         help="report folder (new, empty, or a previous demo report, which is replaced)")
@@ -28,6 +28,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="K",
                         help=f"world seed of the held-out flight (default {DEFAULT_SEED})")
     parser.add_argument("--climate", default=DEFAULT_CLIMATE, help=f"SynthAir climate (default {DEFAULT_CLIMATE})")
+    parser.add_argument("--supersample", type=int, default=DEFAULT_SUPERSAMPLE, choices=(1, 3, 5),
+                        help=f"colour rays per pixel of the generated flight (default {DEFAULT_SUPERSAMPLE}, as the "
+                        "shipped weights' training data)")
     parser.add_argument("--data-dir", type=Path, default=None, metavar="DIR",
                         help="generate the flight here and keep it (a re-run with the same arguments reuses it); "
                         "default: a temporary folder")
@@ -50,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     if args.data_root is not None and args.data_dir is not None:
         raise ConfigError("give at most one of --data-root (use an existing dataset) and --data-dir (generate here)")
     run_demo(args.out, model=args.model, size=args.size, frames=args.frames, seed=args.seed, climate=args.climate,
-             data_root=args.data_root, data_dir=args.data_dir, device=args.device,
+             supersample=args.supersample, data_root=args.data_root, data_dir=args.data_dir, device=args.device,
              video=None if args.video == "none" else args.video, overwrite=args.overwrite, fast=not args.reference,
              progress=not args.no_progress and sys.stderr.isatty())
     return 0
