@@ -125,7 +125,7 @@ def test_demo_generates_the_flight_with_the_synth_command(model_dir, tmp_path, m
     m = demo_mod.run_demo(tmp_path / "r", model=model_dir, size=SIZE, frames=5, seed=7, climate="foggy",
                           video=None, progress=False, log=lambda *a: None)
     assert calls == [["synth", "--out", calls[0][2], "--trajectories", "1", "--frames", "24", "--size", "32",
-                      "--seed", "7", "--climates", "foggy", "--no-progress"]]
+                      "--seed", "7", "--climates", "foggy", "--supersample", "3", "--no-progress"]]
     assert not Path(calls[0][2]).exists()  # the temporary flight is deleted
     check_schema(m)
     assert m["details"]["evaluation"]["protocol"]["frames_streamed"] == 5
