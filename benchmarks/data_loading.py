@@ -10,7 +10,6 @@ Prints a JSON object (seconds per frame) and writes it to ``--out`` if given.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import tempfile
 import time
@@ -21,11 +20,11 @@ import numpy as np
 import torch
 from PIL import Image
 
+from cosemdepth.bench.report import print_json
 from cosemdepth.data import open_dataset
 from cosemdepth.data.decode import read_rgb
 from cosemdepth.data.midair.dataset import read_depth, read_labels
 from cosemdepth.data.midair.splits import generate_splits
-from cosemdepth.io.atomic import atomic_write_text
 
 
 def write_dataset(root: Path, frames: int, native: int) -> None:
@@ -89,10 +88,7 @@ def main() -> None:
             "machine": platform.processor() or platform.machine(),
             "torch": torch.__version__,
         }
-    text = json.dumps(result, indent=2)
-    print(text)
-    if a.out:
-        atomic_write_text(a.out, text + "\n")
+    print_json(result, a.out)
 
 
 if __name__ == "__main__":

@@ -41,18 +41,12 @@ from cosemdepth.data.synthair.writer import (  # noqa: E402
     plan_flights,
     rendered_frames,
 )
+from cosemdepth.evaluation.resources import cpu_model  # noqa: E402
 from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
 
 
 def machine_info(threads: int) -> dict:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model(platform.processor() or platform.machine())
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                                 cwd=Path(__file__).parent, check=False).stdout.strip()

@@ -10,7 +10,6 @@ present.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -18,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cosemdepth.io.atomic import atomic_write_text
+from cosemdepth.bench.report import print_json
 from cosemdepth.io.convert import import_checkpoint
 from cosemdepth.io.crc32c import crc32c
 from cosemdepth.io.tf_checkpoint import CheckpointReader, is_tf_checkpoint
@@ -61,10 +60,7 @@ def main() -> None:
         read = best_of(lambda: CheckpointReader(args.checkpoint).read_all(), args.repeat)
         result["read_all_numeric_s"] = round(read, 4)
         result["read_and_convert_s"] = round(best_of(lambda: import_checkpoint(args.checkpoint), args.repeat), 4)
-    text = json.dumps(result, indent=2)
-    print(text)
-    if args.out:
-        atomic_write_text(args.out, text + "\n")
+    print_json(result, args.out)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import platform
 import tempfile
 import time
@@ -20,8 +19,8 @@ from pathlib import Path
 
 import torch
 
+from cosemdepth.bench.report import print_json
 from cosemdepth.config import RunConfig
-from cosemdepth.io.atomic import atomic_write_text
 from cosemdepth.models import build_model
 from cosemdepth.training.checkpoint import CheckpointManager, get_rng_state, load_checkpoint, validate_checkpoint
 from cosemdepth.training.data import collate, to_device
@@ -91,10 +90,7 @@ def main() -> None:
         "checkpoint_bytes": size, "checkpoint_save_s": t_save, "checkpoint_validate_s": t_validate,
         "checkpoint_load_s": t_load,
     }
-    text = json.dumps(result, indent=2)
-    print(text)
-    if a.out:
-        atomic_write_text(a.out, text + "\n")
+    print_json(result, a.out)
 
 
 if __name__ == "__main__":

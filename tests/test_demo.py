@@ -10,7 +10,8 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "evaluation"))
-from _outputs import leftovers, tiny_midair, tiny_model, torch_threads  # noqa: E402
+from _outputs import leftovers, tiny_midair  # noqa: E402
+from _outputs import _one_thread, model_dir  # noqa: E402, F401 (pytest fixtures)
 
 from cosemdepth import demo as demo_mod  # noqa: E402
 from cosemdepth.cli.main import main  # noqa: E402
@@ -18,17 +19,6 @@ from cosemdepth.data import open_dataset  # noqa: E402
 from cosemdepth.errors import CheckpointError, ConfigError  # noqa: E402
 
 SIZE = 32
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with torch_threads(1):
-        yield
-
-
-@pytest.fixture(scope="module")
-def model_dir(tmp_path_factory):
-    return tiny_model(tmp_path_factory.mktemp("m") / "tiny")
 
 
 @pytest.fixture(scope="module")

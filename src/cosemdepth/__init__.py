@@ -11,6 +11,8 @@ Five lines::
 
 from __future__ import annotations
 
+from ._lazy import lazy_getattr as _lazy_getattr
+
 __version__ = "0.1.0"
 
 _LAZY = {
@@ -20,14 +22,7 @@ _LAZY = {
     "ModelConfig": ("cosemdepth.config", "ModelConfig"),
 }
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        mod, attr = _LAZY[name]
-        return getattr(importlib.import_module(mod), attr)
-    raise AttributeError(f"module 'cosemdepth' has no attribute {name!r}")
+__getattr__ = _lazy_getattr(__name__, _LAZY)
 
 
 __all__ = ["__version__", *_LAZY]

@@ -8,25 +8,10 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
-from _outputs import SIZE, leftovers, tiny_midair, tiny_model, torch_threads, unwritable_folder  # noqa: E402
+from _outputs import SIZE, leftovers, tiny_model, unwritable_folder  # noqa: E402
+from _outputs import _one_thread, data, model_dir  # noqa: E402, F401 (pytest fixtures)
 
 from cosemdepth.cli.main import main  # noqa: E402
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with torch_threads(1):
-        yield
-
-
-@pytest.fixture(scope="module")
-def model_dir(tmp_path_factory):
-    return tiny_model(tmp_path_factory.mktemp("m") / "tiny")
-
-
-@pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    return tiny_midair(tmp_path_factory.mktemp("d") / "midair")
 
 
 def evaluate(model, root, *extra):

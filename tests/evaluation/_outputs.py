@@ -1,4 +1,9 @@
-"""Helpers for the tests of commands that write outputs: tiny models and datasets, an unwritable folder, leftovers."""
+"""Helpers for the tests of commands that write outputs: tiny models and datasets, an unwritable folder, leftovers.
+
+Also module-scoped pytest fixtures for those tests; a test module uses them by importing them
+(``from _outputs import _one_thread, data, model_dir``): ``_one_thread`` (autouse: the module runs with one torch
+thread), ``model_dir`` (a tiny random model folder) and ``data`` (a tiny Mid-Air-format dataset).
+"""
 
 from __future__ import annotations
 
@@ -8,6 +13,8 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from _writers import write_midair  # noqa: E402
@@ -79,3 +86,19 @@ def torch_threads(n: int):
         yield
     finally:
         torch.set_num_threads(old)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    with torch_threads(1):
+        yield
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory):
+    return tiny_model(tmp_path_factory.mktemp("m") / "tiny")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return tiny_midair(tmp_path_factory.mktemp("d") / "midair")

@@ -6,28 +6,15 @@ compute the per-frame metrics with plain numpy, and average them over the non-re
 
 import json
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from _outputs import SIZE, tiny_midair
+from _outputs import _one_thread  # noqa: F401 (pytest fixture)
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
-from _writers import write_midair  # noqa: E402
-from _outputs import torch_threads  # noqa: E402
-
-from cosemdepth.cli.main import main  # noqa: E402
-from cosemdepth.data import open_dataset  # noqa: E402
-from cosemdepth.data.midair.splits import generate_splits  # noqa: E402
-
-SIZE = 32
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with torch_threads(1):
-        yield
+from cosemdepth.cli.main import main
+from cosemdepth.data import open_dataset
 
 
 @pytest.fixture(scope="module")
@@ -48,10 +35,7 @@ def converted(tf_model, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def split(tmp_path_factory):
-    root = tmp_path_factory.mktemp("midair")
-    write_midair(root, {("Kite_training", "sunny"): [0, 1]}, frames=16, size=SIZE)  # 3 CSV rows each
-    generate_splits(root, root / "splits", rule=lambda t: "test")
-    return root
+    return tiny_midair(tmp_path_factory.mktemp("midair"))  # 2 trajectories of 16 frames at SIZE: 3 CSV rows each
 
 
 @pytest.fixture(scope="module")

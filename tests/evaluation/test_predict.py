@@ -4,11 +4,11 @@ import json
 import shutil
 
 import numpy as np
-import pytest
 import torch
 from PIL import Image
 
-from _outputs import SIZE, leftovers, tiny_midair, tiny_model, torch_threads, unwritable_folder
+from _outputs import SIZE, leftovers, unwritable_folder
+from _outputs import _one_thread, data, model_dir  # noqa: F401 (pytest fixtures)
 from cosemdepth.cli.main import main
 from cosemdepth.data import open_dataset
 from cosemdepth.data.midair.format import PALETTE_7
@@ -18,22 +18,6 @@ from cosemdepth.evaluation.visualize import (
     png16_to_depth,
     rgb_to_uint8,
 )
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with torch_threads(1):
-        yield
-
-
-@pytest.fixture(scope="module")
-def model_dir(tmp_path_factory):
-    return tiny_model(tmp_path_factory.mktemp("m") / "tiny")
-
-
-@pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    return tiny_midair(tmp_path_factory.mktemp("d") / "midair")
 
 
 def predict(*argv):

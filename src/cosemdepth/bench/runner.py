@@ -21,6 +21,7 @@ from typing import Callable, Optional
 import torch
 
 from ..config import ModelConfig
+from ..evaluation.resources import cpu_model
 from ..export.check import synthetic_sequence
 from .memory import PeakMemory, exact_rss
 
@@ -288,14 +289,7 @@ def _cpu_capability() -> Optional[str]:
 
 
 def _cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+    return cpu_model(platform.processor() or "unknown")
 
 
 def _loadavg() -> Optional[list[float]]:

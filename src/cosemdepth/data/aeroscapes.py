@@ -21,7 +21,8 @@ import torch
 
 from ..errors import DatasetError
 from .augment import resolve_augment
-from .decode import check_labels, image_size, read_channel0, read_rgb
+from .decode import image_size, read_label_ids, read_rgb
+from .files import dataset_root, read_text
 from .frames import Size, as_size, labels_to_tensor, midair_intrinsics, rgb_to_tensor
 from .sequence import FrameRecord, SequenceDataset, Trajectory
 
@@ -40,12 +41,7 @@ SPLIT_FILES = {"train": "trn.txt", "trn": "trn.txt", "val": "val.txt", "test": "
 
 def read_split_file(path: Path) -> list[str]:
     """Image names of an ``ImageSets`` file (blank lines ignored; a trailing ``.jpg`` is tolerated)."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: Aeroscapes split file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{path}: cannot read split file ({e})") from None
+    text = read_text(path, "Aeroscapes split file")
     names = []
     for line in text.splitlines():
         name = line.strip()
@@ -65,9 +61,7 @@ class AeroscapesFrameLoader:
     def __call__(self, rec: FrameRecord) -> dict[str, torch.Tensor]:
         out = {"rgb": rgb_to_tensor(read_rgb(rec.rgb), self.size)}
         if rec.semantic is not None:
-            ids = read_channel0(rec.semantic)
-            check_labels(ids, len(CLASSES), rec.semantic)
-            out["semantic"] = labels_to_tensor(ids, self.size, "nn2")
+            out["semantic"] = labels_to_tensor(read_label_ids(rec.semantic, len(CLASSES)), self.size, "nn2")
         return out
 
 
@@ -83,9 +77,7 @@ def open_aeroscapes(
     name: str = "aeroscapes",
 ) -> SequenceDataset:
     """Open an Aeroscapes split. ``split_dir`` defaults to ``<root>/ImageSets``."""
-    root = Path(root)
-    if not root.is_dir():
-        raise DatasetError(f"{root}: dataset root not found (or not a folder)")
+    root = dataset_root(root)
     if split not in SPLIT_FILES:
         raise DatasetError(f"Aeroscapes has splits {sorted(SPLIT_FILES)}, got {split!r}")
     split_dir = Path(split_dir) if split_dir is not None else root / "ImageSets"

@@ -1,4 +1,5 @@
-"""Finding split CSVs and turning their rows into trajectories (Mid-Air, SynthAir and TopAir share this).
+"""Finding split CSVs, turning their rows into trajectories and opening a split as a dataset (Mid-Air, SynthAir and
+TopAir share this).
 
 Layout: ``<split_dir>/<split>_data/**/*.csv`` (the authors' ``data/midair/{train,val,test}_data/...``); a plain
 ``<split_dir>/<split>/`` folder is accepted too. One CSV is one trajectory; CSVs are taken in sorted order of their
@@ -8,13 +9,17 @@ path relative to the split folder, rows in file order. Paths inside the CSVs are
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import DatasetError
+from ..errors import ConfigError, DatasetError
+from .augment import resolve_augment
+from .decode import image_size
+from .files import dataset_root
+from .frames import Size, as_size, midair_intrinsics
 from .midair.splits import read_csv
-from .sequence import Trajectory
+from .sequence import FrameLoader, SequenceDataset, Trajectory, default_mode
 
 
 def find_split_csvs(split_dir: str | Path, split: str) -> tuple[Path, list[Path]]:
@@ -101,3 +106,68 @@ def check_modalities_consistent(trajectories: Sequence[Trajectory], where: Path)
             f"{where}: the split CSVs disagree on the modalities they provide (some have depth/semantic columns, "
             "some do not); use one format for the whole split"
         )
+
+
+def open_csv_split(
+    root: str | Path,
+    split_dir: str | Path,
+    split: str,
+    seq_len: int,
+    size: int | tuple[int, int] | None,
+    augment,
+    *,
+    columns: Mapping[str, str],
+    reset_rule: Callable[[np.ndarray], np.ndarray],
+    make_loader: Callable[[Size | None], FrameLoader],
+    derive: dict[str, Callable[[str], str]] | None = None,
+    mode: str | None = None,
+    db_seq_len: int | None = None,
+    modalities: Iterable[str] | None = None,
+    seed: int = 0,
+    name: str = "",
+) -> SequenceDataset:
+    """Open a split of a dataset described by split CSVs (the common part of the Mid-Air/SynthAir and TopAir readers).
+
+    Checks ``root`` and ``modalities`` (a subset of ``("depth", "semantic")``, default both), reads the CSVs of
+    ``split`` under ``split_dir`` (:func:`find_split_csvs`, :func:`trajectories_from_csvs` with ``columns`` restricted
+    to the wanted modalities, ``reset_rule`` and ``derive``), checks that they agree on their modalities, and returns
+    a :class:`SequenceDataset` whose frames are read by ``make_loader(output size)`` (``None``: native size) and
+    whose intrinsics are the 90-degree convention at the output size (the first image's size if ``size`` is None).
+
+    Args:
+        columns: modality -> CSV column, for ``"rgb"``, ``"depth"`` and ``"semantic"``.
+        mode: window mode; default :func:`cosemdepth.data.sequence.default_mode` of ``split`` and ``seq_len``.
+        Other arguments as :func:`cosemdepth.data.midair.dataset.open_midair`.
+    """
+    root = dataset_root(root)
+    out_size = as_size(size)
+    wanted = set(("depth", "semantic") if modalities is None else modalities)
+    unknown = wanted - {"depth", "semantic"}
+    if unknown:
+        raise ConfigError(f"modalities may only name 'depth' and 'semantic', got {sorted(unknown)}")
+    folder, csvs = find_split_csvs(split_dir, split)
+    trajectories = trajectories_from_csvs(
+        root,
+        folder,
+        csvs,
+        columns={
+            "rgb": columns["rgb"],
+            "depth": columns["depth"] if "depth" in wanted else None,
+            "semantic": columns["semantic"] if "semantic" in wanted else None,
+        },
+        reset_rule=reset_rule,
+        derive=derive,
+    )
+    check_modalities_consistent(trajectories, folder)
+    intrinsics_size = out_size if out_size is not None else image_size(trajectories[0].frame(0).rgb)
+    return SequenceDataset(
+        trajectories,
+        make_loader(out_size),
+        midair_intrinsics(intrinsics_size),
+        seq_len=seq_len,
+        mode=mode or default_mode(split, seq_len),
+        db_seq_len=db_seq_len,
+        augment=resolve_augment(augment),
+        seed=seed,
+        name=name,
+    )

@@ -126,6 +126,14 @@ def check_labels(labels: np.ndarray, num_ids: int, path: str | os.PathLike) -> N
         )
 
 
+def read_label_ids(path: str | os.PathLike, num_ids: int) -> np.ndarray:
+    """Label PNG -> ``[H, W]`` class IDs (channel 0, see :func:`read_channel0`) at the native size, checked to lie
+    in ``0..num_ids-1`` (:func:`check_labels`)."""
+    ids = read_channel0(path)
+    check_labels(ids, num_ids, path)
+    return ids
+
+
 def image_size(path: str | os.PathLike) -> tuple[int, int]:
     """``(H, W)`` of an image file, from its header (no full decoding)."""
     from PIL import Image, UnidentifiedImageError

@@ -45,7 +45,7 @@ import torch
 
 from ..errors import ConfigError, DatasetError
 from .augment import resolve_augment
-from .decode import check_labels, image_size, read_channel0, read_rgb, read_uint16_png
+from .decode import image_size, read_label_ids, read_rgb, read_uint16_png
 from .frames import Size, as_size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
 from .poses import poses_at, read_poses, relative_camera_motions
 from .sequence import FrameRecord, SequenceDataset, Trajectory
@@ -131,9 +131,7 @@ class FlightFrameLoader:
         if rec.depth is not None:
             out["depth"] = depth_to_tensor(self._depth(rec.depth), self.size)
         if rec.semantic is not None:
-            ids = read_channel0(rec.semantic)
-            check_labels(ids, self.num_classes, rec.semantic)
-            out["semantic"] = labels_to_tensor(ids, self.size, "nn2")
+            out["semantic"] = labels_to_tensor(read_label_ids(rec.semantic, self.num_classes), self.size, "nn2")
         return out
 
     def _depth(self, path: Path) -> np.ndarray:

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, DatasetError
+from .files import read_text
 from .quaternion import qfrom_matrix, qmatrix
 
 #: Accepted deviation of a pose quaternion's norm from 1 (poses are renormalized after the check).
@@ -67,12 +68,7 @@ class PoseTrack:
 
 
 def _data_lines(path: Path) -> list[tuple[int, str]]:
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: pose file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{path}: cannot read pose file ({e})") from None
+    text = read_text(path, "pose file")
     return [(i, ln.strip()) for i, ln in enumerate(text.splitlines(), start=1) if ln.strip() and not ln.lstrip().startswith("#")]
 
 

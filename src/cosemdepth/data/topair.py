@@ -21,12 +21,11 @@ from typing import Iterable
 import numpy as np
 import torch
 
-from ..errors import ConfigError, DatasetError
-from .augment import resolve_augment
-from .csvsplits import check_modalities_consistent, find_split_csvs, trajectories_from_csvs
-from .decode import check_labels, image_size, read_channel0, read_rgb
-from .frames import Size, as_size, depth_to_tensor, labels_to_tensor, midair_intrinsics, rgb_to_tensor
-from .sequence import FrameRecord, SequenceDataset, default_mode
+from ..errors import DatasetError
+from .csvsplits import open_csv_split
+from .decode import read_channel0, read_label_ids, read_rgb
+from .frames import Size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
+from .sequence import FrameRecord, SequenceDataset
 
 CLASSES = ("sky", "water", "trees", "land", "vehicle", "boulders", "road", "man_made_construction", "others")
 
@@ -68,9 +67,7 @@ class TopAirFrameLoader:
         if rec.depth is not None:
             out["depth"] = depth_to_tensor(read_depth8(rec.depth), self.size, rule="nn2")
         if rec.semantic is not None:
-            ids = read_channel0(rec.semantic)
-            check_labels(ids, len(CLASSES), rec.semantic)
-            out["semantic"] = labels_to_tensor(ids, self.size, "nn2")
+            out["semantic"] = labels_to_tensor(read_label_ids(rec.semantic, len(CLASSES)), self.size, "nn2")
         return out
 
 
@@ -90,39 +87,19 @@ def open_topair(
 ) -> SequenceDataset:
     """Open a TopAir split. ``split_dir`` defaults to ``<root>/splits``; other arguments as
     :func:`cosemdepth.data.midair.dataset.open_midair` (no ``labels``: TopAir has its own 9 classes)."""
-    root = Path(root)
-    if not root.is_dir():
-        raise DatasetError(f"{root}: dataset root not found (or not a folder)")
-    split_dir = Path(split_dir) if split_dir is not None else root / "splits"
-    out_size = as_size(size)
-    wanted = set(("depth", "semantic") if modalities is None else modalities)
-    if wanted - {"depth", "semantic"}:
-        raise ConfigError(f"modalities may only name 'depth' and 'semantic', got {sorted(wanted)}")
-    folder, csvs = find_split_csvs(split_dir, split)
-    trajectories = trajectories_from_csvs(
+    return open_csv_split(
         root,
-        folder,
-        csvs,
-        columns={
-            "rgb": "camera_l",
-            "depth": "depth" if "depth" in wanted else None,
-            "semantic": "semantic" if "semantic" in wanted else None,
-        },
+        split_dir if split_dir is not None else Path(root) / "splits",
+        split,
+        seq_len,
+        size,
+        augment,
+        columns={"rgb": "camera_l", "depth": "depth", "semantic": "semantic"},
         reset_rule=lambda ids: np.zeros(len(ids), dtype=bool),  # only the first row (id -1 in the authors' CSVs)
-    )
-    check_modalities_consistent(trajectories, folder)
-    if out_size is None:
-        out_size_k = image_size(trajectories[0].frame(0).rgb)
-    else:
-        out_size_k = out_size
-    return SequenceDataset(
-        trajectories,
-        TopAirFrameLoader(out_size),
-        midair_intrinsics(out_size_k),
-        seq_len=seq_len,
-        mode=mode or default_mode(split, seq_len),
+        make_loader=TopAirFrameLoader,
+        mode=mode,
         db_seq_len=db_seq_len,
-        augment=resolve_augment(augment),
+        modalities=modalities,
         seed=seed,
         name=name,
     )

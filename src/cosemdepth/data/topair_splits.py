@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DatasetError
+from .files import dataset_root, read_text
 from .midair.splits import write_csv
 from .poses import QUATERNION_TOLERANCE, relative_camera_motions
 from .topair import ENVIRONMENTS, FRAME_SKIPS, TEST_ENVIRONMENTS
@@ -32,12 +33,7 @@ ZERO_TRANSLATION = 1e-4
 
 def read_airsim_rec(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """``(positions [N, 3], quaternions [N, 4] w-first)`` of an AirSim recording file."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: AirSim recording not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{path}: cannot read AirSim recording ({e})") from None
+    text = read_text(path, "AirSim recording")
     reader = csv.DictReader(io.StringIO(text), delimiter="\t")
     if reader.fieldnames is None or any(c not in reader.fieldnames for c in _COLUMNS):
         raise DatasetError(f"{path}: AirSim recording header must contain {list(_COLUMNS)}, got {reader.fieldnames}")
@@ -85,9 +81,7 @@ TOPAIR_CSV_COLUMNS = ("id", "camera_l", "depth", "semantic", "qw", "qx", "qy", "
 
 def generate_topair_splits(root: str | Path, out_dir: str | Path) -> dict[str, list[Path]]:
     """Write the TopAir split CSVs of every known environment found under ``root``; returns split -> paths."""
-    root, out_dir = Path(root), Path(out_dir)
-    if not root.is_dir():
-        raise DatasetError(f"{root}: dataset root not found (or not a folder)")
+    root, out_dir = dataset_root(root), Path(out_dir)
     envs = sorted(p.parent.name for p in root.glob(f"*/{REC_FILE}"))
     if not envs:
         raise DatasetError(f"{root}: no <env>/{REC_FILE} found; is this a TopAir root?")

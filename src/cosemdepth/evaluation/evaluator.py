@@ -25,12 +25,13 @@ Usage::
 from __future__ import annotations
 
 import datetime as _dt
+import inspect
 import json
 import math
 import re
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable
 
 import torch
 
@@ -317,20 +318,10 @@ def _dataset_size(ds) -> list[int] | None:
     return [int(s) for s in size] if isinstance(size, (tuple, list)) else [int(size), int(size)]
 
 
-def evaluate(
-    model,
-    dataset,
-    *,
-    lanes: int = 1,
-    max_frames: int | None = None,
-    num_workers: int = 0,
-    exclude_resets: bool | None = None,
-    warmup: int = 2,
-    progress: bool = False,
-    callbacks: Sequence[FrameCallback] = (),
-    dataset_name: str | None = None,
-) -> EvaluationResult:
+def evaluate(model, dataset, **options: Any) -> EvaluationResult:
     """Evaluate ``model`` on ``dataset`` with the test protocol (see the module docstring).
+
+    The keyword-only options are those of :class:`Evaluator` (one signature, shown as this function's).
 
     Args:
         model: a model from :func:`cosemdepth.load_model` / :func:`cosemdepth.models.build_model` (eval mode).
@@ -346,9 +337,10 @@ def evaluate(
     Returns:
         :class:`EvaluationResult`.
     """
-    return Evaluator(model, dataset, lanes=lanes, max_frames=max_frames, num_workers=num_workers,
-                     exclude_resets=exclude_resets, warmup=warmup, progress=progress, callbacks=callbacks,
-                     dataset_name=dataset_name).run()
+    return Evaluator(model, dataset, **options).run()
+
+
+evaluate.__signature__ = inspect.signature(Evaluator).replace(return_annotation="EvaluationResult")
 
 
 __all__ = ["ALL_DEPTH_METRICS", "EvaluationResult", "Evaluator", "dataset_modalities", "evaluate", "to_json"]

@@ -87,18 +87,21 @@ class PeakMemory:
         return False
 
 
-def machine_info(device: torch.device | str = "cpu") -> dict[str, object]:
-    """CPU model, core count, torch threads, GPU name, versions: what a results table should name."""
-    cpu = platform.processor() or platform.machine()
+def cpu_model(default: str) -> str:
+    """The CPU model name (the first ``model name`` of ``/proc/cpuinfo``), or ``default`` where there is none."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
+                return line.split(":", 1)[1].strip()
     except OSError:
         pass
+    return default
+
+
+def machine_info(device: torch.device | str = "cpu") -> dict[str, object]:
+    """CPU model, core count, torch threads, GPU name, versions: what a results table should name."""
     info: dict[str, object] = {
-        "cpu": cpu,
+        "cpu": cpu_model(platform.processor() or platform.machine()),
         "cpu_cores": os.cpu_count(),
         "torch_threads": torch.get_num_threads(),
         "os": f"{platform.system()} {platform.release()}",
@@ -133,4 +136,4 @@ def resolve_device(name: str) -> torch.device:
     return device
 
 
-__all__ = ["PeakMemory", "machine_info", "resolve_device"]
+__all__ = ["PeakMemory", "cpu_model", "machine_info", "resolve_device"]

@@ -31,7 +31,7 @@ from ..geometry.camera import level_intrinsics
 from ..geometry.parallax import epipolar_geometry
 from ..geometry.rotation import quaternion_to_matrix
 from ..models.depth_decoder import INIT_DEPTH, DepthLevel, RefineOps
-from ..models.outputs import DepthLevelOutput, SemanticLevelOutput, StepOutput, StreamState
+from ..models.outputs import DepthLevelOutput, SemanticLevelOutput, StepOutput, StreamState, step_output
 from ..models.semantic_decoder import SemanticLevel
 from ..ops.cost_volume import (
     parallax_sweep_cost_volume,
@@ -313,22 +313,13 @@ class FastEngine:
             reset = reset.to(dev)
         feats = self.encode(rgb)
         size = tuple(rgb.shape[-2:])
-        levels: dict[str, list[torch.Tensor]] = {}
-        depth = semantic = None
+        dl = sl = None
         new_state = StreamState()
         if self.depth_levels:
             dl, new_state = self.decode_depth(feats, rot, trans, intrinsics, reset, state)
-            levels["depth"] = [o.depth for o in dl]
-            levels["parallax"] = [o.parallax for o in dl]
-            levels["depth_other"] = [o.other for o in dl]
-            depth = upsample_nearest(dl[0].depth, size, half_pixel=True)
         if self.semantic_levels:
             sl = self.decode_semantic(feats)
-            levels["semantic"] = [o.probs for o in sl]
-            levels["semantic_logits"] = [o.logits for o in sl]
-            levels["semantic_other"] = [o.other for o in sl]
-            semantic = upsample_nearest(sl[0].probs, size, half_pixel=True)
-        return StepOutput(depth, semantic, levels), new_state
+        return step_output(dl, sl, lambda x: upsample_nearest(x, size, half_pixel=True)), new_state
 
     def zero_state(self, batch: int, height: int, width: int) -> StreamState:
         """An all-zero state for a ``batch x height x width`` input (use with ``reset=True`` on the first frame)."""

@@ -25,6 +25,7 @@ from ..config import ModelConfig
 from ..errors import CheckpointError, ConfigError
 from .atomic import atomic_open, atomic_path
 from .convert import expected_param_shapes
+from .staging import missing_ancestors, remove_empty
 
 FORMAT = "cosemdepth"
 FORMAT_VERSION = 1
@@ -98,28 +99,14 @@ def save_weights(
         "cosemdepth_version": __version__,
     }
     text = json.dumps(meta, indent=2) + "\n"
-    created = _missing_ancestors(out)
+    created = missing_ancestors(out)
     try:
         with atomic_path(out / WEIGHTS_FILE) as tmp_weights, atomic_open(out / CONFIG_FILE, "w") as f:
             save_file(tensors, str(tmp_weights), metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
             f.write(text)
     except BaseException:
-        for d in created:  # deepest first; only folders we made and that are still empty
-            try:
-                d.rmdir()
-            except OSError:
-                break
+        remove_empty(created)  # only folders we made and that are still empty
         raise
-    return out
-
-
-def _missing_ancestors(path: Path) -> list[Path]:
-    """``path`` and its ancestors that do not exist yet, deepest first."""
-    out = []
-    p = path.absolute()
-    while not p.exists() and p != p.parent:
-        out.append(p)
-        p = p.parent
     return out
 
 

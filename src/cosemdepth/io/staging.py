@@ -32,7 +32,8 @@ def missing_ancestors(path: Path) -> list[Path]:
     return out
 
 
-def _remove_empty(folders: list[Path]) -> None:
+def remove_empty(folders: list[Path]) -> None:
+    """Remove ``folders`` (deepest first, as :func:`missing_ancestors` lists them) while they are empty."""
     for d in folders:  # deepest first; stop at the first one that is not empty (someone else wrote there)
         try:
             d.rmdir()
@@ -118,7 +119,7 @@ class StagedDir:
             self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.", suffix=".partial", dir=parent))
             os.chmod(self.tmp, _dir_mode())
         except OSError as e:
-            _remove_empty(self._created)
+            remove_empty(self._created)
             raise ConfigError(f"{self.out}: cannot write the {self.what} here ({parent}: {_why(e)})") from None
         return self.tmp
 
@@ -126,13 +127,13 @@ class StagedDir:
         assert self.tmp is not None
         if exc_type is not None:
             shutil.rmtree(self.tmp, ignore_errors=True)
-            _remove_empty(self._created)
+            remove_empty(self._created)
             return False
         try:
             self._commit()
         except BaseException:
             shutil.rmtree(self.tmp, ignore_errors=True)
-            _remove_empty(self._created)
+            remove_empty(self._created)
             raise
         return False
 
@@ -177,7 +178,7 @@ class OutputFiles:
             os.close(fd)
             os.unlink(probe)
         except OSError as e:
-            _remove_empty(self._created)
+            remove_empty(self._created)
             raise ConfigError(f"{self.folder}: cannot write the {self.what} ({_why(e)})") from None
         return self
 
@@ -190,7 +191,7 @@ class OutputFiles:
 
     def __exit__(self, exc_type, exc, tb) -> bool:
         if exc_type is not None:
-            _remove_empty(self._created)
+            remove_empty(self._created)
             return False
         temps: list[tuple[str, Path]] = []
         try:
@@ -208,7 +209,7 @@ class OutputFiles:
             for tmp, _ in temps:
                 with contextlib.suppress(FileNotFoundError):
                     os.unlink(tmp)
-            _remove_empty(self._created)
+            remove_empty(self._created)
             if isinstance(e, OSError):
                 raise ConfigError(f"{self.folder}: cannot write the {self.what} ({_why(e)})") from None
             raise
@@ -216,4 +217,4 @@ class OutputFiles:
         return False
 
 
-__all__ = ["OutputFiles", "StagedDir", "missing_ancestors"]
+__all__ = ["OutputFiles", "StagedDir", "missing_ancestors", "remove_empty"]

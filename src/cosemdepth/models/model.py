@@ -21,7 +21,7 @@ from ..config import ModelConfig
 from ..ops.resample import resize_nn2
 from .depth_decoder import DepthDecoder
 from .encoder import Encoder
-from .outputs import SequenceOutput, StepOutput, StreamState
+from .outputs import SequenceOutput, StepOutput, StreamState, step_output
 from .semantic_decoder import SemanticDecoder
 
 
@@ -177,22 +177,13 @@ class SceneModel(nn.Module):
             return engine.step(rgb, rot, trans, intrinsics, reset, state)
         feats = self.encoder(rgb)
         size = tuple(rgb.shape[-2:])
-        levels: dict[str, list[torch.Tensor]] = {}
-        depth = semantic = None
+        dl = sl = None
         new_state = StreamState()
         if self.depth_decoder is not None:
             dl, new_state = self._decode_depth(feats, rot, trans, intrinsics, reset, state)
-            levels["depth"] = [o.depth for o in dl]
-            levels["parallax"] = [o.parallax for o in dl]
-            levels["depth_other"] = [o.other for o in dl]
-            depth = resize_nn2(dl[0].depth, size)
         if self.semantic_decoder is not None:
             sl = self.semantic_decoder(feats)
-            levels["semantic"] = [o.probs for o in sl]
-            levels["semantic_logits"] = [o.logits for o in sl]
-            levels["semantic_other"] = [o.other for o in sl]
-            semantic = resize_nn2(sl[0].probs, size)
-        return StepOutput(depth, semantic, levels), new_state
+        return step_output(dl, sl, lambda x: resize_nn2(x, size)), new_state
 
     def _decode_depth(self, feats, rot, trans, intrinsics, reset, state):
         prev_f = prev_d = None

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Callable, Optional, Sequence
 
 import torch
 
@@ -73,6 +73,29 @@ class StepOutput:
     def labels(self) -> Optional[Tensor]:
         """``[B, H, W]`` int64 argmax of ``semantic``."""
         return None if self.semantic is None else self.semantic.argmax(dim=1)
+
+
+def step_output(
+    depth_levels: Optional[Sequence[DepthLevelOutput]],
+    semantic_levels: Optional[Sequence[SemanticLevelOutput]],
+    upsample: Callable[[Tensor], Tensor],
+) -> StepOutput:
+    """Assemble a :class:`StepOutput` from the per-level outputs of one step (finest first; ``None`` for a decoder
+    the model does not have): ``levels`` gets every per-level map, ``depth``/``semantic`` are the finest level's
+    depth ``[B,1,h,w]`` / probabilities ``[B,N,h,w]`` passed through ``upsample`` (to the input size)."""
+    levels: dict[str, list[Tensor]] = {}
+    depth = semantic = None
+    if depth_levels is not None:
+        levels["depth"] = [o.depth for o in depth_levels]
+        levels["parallax"] = [o.parallax for o in depth_levels]
+        levels["depth_other"] = [o.other for o in depth_levels]
+        depth = upsample(depth_levels[0].depth)
+    if semantic_levels is not None:
+        levels["semantic"] = [o.probs for o in semantic_levels]
+        levels["semantic_logits"] = [o.logits for o in semantic_levels]
+        levels["semantic_other"] = [o.other for o in semantic_levels]
+        semantic = upsample(semantic_levels[0].probs)
+    return StepOutput(depth, semantic, levels)
 
 
 @dataclass

@@ -18,6 +18,8 @@ Three lines::
 
 from __future__ import annotations
 
+from .._lazy import lazy_getattr as _lazy_getattr
+
 _LAZY = {
     "Trainer": ("cosemdepth.training.trainer", "Trainer"),
     "resolve_config": ("cosemdepth.training.run_config", "resolve_config"),
@@ -25,14 +27,7 @@ _LAZY = {
     "load_checkpoint": ("cosemdepth.training.checkpoint", "load_checkpoint"),
 }
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        module, attr = _LAZY[name]
-        return getattr(importlib.import_module(module), attr)
-    raise AttributeError(f"module 'cosemdepth.training' has no attribute {name!r}")
+__getattr__ = _lazy_getattr(__name__, _LAZY)
 
 
 __all__ = list(_LAZY)

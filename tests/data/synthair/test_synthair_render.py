@@ -31,6 +31,15 @@ def _lake_centre(world) -> tuple[float, float]:
     return (i + 0.5) * b * CELL, (j + 0.5) * b * CELL
 
 
+def _ray_directions(rot: np.ndarray, size: int) -> np.ndarray:
+    """``[size, size, 3]`` NED directions of the pixel-centre rays of a ``size x size`` 90-degree camera whose body
+    axes are rotated by ``rot``: camera ray ``(u/f, v/f, 1)`` is body ``(1, u/f, v/f)`` (camera z, x, y = body x, y,
+    z), with ``f = size / 2``."""
+    c = (np.arange(size) + 0.5 - size / 2) / (size / 2)
+    right, down = np.meshgrid(c, c)  # [row, col]: camera x = column, camera y = row
+    return np.stack([np.ones_like(right), right, down], -1) @ rot.T
+
+
 def test_camera_looking_straight_down_at_a_lake_sees_constant_depth(world):
     x, y = _lake_centre(world)
     height = 20.0
@@ -49,11 +58,7 @@ def test_depth_of_a_tilted_camera_over_flat_water_matches_the_plane_equation(wor
     rot = euler_matrix(np.radians(-123.0), np.radians(-35.0), np.radians(12.0))
     pos = np.array([x, y, -(world.water_level + h)])
     frame = render_frame(world, get_climate("cloudy"), matrix_to_quaternion(rot), pos, size, size)
-    f = size / 2
-    c = (np.arange(size) + 0.5 - size / 2) / f
-    right, down = np.meshgrid(c, c)  # [row, col]: camera x = column, camera y = row
-    body = np.stack([np.ones_like(right), right, down], -1)  # camera z, x, y = body x, y, z
-    ned = body @ rot.T
+    ned = _ray_directions(rot, size)
     down_comp = ned[..., 2]
     expected = h / np.where(down_comp > 1e-6, down_comp, np.nan)
     horizontal = expected * np.linalg.norm(ned[..., :2], axis=-1)
@@ -68,9 +73,7 @@ def test_steep_rays_upwards_see_the_sky_at_the_sky_depth(world):
     rot = euler_matrix(np.radians(10.0), np.radians(75.0), 0.0)
     pos = np.array([x, y, -(world.water_level + 10.0)])
     frame = render_frame(world, get_climate("sunset"), matrix_to_quaternion(rot), pos, 24, 24)
-    c = (np.arange(24) + 0.5 - 12) / 12
-    right, down = np.meshgrid(c, c)
-    ned = np.stack([np.ones_like(right), right, down], -1) @ rot.T
+    ned = _ray_directions(rot, 24)
     elevation = np.degrees(np.arcsin(-ned[..., 2] / np.linalg.norm(ned, axis=-1)))
     steep = elevation > 30.0
     assert steep.sum() > 200
@@ -117,10 +120,7 @@ def test_depth_points_lie_on_the_surface(world, flight_frames):
 
     for att, pos, f in flight_frames:
         size = f.depth.shape[0]
-        rot = qmatrix(att)
-        c = (np.arange(size) + 0.5 - size / 2) / (size / 2)
-        right, down = np.meshgrid(c, c)
-        ned = np.stack([np.ones_like(right), right, down], -1) @ rot.T
+        ned = _ray_directions(qmatrix(att), size)
         sel = (f.labels != 0) & (f.labels != 9)
         d = f.depth[sel].astype(np.float64)
         eps = np.minimum(0.002 * d, 0.03)
@@ -137,10 +137,7 @@ def test_labels_match_the_geometry(world, flight_frames):
 
     for att, pos, f in flight_frames:
         size = f.depth.shape[0]
-        rot = qmatrix(att)
-        c = (np.arange(size) + 0.5 - size / 2) / (size / 2)
-        right, down = np.meshgrid(c, c)
-        ned = np.stack([np.ones_like(right), right, down], -1) @ rot.T
+        ned = _ray_directions(qmatrix(att), size)
         pts = pos + ned * f.depth[..., None].astype(np.float64)
         xy = torch.tensor(np.stack([pts[..., 0].ravel(), pts[..., 1].ravel()]), dtype=torch.float32)
         smp = sample_surface(world, xy, Lod(torch.tensor(pos[:2], dtype=torch.float32).reshape(2, 1), 2.0 / size))

@@ -25,11 +25,10 @@ import numpy as np
 import torch
 
 from ...errors import ConfigError, DatasetError
-from ..augment import resolve_augment
-from ..csvsplits import check_modalities_consistent, find_split_csvs, trajectories_from_csvs
-from ..decode import check_labels, image_size, read_channel0, read_rgb, read_uint16_png
-from ..frames import Size, as_size, labels_to_tensor, midair_intrinsics, rgb_to_tensor, depth_to_tensor
-from ..sequence import FrameRecord, SequenceDataset, default_mode
+from ..csvsplits import open_csv_split
+from ..decode import read_label_ids, read_rgb, read_uint16_png
+from ..frames import Size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
+from ..sequence import FrameRecord, SequenceDataset
 from . import format as fmt
 
 #: Smallest positive float16 (subnormal): zero disparities are read as this value.
@@ -60,9 +59,7 @@ def read_depth(path: str | Path) -> np.ndarray:
 
 def read_labels(path: str | Path, labels: str = "midair") -> np.ndarray:
     """Segmentation PNG -> ``[H, W]`` class IDs at native size, validated for ``labels`` (not yet mapped)."""
-    ids = read_channel0(path)
-    check_labels(ids, LABEL_MODES[labels], path)
-    return ids
+    return read_label_ids(path, LABEL_MODES[labels])
 
 
 _MAP_14_TO_7 = torch.from_numpy(fmt.MIDAIR_TO_7.astype(np.int64))
@@ -133,40 +130,20 @@ def open_midair(
         seed: base seed of the random window offsets and augmentations.
         name: stored as ``dataset.name``.
     """
-    root = Path(root)
-    if not root.is_dir():
-        raise DatasetError(f"{root}: dataset root not found (or not a folder)")
-    out_size = as_size(size)
-    wanted = set(("depth", "semantic") if modalities is None else modalities)
-    unknown = wanted - {"depth", "semantic"}
-    if unknown:
-        raise ConfigError(f"modalities may only name 'depth' and 'semantic', got {sorted(unknown)}")
-    folder, csvs = find_split_csvs(split_dir, split)
-    trajectories = trajectories_from_csvs(
+    return open_csv_split(
         root,
-        folder,
-        csvs,
-        columns={
-            "rgb": "camera_l",
-            "depth": "disp" if "depth" in wanted else None,
-            "semantic": "semantic" if "semantic" in wanted else None,
-        },
+        split_dir,
+        split,
+        seq_len,
+        size,
+        augment,
+        columns={"rgb": "camera_l", "depth": "disp", "semantic": "semantic"},
         reset_rule=lambda ids: ids == 0,
         derive={"semantic": _derive_semantic},
-    )
-    check_modalities_consistent(trajectories, folder)
-    if out_size is None:
-        intrinsics_size = image_size(trajectories[0].frame(0).rgb)
-    else:
-        intrinsics_size = out_size
-    return SequenceDataset(
-        trajectories,
-        MidAirFrameLoader(out_size, labels),
-        midair_intrinsics(intrinsics_size),
-        seq_len=seq_len,
-        mode=mode or default_mode(split, seq_len),
+        make_loader=lambda out_size: MidAirFrameLoader(out_size, labels),
+        mode=mode,
         db_seq_len=db_seq_len,
-        augment=resolve_augment(augment),
+        modalities=modalities,
         seed=seed,
         name=name,
     )

@@ -17,6 +17,7 @@ import numpy as np
 
 from ...errors import DatasetError
 from ...io.atomic import atomic_write_text
+from ..files import dataset_root, read_text
 from ..quaternion import qconj, qmul, qrotate
 from . import format as fmt
 
@@ -95,8 +96,7 @@ def generic_split_rule(trajectories: Sequence[Trajectory]) -> Callable[[Trajecto
 
 def find_climates(root: Path) -> list[tuple[str, str]]:
     """``(env, climate)`` folders under ``root`` that hold a ``sensor_records.hdf5``, sorted."""
-    if not root.is_dir():
-        raise DatasetError(f"{root}: dataset root not found (or not a folder)")
+    root = dataset_root(root)
     found = sorted({(p.parent.parent.name, p.parent.name) for p in root.glob(f"*/*/{fmt.SENSOR_RECORDS}")})
     if not found:
         raise DatasetError(f"{root}: no <env>/<climate>/{fmt.SENSOR_RECORDS} found; is this a Mid-Air-format root?")
@@ -174,12 +174,7 @@ def read_csv(path: Path) -> list[dict]:
     field, or a file without data rows.
     """
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: split CSV not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{path}: cannot read split CSV ({e})") from None
+    text = read_text(path, "split CSV")
     reader = csv.DictReader(io.StringIO(text), delimiter="\t")
     if not reader.fieldnames:
         raise DatasetError(f"{path}: empty split CSV (no header)")

@@ -12,7 +12,7 @@ Attributes are imported lazily (``cosemdepth synth --help`` does not load torch)
 
 from __future__ import annotations
 
-import importlib
+from ..._lazy import lazy_getattr as _lazy_getattr
 
 _LAZY = {
     "CLIMATES": ".climate",
@@ -31,11 +31,7 @@ _LAZY = {
     "make_flight": ".trajectory",
 }
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name], __name__), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = _lazy_getattr(__name__, _LAZY)
 
 
 __all__ = sorted(_LAZY)
