@@ -5,7 +5,7 @@
 # 2. cosemdepth train with src/cosemdepth/configs/synthair-demo.yaml (Co-SemDepth, 5 levels, 7 classes).
 # 3. The best checkpoint (spec 8.5 rule on the validation world) is written to weights/synthair-cosemdepth in
 #    float16, with its training curve (docs/demo-training.md, weights/synthair-cosemdepth/training_curve.*).
-# CPU-only: about 10 minutes of data generation and a few hours of training on a 2-core machine.
+# CPU-only: about 10 minutes of data generation and about 1.5 hours of training on a 2-core machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
