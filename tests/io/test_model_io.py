@@ -43,6 +43,17 @@ def test_round_trip(tmp_path):
     assert read_model_files(out / "model.safetensors")[1] == SMALL
 
 
+def test_saved_files_get_the_umask_permissions(tmp_path):
+    # safetensors writes its files 0600; shipped weights must be readable like any other file the user writes
+    old = os.umask(0o022)
+    try:
+        out = save_weights(_random_state(SMALL), SMALL, tmp_path / "model")
+    finally:
+        os.umask(old)
+    for name in ("config.json", "model.safetensors"):
+        assert (out / name).stat().st_mode & 0o777 == 0o644, name
+
+
 def test_config_json_content(tmp_path):
     cfg = ModelConfig(arch="m4depth", levels=3, sncv=False)
     save_weights(_random_state(cfg), cfg, tmp_path)

@@ -36,9 +36,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
     os.close(fd)
-    os.chmod(tmp, _default_mode())
     try:
         yield Path(tmp)
+        # the mode is set after the caller has written: some writers (safetensors) replace the file with a 0600 one
+        os.chmod(tmp, _default_mode())
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
