@@ -4,7 +4,7 @@
 #    demo evaluates on yet another world (seed 1001). 128x128, 3x supersampled colour, sunny and cloudy climates.
 # 2. cosemdepth train with src/cosemdepth/configs/synthair-demo.yaml (Co-SemDepth, 5 levels, 7 classes).
 # 3. The best checkpoint (spec 8.5 rule on the validation world) is written to weights/synthair-cosemdepth in
-#    float16, with its training curve (docs/demo-training.md, weights/synthair-cosemdepth/training_curve.*).
+#    float16, with its training curve (weights/synthair-cosemdepth/training_curve.csv and .png).
 # CPU-only: about 10 minutes of data generation and about 1.5 hours of training on a 2-core machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
