@@ -77,6 +77,8 @@ def main(argv=None) -> int:
     p.add_argument("--root", required=True, help="dataset root")
     p.add_argument("--split-dir", help="split folder (default: the dataset's)")
     p.add_argument("--split", default="test")
+    p.add_argument("--size", type=int, help="image size (default: the model's training size if its folder records one, "
+                   "else 384)")
     p.add_argument("--max-frames", type=int, help="stop after this many frames (whole split by default)")
     p.add_argument("--modes", nargs="+", choices=[m for m in MODES if m != "reference"], default=["fast-fp32", "fast-bf16"])
     p.add_argument("--device", default="cpu")
@@ -86,7 +88,11 @@ def main(argv=None) -> int:
     from cosemdepth.io.model_io import load_model
 
     device = torch.device(a.device)
-    dataset = open_dataset(a.dataset, a.root, split_dir=a.split_dir, split=a.split, seq_len=1)
+    from cosemdepth.demo import _training_size
+    from cosemdepth.io.model_io import read_model_files
+
+    size = a.size or _training_size(read_model_files(a.model)[2]) or 384
+    dataset = open_dataset(a.dataset, a.root, split_dir=a.split_dir, split=a.split, seq_len=1, size=size)
     results = {}
     for name in ["reference", *a.modes]:
         path, dtype = MODES[name]
@@ -113,6 +119,7 @@ def main(argv=None) -> int:
         "dataset": a.dataset,
         "root": str(a.root),
         "split": a.split,
+        "size": size,
         "device": a.device,
         "tolerances": {"miou_points": MIOU_TOL_POINTS, "abs_rel_relative": ABSREL_TOL_REL},
         "results": results,

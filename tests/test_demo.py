@@ -169,3 +169,17 @@ def test_majority_and_constant_baselines_by_hand():
     maj = c.majority_class()
     # class 0 everywhere: IoU_0 = 5 / 7, IoU_1 = 0, class 2 absent from both -> left out
     assert maj["class"] == 0 and maj["miou"] == pytest.approx((5 / 7 + 0) / 2)
+
+
+@pytest.mark.parametrize(
+    "source, size",
+    [
+        ({"size": 96}, 96),
+        ({"data": {"size": 64}}, 64),
+        ({"run_config": {"data": {"size": [128, 128]}}}, 128),  # what scripts/ship_weights.py records
+        ({"run_config": {"data": {"size": [128, 96]}}}, None),  # not square: the demo's default applies
+        ({"type": "tensorflow"}, None),
+    ],
+)
+def test_training_size_read_from_the_model_folder(source, size):
+    assert demo_mod._training_size({"source": source}) == size

@@ -82,10 +82,21 @@ def resolve_model_path(model: str | os.PathLike | None) -> Path:
 
 
 def _training_size(meta: dict[str, Any]) -> int | None:
-    """The image size recorded in a model folder's ``source`` (if the trainer recorded one)."""
+    """The (square) image size recorded in a model folder's ``source``, if its trainer recorded one.
+
+    Looks at ``source.size``, ``source.data.size`` and the ``data.size`` of a recorded ``config`` / ``run_config``
+    (``scripts/ship_weights.py`` records the run's config as ``run_config``, with the size as ``[H, W]``).
+    """
     src = meta.get("source") or {}
-    for d in (src, src.get("data") or {}, src.get("config") or {}, (src.get("config") or {}).get("data") or {}):
+    places = [src, src.get("data")]
+    for key in ("config", "run_config"):
+        cfg = src.get(key)
+        if isinstance(cfg, dict):
+            places += [cfg, cfg.get("data")]
+    for d in places:
         v = d.get("size") if isinstance(d, dict) else None
+        if isinstance(v, (list, tuple)) and len(v) == 2 and v[0] == v[1]:
+            v = v[0]
         if isinstance(v, int) and v > 0:
             return v
     return None
