@@ -72,7 +72,18 @@ def test_fp32_fast_step_equals_reference_step_from_the_same_state(models, arch):
         assert torch.all(fast.depth[1] != 1000.0) and torch.all(state.depths[0][1] != 1000.0)
 
 
+def rel_errors(a, b):
+    return ((a - b).abs() / b.abs().clamp_min(1e-6)).flatten().double()
+
+
 def test_fp32_fast_streams_like_the_reference_over_frames_with_a_reset():
+    """Over a stream, the fast fp32 path is as accurate as the reference fp32 modules, both measured against the
+    reference modules run in float64 (the tolerance is the reference's own rounding error, not a picked number).
+
+    A few pixels of an untrained model are ill-conditioned: on an Intel Xeon with AMX (2026-12-01) the reference fp32
+    itself is 7.3e-4 (max relative) away from float64 on frame 1, and the fast path, whose oneDNN convolutions sum in
+    another order, 2.4e-3 (1.7e-3 from the reference fp32; an earlier fixed 1e-3 bound held on AMD Zen 4/5 only).
+    Median and 99th percentile of the two paths' errors agree within 1.3x on every frame."""
     torch.manual_seed(4)
     m = tame(build_model().eval())
     rgb, q, tr, K = sequence(t=6)
@@ -86,8 +97,18 @@ def test_fp32_fast_streams_like_the_reference_over_frames_with_a_reset():
                 out, state = m.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
                 outs[mode].append(out)
     m.optimize("reference")
-    for k, (a, b) in enumerate(zip(outs["fast"], outs["reference"])):
-        assert rel(a.depth, b.depth) < 1e-3, k
+    m64, state, exact = m.double(), None, []
+    with torch.no_grad():
+        for k in range(6):
+            out, state = m64.step(rgb[:, k].double(), q[:, k].double(), tr[:, k].double(), K.double(), rs[:, k], state)
+            exact.append(out.depth)
+    m.float()
+    for k, (a, b, e) in enumerate(zip(outs["fast"], outs["reference"], exact)):
+        err_fast, err_ref = rel_errors(a.depth.double(), e), rel_errors(b.depth.double(), e)
+        for p in (0.5, 0.99):  # the bulk of the pixels: the same rounding error as the reference
+            assert torch.quantile(err_fast, p) <= 2 * torch.quantile(err_ref, p) + 1e-7, (k, p)
+        assert err_fast.max() <= 5 * err_ref.max() + 1e-6, k  # the worst pixel: the same order
+        assert rel(a.depth, b.depth) < 1e-2, k
         torch.testing.assert_close(a.semantic, b.semantic, rtol=0, atol=1e-5)
     assert torch.all(outs["fast"][3].depth[1] == 1000.0)  # the reset sample outputs the init depth
     assert outs["fast"][5].depth.std() > 0  # and the model does depend on the input
