@@ -161,7 +161,7 @@ def image_to_rgb(msgtype: str, msg: Any, where: str) -> np.ndarray:
         px = px[:, :, 2::-1]
     else:
         px = px[:, :, :3]
-    return np.ascontiguousarray(px)
+    return np.array(px, dtype=np.uint8, order="C")  # a writable copy (the message's buffer may be read-only)
 
 
 def pose_from_msg(msgtype: str, msg: Any) -> tuple[int, np.ndarray, np.ndarray]:
