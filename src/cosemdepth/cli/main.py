@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("cosemdepth.cli.train", "train a model"),
     "evaluate": ("cosemdepth.cli.evaluate", "evaluate a model on a test split"),
     "predict": ("cosemdepth.cli.predict", "run a model on a split or on your own flight and write its outputs"),
+    "view": ("cosemdepth.cli.view", "run a model over a flight and write a rerun recording (.rrd) of it"),
     "demo": ("cosemdepth.cli.demo", "the end-to-end demo on SynthAir"),
     "benchmark": ("cosemdepth.cli.benchmark", "measure speed and memory"),
     "export": ("cosemdepth.cli.export", "export the streaming model to ONNX"),
@@ -33,7 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 #: the user set it): on a machine whose cores are shared with other processes, spinning threads made model steps
 #: 2-7x slower (measured on the 2-core dev machine: 0.43 s vs 0.18 s per 128x128 frame with 2 threads under load);
 #: on an idle machine the difference is within noise. It must be set before torch is imported.
-PASSIVE_WAIT_COMMANDS = ("demo", "evaluate", "predict")
+PASSIVE_WAIT_COMMANDS = ("demo", "evaluate", "predict", "view")
 
 
 def _available() -> dict[str, tuple[str, str]]:

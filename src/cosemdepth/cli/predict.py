@@ -2,6 +2,7 @@
 
     cosemdepth predict --model MODEL --dataset NAME --root ROOT [--split-dir D] [--split test] --out DIR
     cosemdepth predict --model MODEL --flight --images DIR --poses FILE (--intrinsics FX FY CX CY | --hfov DEG) --out DIR
+    cosemdepth predict --model MODEL --bag PATH --image-topic T --pose-topic T (--camera-info-topic T | ...) --out DIR
 
 Outputs (depth as float32 .npy and 16-bit PNG = round(depth_m * 256), labels, colourised labels, side-by-side
 pictures, a video): see :mod:`cosemdepth.evaluation.predict`.
@@ -14,6 +15,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError
+from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
 from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, parse_size
 
 
@@ -30,8 +32,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="pinhole intrinsics in pixels of the original images")
     flight.add_argument("--hfov", type=float, metavar="DEG", help="horizontal field of view in degrees (instead of "
                         "--intrinsics; square pixels, centred principal point)")
-    flight.add_argument("--convention", default="opencv", choices=("opencv", "ned", "flu", "opengl"),
-                        help="axes of the posed frame (default opencv: x right, y down, z forward)")
+    flight.add_argument("--convention", default=None, choices=("opencv", "ned", "flu", "opengl"),
+                        help="axes of the posed frame (default opencv: x right, y down, z forward; flu for --bag)")
     flight.add_argument("--frame-skip", type=int, default=1, metavar="K", help="keep every K-th image (default 1)")
     parser.add_argument("--size", type=parse_size, default=None, metavar="S",
                         help="network input size, S or HxW (default 384 for datasets; the image size for flights)")
@@ -42,6 +44,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fps", type=float, default=8.0, help="video frame rate (default 8)")
     parser.add_argument("--overwrite", action="store_true", help="replace a non-empty --out folder")
     add_run_args(parser)
+    add_robotics_args(parser)
 
 
 def _open(args: argparse.Namespace):
@@ -49,6 +52,9 @@ def _open(args: argparse.Namespace):
 
     if args.workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {args.workers}")
+    check_args(args)
+    if args.bag is not None:
+        return open_bag(args)
     if args.flight:
         if args.dataset or args.root:
             raise ConfigError("give either --flight (with --images, --poses) or --dataset/--root, not both")
@@ -61,7 +67,7 @@ def _open(args: argparse.Namespace):
         if args.hfov is not None and not 0 < args.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {args.hfov}")
         return open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
-                            convention=args.convention, frame_skip=args.frame_skip, seq_len=1, size=args.size)
+                            convention=args.convention or "opencv", frame_skip=args.frame_skip, seq_len=1, size=args.size)
     if not args.dataset or args.root is None:
         raise ConfigError("give --dataset NAME --root ROOT (a dataset split), or --flight --images DIR --poses FILE")
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
@@ -79,16 +85,18 @@ def run(args: argparse.Namespace) -> int:
     model, device = load(args.model, args.device, fast=not args.reference)
     info = {
         "model": {"path": str(args.model)},
-        "dataset": {"root": str(args.images if args.flight else args.root),
+        "dataset": {"root": str(args.bag if args.bag else args.images if args.flight else args.root),
                     "split": None if args.flight else args.split},
         "device": str(device),
     }
     manifest = predict(model, dataset, args.out, video=args.video, fps=args.fps, max_frames=args.max_frames,
                        lanes=args.lanes, num_workers=args.workers, overwrite=args.overwrite,
                        progress=not args.no_progress and sys.stderr.isatty(),
-                       dataset_name="flight" if args.flight else args.dataset, info=info)
+                       dataset_name="flight" if args.flight or args.bag else args.dataset, info=info,
+                       sinks=make_sinks(args, dataset, model))
     n = manifest["frames_written"]
     videos = [t["video"] for t in manifest["trajectories"] if "video" in t]
     print(f"wrote {n} frames of {len(manifest['trajectories'])} trajectories to {args.out}"
-          + (f"; videos: {', '.join(str(args.out / v) for v in videos)}" if videos else ""))
+          + (f"; videos: {', '.join(str(args.out / v) for v in videos)}" if videos else "") + bag_report(dataset)
+          + (f"; rerun recording: {args.rerun}" if args.rerun else ""))
     return 0

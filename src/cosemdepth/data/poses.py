@@ -181,6 +181,14 @@ def slerp(q0: np.ndarray, q1: np.ndarray, a: float) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
+def interpolate_pose(a: float, p0: np.ndarray, q0: np.ndarray, p1: np.ndarray,
+                     q1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pose a fraction ``a`` of the way from pose 0 (``a = 0``) to pose 1 (``a = 1``): linear position
+    ``(1 - a) p0 + a p1`` and :func:`slerp` rotation (quaternions w, x, y, z)."""
+    p = (1 - a) * np.asarray(p0, dtype=np.float64) + a * np.asarray(p1, dtype=np.float64)
+    return p, slerp(q0, q1, a)
+
+
 def poses_at(track: PoseTrack, times: np.ndarray, names: list[str], max_gap: float,
              exact_tolerance: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
     """Poses at ``times``: the pose with the same timestamp (within ``exact_tolerance`` s), else the interpolation
@@ -202,8 +210,8 @@ def poses_at(track: PoseTrack, times: np.ndarray, names: list[str], max_gap: flo
             continue
         if 0 < k < len(ts) and ts[k] - ts[k - 1] <= max_gap + 1e-9:
             a = (t - ts[k - 1]) / (ts[k] - ts[k - 1])
-            pos[i] = (1 - a) * track.positions[k - 1] + a * track.positions[k]
-            quat[i] = slerp(track.quaternions[k - 1], track.quaternions[k], a)
+            pos[i], quat[i] = interpolate_pose(a, track.positions[k - 1], track.quaternions[k - 1],
+                                               track.positions[k], track.quaternions[k])
             continue
         raise DatasetError(
             f"{names[i]}: no pose for timestamp {t:.6f} in {track.path} (nearest pose {ts[j_best] - t:+.6f} s away, "

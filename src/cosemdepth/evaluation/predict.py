@@ -174,6 +174,7 @@ def predict(
     dataset_name: str | None = None,
     info: dict[str, Any] | None = None,
     depth_range: tuple[float, float] = (0.0, 80.0),
+    sinks: tuple = (),
 ) -> dict[str, Any]:
     """Stream ``model`` over ``dataset`` and write every output into ``out`` (see the module docstring).
 
@@ -185,6 +186,9 @@ def predict(
         overwrite: replace a non-empty ``out`` that is not a previous prediction output.
         progress: progress bar. dataset_name: for the palette. info: extra entries of ``predictions.json``.
         depth_range: near/far metres of the depth colour map.
+        sinks: more outputs (the ROS bag of :mod:`cosemdepth.io.bag_writer`, the rerun recording of
+            :mod:`cosemdepth.io.rerun_writer`): objects with ``open(folder)``, ``__call__(batch)``, ``close() -> dict``
+            (merged into the manifest) and ``abort()``.
     Returns:
         the manifest (also written to ``out/predictions.json``).
     """
@@ -214,14 +218,25 @@ def predict(
         bar = tqdm(total=sum(len(g) for g in groups), unit="frame", desc="predict", disable=not progress,
                    leave=False)
         model_seconds = 0.0
+        extra: dict[str, Any] = {}
+        opened: list = []
         try:
+            for sink in sinks:
+                sink.open(tmp)
+                opened.append(sink)
             for batch in stream(model, dataset, schedule=schedule, num_workers=num_workers):
                 writer(batch)
+                for sink in sinks:
+                    sink(batch)
                 model_seconds += batch.seconds
                 bar.update(len(batch))
             writer.close()
+            for sink in sinks:
+                extra.update(sink.close())
         except BaseException:
             writer.abort()
+            for sink in opened:
+                sink.abort()
             raise
         finally:
             bar.close()
@@ -247,6 +262,7 @@ def predict(
             "model_seconds": model_seconds,
             "wall_seconds": time.perf_counter() - start,
             "trajectories": list(writer.trajectories.values()),
+            **extra,
             "frames": writer.frames,
         }
         atomic_write_text(tmp / MANIFEST, to_json(manifest))

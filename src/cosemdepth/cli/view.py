@@ -1,0 +1,70 @@
+"""``cosemdepth view``: run a model over a flight (a ROS bag, your own images + poses, or a dataset split) and write
+only a rerun recording of it (no viewer is started; open it with ``rerun FILE.rrd``).
+
+    cosemdepth view --model MODEL --bag PATH --image-topic T --pose-topic T --camera-info-topic T --rrd FILE.rrd
+    cosemdepth view --model MODEL --flight --images DIR --poses FILE --hfov DEG --rrd FILE.rrd
+    cosemdepth view --model MODEL --dataset NAME --root ROOT --max-frames N --rrd FILE.rrd
+
+It takes the inputs of ``predict`` (same arguments, same checks) because the recording needs what a prediction
+folder does not keep (the input images, the intrinsics and the camera motion); ``predict ... --rerun FILE.rrd``
+writes the same recording beside the usual files. Contents: :mod:`cosemdepth.io.rerun_writer`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+#: predict's arguments that do not apply to view (hidden from its help, ignored).
+_PREDICT_ONLY = ("out", "video", "fps", "rerun", "out_namespace")
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    from .predict import configure as configure_predict
+
+    configure_predict(parser)
+    for action in parser._actions:  # the inputs are predict's; its output options are not view's
+        if action.dest in _PREDICT_ONLY:
+            action.required = False
+            action.help = argparse.SUPPRESS
+    parser.add_argument("--rrd", type=Path, required=True, metavar="FILE.rrd",
+                        help="the recording to write (a new file; --overwrite replaces one)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm.auto import tqdm
+
+    from ..evaluation.streaming import make_schedule, stream, trajectory_rows
+    from ..io.rerun_writer import check_rrd_path, require_rerun
+    from ._robotics import make_sinks
+    from ._shared import apply_threads, load
+    from .predict import _open
+
+    apply_threads(args)
+    args.rerun = None  # view writes --rrd only
+    require_rerun()
+    check_rrd_path(args.rrd, overwrite=args.overwrite, option="--rrd")
+    dataset = _open(args)
+    model, _ = load(args.model, args.device, fast=not args.reference)
+    args.rerun = args.rrd
+    (writer,) = make_sinks(args, dataset, model, bag_output=False)
+    schedule = make_schedule(trajectory_rows(dataset, args.max_frames), args.lanes)
+    bar = tqdm(total=sum(len(s.indices) for s in schedule), unit="frame", desc="view",
+               disable=args.no_progress or not sys.stderr.isatty(), leave=False)
+    writer.open()
+    try:
+        for batch in stream(model, dataset, schedule=schedule, num_workers=args.workers):
+            writer(batch)
+            bar.update(len(batch))
+        info = writer.close()
+    except BaseException:
+        writer.abort()
+        raise
+    finally:
+        bar.close()
+        flight = getattr(dataset, "bag_flight", None)
+        if flight is not None:
+            flight.close()
+    print(f"wrote a rerun recording of {info['rerun']['frames']} frames to {args.rrd}; open it with: rerun {args.rrd}")
+    return 0
