@@ -120,7 +120,7 @@ def auto_depth_range(depths: Sequence[np.ndarray], cap: float = AUTO_RANGE_CAP_M
     return 0.0, nice_ceil(max(float(np.percentile(pool, percentile)), 1e-3))
 
 
-def depth_ticks(near: float, far: float, max_ticks: int = 6) -> list[float]:
+def depth_ticks(near: float, far: float, max_ticks: int = 7) -> list[float]:
     """Round tick values from ``near`` to ``far`` at most ``max_ticks`` (about), ``far`` always the last one."""
     span = far - near
     for step in (m * 10.0**k for k in range(-2, 6) for m in (1, 2, 2.5, 5)):
@@ -308,19 +308,31 @@ class FlightFigure:
         return self._caption
 
     def _legend_layout(self, x0: int, x1: int) -> tuple[list[tuple[int, int, int]], int]:
-        """Positions ``(class, x, y)`` of the legend entries in ``[x0, x1)``, and the height used."""
+        """Positions ``(class, x, y)`` of the legend entries in ``[x0, x1)`` (left to right, wrapped, each line
+        centred), and the height used."""
         s = self.small_size
         sw = round(s * 1.1)  # swatch side
-        entry_w = max(text_size(n, s)[0] for n in self.class_names) + sw + round(s * 1.4)
-        avail = max(x1 - x0 - 2 * round(s * 0.5), entry_w)
-        cols = max(1, min(len(self.class_names), avail // entry_w))
-        rows = math.ceil(len(self.class_names) / cols)
-        line = round(s * 1.6)
-        total_w = cols * entry_w
-        left = x0 + max(0, (x1 - x0 - total_w) // 2)
+        space = round(s * 1.3)
+        widths = [sw + round(s * 0.4) + text_size(n, s)[0] for n in self.class_names]
+        avail = max(x1 - x0 - 2 * round(s * 0.5), max(widths))
+        lines: list[list[int]] = [[]]
+        used = 0
+        for i, w in enumerate(widths):
+            if lines[-1] and used + space + w > avail:
+                lines.append([])
+                used = 0
+            used += (space if lines[-1] else 0) + w
+            lines[-1].append(i)
+        line_h = round(s * 1.6)
         top = round(s * 0.6)
-        pos = [(i, left + (i % cols) * entry_w, top + (i // cols) * line) for i in range(len(self.class_names))]
-        return pos, top + rows * line + round(s * 0.3)
+        pos = []
+        for r, line in enumerate(lines):
+            total = sum(widths[i] for i in line) + space * (len(line) - 1)
+            x = x0 + max(0, (x1 - x0 - total) // 2)
+            for i in line:
+                pos.append((i, x, top + r * line_h))
+                x += widths[i] + space
+        return pos, top + len(lines) * line_h + round(s * 0.3)
 
     def _colorbar_geometry(self, x0: int, x1: int) -> dict[str, int]:
         s = self.small_size
