@@ -28,11 +28,11 @@ import functools
 import math
 import os
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .visualize import _lut
+from .visualize import depth_positions, positions_to_rgb
 
 #: Panel keys and captions, in the order they are drawn (both in pictures and videos).
 PANELS: tuple[tuple[str, str], ...] = (
@@ -143,17 +143,6 @@ def _fmt_m(v: float) -> str:
     return f"{v:g}"
 
 
-def depth_positions(depth: np.ndarray, near: float, far: float) -> np.ndarray:
-    """Depth (metres) -> position on the colour scale in [0, 1] (0 = near, 1 = far); NaN and +inf -> 1, -inf -> 0."""
-    d = np.nan_to_num(np.asarray(depth, dtype=np.float32), nan=far, posinf=far, neginf=near)
-    return (np.clip(d, near, far) - near) / np.float32(far - near)
-
-
-def positions_to_rgb(pos: np.ndarray) -> np.ndarray:
-    """Positions on the depth colour scale (0 near .. 1 far) -> ``[..., 3]`` uint8 (reversed ``turbo``)."""
-    idx = np.clip(np.rint((1.0 - np.asarray(pos, dtype=np.float32)) * 255.0), 0, 255).astype(np.intp)
-    return _lut(DEPTH_CMAP)[idx]
-
 
 # ---------------------------------------------------------------------------------------------------- resizing
 
@@ -216,6 +205,9 @@ class FlightFigure:
         size: ``(H, W)`` of the maps. depth_range: ``(near, far)`` metres. class_names, palette ``[N, 3]``: the
             legend and the label colours (needed when a label panel is drawn).
         min_panel: smallest side of a drawn panel.
+
+    Attributes (pixels of a one-frame picture, ``(x0, y0, x1, y1)``, end excluded): ``colorbar_box`` (None without
+    depth panels) and ``legend_boxes``, ``[(class index, swatch box), ...]`` in legend order.
     """
 
     def __init__(self, keys: Sequence[str], size: tuple[int, int], *, depth_range: tuple[float, float] = (0.0, 80.0),
@@ -250,6 +242,11 @@ class FlightFigure:
         self.x = {k: i * (pw + GAP) for i, k in enumerate(self.keys)}
         self._caption = self._draw_captions()
         self._footer = self._draw_footer()
+        top = self.caption_height + self.panel_size[0] + GAP  # the footer's first row in a one-frame picture
+        if self.colorbar_box is not None:
+            x0, y0, x1, y1 = self.colorbar_box
+            self.colorbar_box = (x0, y0 + top, x1, y1 + top)
+        self.legend_boxes = [(i, (x0, y0 + top, x1, y1 + top)) for i, (x0, y0, x1, y1) in self.legend_boxes]
 
     # ------------------------------------------------------------------------------------------ geometry
 
@@ -285,6 +282,9 @@ class FlightFigure:
         }
         if self.has_depth:
             out["depth_range_m"] = list(self.depth_range)
+            out["depth_ticks_m"] = depth_ticks(*self.depth_range)
+            # the colour bar in a one-frame picture: column x0 is depth_range_m[0], column x1 - 1 depth_range_m[1]
+            out["colorbar_box"] = list(self.colorbar_box) if self.colorbar_box else None
             out["depth_colormap"] = (f"{DEPTH_CMAP}, linear, {_fmt_m(self.depth_range[0])} m red to "
                                      f"{_fmt_m(self.depth_range[1])} m dark blue; farther depths (sky) dark blue")
         if self.has_labels:
@@ -370,7 +370,7 @@ class FlightFigure:
             bar = positions_to_rgb(np.linspace(0.0, 1.0, x1 - x0, dtype=np.float32))
             img.paste(Image.fromarray(np.ascontiguousarray(np.broadcast_to(bar[None], (y1 - y0, x1 - x0, 3)))),
                       (x0, y0))
-            self.colorbar_box = (x0, y0, x1, y1)
+            self.colorbar_box = (x0, y0, x1, y1)  # in the footer; moved to frame coordinates below
             title = (f"depth in metres, {_fmt_m(near)} to {_fmt_m(far)} m (fixed for this flight; "
                      f"farther, e.g. sky: dark blue)")
             if text_size(title, s)[0] > depth_span[1] - depth_span[0] - 8:
@@ -537,6 +537,6 @@ def frame_maps(batch, b: int, *, title: str = "", labels_ok: Callable[[np.ndarra
 
 __all__ = [
     "CAPTIONS", "FlightFigure", "FlightPictures", "FrameMaps", "MIN_PANEL", "PANELS", "WARMUP_FRAMES",
-    "auto_depth_range", "depth_positions", "depth_ticks", "frame_maps", "nice_ceil", "panel_scale",
-    "positions_to_rgb", "upscale_bilinear", "upscale_nearest",
+    "auto_depth_range", "depth_ticks", "frame_maps", "nice_ceil", "panel_scale",
+    "upscale_bilinear", "upscale_nearest",
 ]
