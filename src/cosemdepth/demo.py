@@ -338,7 +338,7 @@ def report_markdown(m: dict[str, Any]) -> str:
     if pics.get("depth_range_m"):
         near, far = pics["depth_range_m"]
         lines.append(f"Depth colours: turbo, linear from {near:g} m (red) to {far:g} m (dark blue), one range for the "
-                     "whole flight (chosen from its first frames' ground truth); farther depths, the sky among them, "
+                     "whole flight (chosen from its first frames); farther depths, the sky among them, "
                      "are dark blue.")
     if m.get("files", {}).get("video"):
         lines.append(f"The whole flight: [{m['files']['video']}]({m['files']['video']}) "
