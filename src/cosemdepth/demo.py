@@ -12,8 +12,10 @@ Steps:
    depths, clipped to [0, 80] m as the metrics clip them, predicted everywhere) and *majority class* (the most
    frequent ground-truth class, predicted everywhere);
 5. write the report folder: ``metrics.json`` (schema below), ``report.md``, ``iou.png`` (per-class IoU chart),
-   ``qualitative.png`` (RGB | GT depth | predicted depth | GT labels | predicted labels for a few frames) and
-   ``flight.mp4`` (side-by-side video; ``flight.gif`` without ffmpeg).
+   ``qualitative.png`` (RGB | predicted depth | ground-truth depth | predicted labels | ground-truth labels for a few
+   frames, with a depth colour bar and a class legend) and ``flight.mp4`` (the same panels, captions, colour bar and
+   legend for every frame; ``flight.gif`` without ffmpeg). Both are drawn by :mod:`cosemdepth.evaluation.figures`
+   with one depth range for the whole flight (``metrics.json``'s ``pictures``).
 
 ``metrics.json``::
 
@@ -157,7 +159,8 @@ class DemoCollector:
     qualitative: int = QUALITATIVE_FRAMES
     gt_depths: list[torch.Tensor] = field(default_factory=list)
     label_hist: np.ndarray | None = None
-    picks: list[dict[str, np.ndarray]] = field(default_factory=list)
+    class_names: tuple[str, ...] = ()
+    picks: list[Any] = field(default_factory=list)
     seen: int = 0
 
     def __post_init__(self) -> None:
@@ -166,9 +169,16 @@ class DemoCollector:
         self.targets = sorted({int(round(x)) for x in np.linspace(0.1 * n, n - 1, k)}) if k else []
         if self.num_classes:
             self.label_hist = np.zeros(self.num_classes, dtype=np.int64)
+        from .evaluation.figures import FlightPictures
+
+        self.pictures = FlightPictures(lambda _, image: self.video.write(image) if self.video is not None else None,
+                                       class_names=self.class_names, palette=self.palette)
+
+    def _labels_ok(self, gt: np.ndarray) -> bool:
+        return self.palette is not None and gt.size > 0 and 0 <= int(gt.min()) and int(gt.max()) < len(self.palette)
 
     def __call__(self, batch, include: torch.Tensor) -> None:
-        from .evaluation.visualize import colorize_depth, colorize_labels, rgb_to_uint8, side_by_side
+        from .evaluation.figures import frame_maps
 
         for b in range(len(batch)):
             pos = self.seen
@@ -179,25 +189,17 @@ class DemoCollector:
             if inc and batch.gt_labels is not None and self.label_hist is not None:
                 self.label_hist += np.bincount(batch.gt_labels[b].cpu().numpy().ravel(),
                                                minlength=self.num_classes)[: self.num_classes]
-            rgb = rgb_to_uint8(batch.rgb[b].float().cpu().numpy())
-            maps: dict[str, np.ndarray] = {"rgb": rgb}
-            if batch.gt_depth is not None:
-                maps["gt_depth"] = colorize_depth(batch.gt_depth[b, 0].float().cpu().numpy())
-            if batch.depth is not None:
-                maps["depth"] = colorize_depth(batch.depth[b, 0].float().cpu().numpy())
-            if self.palette is not None and batch.gt_labels is not None:
-                maps["gt_labels"] = colorize_labels(batch.gt_labels[b].cpu().numpy(), self.palette)
-            if self.palette is not None and batch.labels is not None:
-                maps["labels"] = colorize_labels(batch.labels[b].cpu().numpy(), self.palette)
-            if self.video is not None:
-                titles = {"rgb": "RGB", "depth": "predicted depth", "labels": "predicted labels",
-                          "gt_depth": "GT depth", "gt_labels": "GT labels"}
-                order = ("rgb", "depth", "labels", "gt_depth", "gt_labels")
-                self.video.write(side_by_side([(titles[k], maps[k]) for k in order if k in maps]))
+            maps = frame_maps(batch, b, title=f"frame {int(batch.frame[b])}", labels_ok=self._labels_ok)
+            if self.palette is None:
+                maps.labels = None
+            self.pictures.add(maps)
             if inc and self.targets and pos >= self.targets[0] and len(self.picks) < self.qualitative:
                 self.targets.pop(0)
-                maps["frame"] = np.array(int(batch.frame[b]))
                 self.picks.append(maps)
+
+    def finish(self):
+        """Draw the video frames still held back; returns the flight's figure (None without frames)."""
+        return self.pictures.finish()
 
     def constant_depth(self) -> dict[str, float] | None:
         """Metrics of the constant median-depth prediction over the evaluated frames (spec 10.1 protocol)."""
@@ -263,41 +265,12 @@ def plot_iou(path: Path, class_names, model_iou, baseline_iou, model_miou, basel
     plt.close(fig)
 
 
-def plot_qualitative(path: Path, picks: list[dict[str, np.ndarray]], class_names, palette) -> None:
-    """The strip: one row per picked frame, RGB | GT depth | predicted depth | GT labels | predicted labels."""
-    import matplotlib
+def plot_qualitative(path: Path, figure, picks) -> None:
+    """The strip: one row per picked frame (:class:`~cosemdepth.evaluation.figures.FrameMaps`), drawn by the flight's
+    ``figure`` (the captions, panel order, colour bar and legend of the video), written atomically."""
+    from .evaluation.visualize import save_png
 
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Patch
-
-    from .io.atomic import atomic_path
-
-    cols = [("rgb", "RGB"), ("gt_depth", "GT depth"), ("depth", "predicted depth"), ("gt_labels", "GT labels"),
-            ("labels", "predicted labels")]
-    cols = [c for c in cols if picks and c[0] in picks[0]]
-    rows = max(len(picks), 1)
-    fig, axes = plt.subplots(rows, len(cols), figsize=(2.2 * len(cols), 2.2 * rows + 0.6), dpi=100, squeeze=False)
-    for r, pick in enumerate(picks):
-        for c, (key, title) in enumerate(cols):
-            ax = axes[r][c]
-            ax.imshow(pick[key], interpolation="nearest")
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if r == 0:
-                ax.set_title(title, fontsize=9)
-            if c == 0:
-                ax.set_ylabel(f"frame {int(pick['frame'])}", fontsize=8)
-    if palette is not None and class_names:
-        handles = [Patch(color=np.asarray(palette[i]) / 255.0, label=n) for i, n in enumerate(class_names)]
-        fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 0.022), ncol=min(len(handles), 7),
-                   fontsize=8, frameon=False)
-    fig.text(0.5, 0.006, "depth: turbo colour map, linear from 0 m (red) to 80 m (dark blue)", fontsize=7,
-             ha="center")
-    fig.tight_layout(rect=(0, 0.075 if palette is not None else 0.03, 1, 1))
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+    save_png(path, figure.rows(picks))
 
 
 # ---------------------------------------------------------------------------------------------------- report
@@ -359,11 +332,17 @@ def report_markdown(m: dict[str, Any]) -> str:
                   "| Co-SemDepth | " + " | ".join(_pct(v) for v in det["model_iou"]) + " |",
                   "| majority class | " + " | ".join(_pct(v) for v in det.get("majority_iou") or []) + " |",
                   "", "![per-class IoU](iou.png)"]
-    lines += ["", "## Qualitative", "", "![RGB, GT depth, predicted depth, GT labels, predicted labels]"
-              "(qualitative.png)", ""]
+    pics = m.get("pictures") or {}
+    panels = " | ".join(pics.get("panels") or [])
+    lines += ["", "## Qualitative", "", f"![{panels or 'qualitative'}](qualitative.png)", ""]
+    if pics.get("depth_range_m"):
+        near, far = pics["depth_range_m"]
+        lines.append(f"Depth colours: turbo, linear from {near:g} m (red) to {far:g} m (dark blue), one range for the "
+                     "whole flight (chosen from its first frames); farther depths, the sky among them, "
+                     "are dark blue.")
     if m.get("files", {}).get("video"):
         lines.append(f"The whole flight: [{m['files']['video']}]({m['files']['video']}) "
-                     "(RGB | predicted depth | predicted labels | GT depth | GT labels).")
+                     f"(the same panels{': ' + panels if panels else ''}).")
     lines += ["", "## Timings", "", "| step | seconds |", "|---|---|"]
     for k, v in tm.items():
         lines.append(f"| {k.replace('_', ' ')} | {v:.1f} |")
@@ -477,11 +456,12 @@ def run_demo(
             try:
                 collector = DemoCollector(total_frames=dataset.num_frames if hasattr(dataset, "num_frames")
                                           else len(dataset), num_classes=cfg.num_classes if cfg.has_semantic
-                                          else None, palette=palette, video=writer)
+                                          else None, palette=palette, video=writer, class_names=tuple(names))
                 t = time.perf_counter()
                 log(f"evaluating on {len(dataset)} frames ({split} split of {root}) ...")
                 evaluator = Evaluator(net, dataset, progress=progress, callbacks=[collector], dataset_name="synthair")
                 result = evaluator.run()
+                figure = collector.finish()
                 timings["evaluate"] = time.perf_counter() - t
                 video_path = writer.close() if writer is not None else None
             except BaseException:
@@ -537,7 +517,9 @@ def run_demo(
                 plot_iou(tmp / "iou.png", names, em.get("iou") or [math.nan] * len(names),
                          None if maj is None else maj["iou"], em.get("miou", math.nan),
                          math.nan if maj is None else maj["miou"])
-            plot_qualitative(tmp / "qualitative.png", collector.picks, names, palette)
+            if figure is not None:
+                metrics["pictures"] = figure.metadata()  # what qualitative.png and the video show, the depth range
+                plot_qualitative(tmp / "qualitative.png", figure, collector.picks)
             timings["report"] = time.perf_counter() - t
             timings["total"] = time.perf_counter() - t_start
             metrics["timings"] = timings

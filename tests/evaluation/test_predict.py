@@ -75,10 +75,26 @@ def test_predict_writes_every_artefact_and_they_read_back(model_dir, data, tmp_p
             assert labels.dtype == np.uint8 and np.array_equal(labels, ref.semantic[k].argmax(0).numpy())
             assert np.array_equal(read_png(files["labels_color"]), PALETTE_7[labels])
             sbs = read_png(files["side_by_side"])
-            # 5 panels (RGB, depth, labels, GT depth, GT labels) of SIZE px, 2 px gaps, a 14 px caption band
-            assert sbs.shape == (14 + SIZE, 5 * SIZE + 4 * 2, 3)
-            assert np.array_equal(sbs[14:, :SIZE], rgb_to_uint8(its[k]["rgb"][0].numpy()))
-            assert np.array_equal(sbs[14:, 2 * (SIZE + 2): 2 * (SIZE + 2) + SIZE], PALETTE_7[labels])
+            # 5 panels of 384 px (SIZE = 32 upscaled 12 x), 4 px gaps, captions above, colour bar and legend below
+            pics = traj["pictures"]
+            assert pics["panels"] == ["RGB", "predicted depth", "ground-truth depth", "predicted labels",
+                                      "ground-truth labels"]
+            assert pics["panel_size"] == [384, 384] and 384 == 12 * SIZE
+            assert sbs.shape == (*pics["frame_size"], 3) and sbs.shape[1] == 5 * 384 + 4 * 4
+            assert sbs.shape[0] > 384 + 40
+            boxes = dict(zip(pics["panels"], pics["panel_boxes"]))
+            x0, y0, x1, y1 = boxes["predicted labels"]
+            assert (x1 - x0, y1 - y0) == (384, 384)
+            # labels: each pixel a 12 x 12 block of its class colour (nearest upscaling)
+            assert np.array_equal(sbs[y0:y1, x0:x1], np.kron(PALETTE_7[labels], np.ones((12, 12, 1), np.uint8)))
+            x0, y0, x1, y1 = boxes["RGB"]
+            rgb = rgb_to_uint8(its[k]["rgb"][0].numpy()).astype(int)
+            # bilinear: the centre of each 12 x 12 block lies between its pixel and a neighbour (title box excluded)
+            centre = sbs[y0 + 6:y1:12, x0 + 6:x1:12].astype(int)
+            lo = np.minimum(rgb, np.minimum(np.roll(rgb, -1, 0), np.roll(rgb, -1, 1)))
+            hi = np.maximum(rgb, np.maximum(np.roll(rgb, -1, 0), np.roll(rgb, -1, 1)))
+            body = (slice(4, SIZE - 1), slice(0, SIZE - 1))
+            assert ((centre[body] >= lo[body] - 1) & (centre[body] <= hi[body] + 1)).all()
         video = out / traj["video"]
         import imageio_ffmpeg
 
@@ -114,7 +130,11 @@ def test_own_flight_with_a_gif(model_dir, tmp_path):
     gif = Image.open(out / traj["video"])
     assert gif.n_frames == 4
     sbs = read_png(out / man["frames"][1]["files"]["side_by_side"])
-    assert sbs.shape == (14 + 32, 3 * 64 + 2 * 2, 3)  # RGB | depth | labels: no ground truth
+    # RGB | depth | labels: no ground truth; 32 x 64 upscaled 12 x to 384 x 768 panels
+    pics = traj["pictures"]
+    assert pics["panels"] == ["RGB", "predicted depth", "predicted labels"] and pics["panel_size"] == [384, 768]
+    assert sbs.shape == (*pics["frame_size"], 3) and sbs.shape[1] == 3 * 768 + 2 * 4
+    assert gif.size == (sbs.shape[1], sbs.shape[0])
     assert man["frames"][0]["source"].endswith("img_0000.png")
 
 

@@ -8,8 +8,12 @@ Output folder (one sub-folder per trajectory; ``NNNNNN`` is the frame's row in i
                                                (1/256 m steps up to 255.996 m; depth_m = png / 256)
     OUT/<trajectory>/labels/NNNNNN.png         8-bit PNG of class indices (argmax)
     OUT/<trajectory>/labels_color/NNNNNN.png   RGB PNG, the dataset's palette (Mid-Air/SynthAir: spec 9.5)
-    OUT/<trajectory>/side_by_side/NNNNNN.png   RGB | depth | labels | GT depth | GT labels (GT when known)
+    OUT/<trajectory>/side_by_side/NNNNNN.png   RGB | depth | GT depth | labels | GT labels (GT when known), each
+                                               panel >= 384 px, a depth colour bar and a class legend below
     OUT/<trajectory>/video.mp4                 the side-by-side frames as a video (GIF without ffmpeg)
+
+The pictures (:mod:`cosemdepth.evaluation.figures`) colour depth on a range fixed per trajectory, chosen from its
+first frames (recorded in ``predictions.json`` under the trajectory's ``pictures``) unless ``depth_range`` is given.
 
 Depth outputs are absent for M4Semantic, label outputs for M4Depth. The first frame of a trajectory is a reset:
 its depth is the initial value (1000 m), as in the original.
@@ -32,17 +36,15 @@ from ..io.atomic import atomic_write_text
 from ..io.staging import StagedDir
 from .classes import class_info
 from .evaluator import _model_config, to_json
+from .figures import FlightPictures, frame_maps
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
 from .visualize import (
     DEPTH_PNG_SCALE,
     VideoWriter,
-    colorize_depth,
     colorize_labels,
     depth_to_png16,
-    rgb_to_uint8,
     save_npy,
     save_png,
-    side_by_side,
 )
 
 MANIFEST = "predictions.json"
@@ -61,13 +63,14 @@ class PredictionWriter:
 
     Args:
         folder: output folder (the staging folder of :func:`predict`).
-        num_classes, dataset_name: for the palette; depth_range: ``(near, far)`` of the depth colour map (metres).
+        num_classes, dataset_name: for the palette; depth_range: ``(near, far)`` of the depth colour map (metres;
+            default: chosen per trajectory from its first frames).
         video: ``"mp4"``, ``"gif"`` or ``None``; fps: video frame rate.
         sources: dataset index -> source image path (recorded in the manifest).
     """
 
     def __init__(self, folder: Path, *, num_classes: int | None, dataset_name: str | None = None,
-                 video: str | None = "mp4", fps: float = 8.0, depth_range: tuple[float, float] = (0.0, 80.0),
+                 video: str | None = "mp4", fps: float = 8.0, depth_range: tuple[float, float] | None = None,
                  sources: dict[int, str] | None = None) -> None:
         self.folder = Path(folder)
         self.video = video
@@ -78,6 +81,7 @@ class PredictionWriter:
         self.frames: list[dict[str, Any]] = []
         self.trajectories: dict[str, dict[str, Any]] = {}
         self._videos: dict[str, VideoWriter] = {}
+        self._pictures: dict[str, FlightPictures] = {}
 
     def __call__(self, batch: StreamBatch, include: torch.Tensor | None = None) -> None:
         for b in range(len(batch)):
@@ -95,37 +99,27 @@ class PredictionWriter:
         stem = f"{int(batch.frame[b]):06d}"
         base = self.folder / rel
         files: dict[str, str] = {}
-        rgb = rgb_to_uint8(batch.rgb[b].float().cpu().numpy())
-        panels = [("RGB", rgb)]
+        maps = frame_maps(batch, b, title=f"frame {int(batch.frame[b])}", labels_ok=self._labels_ok)
         if batch.depth is not None:
-            depth = batch.depth[b, 0].float().cpu().numpy().astype(np.float32)
+            depth = maps.depth
             files["depth"] = f"{rel}/depth/{stem}.npy"
             save_npy(self.folder / files["depth"], depth)
             files["depth_png"] = f"{rel}/depth_png/{stem}.png"
             save_png(self.folder / files["depth_png"], depth_to_png16(depth))
-            panels.append(("depth", colorize_depth(depth, *self.depth_range)))
         if batch.labels is not None:
-            labels = batch.labels[b].cpu().numpy().astype(np.uint8)
+            labels = maps.labels.astype(np.uint8)
             files["labels"] = f"{rel}/labels/{stem}.png"
             save_png(self.folder / files["labels"], labels)
             color = colorize_labels(labels, self.palette)
             files["labels_color"] = f"{rel}/labels_color/{stem}.png"
             save_png(self.folder / files["labels_color"], color)
-            panels.append(("labels", color))
-        if batch.gt_depth is not None:
-            panels.append(("GT depth", colorize_depth(batch.gt_depth[b, 0].float().cpu().numpy(), *self.depth_range)))
-        if batch.gt_labels is not None and self.palette is not None:
-            gt = batch.gt_labels[b].cpu().numpy()
-            if gt.size and int(gt.max()) < len(self.palette) and int(gt.min()) >= 0:
-                panels.append(("GT labels", colorize_labels(gt, self.palette)))
-        sbs = side_by_side(panels)
         files["side_by_side"] = f"{rel}/side_by_side/{stem}.png"
-        save_png(self.folder / files["side_by_side"], sbs)
-        if self.video:
-            writer = self._videos.get(traj)
-            if writer is None:
-                writer = self._videos[traj] = VideoWriter(base / "video", fps=self.fps, fmt=self.video)
-            writer.write(sbs)
+        pictures = self._pictures.get(traj)
+        if pictures is None:
+            pictures = self._pictures[traj] = FlightPictures(
+                lambda path, image, traj=traj, base=base: self._emit(traj, base, path, image),
+                class_names=self.names, palette=self.palette, depth_range=self.depth_range)
+        pictures.add(maps, self.folder / files["side_by_side"])
         record = {"trajectory": traj, "frame": int(batch.frame[b]), "reset": bool(batch.reset[b]), "files": files}
         src = self.sources.get(batch.indices[b])
         if src is not None:
@@ -134,14 +128,31 @@ class PredictionWriter:
         entry["frames"] += 1
         return record
 
+    def _labels_ok(self, gt: np.ndarray) -> bool:
+        return self.palette is not None and gt.size > 0 and int(gt.max()) < len(self.palette) and int(gt.min()) >= 0
+
+    def _emit(self, traj: str, base: Path, path: Path, image: np.ndarray) -> None:
+        """A drawn side-by-side frame: its PNG and the trajectory's video."""
+        save_png(path, image)
+        if self.video:
+            writer = self._videos.get(traj)
+            if writer is None:
+                writer = self._videos[traj] = VideoWriter(base / "video", fps=self.fps, fmt=self.video)
+            writer.write(image)
+
     def close(self) -> None:
-        """Finish the videos."""
+        """Draw the frames still held back, finish the videos."""
+        for traj, pictures in self._pictures.items():
+            figure = pictures.finish()
+            if figure is not None:
+                self.trajectories[traj]["pictures"] = figure.metadata()
         for traj, writer in list(self._videos.items()):
             path = writer.close()
             self.trajectories[traj]["video"] = path.relative_to(self.folder).as_posix()
             del self._videos[traj]
 
     def abort(self) -> None:
+        self._pictures.clear()
         for writer in self._videos.values():
             writer.abort()
         self._videos.clear()
@@ -173,7 +184,7 @@ def predict(
     progress: bool = False,
     dataset_name: str | None = None,
     info: dict[str, Any] | None = None,
-    depth_range: tuple[float, float] = (0.0, 80.0),
+    depth_range: tuple[float, float] | None = None,
     sinks: tuple = (),
 ) -> dict[str, Any]:
     """Stream ``model`` over ``dataset`` and write every output into ``out`` (see the module docstring).
@@ -185,7 +196,7 @@ def predict(
         fps: video frame rate. max_frames: only the first N rows. lanes, num_workers: as :func:`stream`.
         overwrite: replace a non-empty ``out`` that is not a previous prediction output.
         progress: progress bar. dataset_name: for the palette. info: extra entries of ``predictions.json``.
-        depth_range: near/far metres of the depth colour map.
+        depth_range: near/far metres of the depth colour map (default: per trajectory, from its first frames).
         sinks: more outputs (the ROS bag of :mod:`cosemdepth.io.bag_writer`, the rerun recording of
             :mod:`cosemdepth.io.rerun_writer`): objects with ``open(folder)``, ``__call__(batch)``, ``close() -> dict``
             (merged into the manifest) and ``abort()``.
@@ -252,7 +263,9 @@ def predict(
                 "depth_png_scale": DEPTH_PNG_SCALE,
                 "labels": "labels/*.png: uint8 class index (argmax of the probabilities)",
                 "labels_color": "labels_color/*.png: RGB, palette below",
-                "side_by_side": "side_by_side/*.png: RGB | depth (turbo colour map, linear, red 0 m to blue 80 m) | labels | GT when known",
+                "side_by_side": "side_by_side/*.png: RGB | predicted depth | ground-truth depth | predicted labels | "
+                "ground-truth labels (GT when known), depth on the turbo colour map, linear from red (0 m) to dark "
+                "blue at the range in trajectories[].pictures.depth_range_m, with a colour bar and a class legend",
             },
             "class_names": list(writer.names),
             "palette": None if writer.palette is None else np.asarray(writer.palette).tolist(),

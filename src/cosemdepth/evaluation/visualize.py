@@ -5,8 +5,9 @@ Depth PNG (``depth_to_png16``): ``uint16 = round(depth_m * 256)``, saturating to
 1/256 m (3.9 mm) up to 255.996 m; 0 means a depth <= 1/512 m (or a negative/NaN prediction). Decode with
 ``depth_m = png / 256`` (:func:`png16_to_depth`). This is the KITTI depth-map convention.
 
-Depth colour map (``colorize_depth``): linear between ``near`` (0 m, red) and ``far`` (80 m, the evaluation cap, dark
-blue), matplotlib's ``turbo``: the same scale for every frame, so that videos do not flicker.
+Depth colour map (``colorize_depth``): linear between ``near`` (default 0 m, red) and ``far`` (default 80 m, the
+evaluation cap, dark blue), matplotlib's ``turbo``. The pictures of ``predict`` and ``demo`` (panels, captions, colour
+bar, legend) are drawn by :mod:`cosemdepth.evaluation.figures`, with one range per flight.
 """
 
 from __future__ import annotations
@@ -16,7 +17,6 @@ import os
 import shutil
 import warnings
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -45,14 +45,25 @@ def _lut(name: str) -> np.ndarray:
     return (colormaps[name](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0 + 0.5).astype(np.uint8)
 
 
+def depth_positions(depth: np.ndarray, near: float, far: float) -> np.ndarray:
+    """Depth (metres) -> float32 position on a linear colour scale, 0 at ``near`` and 1 at ``far``, clipped; NaN and
+    +inf -> 1, -inf -> 0."""
+    d = np.nan_to_num(np.asarray(depth, dtype=np.float32), nan=far, posinf=far, neginf=near)
+    return (np.clip(d, near, far) - np.float32(near)) / np.float32(far - near)
+
+
+def positions_to_rgb(pos: np.ndarray, cmap: str = "turbo") -> np.ndarray:
+    """Positions on the depth scale (0 near .. 1 far) -> ``[..., 3]`` uint8: ``cmap`` reversed (near is its top)."""
+    idx = np.clip(np.rint((1.0 - np.asarray(pos, dtype=np.float32)) * 255.0), 0, 255).astype(np.intp)
+    return _lut(cmap)[idx]
+
+
 def colorize_depth(depth: np.ndarray, near: float = 0.0, far: float = 80.0, cmap: str = "turbo") -> np.ndarray:
     """``[H, W]`` metres -> ``[H, W, 3]`` uint8: linear scale, ``near`` at the top of ``cmap`` (red for turbo) to
     ``far`` at its bottom (dark blue); values outside are clipped, NaN shows as ``far``."""
     if not far > near:
         raise ValueError(f"colorize_depth: far ({far}) must be greater than near ({near})")
-    d = np.nan_to_num(np.asarray(depth, dtype=np.float64), nan=far, posinf=far, neginf=near)
-    v = 1.0 - (np.clip(d, near, far) - near) / (far - near)
-    return _lut(cmap)[np.clip(np.rint(v * 255), 0, 255).astype(np.intp)]
+    return positions_to_rgb(depth_positions(depth, near, far), cmap)
 
 
 def colorize_labels(labels: np.ndarray, palette: np.ndarray) -> np.ndarray:
@@ -63,30 +74,6 @@ def colorize_labels(labels: np.ndarray, palette: np.ndarray) -> np.ndarray:
 def rgb_to_uint8(rgb: np.ndarray) -> np.ndarray:
     """``[3, H, W]`` floats in [0, 1] (values outside are clipped) -> ``[H, W, 3]`` uint8."""
     return (np.clip(np.asarray(rgb, dtype=np.float32), 0.0, 1.0).transpose(1, 2, 0) * 255.0 + 0.5).astype(np.uint8)
-
-
-def _caption(width: int, text: str, height: int) -> np.ndarray:
-    from PIL import Image, ImageDraw
-
-    img = Image.new("RGB", (width, height), (24, 24, 24))
-    ImageDraw.Draw(img).text((3, max(0, (height - 11) // 2)), text, fill=(235, 235, 235))
-    return np.asarray(img)
-
-
-def side_by_side(panels: Sequence[tuple[str, np.ndarray]], caption_height: int = 14, gap: int = 2) -> np.ndarray:
-    """Panels ``[(title, [H, W, 3] uint8), ...]`` of the same height side by side, each with its title above."""
-    if not panels:
-        raise ValueError("side_by_side needs at least one panel")
-    h = panels[0][1].shape[0]
-    cols = []
-    for i, (title, img) in enumerate(panels):
-        if img.shape[0] != h:
-            raise ValueError(f"panel {title!r} has height {img.shape[0]}, expected {h}")
-        col = np.concatenate([_caption(img.shape[1], title, caption_height), img], axis=0) if caption_height else img
-        cols.append(col)
-        if gap and i < len(panels) - 1:
-            cols.append(np.zeros((col.shape[0], gap, 3), dtype=np.uint8))
-    return np.concatenate(cols, axis=1)
 
 
 def save_png(path: str | os.PathLike, array: np.ndarray) -> None:
@@ -202,5 +189,5 @@ class VideoWriter:
 
 __all__ = [
     "DEPTH_PNG_MAX_M", "DEPTH_PNG_SCALE", "VideoWriter", "colorize_depth", "colorize_labels", "depth_to_png16",
-    "ffmpeg_exe", "png16_to_depth", "rgb_to_uint8", "save_npy", "save_png", "side_by_side",
+    "depth_positions", "ffmpeg_exe", "png16_to_depth", "positions_to_rgb", "rgb_to_uint8", "save_npy", "save_png",
 ]
