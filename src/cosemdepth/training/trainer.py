@@ -203,7 +203,7 @@ class Trainer:
                                "process(es)); lower the batch size or add data")
         self.total_steps = total_steps(tc.epochs, self.steps_per_epoch, tc.max_steps)
         self.is_better = selection_rule(tc.best)
-        self.resuming = D.on_main(lambda: check_output_dir(self.run_dir), self.dist)
+        self.resuming = D.on_main(lambda: check_output_dir(self.run_dir, config), self.dist)
 
         self.state = LoopState()
         self.guard = NonFiniteGuard(tc.nonfinite_patience)
