@@ -252,3 +252,20 @@ def test_non_finite_outputs_stop_every_runner_naming_the_frame(work, capsys):
         assert f"cosemdepth {name}: error: " in line[0] and "semantic output holds NaN/inf" in line[0]
         assert "dataset row 0" in line[0] and first_image in line[0], line[0]
     assert snapshot(tmp) == before and leftovers(tmp) == []
+
+
+def test_export_replaces_only_its_own_onnx_file(tmp_path, capsys):
+    import onnx
+
+    out = tmp_path / "m.onnx"
+    argv = ["export", "--onnx", str(out), "--arch", "m4semantic", "--levels", "1", "--classes", "3", "--size",
+            "16", "16"]
+    assert main(argv) == 0 and main(argv) == 0  # the second run replaces the file the first one wrote
+    props = {p.key for p in onnx.load(str(out)).metadata_props}
+    assert "cosemdepth_export" in props
+    capsys.readouterr()
+    mine = tmp_path / "mine.onnx"
+    onnx.save(onnx.load(str(out)).__class__(), str(mine))  # an ONNX file cosemdepth did not write
+    before = mine.read_bytes()
+    assert main(["export", "--onnx", str(mine), *argv[3:]]) == 2
+    assert "was not written by cosemdepth" in err_line(capsys) and mine.read_bytes() == before

@@ -69,7 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(module.run(args) or 0)
     except CosemdepthError as e:
-        print(f"cosemdepth {args.command}: error: {e}", file=sys.stderr)
+        # one line, whatever a wrapped library message holds (YAML and JSON parsers put line breaks in theirs)
+        text = "; ".join(part.strip() for part in str(e).splitlines() if part.strip())
+        print(f"cosemdepth {args.command}: error: {text}", file=sys.stderr)
         return 2
     except OSError as e:
         # a file system error about a path the user gave (permissions, a file vanished, disk full): one line. An
