@@ -269,3 +269,23 @@ def test_export_replaces_only_its_own_onnx_file(tmp_path, capsys):
     before = mine.read_bytes()
     assert main(["export", "--onnx", str(mine), *argv[3:]]) == 2
     assert "was not written by cosemdepth" in err_line(capsys) and mine.read_bytes() == before
+
+
+def test_tensorflow_checkpoint_inputs(tmp_path, capsys):
+    """A TF checkpoint prefix: its folder is the input when it holds a 'checkpoint' file, else its files are."""
+    ck = tmp_path / "train"
+    ck.mkdir()
+    for name in ("checkpoint", "cp-0001.ckpt.index", "cp-0001.ckpt.data-00000-of-00001"):
+        (ck / name).write_bytes(b"x")
+    before = snapshot(tmp_path)
+    for out, why in ((ck / "converted", "lies inside the TF_CHECKPOINT"), (tmp_path, "contains the TF_CHECKPOINT"),
+                     (ck, "is the TF_CHECKPOINT")):
+        assert main(["convert", str(ck / "cp-0001.ckpt"), str(out)]) == 2
+        assert why in err_line(capsys)
+    (ck / "checkpoint").unlink()
+    assert main(["convert", str(ck / "cp-0001.ckpt"), str(ck / "cp-0001.ckpt.index")]) == 2
+    assert "exists and is not a folder" in err_line(capsys)
+    assert main(["convert", str(ck / "cp-0001.ckpt"), str(tmp_path)]) == 2
+    assert "contains the TF_CHECKPOINT" in err_line(capsys)
+    assert {k: v for k, v in snapshot(tmp_path).items() if not k.endswith("checkpoint")} == {
+        k: v for k, v in before.items() if not k.endswith("checkpoint")}

@@ -56,8 +56,9 @@ def _inside(a: Path, b: Path) -> bool:
 
 
 def model_inputs(path: str | os.PathLike | None, label: str = "--model") -> list[Input]:
-    """The paths a model argument reads: the folder or file itself, or the files of a TensorFlow checkpoint prefix
-    (``.../cp-0059.ckpt`` -> ``cp-0059.ckpt.index``, ``cp-0059.ckpt.data-*``)."""
+    """The paths a model argument reads: the model folder (also for its ``config.json`` / ``model.safetensors``), or
+    for a TensorFlow checkpoint prefix (``.../cp-0059.ckpt``) its folder when that holds a ``checkpoint`` file, else
+    its files (``cp-0059.ckpt.index``, ``cp-0059.ckpt.data-*``)."""
     if path is None:
         return []
     p = Path(path)
@@ -65,7 +66,11 @@ def model_inputs(path: str | os.PathLike | None, label: str = "--model") -> list
         return [Input(label, p.parent)]  # the model folder
     if p.exists():
         return [Input(label, p)]
-    return [Input(label, f) for f in p.parent.glob(p.name + ".*")] if p.parent.is_dir() else []
+    if not p.parent.is_dir():
+        return []
+    if (p.parent / "checkpoint").is_file():  # a TensorFlow checkpoint folder (the authors' train/ or best/)
+        return [Input(label, p.parent)]
+    return [Input(label, f) for f in p.parent.glob(p.name + ".*")]
 
 
 def check_not_input(out: str | os.PathLike, inputs: Iterable[Input | None], what: str) -> None:
