@@ -155,3 +155,23 @@ def test_through_the_real_command_line(env):
                            env={"PYTHONPATH": str(REPO / "src"), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1"})
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1 and _fill(names, env) in r.stderr, r.stderr
+
+
+def test_file_system_errors_naming_a_path_are_one_line_others_propagate(monkeypatch, capsys):
+    import errno
+
+    import cosemdepth.cli.export as export_cli
+
+    def fails(args):
+        raise PermissionError(errno.EACCES, "Permission denied", "/data/run/x.onnx")
+
+    monkeypatch.setattr(export_cli, "run", fails)
+    assert main(["export", "--onnx", "x.onnx"]) == 2
+    assert capsys.readouterr().err == "cosemdepth export: error: /data/run/x.onnx: Permission denied\n"
+
+    def bug(args):
+        raise OSError("internal failure that names no file")
+
+    monkeypatch.setattr(export_cli, "run", bug)
+    with pytest.raises(OSError, match="internal failure"):
+        main(["export", "--onnx", "x.onnx"])
