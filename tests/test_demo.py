@@ -63,8 +63,8 @@ def test_demo_end_to_end_on_a_given_dataset(model_dir, data, tmp_path, capsys):
                "--no-progress"])
     assert rc == 0
     assert f"Report: {out / 'report.md'}" in capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == ["flight.mp4", "iou.png", "metrics.json", "qualitative.png",
-                                                     "report.md"]
+    assert sorted(p.name for p in out.iterdir()) == [".cosemdepth-output.json", "flight.mp4", "iou.png",
+                                                     "metrics.json", "qualitative.png", "report.md"]
     m = json.loads((out / "metrics.json").read_text())
     check_schema(m)
     ref = independent_baselines(data)

@@ -412,12 +412,18 @@ def run_demo(
         raise ConfigError(f"--size must be an integer >= 32, got {size!r}")
     if video not in (None, "mp4", "gif"):
         raise ConfigError(f"--video must be mp4, gif or none, got {video!r}")
-    staged = StagedDir(out, REPORT_MARKER, overwrite=overwrite, what="--out folder")
+    from .io.outdir import Input, check_not_input, model_inputs
+
+    model_path = resolve_model_path(model)
+    inputs = [*model_inputs(model_path), Input("--data-root", data_root) if data_root is not None else None,
+              Input("--data-dir", data_dir) if data_dir is not None else None]
+    staged = StagedDir(out, "demo", overwrite=overwrite, what="--out folder", inputs=inputs)
     staged.check()
+    if data_dir is not None:  # the generated flight is an output too: it must not overlap the model or the report
+        check_not_input(data_dir, [*model_inputs(model_path), Input("--out", out)], "--data-dir folder")
     dev = resolve_device(device)
 
     t = time.perf_counter()
-    model_path = resolve_model_path(model)
     net = load_model(model_path, device=dev)
     if fast:
         net.optimize("fast")

@@ -22,3 +22,7 @@ class DatasetError(CosemdepthError):
 
 class ConfigError(CosemdepthError):
     """A configuration value or command-line argument is invalid."""
+
+
+class NonFiniteOutputError(CosemdepthError):
+    """A model produced NaN or inf for a frame (broken weights or input); the run stops instead of writing them."""

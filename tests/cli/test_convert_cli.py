@@ -27,7 +27,7 @@ def test_convert_fixture(tfref_dir, tmp_path, capsys):
     assert "levels:     5" in text and "classes:    7" in text
     assert "5,202,528" in text
     assert str((tfref_dir / "ckpt" / "cp-0000.ckpt").resolve()) in text
-    assert sorted(os.listdir(out)) == ["config.json", "model.safetensors"]
+    assert sorted(os.listdir(out)) == [".cosemdepth-output.json", "config.json", "model.safetensors"]
     sd, cfg, meta = read_model_files(out)
     assert cfg.arch == "cosemdepth" and cfg.levels == 5 and cfg.num_classes == 7
     assert meta["source"]["type"] == "tensorflow_checkpoint"

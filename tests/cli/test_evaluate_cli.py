@@ -29,7 +29,8 @@ def test_without_out_nothing_is_written(model_dir, data, tmp_path, capsys, monke
 def test_out_in_an_existing_folder_keeps_other_files(model_dir, data, tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
     assert evaluate(model_dir, data, "--out", tmp_path, "--max-frames", 2) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["metrics.json", "metrics.md", "notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".cosemdepth-output.json", "metrics.json", "metrics.md",
+                                                          "notes.txt"]
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["protocol"]["frames_streamed"] == 2 and m["protocol"]["frames_evaluated"] == 1
 

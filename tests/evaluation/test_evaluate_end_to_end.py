@@ -87,7 +87,7 @@ def test_evaluate_cli_on_the_converted_tf_model(converted, split, expected, tmp_
     assert rc == 0
     printed = capsys.readouterr().out
     assert "| model | params | ms/frame | mIoU |" in printed
-    assert sorted(p.name for p in out.iterdir()) == ["metrics.json", "metrics.md"]
+    assert sorted(p.name for p in out.iterdir()) == [".cosemdepth-output.json", "metrics.json", "metrics.md"]
     res = json.loads((out / "metrics.json").read_text())
     m = res["metrics"]
     assert expected["frames"] == 4  # 2 trajectories x 3 rows, minus the 2 reset rows

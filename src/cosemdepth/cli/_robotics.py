@@ -51,10 +51,9 @@ def check_args(args: argparse.Namespace) -> None:
             raise ConfigError(f"--max-pose-gap must be >= 0 seconds, got {args.max_pose_gap}")
         check_namespace(args.out_namespace)
     if getattr(args, "rerun", None) is not None:
-        from ..io.rerun_writer import check_rrd_path, require_rerun
+        from ..io.rerun_writer import require_rerun
 
-        require_rerun()
-        check_rrd_path(args.rerun, overwrite=getattr(args, "overwrite", False))
+        require_rerun()  # the file itself is checked with the command's inputs (cli.predict.inputs)
 
 
 def open_bag(args: argparse.Namespace):

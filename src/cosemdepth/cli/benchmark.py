@@ -10,6 +10,7 @@ persistent buffers, one graph replay per step). Writes JSON and Markdown.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 import shlex
 import sys
 from dataclasses import asdict
@@ -53,6 +54,27 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--md", metavar="FILE", default="benchmark.md", help="Markdown output (default benchmark.md)")
 
 
+def _is_our_json(path) -> bool:
+    """A benchmark report written by ``cosemdepth benchmark`` (replaced by a new run; anything else is kept)."""
+    import json
+
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    return (isinstance(data, dict) and isinstance(data.get("meta"), dict)
+            and str(data["meta"].get("command", "")).startswith("cosemdepth benchmark"))
+
+
+def _is_our_md(path) -> bool:
+    try:
+        with open(path, encoding="utf-8") as f:
+            first = f.readline()
+    except (OSError, UnicodeDecodeError):
+        return False
+    return first.startswith("Measured ") and ", PyTorch " in first
+
+
 def resolve_device(name: str) -> str:
     if name == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
@@ -90,6 +112,11 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f"{name} must be at least 1, got {v}")
     if any(b < 1 for b in args.batch):
         raise ConfigError(f"--batch values must be at least 1, got {args.batch}")
+    from ..io.outdir import check_output_file, model_inputs
+
+    for flag, path, ours in (("--json", args.json, _is_our_json), ("--md", args.md, _is_our_md)):
+        if path:
+            check_output_file(path, what=f"{flag} file", inputs=model_inputs(args.model), recognize=ours)
     precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16"])
     if "fp16" in precisions and not cuda:
         raise ConfigError("--precision fp16 is for CUDA; on CPU use bf16")

@@ -15,7 +15,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="TensorFlow checkpoint: a prefix (.../cp-0059.ckpt), its .index file, or a folder with a "
         "'checkpoint' file (such as the authors' train/ or best/ folder)",
     )
-    parser.add_argument("out_dir", metavar="OUT_DIR", help="output folder; gets config.json and model.safetensors")
+    parser.add_argument("out_dir", metavar="OUT_DIR", help="output folder; gets config.json and model.safetensors "
+                        "(existing ones are replaced only if cosemdepth wrote them)")
     parser.add_argument(
         "--arch",
         choices=ARCHITECTURES,
@@ -44,9 +45,14 @@ def run(args: argparse.Namespace) -> int:
     from ..io.convert import import_checkpoint
     from ..io.model_io import CONFIG_FILE, WEIGHTS_FILE, save_weights
 
+    from ..io.outdir import check_output_dir, model_inputs, write_marker
+
     out = Path(args.out_dir)
     if out.exists() and not out.is_dir():
         raise CheckpointError(f"{out}: OUT_DIR exists and is not a folder")
+    files = (CONFIG_FILE, WEIGHTS_FILE)
+    check_output_dir(out, command="convert", mode="into", what="OUT_DIR", files=files,
+                     inputs=model_inputs(args.checkpoint, "TF_CHECKPOINT"))
     conv = import_checkpoint(
         args.checkpoint,
         arch=args.arch,
@@ -54,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
         pscv_dtype=args.pscv_dtype,
     )
     save_weights(conv.state_dict, conv.config, out, source=conv.source)
+    write_marker(out, "convert", files)
     cfg = conv.config
     yes = {True: "on", False: "off"}
     parts = ", ".join(f"{p.replace('_', ' ')} {n:,}" for p, n in conv.parameters_by_part().items())

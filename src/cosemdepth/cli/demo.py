@@ -40,7 +40,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_device_args(parser)
     parser.add_argument("--video", default="mp4", choices=("mp4", "gif", "none"),
                         help="flight video format (default mp4; GIF when no ffmpeg)")
-    parser.add_argument("--overwrite", action="store_true", help="replace a non-empty --out folder")
+    parser.add_argument("--overwrite", action="store_true", help="also replace the output of another cosemdepth "
+                        "command (a folder cosemdepth did not write is never replaced)")
     add_reference_arg(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -21,7 +21,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", type=parse_size, default=None, metavar="S",
                         help="network input size, S or HxW (default 384; native for aeroscapes)")
     parser.add_argument("--out", default=None, metavar="DIR",
-                        help="write metrics.json and metrics.md into DIR (created if needed)")
+                        help="write metrics.json and metrics.md into DIR (created if needed; other files in DIR are "
+                        "left alone, and files cosemdepth did not write are never replaced)")
     add_run_args(parser)
 
 
@@ -31,9 +32,13 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..evaluation.evaluator import evaluate
+    from ..io.outdir import Input, model_inputs
     from ..io.staging import OutputFiles
 
-    files_ctx = OutputFiles(args.out, "--out folder") if args.out else contextlib.nullcontext()
+    inputs = [*model_inputs(args.model), Input("--root", args.root),
+              Input("--split-dir", args.split_dir) if args.split_dir is not None else None]
+    files_ctx = (OutputFiles(args.out, "--out folder", command="evaluate", names=("metrics.json", "metrics.md"),
+                             inputs=inputs) if args.out else contextlib.nullcontext())
     with files_ctx as files:
         dataset = open_split(args, args.size)
         model, device = load(args.model, args.device, fast=not args.reference)

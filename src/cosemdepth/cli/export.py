@@ -9,7 +9,8 @@ from ._shared import add_model_or_arch_args, load_or_build, parse_size_pair
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--onnx", metavar="OUT", required=True, help="output .onnx file")
+    parser.add_argument("--onnx", metavar="OUT", required=True, help="output .onnx file (its folder must exist; an existing file is "
+                        "replaced only if cosemdepth export wrote it)")
     add_model_or_arch_args(parser)
     parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), help="input size (default 384 384)")
     parser.add_argument("--batch", type=int, default=1, help="batch size (default 1)")
@@ -24,9 +25,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..export.onnx import export_onnx
 
+    from ..export.onnx import is_our_onnx
+    from ..io.outdir import check_output_file, model_inputs
+
     h, w = parse_size_pair(args.size)
     if args.batch < 1:
         raise ConfigError(f"--batch must be at least 1, got {args.batch}")
+    # the output policy: not a folder, under an existing folder, not an input; an existing file only if we wrote it
+    check_output_file(args.onnx, what="--onnx file", inputs=model_inputs(args.model), recognize=is_our_onnx)
     model = load_or_build(args)
     path = export_onnx(
         model,

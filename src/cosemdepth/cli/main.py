@@ -70,7 +70,17 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(module.run(args) or 0)
     except CosemdepthError as e:
-        print(f"cosemdepth {args.command}: error: {e}", file=sys.stderr)
+        # one line, whatever a wrapped library message holds (YAML and JSON parsers put line breaks in theirs)
+        text = "; ".join(part.strip() for part in str(e).splitlines() if part.strip())
+        print(f"cosemdepth {args.command}: error: {text}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        # a file system error about a path the user gave (permissions, a file vanished, disk full): one line. An
+        # OSError that names no file is not about a user path; it stays a traceback (an internal bug to report).
+        if e.filename is None:
+            raise
+        where = e.filename if e.filename2 is None else f"{e.filename} -> {e.filename2}"
+        print(f"cosemdepth {args.command}: error: {where}: {e.strerror or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"cosemdepth {args.command}: interrupted", file=sys.stderr)

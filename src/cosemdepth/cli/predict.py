@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError
+from ..io.rerun_writer import check_rrd_path
 from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
 from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, parse_size
 
@@ -38,23 +39,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", type=parse_size, default=None, metavar="S",
                         help="network input size, S or HxW (default 384 for datasets; the image size for flights)")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (new, empty, or the "
-                        "output of a previous predict, which is replaced)")
+                        "output of a previous predict, which is replaced; never an input, a folder holding one or a "
+                        "folder inside one)")
     parser.add_argument("--video", default="mp4", choices=("mp4", "gif", "none"),
                         help="video of each trajectory: mp4 (default; GIF when no ffmpeg), gif or none")
     parser.add_argument("--fps", type=float, default=8.0, help="video frame rate (default 8)")
-    parser.add_argument("--overwrite", action="store_true", help="replace a non-empty --out folder")
+    parser.add_argument("--overwrite", action="store_true", help="also replace the output of another cosemdepth "
+                        "command (a folder cosemdepth did not write is never replaced)")
     add_run_args(parser)
     add_robotics_args(parser)
 
 
-def _open(args: argparse.Namespace):
-    from ..data import open_dataset
-
+def _validate(args: argparse.Namespace) -> None:
+    """The argument checks that need no file."""
     if args.workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {args.workers}")
     check_args(args)
     if args.bag is not None:
-        return open_bag(args)
+        return
     if args.flight:
         if args.dataset or args.root:
             raise ConfigError("give either --flight (with --images, --poses) or --dataset/--root, not both")
@@ -66,21 +68,41 @@ def _open(args: argparse.Namespace):
             raise ConfigError("--flight needs exactly one of --intrinsics FX FY CX CY and --hfov DEG")
         if args.hfov is not None and not 0 < args.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {args.hfov}")
+    elif not args.dataset or args.root is None:
+        raise ConfigError("give --dataset NAME --root ROOT (a dataset split), or --flight --images DIR --poses FILE")
+
+
+def _open(args: argparse.Namespace):
+    from ..data import open_dataset
+
+    if args.bag is not None:
+        return open_bag(args)
+    if args.flight:
         return open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
                             convention=args.convention or "opencv", frame_skip=args.frame_skip, seq_len=1, size=args.size)
-    if not args.dataset or args.root is None:
-        raise ConfigError("give --dataset NAME --root ROOT (a dataset split), or --flight --images DIR --poses FILE")
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
                         size=args.size)
+
+
+def command_inputs(args: argparse.Namespace) -> list:
+    """The input paths of predict / view (for the output policy of :mod:`cosemdepth.io.outdir`)."""
+    from ..io.outdir import Input, model_inputs
+
+    return [*model_inputs(args.model), *(Input(label, p) for label, p in (
+        ("--root", args.root), ("--split-dir", args.split_dir), ("--images", args.images), ("--poses", args.poses),
+        ("--bag", args.bag)) if p is not None)]
 
 
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
     from ..evaluation.predict import predict
+    from ..io.outdir import Input
     from ..io.staging import StagedDir
-    from ..evaluation.predict import MANIFEST
 
-    StagedDir(args.out, MANIFEST, overwrite=args.overwrite, what="--out folder").check()  # fail before loading
+    _validate(args)
+    inputs = command_inputs(args)
+    StagedDir(args.out, "predict", overwrite=args.overwrite, what="--out folder", inputs=inputs).check()  # first
+    check_rrd_path(args.rerun, inputs=[*inputs, Input("--out", args.out)]) if args.rerun is not None else None
     dataset = _open(args)
     model, device = load(args.model, args.device, fast=not args.reference)
     info = {
@@ -93,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
                        lanes=args.lanes, num_workers=args.workers, overwrite=args.overwrite,
                        progress=not args.no_progress and sys.stderr.isatty(),
                        dataset_name="flight" if args.flight or args.bag else args.dataset, info=info,
-                       sinks=make_sinks(args, dataset, model))
+                       sinks=make_sinks(args, dataset, model), inputs=inputs)
     n = manifest["frames_written"]
     videos = [t["video"] for t in manifest["trajectories"] if "video" in t]
     print(f"wrote {n} frames of {len(manifest['trajectories'])} trajectories to {args.out}"

@@ -33,6 +33,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..io.outdir import Input, check_output_dir
+
+    if args.out_dir is not None or args.dataset == "synthair":
+        out = args.out_dir if args.out_dir is not None else args.root / "splits"
+        # ROOT/splits is where the readers of SynthAir and TopAir look for a root's split CSVs
+        carve = ("splits",) if args.dataset in ("synthair", "topair") else ()
+        check_output_dir(out, command="splits", mode="into", what="OUT_DIR", inputs=[Input("ROOT", args.root, carve)])
     if args.dataset == "topair":
         from ..data.topair_splits import generate_topair_splits
 

@@ -29,7 +29,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
             action.required = False
             action.help = argparse.SUPPRESS
     parser.add_argument("--rrd", type=Path, required=True, metavar="FILE.rrd",
-                        help="the recording to write (a new file; --overwrite replaces one)")
+                        help="the recording to write (a new file, or one cosemdepth wrote, which is replaced)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,12 +39,13 @@ def run(args: argparse.Namespace) -> int:
     from ..io.rerun_writer import check_rrd_path, require_rerun
     from ._robotics import make_sinks
     from ._shared import apply_threads, load
-    from .predict import _open
+    from .predict import _open, _validate, command_inputs
 
     apply_threads(args)
     args.rerun = None  # view writes --rrd only
     require_rerun()
-    check_rrd_path(args.rrd, overwrite=args.overwrite, option="--rrd")
+    _validate(args)
+    check_rrd_path(args.rrd, option="--rrd", inputs=command_inputs(args))
     dataset = _open(args)
     model, _ = load(args.model, args.device, fast=not args.reference)
     args.rerun = args.rrd

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import DatasetError
 from .files import dataset_root, read_text
-from .midair.splits import write_csv
+from .midair.splits import write_csv, write_split_files
 from .poses import QUATERNION_TOLERANCE, relative_camera_motions
 from .topair import ENVIRONMENTS, FRAME_SKIPS, TEST_ENVIRONMENTS
 
@@ -89,12 +89,11 @@ def generate_topair_splits(root: str | Path, out_dir: str | Path) -> dict[str, l
     if unknown:
         raise DatasetError(f"{root}: unknown TopAir environment(s) {unknown}; known: {list(ENVIRONMENTS)}")
     written: dict[str, list[Path]] = {"train": [], "test": []}
+    planned: list = []
     for env in envs:
         k = ENVIRONMENTS.index(env)
         pos, quat = read_airsim_rec(root / env / REC_FILE)
         rows = topair_rows(env, pos, quat, FRAME_SKIPS[k])
         split = "test" if env in TEST_ENVIRONMENTS else "train"
-        path = out_dir / f"{split}_data" / f"traj_{k:04d}.csv"
-        write_csv(path, rows, columns=TOPAIR_CSV_COLUMNS)
-        written[split].append(path)
-    return written
+        planned.append((split, Path(f"{split}_data") / f"traj_{k:04d}.csv", rows))
+    return write_split_files(out_dir, planned, written, columns=TOPAIR_CSV_COLUMNS)

@@ -27,12 +27,13 @@ from __future__ import annotations
 import re
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import torch
 
 from ..io.atomic import atomic_write_text
+from ..io.outdir import Input
 from ..io.staging import StagedDir
 from .classes import class_info
 from .evaluator import _model_config, to_json
@@ -186,20 +187,23 @@ def predict(
     info: dict[str, Any] | None = None,
     depth_range: tuple[float, float] | None = None,
     sinks: tuple = (),
+    inputs: Sequence[Input] = (),
 ) -> dict[str, Any]:
     """Stream ``model`` over ``dataset`` and write every output into ``out`` (see the module docstring).
 
     Args:
         model: a loaded model (eval mode). dataset: stream-mode single frames (``open_dataset(..., seq_len=1)``).
-        out: output folder (must not exist, be empty, or hold a previous ``predict`` output, unless ``overwrite``).
+        out: output folder: new, empty, or a previous ``predict`` output (the output policy of
+            :mod:`cosemdepth.io.outdir`; never an input or a folder holding or inside one).
         video: ``"mp4"`` (GIF when no ffmpeg), ``"gif"`` or ``None``/``"none"``.
         fps: video frame rate. max_frames: only the first N rows. lanes, num_workers: as :func:`stream`.
-        overwrite: replace a non-empty ``out`` that is not a previous prediction output.
+        overwrite: also replace the output of another cosemdepth command (never a folder cosemdepth did not write).
         progress: progress bar. dataset_name: for the palette. info: extra entries of ``predictions.json``.
         depth_range: near/far metres of the depth colour map (default: per trajectory, from its first frames).
         sinks: more outputs (the ROS bag of :mod:`cosemdepth.io.bag_writer`, the rerun recording of
             :mod:`cosemdepth.io.rerun_writer`): objects with ``open(folder)``, ``__call__(batch)``, ``close() -> dict``
             (merged into the manifest) and ``abort()``.
+        inputs: the command's input paths (model, pose file...); ``dataset.root`` is always one.
     Returns:
         the manifest (also written to ``out/predictions.json``).
     """
@@ -215,7 +219,10 @@ def predict(
         raise ConfigError(f"--fps must be positive, got {fps}")
     cfg = _model_config(model)
     name = dataset_name or getattr(dataset, "name", None) or ""
-    staged = StagedDir(out, MANIFEST, overwrite=overwrite, what="--out folder")
+    inputs = list(inputs)
+    if getattr(dataset, "root", None) is not None:
+        inputs.append(Input("dataset root", dataset.root))
+    staged = StagedDir(out, "predict", overwrite=overwrite, what="--out folder", inputs=inputs)
     staged.check()
     groups = trajectory_rows(dataset, max_frames)
     schedule = make_schedule(groups, lanes)

@@ -20,8 +20,7 @@ from typing import Iterator, Sequence
 
 import torch
 
-from ..errors import ConfigError
-
+from ..errors import ConfigError, NonFiniteOutputError
 
 @dataclass(frozen=True)
 class Step:
@@ -144,6 +143,36 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
+def frame_source(dataset, index: int) -> str | None:
+    """The image file of dataset row ``index`` when the dataset knows it (Mid-Air-format readers, flights)."""
+    windows = getattr(dataset, "windows", None)
+    trajs = getattr(dataset, "trajectories", None)
+    try:
+        ti, row = windows[index]
+        return str(trajs[ti].frame(row).rgb)
+    except Exception:  # noqa: BLE001 - only used to name a frame in a message; any reader without it gives None
+        return None
+
+
+def check_finite_outputs(out, dataset, indices: list[int], trajectories: list[str], frames) -> None:
+    """Raise :class:`NonFiniteOutputError` naming the first frame whose depth or semantic output holds NaN/inf."""
+    for name in ("depth", "semantic"):
+        t = getattr(out, name, None)
+        if t is None:
+            continue
+        bad = ~torch.isfinite(t.reshape(t.shape[0], -1))
+        rows = bad.any(dim=1).nonzero().flatten().tolist()
+        if rows:
+            b = rows[0]
+            i = indices[b]
+            src = frame_source(dataset, i)
+            where = f"{src} (" if src else ""
+            where += f"dataset row {i}, trajectory {trajectories[b]}, frame {int(frames[b])}" + (")" if src else "")
+            raise NonFiniteOutputError(
+                f"{where}: the model's {name} output holds NaN/inf ({int(bad[b].sum())} of {bad.shape[1]} values); "
+                "the model weights or this input are broken; stopped, no output was written")
+
+
 def stream(
     model,
     dataset,
@@ -192,6 +221,7 @@ def stream(
             out, state = model.step(rgb, rot, trans, intr, reset_dev, state)
             _sync(device)
             seconds = time.perf_counter() - t0
+            check_finite_outputs(out, dataset, list(step.indices), list(batch["trajectory"]), batch["frame"][:, 0])
             gt_depth = batch.get("depth")
             gt_labels = batch.get("semantic")
             yield StreamBatch(
@@ -210,4 +240,4 @@ def stream(
             )
 
 
-__all__ = ["Step", "StreamBatch", "make_schedule", "stream", "trajectory_rows"]
+__all__ = ["Step", "StreamBatch", "check_finite_outputs", "frame_source", "make_schedule", "stream", "trajectory_rows"]

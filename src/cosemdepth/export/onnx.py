@@ -136,9 +136,36 @@ def export_onnx(
                 dynamo=False,
                 do_constant_folding=True,
             )
+            mark_onnx(tmp)
     finally:
         _restore(model, saved)
     return path
+
+
+#: metadata key that marks an ONNX file written by ``cosemdepth export`` (the output policy replaces only those)
+ONNX_MARK = "cosemdepth_export"
+
+
+def mark_onnx(path: str | Path) -> None:
+    """Record in the ONNX file's metadata that cosemdepth wrote it."""
+    import onnx
+
+    from .. import __version__
+
+    m = onnx.load(str(path), load_external_data=False)
+    onnx.helper.set_model_props(m, {**{p.key: p.value for p in m.metadata_props}, ONNX_MARK: __version__})
+    onnx.save(m, str(path))
+
+
+def is_our_onnx(path: str | Path) -> bool:
+    """True if ``path`` is an ONNX file that ``cosemdepth export`` wrote (see :func:`mark_onnx`)."""
+    try:
+        import onnx
+
+        m = onnx.load(str(path), load_external_data=False)
+    except Exception:  # noqa: BLE001 - anything unreadable is not ours
+        return False
+    return any(p.key == ONNX_MARK for p in m.metadata_props)
 
 
 def _freeze_for_export(model) -> dict:

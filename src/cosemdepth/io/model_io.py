@@ -25,6 +25,7 @@ from ..config import ModelConfig
 from ..errors import CheckpointError, ConfigError
 from .atomic import atomic_open, atomic_path
 from .convert import expected_param_shapes
+from .manifest import MANIFEST_FILE, validate_manifest
 from .staging import missing_ancestors, remove_empty
 
 FORMAT = "cosemdepth"
@@ -59,6 +60,18 @@ def check_state_dict(state_dict: Mapping[str, torch.Tensor], cfg: ModelConfig, o
             f"{origin}: weights do not match the {cfg.arch} model (levels={cfg.levels}, classes={cfg.num_classes}): "
             + "; ".join(problems)
         )
+
+
+def check_finite(state_dict: Mapping[str, torch.Tensor], origin: str) -> None:
+    """Raise :class:`CheckpointError` if a floating-point tensor of ``state_dict`` holds NaN or inf."""
+    bad = []
+    for k, t in state_dict.items():
+        if torch.is_floating_point(t):
+            n = int((~torch.isfinite(t)).sum())
+            if n:
+                bad.append(f"{k} ({n} of {t.numel()} values)")
+    if bad:
+        raise CheckpointError(f"{origin}: weights hold NaN/inf: {_show(bad)}; the model is corrupt or diverged")
 
 
 def _show(keys: list[str], n: int = 5) -> str:
@@ -161,7 +174,9 @@ def read_config_file(path: str | os.PathLike) -> tuple[ModelConfig, dict[str, An
 def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], ModelConfig, dict[str, Any]]:
     """``(state_dict, ModelConfig, meta)`` of the model folder ``path`` (or its config.json / model.safetensors).
 
-    ``meta`` is the whole parsed config.json (format, source, ...). The weights are checked against the config.
+    ``meta`` is the whole parsed config.json (format, source, ...). A folder with a checkpoint ``manifest.json`` is
+    verified against it (sizes, SHA-256); the weights are checked against the config (names, shapes, floating
+    point) and must be finite. Any problem is a :class:`CheckpointError` naming the file.
     """
     from safetensors import SafetensorError
     from safetensors.torch import load_file
@@ -171,11 +186,14 @@ def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], 
     weights = folder / WEIGHTS_FILE
     if not weights.is_file():
         raise CheckpointError(f"{weights}: not found; a model folder needs {CONFIG_FILE} and {WEIGHTS_FILE}")
+    if (folder / MANIFEST_FILE).exists():  # a training checkpoint: its checksums first (the same check as resume)
+        validate_manifest(folder, (CONFIG_FILE, WEIGHTS_FILE))
     try:
         state_dict = load_file(str(weights))
-    except (SafetensorError, OSError, ValueError, RuntimeError) as e:
-        raise CheckpointError(f"{weights}: corrupt or truncated safetensors file ({e})") from e
+    except (SafetensorError, OSError, ValueError, RuntimeError, OverflowError, MemoryError) as e:
+        raise CheckpointError(f"{weights}: corrupt or truncated safetensors file ({type(e).__name__}: {e})") from e
     check_state_dict(state_dict, cfg, str(weights))
+    check_finite(state_dict, str(weights))
     return state_dict, cfg, meta
 
 
@@ -194,6 +212,7 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
 
         state_dict, cfg = convert_checkpoint(p)
         origin = str(p)
+        check_finite(state_dict, origin)
     else:
         if p.is_dir() and not ours:
             raise CheckpointError(
@@ -221,6 +240,7 @@ __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "WEIGHTS_FILE",
+    "check_finite",
     "check_state_dict",
     "load_model",
     "read_config_file",

@@ -48,20 +48,26 @@ def require_rerun():
     return rerun
 
 
-def check_rrd_path(path: str | Path, overwrite: bool = False, option: str = "--rerun") -> Path:
-    """``path`` as the recording's file; a ConfigError when it is a folder, has not the ``.rrd`` suffix or exists
-    (unless ``overwrite``), or when its folder does not exist."""
+def _written_by_us(path: Path) -> bool:
+    """Whether ``path`` is a rerun recording this package wrote (its application id)."""
+    from rerun.chunk import RrdReader
+
+    try:
+        return any(e.application_id.startswith(APPLICATION_ID) for e in RrdReader(str(path)).recordings())
+    except Exception:  # anything that is not a readable recording is not ours
+        return False
+
+
+def check_rrd_path(path: str | Path, option: str = "--rerun", inputs=()) -> Path:
+    """``path`` as the recording's file, under the output policy of :mod:`cosemdepth.io.outdir`: a ConfigError when
+    it lacks the ``.rrd`` suffix, is a folder or an input, its folder does not exist or is not writable, or it exists
+    and is not a recording that cosemdepth wrote (those are replaced)."""
+    from .outdir import check_output_file
+
     path = Path(path)
     if path.suffix != ".rrd":
         raise ConfigError(f"{option} {path}: a rerun recording's name must end with .rrd")
-    if path.is_dir():
-        raise ConfigError(f"{option} {path}: is a folder, expected a .rrd file name")
-    if path.exists() and not overwrite:
-        raise ConfigError(f"{option} {path}: exists; choose a new name, or pass --overwrite to replace it")
-    if not path.absolute().parent.is_dir():
-        raise ConfigError(f"{option} {path}: folder {path.absolute().parent} does not exist")
-    if not os.access(path.absolute().parent, os.W_OK):
-        raise ConfigError(f"{option} {path}: cannot write in {path.absolute().parent}")
+    check_output_file(path, what=f"{option} recording", inputs=inputs, recognize=_written_by_us)
     return path
 
 

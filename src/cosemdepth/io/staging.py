@@ -1,13 +1,16 @@
 """Outputs that appear whole or not at all: a staged output folder, and a set of files renamed into place together.
 
 * :class:`StagedDir` (``cosemdepth predict``, ``cosemdepth demo``): everything is written into a hidden temporary
-  folder beside ``OUT``; on success it is renamed to ``OUT`` (replacing a previous output of the same command); on any
+  folder beside ``OUT``; on success the output marker (:mod:`cosemdepth.io.outdir`) listing every file is written
+  and the folder is renamed to ``OUT`` (replacing a previous output that the output policy allows to replace); on any
   error it is deleted. A failed or interrupted run therefore leaves no partial output folder.
 * :class:`OutputFiles` (``cosemdepth evaluate``): a few files written into an existing or new folder; every file is
-  first written to a temporary file, then all are renamed into place.
+  first written to a temporary file, then all are renamed into place (only files that do not exist yet or that
+  cosemdepth wrote are replaced), and the folder's marker is updated.
 
-Both check at the start that the output location is usable (not a file, writable), so that a long run does not fail
-at its very end, and remove the folders they created if the run fails.
+Both apply the output policy of :mod:`cosemdepth.io.outdir` at the start (so that a long run does not fail at its
+very end, and nothing is touched if the output is not allowed) and again just before the output is put in place,
+and remove the folders they created if the run fails.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from .atomic import _default_mode, _fsync_dir
+from .outdir import Input, check_files_replaceable, check_not_under_file, check_output_dir, list_files, write_marker
 
 
 def missing_ancestors(path: Path) -> list[Path]:
@@ -52,63 +56,33 @@ def _why(e: OSError) -> str:
     return e.strerror or str(e)
 
 
-def probe_writable(folder: Path, message: str) -> None:
-    """Raise :class:`ConfigError` (``message`` + the reason) unless a folder can be created in ``folder`` or, if
-    it does not exist yet, in its nearest existing ancestor. Nothing is left behind."""
-    p = folder.absolute()
-    while not p.exists() and p != p.parent:
-        p = p.parent
-    try:
-        os.rmdir(tempfile.mkdtemp(prefix=".probe.", dir=p))
-    except OSError as e:
-        raise ConfigError(f"{message} ({p}: {_why(e)})") from None
-
-
-def _check_not_file(out: Path, what: str) -> None:
-    for p in [out, *out.absolute().parents]:
-        if p.exists():
-            if not p.is_dir():
-                if p == out.absolute() or p == out:
-                    raise ConfigError(f"{out}: {what} exists and is not a folder")
-                raise ConfigError(f"{out}: cannot create the {what}: {p} is a file, not a folder")
-            return
-
-
 class StagedDir:
     """Context manager that yields a temporary folder and turns it into ``out`` on a clean exit.
 
     Args:
         out: the output folder.
-        marker: a file name that only this command writes (e.g. ``predictions.json``); an existing ``out`` holding it
-            is a previous output of the same command and is replaced. Another non-empty ``out`` is an error unless
-            ``overwrite``.
-        overwrite: replace a non-empty ``out`` whatever it holds.
-        what: how error messages call the folder (e.g. ``"--out"``).
+        command: the command writing it (recorded in the marker; a previous output of the same command is replaced).
+        overwrite: also replace an output of another cosemdepth command (never a folder cosemdepth did not write).
+        what: how error messages call the folder (e.g. ``"--out folder"``).
+        inputs: the command's inputs, which ``out`` must not be, contain or lie inside.
     Raises:
-        ConfigError: ``out`` is a file, is not empty (and not ours), or its parent folder is not writable.
+        ConfigError: the output policy refuses ``out`` (see :func:`cosemdepth.io.outdir.check_output_dir`).
     """
 
-    def __init__(self, out: str | os.PathLike, marker: str, *, overwrite: bool = False, what: str = "output folder"):
+    def __init__(self, out: str | os.PathLike, command: str, *, overwrite: bool = False,
+                 what: str = "output folder", inputs=()):
         self.out = Path(out)
-        self.marker = marker
+        self.command = command
         self.overwrite = overwrite
         self.what = what
+        self.inputs: list[Input] = [i for i in inputs if i is not None]
         self.tmp: Path | None = None
         self._created: list[Path] = []
 
     def check(self) -> None:
         """The checks of ``__enter__``, without creating anything."""
-        out = self.out
-        _check_not_file(out, self.what)
-        if out.is_dir() and not self.overwrite and not (out / self.marker).is_file():
-            if any(out.iterdir()):
-                raise ConfigError(
-                    f"{out}: the {self.what} exists and is not empty (and holds no {self.marker} of a previous run); "
-                    "choose a new folder, or pass --overwrite to replace it"
-                )
-        if out.absolute() == Path.cwd() or out.absolute() in Path.cwd().parents:
-            raise ConfigError(f"{out}: the {self.what} cannot be the current folder or one of its parents")
-        probe_writable(out.absolute().parent, f"{out}: cannot write the {self.what} here")
+        check_output_dir(self.out, command=self.command, mode="replace", what=self.what, inputs=self.inputs,
+                         overwrite=self.overwrite)
 
     def __enter__(self) -> Path:
         self.check()
@@ -139,6 +113,8 @@ class StagedDir:
 
     def _commit(self) -> None:
         out, tmp = self.out.absolute(), self.tmp
+        self.check()  # again: the folder may have changed during the run
+        write_marker(tmp, self.command, list_files(tmp), merge=False)
         old = None
         if out.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
@@ -163,14 +139,20 @@ class OutputFiles:
     fails). Use :meth:`add_text` / :meth:`add_bytes` inside the block.
     """
 
-    def __init__(self, folder: str | os.PathLike, what: str = "output folder"):
+    def __init__(self, folder: str | os.PathLike, what: str = "output folder", *, command: str,
+                 names=(), inputs=()):
         self.folder = Path(folder)
         self.what = what
+        self.command = command
+        self.names = tuple(names)
+        self.inputs = [i for i in inputs if i is not None]
         self.files: dict[str, bytes] = {}
         self._created: list[Path] = []
 
     def __enter__(self) -> "OutputFiles":
-        _check_not_file(self.folder, self.what)
+        check_not_under_file(self.folder, self.what)
+        check_output_dir(self.folder, command=self.command, mode="into", what=self.what, inputs=self.inputs,
+                         files=self.names)
         self._created = missing_ancestors(self.folder)
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
@@ -195,6 +177,7 @@ class OutputFiles:
             return False
         temps: list[tuple[str, Path]] = []
         try:
+            check_files_replaceable(self.folder, self.files)
             for name, data in self.files.items():
                 fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=self.folder)
                 temps.append((tmp, self.folder / name))
@@ -205,12 +188,13 @@ class OutputFiles:
                     os.fsync(f.fileno())
             for tmp, final in temps:
                 os.replace(tmp, final)
+            write_marker(self.folder, self.command, self.files)
         except BaseException as e:
             for tmp, _ in temps:
                 with contextlib.suppress(FileNotFoundError):
                     os.unlink(tmp)
             remove_empty(self._created)
-            if isinstance(e, OSError):
+            if isinstance(e, OSError) and not isinstance(e, ConfigError):
                 raise ConfigError(f"{self.folder}: cannot write the {self.what} ({_why(e)})") from None
             raise
         _fsync_dir(self.folder)

@@ -23,7 +23,6 @@ tests use it to kill a run while a checkpoint is being written.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import re
@@ -38,16 +37,14 @@ import torch
 from ..config import ModelConfig
 from ..errors import CheckpointError
 from ..io.atomic import _fsync_dir, atomic_open, atomic_write_text
+from ..io.manifest import MANIFEST_FILE, MANIFEST_FORMAT, MANIFEST_VERSION, sha256_file, validate_manifest
 
-MANIFEST_FILE = "manifest.json"
 STATE_FILE = "trainer_state.json"
 OPTIMIZER_FILE = "optimizer.pt"
 RNG_FILE = "rng.pt"
 WEIGHTS_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
 REQUIRED_FILES = (WEIGHTS_FILE, CONFIG_FILE, OPTIMIZER_FILE, RNG_FILE, STATE_FILE)
-MANIFEST_FORMAT = "cosemdepth-checkpoint"
-MANIFEST_VERSION = 1
 DELAY_ENV = "COSEMDEPTH_DEBUG_CHECKPOINT_DELAY"
 
 _NAME = re.compile(r"^ckpt-(\d{8,})$")
@@ -55,14 +52,6 @@ _NAME = re.compile(r"^ckpt-(\d{8,})$")
 
 def checkpoint_name(step: int) -> str:
     return f"ckpt-{step:08d}"
-
-
-def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(chunk), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _debug_delay() -> None:
@@ -158,32 +147,7 @@ def validate_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     Raises:
         CheckpointError: no or unreadable manifest, a listed file missing, or a size or checksum mismatch.
     """
-    path = Path(path)
-    mpath = path / MANIFEST_FILE
-    try:
-        manifest = json.loads(mpath.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise CheckpointError(f"{path}: incomplete checkpoint (no {MANIFEST_FILE})") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise CheckpointError(f"{mpath}: unreadable manifest ({e})") from e
-    if not isinstance(manifest, dict) or manifest.get("format") != MANIFEST_FORMAT:
-        raise CheckpointError(f"{mpath}: not a cosemdepth checkpoint manifest")
-    if int(manifest.get("version", 0)) > MANIFEST_VERSION:
-        raise CheckpointError(f"{mpath}: checkpoint version {manifest.get('version')} is newer than this cosemdepth "
-                              f"supports ({MANIFEST_VERSION})")
-    files = manifest.get("files")
-    if not isinstance(files, dict) or set(REQUIRED_FILES) - set(files):
-        raise CheckpointError(f"{mpath}: the manifest must list {list(REQUIRED_FILES)}")
-    for name, info in files.items():
-        f = path / name
-        if not f.is_file():
-            raise CheckpointError(f"{f}: missing (listed in the manifest)")
-        size = f.stat().st_size
-        if size != info.get("size"):
-            raise CheckpointError(f"{f}: {size} bytes, the manifest says {info.get('size')} (truncated or changed)")
-        if sha256_file(f) != info.get("sha256"):
-            raise CheckpointError(f"{f}: checksum mismatch (corrupt)")
-    return manifest
+    return validate_manifest(path, REQUIRED_FILES)
 
 
 def load_checkpoint(path: str | os.PathLike, device: str | torch.device = "cpu",

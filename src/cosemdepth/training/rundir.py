@@ -24,6 +24,7 @@ import yaml
 from ..config import ModelConfig, RunConfig
 from ..errors import ConfigError
 from ..io.atomic import _fsync_dir, atomic_write_text
+from ..io.outdir import Input, check_not_input
 from .checkpoint import _jsonable, save_model_files
 from .run_config import dump_config
 
@@ -35,14 +36,30 @@ TENSORBOARD_NAME = "tensorboard"
 BEST_METRICS_NAME = "metrics.json"
 
 
-def check_output_dir(run_dir: str | os.PathLike) -> bool:
+def run_inputs(config: RunConfig | None) -> list[Input]:
+    """The input paths of a run (dataset roots and split folders), which the run folder must stay clear of."""
+    if config is None:
+        return []
+    sources = [*config.data.train, *([config.data.val] if config.data.val is not None else [])]
+    out = []
+    for i, src in enumerate(sources):
+        key = f"data.train.{i}" if i < len(config.data.train) else "data.val"
+        out += [Input(f"{key}.{k}", v) for k, v in (("root", src.root), ("split_dir", src.split_dir)) if v]
+    return out
+
+
+def check_output_dir(run_dir: str | os.PathLike, config: RunConfig | None = None) -> bool:
     """Check that ``run_dir`` can hold a run, without writing anything. Returns True if it is an existing run
-    (to be resumed).
+    (to be resumed). The output policy of :mod:`cosemdepth.io.outdir`: the run folder is new, empty or a run (its
+    ``config.yaml``), and never one of the run's inputs (``config``'s dataset roots and split folders), a folder
+    holding one or a folder inside one.
 
     Raises:
-        ConfigError: it is a file, a non-empty folder that is not a run, under a file, or not writable.
+        ConfigError: it is a file, a non-empty folder that is not a run, under a file, overlaps an input, or is not
+            writable.
     """
     p = Path(run_dir)
+    check_not_input(p, run_inputs(config), "--out run folder")
     if p.exists() or p.is_symlink():
         if not p.is_dir():
             raise ConfigError(f"--out {p}: exists and is not a folder (the run folder must be a new or empty "

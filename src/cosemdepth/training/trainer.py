@@ -186,6 +186,8 @@ class Trainer:
         if self.dist.enabled and device.type == "cuda":
             device = torch.device("cuda", self.dist.local_rank)
         self.device = device
+        # the run folder first (output policy): nothing is read or built for a run that cannot be written
+        self.resuming = D.on_main(lambda: check_output_dir(self.run_dir, config), self.dist)
         if tc.num_threads:
             torch.set_num_threads(tc.num_threads)
 
@@ -203,7 +205,6 @@ class Trainer:
                                "process(es)); lower the batch size or add data")
         self.total_steps = total_steps(tc.epochs, self.steps_per_epoch, tc.max_steps)
         self.is_better = selection_rule(tc.best)
-        self.resuming = D.on_main(lambda: check_output_dir(self.run_dir), self.dist)
 
         self.state = LoopState()
         self.guard = NonFiniteGuard(tc.nonfinite_patience)

@@ -46,8 +46,11 @@ def test_layout_is_the_mid_air_tree(small):
     meta = json.loads((root / "synthair.json").read_text())
     assert meta["seed"] == 0 and meta["size"] == SIZE and meta["frames"] == FRAMES and meta["complete"] is True
     assert meta["version"] and meta["climates"] == ["sunny", "foggy"] and meta["splits"] == "splits"
-    # no temporary files left behind
-    assert not [p for p in root.rglob("*") if p.name.startswith(".")]
+    # no temporary files left behind; the split folder carries the output marker listing the CSVs it wrote
+    assert not [p for p in root.rglob("*") if p.name.startswith(".") and p.name != ".cosemdepth-output.json"]
+    marker = json.loads((root / "splits" / ".cosemdepth-output.json").read_text())
+    assert marker["command"] == "splits" and sorted(marker["files"]) == sorted(
+        p.relative_to(root / "splits").as_posix() for p in (root / "splits").rglob("*.csv"))
 
 
 def test_sensor_records_hold_100hz_ground_truth_and_camera_lists(small):

@@ -243,6 +243,7 @@ def generate_splits(
         raise ValueError(f"unknown split rule {rule!r}")
 
     written: dict[str, list[Path]] = {s: [] for s in SPLITS}
+    planned: list[tuple[str, Path, list]] = []
     for env, climate in climates:
         h5_path = root / env / climate / fmt.SENSOR_RECORDS
         try:
@@ -264,9 +265,26 @@ def generate_splits(
                 split = rule_fn(traj)
                 if split not in written:
                     raise ValueError(f"split rule returned {split!r}; expected one of {SPLITS}")
-                path = out_dir / f"{split}_data" / env / climate / f"traj_{traj.index:04d}.csv"
-                write_csv(path, rows)
-                written[split].append(path)
+                planned.append((split, Path(f"{split}_data") / env / climate / f"traj_{traj.index:04d}.csv", rows))
+    return write_split_files(out_dir, planned, written)
+
+
+def write_split_files(out_dir: Path, planned: list, written: dict[str, list[Path]],
+                      columns: tuple[str, ...] | None = None) -> dict[str, list[Path]]:
+    """Write the planned ``(split, relative path, rows)`` CSVs into ``out_dir`` under the output policy
+    (:mod:`cosemdepth.io.outdir`: an existing CSV is only replaced if cosemdepth wrote it) and record them in the
+    folder's marker; returns ``written`` with the paths appended."""
+    from ...io.outdir import check_files_replaceable, write_marker
+
+    rels = [rel.as_posix() for _, rel, _ in planned]
+    if out_dir.is_dir():
+        check_files_replaceable(out_dir, rels)
+    for split, rel, rows in planned:
+        path = out_dir / rel
+        write_csv(path, rows, *([columns] if columns else []))
+        written[split].append(path)
+    if planned:
+        write_marker(out_dir, "splits", rels)
     return written
 
 

@@ -125,9 +125,14 @@ def rendered_frames(cfg: SynthConfig) -> list[int]:
 
 def check_output_folder(cfg: SynthConfig) -> bool:
     """Raise a ConfigError if ``cfg.out`` cannot receive this dataset. Returns True when resuming."""
+    from ...io.outdir import check_output_dir
+
     out = Path(cfg.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a folder")
+    # the output policy (cosemdepth.io.outdir): a file in the way, a non-empty folder that is not a SynthAir dataset
+    check_output_dir(out, command="synth", mode="resume", what="--out folder",
+                     recognize=lambda p: (p / METADATA).is_file())
     if not out.exists() or not any(out.iterdir()):
         return False
     meta_path = out / METADATA
