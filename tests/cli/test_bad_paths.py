@@ -28,6 +28,7 @@ def env(tmp_path_factory, data, model_dir):
     (t / "mine" / "keep.txt").write_text("mine")
     (t / "other.onnx").write_bytes(b"not written by cosemdepth")
     (t / "bench.json").write_text('{"mine": true}')
+    (t / "notes.rrd").write_text("mine")
     (t / "images").mkdir()
     from PIL import Image
 
@@ -94,6 +95,21 @@ CASES = [
       "200", "--out", "{T}/p"], "--hfov"),
     (["predict", "--model", "{M}", "--flight", "--images", "{T}/images", "--poses", "{T}/notes.txt", "--hfov",
       "90", "--out", "{T}/images/p"], "{T}/images"),
+    # predict --bag / --rerun, view
+    (["predict", "--model", "{M}", "--bag", "{T}/nope", "--image-topic", "/i", "--pose-topic", "/p", "--hfov", "90",
+      "--out", "{T}/p"], "{T}/nope"),
+    (["predict", "--model", "{M}", "--bag", "{T}/junk.bin", "--image-topic", "/i", "--pose-topic", "/p", "--hfov",
+      "90", "--out", "{T}/p"], "{T}/junk.bin"),
+    (["predict", "--model", "{M}", *EVAL, "--out", "{T}/p", "--rerun", "{T}/notes.rrd", "--overwrite"],
+     "{T}/notes.rrd"),
+    (["predict", "--model", "{M}", *EVAL, "--out", "{T}/p", "--rerun", "{T}/p/x.rrd"], "{T}/p"),
+    (["view", "--model", "{M}", *EVAL, "--rrd", "{T}/notes.txt"], "{T}/notes.txt"),
+    (["view", "--model", "{M}", *EVAL, "--rrd", "{T}/notes.rrd", "--overwrite"], "{T}/notes.rrd"),
+    (["view", "--model", "{M}", *EVAL, "--rrd", "{M}/x.rrd"], "{M}"),
+    (["view", "--model", "{M}", *EVAL, "--rrd", "{D}/x.rrd"], "{D}"),
+    (["view", "--model", "{M}", *EVAL, "--rrd", "{T}/notes.txt/x.rrd"], "{T}/notes.txt"),
+    (["view", "--model", "{M}", *EVAL, "--rrd", "{T}/nope/x.rrd"], "{T}/nope"),
+    (["view", "--model", "{T}/nope", *EVAL, "--rrd", "{T}/x.rrd"], "{T}/nope"),
     # demo
     (["demo", "--model", "{T}/nope", "--out", "{T}/r"], "{T}/nope"),
     (["demo", "--model", "{T}/junk.bin", "--out", "{T}/r"], "{T}/junk.bin"),

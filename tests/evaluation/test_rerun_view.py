@@ -85,11 +85,16 @@ def test_view_a_dataset_with_metrics(model_dir, data, tmp_path, capsys):
     assert all(0 <= v[0] <= 1 for v in column(ent["/metrics/miou"], "Scalars:scalars"))
     # the chained camera path starts at the origin
     assert column(ent["/world/trajectory"], "LineStrips3D:strips")[0][0][0] == [0.0, 0.0, 0.0]
-    # an existing file is not replaced without --overwrite; the error is one line and nothing is left
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip()
-    assert err == f"cosemdepth view: error: --rrd {rrd}: exists; choose a new name, or pass --overwrite to replace it"
-    assert main([*argv, "--overwrite"]) == 0
+    # a recording cosemdepth wrote is replaced; a file of the user's with the same name never is (one-line error)
+    assert main(argv) == 0
+    capsys.readouterr()
+    rrd.write_bytes(b"my own notes")
+    for extra in ([], ["--overwrite"]):
+        assert main([*argv, *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith(f"cosemdepth view: error: {rrd}: the --rrd recording exists and was not written by "
+                              "cosemdepth") and "\n" not in err
+        assert rrd.read_bytes() == b"my own notes"
     assert not leftovers(tmp_path)
 
 

@@ -67,10 +67,10 @@ class Bag:
         self.path = Path(path)
         if not self.path.exists():
             raise DatasetError(f"{self.path}: bag not found")
-        self._reader = AnyReader([self.path])
-        try:
+        try:  # rosbags raises its own error types for every malformed file, already in the constructor for some
+            self._reader = AnyReader([self.path])
             self._reader.open()
-        except Exception as e:  # rosbags raises its own error types for every malformed file
+        except Exception as e:
             raise DatasetError(f"{self.path}: cannot read the bag ({_reason(e)})") from None
 
     def __enter__(self) -> "Bag":
