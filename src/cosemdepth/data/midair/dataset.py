@@ -3,10 +3,10 @@
 Decoding of one row (spec 9.2, 9.6):
 
 * colour: ``camera_l`` JPEG -> uint8 -> ``/255`` -> BL2 resize to the output size;
-* depth: ``disp`` 16-bit PNG whose values are float16 bit patterns -> disparity -> z-depth
-  ``(W_native / 2) / disparity`` (= ``512 / disparity`` at 1024 px) at the native size -> BL2 resize (in the depth
-  domain). A zero disparity (infinitely far) is read as the smallest positive float16 disparity (2^-24), i.e. a depth
-  of ``W_native / 2 * 2^24`` m, so that the bilinear resize stays finite (spec 15.1); a negative, NaN or infinite
+* depth: ``disp`` 16-bit PNG whose values are float16 bit patterns -> disparity -> z-depth ``512 / disparity``
+  whatever the PNG's size (Mid-Air's convention, spec 9.2: resizing a PNG never rescales its values) at the native
+  size -> BL2 resize (in the depth domain). A zero disparity (infinitely far) is read as the smallest positive float16
+  disparity (2^-24), i.e. a depth of ``512 * 2^24`` m, so that the bilinear resize stays finite (spec 15.1); a negative, NaN or infinite
   disparity is a :class:`DatasetError`;
 * labels: ``semantic`` PNG, channel 0 (8-bit gray, 16-bit gray, palette indices or RGB) -> OpenCV nearest (NN1)
   to the output size -> the 14 Mid-Air IDs mapped to the 7 classes on the fly (``labels="midair"``; the dataset is
@@ -54,7 +54,7 @@ def read_depth(path: str | Path) -> np.ndarray:
             f"(first at row {i}, column {j}: {disp[i, j]})"
         )
     disp = np.maximum(disp, np.float32(MIN_DISPARITY))
-    return fmt.disparity_to_depth(disp, disp.shape[1]).astype(np.float32, copy=False)
+    return fmt.disparity_to_depth(disp).astype(np.float32, copy=False)
 
 
 def read_labels(path: str | Path, labels: str = "midair") -> np.ndarray:
