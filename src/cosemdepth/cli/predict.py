@@ -61,11 +61,12 @@ def _open(args: argparse.Namespace):
         if args.hfov is not None and not 0 < args.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {args.hfov}")
         return open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
-                            convention=args.convention, frame_skip=args.frame_skip, seq_len=1, size=args.size)
+                            convention=args.convention, frame_skip=args.frame_skip, seq_len=1, size=args.size,
+                            jpeg_idct=args.jpeg_idct)
     if not args.dataset or args.root is None:
         raise ConfigError("give --dataset NAME --root ROOT (a dataset split), or --flight --images DIR --poses FILE")
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
-                        size=args.size)
+                        size=args.size, jpeg_idct=args.jpeg_idct)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -118,7 +118,8 @@ def test_split_csv_motions_match_the_hdf5_ground_truth(small):
 
 
 def test_files_decode_to_what_the_renderer_produced(small, world):
-    """Disparity PNG (float16 bits of 512/depth, Mid-Air's convention at any size) -> depth, segmentation PNG -> labels, JPEG -> colours."""
+    """Disparity PNG (float16 bits of 512/depth, Mid-Air's convention at any size) -> depth, segmentation PNG ->
+    labels, JPEG -> colours."""
     cfg, _ = small
     root = Path(cfg.out)
     flights = plan_flights(cfg, world)
