@@ -111,7 +111,7 @@ def main(argv=None) -> int:
                 w1, c1 = time.perf_counter(), time.process_time()
                 for f in out:
                     encode_jpeg(f.rgb, cfg.jpeg_quality)
-                    encode_png(depth_to_png_disparity(f.depth, a.size))
+                    encode_png(depth_to_png_disparity(f.depth))
                     encode_png(f.labels)
                 w2 = time.perf_counter()
                 n = len(out)

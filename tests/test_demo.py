@@ -67,6 +67,8 @@ def test_demo_end_to_end_on_a_given_dataset(model_dir, data, tmp_path, capsys):
                                                      "metrics.json", "qualitative.png", "report.md"]
     m = json.loads((out / "metrics.json").read_text())
     check_schema(m)
+    assert m["flight"]["root"] == str(Path(data).resolve()) and Path(m["flight"]["root"]).is_dir()
+    assert m["flight"]["jpeg_idct"] == "fast"
     ref = independent_baselines(data)
     assert m["details"]["evaluation"]["protocol"]["frames_evaluated"] == ref["frames"] == 5
     cd = m["baselines"]["constant_depth"]
@@ -117,6 +119,9 @@ def test_demo_generates_the_flight_with_the_synth_command(model_dir, tmp_path, m
     assert calls == [["synth", "--out", calls[0][2], "--trajectories", "1", "--frames", "24", "--size", "32",
                       "--seed", "7", "--climates", "foggy", "--supersample", "3", "--no-progress"]]
     assert not Path(calls[0][2]).exists()  # the temporary flight is deleted
+    # ... so metrics.json does not name it as the flight's root (issue 9: it named a folder that no longer existed)
+    assert m["flight"]["root"] is None and m["flight"]["kept"] is False
+    assert calls[0][2] not in (tmp_path / "r" / "metrics.json").read_text()
     check_schema(m)
     assert m["details"]["evaluation"]["protocol"]["frames_streamed"] == 5
     assert json.loads((tmp_path / "r" / "metrics.json").read_text())["model"] == pytest.approx(m["model"])

@@ -130,7 +130,7 @@ def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climat
     return data_dir
 
 
-def open_flight_split(root: Path, size: int, split_dir: Path | None = None):
+def open_flight_split(root: Path, size: int, split_dir: Path | None = None, jpeg_idct: str = "fast"):
     """The first of the test, val and train splits of ``root`` (splits in ``root/splits``) that has trajectories."""
     from .data import open_dataset
 
@@ -138,7 +138,8 @@ def open_flight_split(root: Path, size: int, split_dir: Path | None = None):
     errors = []
     for split in ("test", "val", "train"):
         try:
-            return open_dataset("synthair", root, split_dir=split_dir, split=split, seq_len=1, size=size), split
+            return open_dataset("synthair", root, split_dir=split_dir, split=split, seq_len=1, size=size,
+                                jpeg_idct=jpeg_idct), split
         except DatasetError as e:
             errors.append(str(e))
     raise DatasetError(f"{root}: no split with trajectories under {split_dir} ({'; '.join(errors)})")
@@ -377,6 +378,7 @@ def run_demo(
     overwrite: bool = False,
     progress: bool = True,
     fast: bool = True,
+    jpeg_idct: str = "fast",
     log=print,
 ) -> dict[str, Any]:
     """Run the demo and write the report folder ``out``; returns the content of ``metrics.json``.
@@ -393,6 +395,7 @@ def run_demo(
             temporary folder, deleted at the end.
         device: torch device. video: ``"mp4"``, ``"gif"`` or None. overwrite: replace a non-empty ``out``.
         progress: progress bar. fast: the fast fp32 inference path (default; False: the plain modules).
+        jpeg_idct: JPEG decoding of the flight, ``"fast"`` (default, the original's) or ``"accurate"``.
         log: where to print progress lines.
     """
     from . import __version__
@@ -412,6 +415,8 @@ def run_demo(
         raise ConfigError(f"--size must be an integer >= 32, got {size!r}")
     if video not in (None, "mp4", "gif"):
         raise ConfigError(f"--video must be mp4, gif or none, got {video!r}")
+    if jpeg_idct not in ("fast", "accurate"):
+        raise ConfigError(f"--jpeg-idct must be fast or accurate, got {jpeg_idct!r}")
     from .io.outdir import Input, check_not_input, model_inputs
 
     model_path = resolve_model_path(model)
@@ -439,6 +444,7 @@ def run_demo(
 
     with contextlib.ExitStack() as stack:
         t = time.perf_counter()
+        temporary = False
         if data_root is not None:
             root = Path(data_root)
             description = f"the Mid-Air-format dataset {root}"
@@ -448,13 +454,14 @@ def run_demo(
                 root = Path(data_dir)
             else:
                 root = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cosemdepth-demo-"))) / "synthair"
+                temporary = True
             log(f"building a held-out SynthAir flight: {frames} frames at {size}x{size}, seed {seed}, {climate} "
                 f"(in {root})")
             generate_flight(root, size=size, frames=frames, seed=seed, climate=climate, supersample=supersample)
             description = (f"SynthAir, world seed {seed}, climate {climate}, one trajectory of {frames} frames at "
                            f"{size}x{size} ({supersample}x supersampled)")
             timings["generate_flight"] = time.perf_counter() - t
-        dataset, split = open_flight_split(root, size)
+        dataset, split = open_flight_split(root, size, jpeg_idct=jpeg_idct)
 
         with staged as tmp:
             names, palette = class_info(cfg.num_classes, "synthair") if cfg.has_semantic else ((), None)
@@ -501,7 +508,9 @@ def run_demo(
                     "constant_depth": const,
                     "evaluation": result.to_dict(),
                 },
-                "flight": {"description": description, "root": str(root), "split": split, "size": size,
+                # the generated flight's root only when it is kept (--data-dir); a temporary one is gone by now
+                "flight": {"description": description, "root": None if temporary else str(root.resolve()),
+                           "kept": not temporary, "jpeg_idct": jpeg_idct, "split": split, "size": size,
                            "frames": frames if data_root is None else None, "seed": seed if data_root is None
                            else None, "climate": climate if data_root is None else None},
                 "files": {"report": "report.md", "iou_chart": "iou.png" if names else None,

@@ -33,15 +33,16 @@ def test_disparity_round_trip_through_png_is_bit_exact(tmp_path):
     assert np.signbit(decoded).sum() == np.signbit(image).sum()
 
 
-def test_depth_is_half_width_over_disparity_at_native_size(tmp_path):
+def test_depth_is_512_over_disparity_at_any_png_size(tmp_path):
+    # Mid-Air's convention (spec 9.2, the authors' loader): 512 / disparity whatever the PNG's width. The old
+    # reader computed (W / 2) / disparity, wrong for any PNG not at 1024 px.
     disp = np.array([[1.0, 2.0, 0.5, 64.0], [3.0, 0.125, 100.0, 7.5]], dtype=np.float16)
     path = tmp_path / "d.PNG"
     Image.fromarray(disp.view(np.uint16)).save(path)
     depth = read_depth(path)
-    # width 4 -> focal 2 px; at 1024 px this is the familiar 512 / disparity
-    expected = np.float32(2.0) / disp.astype(np.float32)
+    expected = np.float32(512.0) / disp.astype(np.float32)
     np.testing.assert_array_equal(depth, expected)
-    assert depth[0, 0] == 2.0 and depth[1, 1] == 16.0
+    assert depth[0, 0] == 512.0 and depth[1, 1] == 4096.0
 
 
 def test_depth_at_1024_is_512_over_disparity(tmp_path):
@@ -53,14 +54,32 @@ def test_depth_at_1024_is_512_over_disparity(tmp_path):
     assert depth[1, 5] == 128.0 and depth[0, 0] == 2048.0
 
 
+def test_a_midair_png_downsized_by_a_user_reads_with_unchanged_values(tmp_path):
+    """A user resizes a 1024 px Mid-Air disparity PNG (nearest neighbour: the stored values are kept, as image tools
+    do); the depths read from the small file are the values of the big one at the kept pixels."""
+    rng = np.random.default_rng(3)
+    big = (512.0 / rng.uniform(2.0, 900.0, size=(1024, 1024))).astype(np.float16)
+    big_path, small_path = tmp_path / "big.PNG", tmp_path / "small.PNG"
+    Image.fromarray(big.view(np.uint16)).save(big_path)
+    with Image.open(big_path) as im:
+        im.resize((256, 256), Image.NEAREST).save(small_path)
+    with Image.open(small_path) as im:
+        assert im.size == (256, 256) and im.mode == "I;16"
+    small_raw = big.view(np.uint16)[2::4, 2::4]  # Pillow's nearest picks the centre pixel of each 4x4 block
+    np.testing.assert_array_equal(read_disparity(small_path).astype(np.float16).view(np.uint16), small_raw)
+    full, small = read_depth(big_path), read_depth(small_path)
+    np.testing.assert_array_equal(small, full[2::4, 2::4])
+    np.testing.assert_array_equal(small, np.float32(512.0) / small_raw.view(np.float16).astype(np.float32))
+
+
 def test_zero_disparity_gives_a_large_finite_depth(tmp_path):
     disp = np.array([[0.0, -0.0, 1.0]], dtype=np.float16)
     path = tmp_path / "d.PNG"
     Image.fromarray(disp.view(np.uint16)).save(path)
     depth = read_depth(path)
     assert np.isfinite(depth).all()
-    assert depth[0, 0] == depth[0, 1] == np.float32(1.5) / np.float32(2.0**-24)
-    assert depth[0, 2] == 1.5
+    assert depth[0, 0] == depth[0, 1] == np.float32(512.0) / np.float32(2.0**-24)
+    assert depth[0, 2] == 512.0
 
 
 @pytest.mark.parametrize("bad", [-1.0, np.nan, np.inf])

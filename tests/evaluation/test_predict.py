@@ -1,6 +1,7 @@
 """``cosemdepth predict``: every artefact is written and reads back; own flights; bad inputs leave nothing behind."""
 
 import json
+from pathlib import Path
 import shutil
 
 import numpy as np
@@ -58,6 +59,9 @@ def test_predict_writes_every_artefact_and_they_read_back(model_dir, data, tmp_p
     for t, traj in enumerate(man["trajectories"]):
         frames = [f for f in man["frames"] if f["trajectory"] == traj["name"]]
         assert [f["frame"] for f in frames] == [0, 1, 2] and [f["reset"] for f in frames] == [True, False, False]
+        # split datasets: the output stem is the colour image's (Mid-Air row 0 is camera frame 000004)
+        assert [Path(f["files"]["depth"]).stem for f in frames] == [Path(f["source"]).stem for f in frames]
+        assert [Path(f["source"]).name for f in frames] == ["000004.JPEG", "000008.JPEG", "000012.JPEG"]
         its = items[3 * t: 3 * t + 3]
         # an independent path: the whole-sequence API
         ref = model.infer(torch.cat([it["rgb"] for it in its]), (torch.cat([it["rot"] for it in its]),
@@ -136,6 +140,11 @@ def test_own_flight_with_a_gif(model_dir, tmp_path):
     assert sbs.shape == (*pics["frame_size"], 3) and sbs.shape[1] == 3 * 768 + 2 * 4
     assert gif.size == (sbs.shape[1], sbs.shape[0])
     assert man["frames"][0]["source"].endswith("img_0000.png")
+    # issue 9: outputs keep the input image's name (they were renumbered 000000, 000001, ...)
+    assert sorted(p.name for p in (out / "images" / "depth").iterdir()) == [f"img_{k:04d}.npy" for k in range(4)]
+    assert sorted(p.name for p in (out / "images" / "labels").iterdir()) == [f"img_{k:04d}.png" for k in range(4)]
+    for f in man["frames"]:
+        assert Path(f["files"]["side_by_side"]).stem == Path(f["source"]).stem
 
 
 def test_gif_writer_alone(tmp_path):

@@ -256,3 +256,44 @@ def test_empty_image_topic_and_bad_arguments(model_dir, tmp_path, capsys):
     assert predict("--model", model_dir, *bag_args(bag, "--hfov", 90, "--out-namespace", "/9x"), "--out", out) == 2
     assert "--out-namespace '/9x' is not a valid ROS namespace" in capsys.readouterr().err
     assert not out.exists() and not leftovers(tmp_path)
+
+
+def test_jpeg_compressed_bag_decodes_like_a_jpeg_flight(model_dir, tmp_path, capsys):
+    """CompressedImage JPEGs go through the dataset readers' decoder (the original's fast IDCT by default, or
+    --jpeg-idct accurate): the bag's depth equals --flight's on the same JPEG bytes, for both IDCTs."""
+    import io
+
+    from PIL import Image
+
+    jpegs = []
+    for rgb in IMAGES:
+        buf = io.BytesIO()
+        Image.fromarray(rgb).save(buf, format="JPEG", quality=85)
+        jpegs.append(buf.getvalue())
+    ts = typestore(False)
+    msgs = []
+    for ns in pose_stamps():
+        p, q = trajectory(ns / 1e9 - BASE)
+        msgs.append(("/odom", pose_msg(ts, "geometry_msgs/msg/PoseStamped", ns, p, q), ns))
+    for ns, data in zip(image_stamps(), jpegs):
+        hdr = ts.types["std_msgs/msg/Header"](stamp=ts.types["builtin_interfaces/msg/Time"](
+            sec=ns // 10**9, nanosec=ns % 10**9), frame_id="cam")
+        msgs.append(("/cam/image", ts.types["sensor_msgs/msg/CompressedImage"](
+            header=hdr, format="jpeg", data=np.frombuffer(data, np.uint8)), ns))
+    bag = write_bag(tmp_path / "in", msgs, "mcap")
+    images, poses = make_flight(tmp_path / "flight")
+    for f in images.iterdir():
+        f.unlink()
+    for ns, data in zip(image_stamps(), jpegs):
+        (images / f"{ns / 1e9:.6f}.jpg").write_bytes(data)
+    depth = {}
+    for idct in ("fast", "accurate"):
+        for how, args in (("bag", bag_args(bag, "--hfov", 90)),
+                          ("flight", ["--flight", "--images", images, "--poses", poses, "--hfov", 90,
+                                      "--convention", "flu"])):
+            out = tmp_path / f"{how}-{idct}"
+            assert predict("--model", model_dir, *args, "--size", 16, "--jpeg-idct", idct, "--out", out) == 0
+            man = json.loads((out / "predictions.json").read_text())
+            depth[how, idct] = np.stack([np.load(out / f["files"]["depth"]) for f in man["frames"]])
+        np.testing.assert_allclose(depth["bag", idct], depth["flight", idct], rtol=1e-5, atol=1e-4)
+    assert not np.array_equal(depth["bag", "fast"], depth["bag", "accurate"])  # the IDCT choice reaches the bag

@@ -66,7 +66,7 @@ def open_bag(args: argparse.Namespace):
         args.bag, args.image_topic, args.pose_topic, camera_info_topic=args.camera_info_topic,
         intrinsics=args.intrinsics, fov=args.hfov, convention=args.convention or "flu",
         frame_skip=args.frame_skip, max_pose_gap=args.max_pose_gap, skip_unposed=args.skip_unposed,
-        ignore_distortion=args.ignore_distortion, size=args.size,
+        ignore_distortion=args.ignore_distortion, size=args.size, jpeg_idct=args.jpeg_idct,
     )
     dataset = flight.dataset
     dataset.bag_flight = flight

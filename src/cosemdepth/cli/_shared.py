@@ -120,6 +120,13 @@ def add_run_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=0, metavar="N",
                         help="data-loading worker processes (default 0: in the main process)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_jpeg_idct_arg(parser)
+
+
+def add_jpeg_idct_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--jpeg-idct", choices=("fast", "accurate"), default="fast",
+                        help="JPEG decoding: fast (default; libjpeg-turbo's fast integer IDCT, bit-exact with the "
+                             "original's tf.io.decode_jpeg) or accurate (the accurate integer IDCT, as Pillow)")
 
 
 def load(model_path, device_name: str, fast: bool = True):
@@ -139,9 +146,10 @@ def open_split(args: argparse.Namespace, size):
 
     if args.workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {args.workers}")
-    return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size)
+    return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size,
+                        jpeg_idct=args.jpeg_idct)
 
 
 __all__ = ["SPLIT_DATASETS", "add_device_args", "add_model_args", "add_model_or_arch_args", "add_reference_arg",
-           "add_run_args", "add_split_args", "apply_threads", "load", "load_or_build", "open_split", "parse_size",
+           "add_jpeg_idct_arg", "add_run_args", "add_split_args", "apply_threads", "load", "load_or_build", "open_split", "parse_size",
            "parse_size_pair", "positive_int"]

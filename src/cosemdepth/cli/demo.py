@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ._shared import add_device_args, add_reference_arg, apply_threads, positive_int
+from ._shared import add_device_args, add_jpeg_idct_arg, add_reference_arg, apply_threads, positive_int
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -44,6 +44,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         "command (a folder cosemdepth did not write is never replaced)")
     add_reference_arg(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_jpeg_idct_arg(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,5 +57,5 @@ def run(args: argparse.Namespace) -> int:
     run_demo(args.out, model=args.model, size=args.size, frames=args.frames, seed=args.seed, climate=args.climate,
              supersample=args.supersample, data_root=args.data_root, data_dir=args.data_dir, device=args.device,
              video=None if args.video == "none" else args.video, overwrite=args.overwrite, fast=not args.reference,
-             progress=not args.no_progress and sys.stderr.isatty())
+             jpeg_idct=args.jpeg_idct, progress=not args.no_progress and sys.stderr.isatty())
     return 0

@@ -79,9 +79,10 @@ def _open(args: argparse.Namespace):
         return open_bag(args)
     if args.flight:
         return open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
-                            convention=args.convention or "opencv", frame_skip=args.frame_skip, seq_len=1, size=args.size)
+                            convention=args.convention or "opencv", frame_skip=args.frame_skip, seq_len=1, size=args.size,
+                            jpeg_idct=args.jpeg_idct)
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
-                        size=args.size)
+                        size=args.size, jpeg_idct=args.jpeg_idct)
 
 
 def command_inputs(args: argparse.Namespace) -> list:

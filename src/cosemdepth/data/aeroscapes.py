@@ -21,7 +21,7 @@ import torch
 
 from ..errors import DatasetError
 from .augment import resolve_augment
-from .decode import image_size, read_label_ids, read_rgb
+from .decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, image_size, read_label_ids, read_rgb
 from .files import dataset_root, read_text
 from .frames import Size, as_size, labels_to_tensor, midair_intrinsics, rgb_to_tensor
 from .sequence import FrameRecord, SequenceDataset, Trajectory
@@ -55,11 +55,12 @@ def read_split_file(path: Path) -> list[str]:
 class AeroscapesFrameLoader:
     """Loads one Aeroscapes image and its labels at the output size. Picklable."""
 
-    def __init__(self, size: Size | None) -> None:
+    def __init__(self, size: Size | None, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> None:
         self.size = size
+        self.jpeg_idct = check_jpeg_idct(jpeg_idct)
 
     def __call__(self, rec: FrameRecord) -> dict[str, torch.Tensor]:
-        out = {"rgb": rgb_to_tensor(read_rgb(rec.rgb), self.size)}
+        out = {"rgb": rgb_to_tensor(read_rgb(rec.rgb, self.jpeg_idct), self.size)}
         if rec.semantic is not None:
             out["semantic"] = labels_to_tensor(read_label_ids(rec.semantic, len(CLASSES)), self.size, "nn2")
         return out
@@ -75,8 +76,11 @@ def open_aeroscapes(
     *,
     seed: int = 0,
     name: str = "aeroscapes",
+    jpeg_idct: str = DEFAULT_JPEG_IDCT,
 ) -> SequenceDataset:
-    """Open an Aeroscapes split. ``split_dir`` defaults to ``<root>/ImageSets``."""
+    """Open an Aeroscapes split. ``split_dir`` defaults to ``<root>/ImageSets``; ``jpeg_idct`` as
+    :func:`cosemdepth.data.midair.dataset.open_midair`."""
+    check_jpeg_idct(jpeg_idct)
     root = dataset_root(root)
     if split not in SPLIT_FILES:
         raise DatasetError(f"Aeroscapes has splits {sorted(SPLIT_FILES)}, got {split!r}")
@@ -94,7 +98,7 @@ def open_aeroscapes(
     out_size = as_size(size)
     return SequenceDataset(
         [trajectory],
-        AeroscapesFrameLoader(out_size),
+        AeroscapesFrameLoader(out_size, jpeg_idct),
         midair_intrinsics(out_size or image_size(frames[0].rgb)),
         seq_len=seq_len,
         mode="stream",

@@ -43,6 +43,7 @@ from .rosbag import (
     pose_from_msg,
     stamp_ns,
 )
+from .decode import DEFAULT_JPEG_IDCT, check_jpeg_idct
 from .sequence import SequenceDataset, Trajectory
 
 
@@ -131,8 +132,9 @@ class BagFrameLoader:
     requested in order when streaming; a request for an earlier image reopens the bag). Picklable (the open bag is
     not pickled)."""
 
-    def __init__(self, path: Path, topic: str, size: Size, native: Size) -> None:
+    def __init__(self, path: Path, topic: str, size: Size, native: Size, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> None:
         self.path, self.topic, self.size, self.native = Path(path), topic, size, native
+        self.jpeg_idct = check_jpeg_idct(jpeg_idct)
         self._bag: Bag | None = None
         self._messages = None
         self._next = 0
@@ -165,7 +167,7 @@ class BagFrameLoader:
                 break
         msgtype, msg = item
         where = f"{self.path}: topic {self.topic} at stamp {format_stamp(stamp_ns(msg.header))}"
-        rgb = image_to_rgb(msgtype, msg, where)
+        rgb = image_to_rgb(msgtype, msg, where, self.jpeg_idct)
         if rgb.shape[:2] != tuple(self.native):
             raise DatasetError(f"{where}: image is {rgb.shape[0]}x{rgb.shape[1]} but the first image is "
                                f"{self.native[0]}x{self.native[1]}; all images of a flight must have one size")
@@ -213,10 +215,12 @@ def open_bag_flight(
     skip_unposed: bool = False,
     ignore_distortion: bool = False,
     size: int | tuple[int, int] | None = None,
+    jpeg_idct: str = DEFAULT_JPEG_IDCT,
 ) -> BagFlight:
     """Open a bag flight (see the module docstring). Intrinsics: the first ``camera_info_topic`` message (K, with
     ROS's pixel-centre convention converted: ``cx + 0.5``, ``cy + 0.5``), else ``intrinsics`` (fx, fy, cx, cy in the
-    package's convention, as ``--flight``) or ``fov``. ``frame_skip = k`` keeps every k-th posed image."""
+    package's convention, as ``--flight``) or ``fov``. ``frame_skip = k`` keeps every k-th posed image. ``jpeg_idct``: how compressed JPEG images are
+    decoded (as the dataset readers: :mod:`cosemdepth.data.decode`)."""
     path = Path(path)
     if not isinstance(frame_skip, int) or frame_skip < 1:
         raise ConfigError(f"--frame-skip must be a positive integer, got {frame_skip!r}")
@@ -245,7 +249,7 @@ def open_bag_flight(
         [f"{path}:{image_topic}@{format_stamp(int(t))}" for t in idx.stamps],
         q_rel, t_rel, idx.indices, timestamps=idx.stamps / 1e9,
     )
-    loader = BagFrameLoader(path, image_topic, out_size, native)
+    loader = BagFrameLoader(path, image_topic, out_size, native, jpeg_idct)
     intr = scale_intrinsics(k_native, native, out_size)
     dataset = SequenceDataset([traj], loader, intr, seq_len=1, mode="stream", name="flight")
     return BagFlight(path, image_topic, dataset, idx, m, intr, out_size, loader)

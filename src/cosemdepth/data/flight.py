@@ -45,7 +45,7 @@ import torch
 
 from ..errors import ConfigError, DatasetError
 from .augment import resolve_augment
-from .decode import image_size, read_label_ids, read_rgb, read_uint16_png
+from .decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, image_size, read_label_ids, read_rgb, read_uint16_png
 from .frames import Size, as_size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
 from .poses import poses_at, read_poses, relative_camera_motions
 from .sequence import FrameRecord, SequenceDataset, Trajectory
@@ -114,14 +114,16 @@ def scale_intrinsics(k: np.ndarray, native: Size, out: Size) -> torch.Tensor:
 class FlightFrameLoader:
     """Loads one flight image (and optional depth/labels) at the output size. Picklable."""
 
-    def __init__(self, size: Size, native: Size, depth_scale: float, num_classes: int) -> None:
+    def __init__(self, size: Size, native: Size, depth_scale: float, num_classes: int,
+                 jpeg_idct: str = DEFAULT_JPEG_IDCT) -> None:
         self.size = size
         self.native = native
         self.depth_scale = depth_scale
         self.num_classes = num_classes
+        self.jpeg_idct = check_jpeg_idct(jpeg_idct)
 
     def __call__(self, rec: FrameRecord) -> dict[str, torch.Tensor]:
-        rgb = read_rgb(rec.rgb)
+        rgb = read_rgb(rec.rgb, self.jpeg_idct)
         if rgb.shape[:2] != tuple(self.native):
             raise DatasetError(
                 f"{rec.rgb}: image is {rgb.shape[0]}x{rgb.shape[1]} but the flight's first image is "
@@ -182,9 +184,12 @@ def open_flight(
     db_seq_len: int | None = None,
     seed: int = 0,
     name: str = "flight",
+    jpeg_idct: str = DEFAULT_JPEG_IDCT,
 ) -> SequenceDataset:
     """Open your own flight (see the module docstring). ``split_dir`` and ``split`` are ignored (one flight is
-    one trajectory); ``size`` defaults to the native image size."""
+    one trajectory); ``size`` defaults to the native image size. ``jpeg_idct``: JPEG decoding, ``"fast"`` (default,
+    as the models were trained: the original's ``tf.io.decode_jpeg``) or ``"accurate"``."""
+    check_jpeg_idct(jpeg_idct)
     root = Path(root)
     images = list_images(root)
     if poses is None:
@@ -247,7 +252,7 @@ def open_flight(
     out_size = as_size(size) or native
     return SequenceDataset(
         [Trajectory.from_records(root.name, frames)],
-        FlightFrameLoader(out_size, native, depth_scale, num_classes),
+        FlightFrameLoader(out_size, native, depth_scale, num_classes, jpeg_idct),
         scale_intrinsics(k_native, native, out_size),
         seq_len=seq_len,
         mode=mode,

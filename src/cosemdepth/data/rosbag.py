@@ -14,7 +14,6 @@ poses around the current image: memory does not grow with the length of the bag.
 
 from __future__ import annotations
 
-import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from ..errors import ConfigError, DatasetError
+from .decode import DEFAULT_JPEG_IDCT, decode_rgb
 from .poses import interpolate_pose
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -126,18 +126,12 @@ def _reason(e: Exception) -> str:
 # ---------------------------------------------------------------------------------------------- message decoding
 
 
-def image_to_rgb(msgtype: str, msg: Any, where: str) -> np.ndarray:
-    """A ``sensor_msgs/Image`` (encodings :data:`IMAGE_ENCODINGS`) or ``CompressedImage`` (JPEG/PNG) ->
-    ``[H, W, 3]`` uint8. ``where`` (bag, topic, stamp) prefixes the error messages."""
+def image_to_rgb(msgtype: str, msg: Any, where: str, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.ndarray:
+    """A ``sensor_msgs/Image`` (encodings :data:`IMAGE_ENCODINGS`) or ``CompressedImage`` (JPEG/PNG, decoded as the
+    dataset readers decode files: :func:`cosemdepth.data.decode.decode_rgb` with ``jpeg_idct``) -> ``[H, W, 3]``
+    uint8. ``where`` (bag, topic, stamp) prefixes the error messages."""
     if msgtype.endswith("CompressedImage"):
-        from PIL import Image, UnidentifiedImageError
-
-        try:
-            img = Image.open(io.BytesIO(bytes(msg.data)))
-            img.load()
-        except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
-            raise DatasetError(f"{where}: cannot decode the compressed image ({msg.format or 'no format'}: {e})") from None
-        return np.ascontiguousarray(np.array(img if img.mode == "RGB" else img.convert("RGB")))
+        return decode_rgb(bytes(msg.data), f"{where}: compressed image ({msg.format or 'no format'})", jpeg_idct)
     enc = str(msg.encoding).lower()
     if enc not in IMAGE_ENCODINGS:
         raise DatasetError(f"{where}: image encoding {msg.encoding!r} is not supported; use one of "

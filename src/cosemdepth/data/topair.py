@@ -23,7 +23,7 @@ import torch
 
 from ..errors import DatasetError
 from .csvsplits import open_csv_split
-from .decode import read_channel0, read_label_ids, read_rgb
+from .decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, read_channel0, read_label_ids, read_rgb
 from .frames import Size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
 from .sequence import FrameRecord, SequenceDataset
 
@@ -59,11 +59,12 @@ def read_depth8(path: str | Path) -> np.ndarray:
 class TopAirFrameLoader:
     """Loads one TopAir row at the output size. Picklable."""
 
-    def __init__(self, size: Size | None) -> None:
+    def __init__(self, size: Size | None, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> None:
         self.size = size
+        self.jpeg_idct = check_jpeg_idct(jpeg_idct)
 
     def __call__(self, rec: FrameRecord) -> dict[str, torch.Tensor]:
-        out = {"rgb": rgb_to_tensor(read_rgb(rec.rgb), self.size)}
+        out = {"rgb": rgb_to_tensor(read_rgb(rec.rgb, self.jpeg_idct), self.size)}
         if rec.depth is not None:
             out["depth"] = depth_to_tensor(read_depth8(rec.depth), self.size, rule="nn2")
         if rec.semantic is not None:
@@ -84,9 +85,11 @@ def open_topair(
     modalities: Iterable[str] | None = None,
     seed: int = 0,
     name: str = "topair",
+    jpeg_idct: str = DEFAULT_JPEG_IDCT,
 ) -> SequenceDataset:
     """Open a TopAir split. ``split_dir`` defaults to ``<root>/splits``; other arguments as
     :func:`cosemdepth.data.midair.dataset.open_midair` (no ``labels``: TopAir has its own 9 classes)."""
+    check_jpeg_idct(jpeg_idct)
     return open_csv_split(
         root,
         split_dir if split_dir is not None else Path(root) / "splits",
@@ -96,7 +99,7 @@ def open_topair(
         augment,
         columns={"rgb": "camera_l", "depth": "depth", "semantic": "semantic"},
         reset_rule=lambda ids: np.zeros(len(ids), dtype=bool),  # only the first row (id -1 in the authors' CSVs)
-        make_loader=TopAirFrameLoader,
+        make_loader=lambda out_size: TopAirFrameLoader(out_size, jpeg_idct),
         mode=mode,
         db_seq_len=db_seq_len,
         modalities=modalities,

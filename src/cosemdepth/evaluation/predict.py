@@ -1,6 +1,8 @@
 """Run a model over a dataset split or your own flight and write every output (``cosemdepth predict``).
 
-Output folder (one sub-folder per trajectory; ``NNNNNN`` is the frame's row in its trajectory)::
+Output folder (one sub-folder per trajectory; ``NNNNNN`` is the input image's file stem, so that a user can match
+outputs and inputs; the frame's row in its trajectory, 6 digits, when the dataset has no file names; a stem seen
+twice in one trajectory gets ``_<row>`` appended)::
 
     OUT/predictions.json                       what was run, the encodings below, and every frame's files
     OUT/<trajectory>/depth/NNNNNN.npy          predicted depth, float32 [H, W], metres (the model's output as is)
@@ -81,12 +83,25 @@ class PredictionWriter:
         self.sources = sources or {}
         self.frames: list[dict[str, Any]] = []
         self.trajectories: dict[str, dict[str, Any]] = {}
+        self._stems: dict[str, set[str]] = {}
         self._videos: dict[str, VideoWriter] = {}
         self._pictures: dict[str, FlightPictures] = {}
 
     def __call__(self, batch: StreamBatch, include: torch.Tensor | None = None) -> None:
         for b in range(len(batch)):
             self.write_frame(batch, b)
+
+    def _stem(self, entry: dict[str, Any], batch: StreamBatch, b: int) -> str:
+        """The input image's file stem (made file-name safe), else the row number; unique within the trajectory."""
+        row = int(batch.frame[b])
+        src = self.sources.get(int(batch.indices[b]))
+        stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(src).stem).strip(".") if src else ""
+        stem = stem or f"{row:06d}"
+        used = self._stems.setdefault(entry["folder"], set())
+        if stem in used:
+            stem = f"{stem}_{row:06d}"
+        used.add(stem)
+        return stem
 
     def write_frame(self, batch: StreamBatch, b: int) -> dict[str, Any]:
         traj = batch.trajectory[b]
@@ -97,7 +112,7 @@ class PredictionWriter:
             self.trajectories[traj] = {"name": traj, "folder": rel, "frames": 0}
         entry = self.trajectories[traj]
         rel = entry["folder"]
-        stem = f"{int(batch.frame[b]):06d}"
+        stem = self._stem(entry, batch, b)
         base = self.folder / rel
         files: dict[str, str] = {}
         maps = frame_maps(batch, b, title=f"frame {int(batch.frame[b])}", labels_ok=self._labels_ok)

@@ -31,7 +31,7 @@ def _rotation(q):
 
 def _depth(path: Path) -> np.ndarray:
     raw = np.asarray(Image.open(path)).astype(np.uint16)
-    return (SIZE / 2) / raw.view(np.float16).astype(np.float64)
+    return 512.0 / raw.view(np.float16).astype(np.float64)  # Mid-Air: z = 512 / disparity at any size
 
 
 def _rgb(path: Path) -> np.ndarray:

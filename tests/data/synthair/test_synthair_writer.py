@@ -121,7 +121,8 @@ def test_split_csv_motions_match_the_hdf5_ground_truth(small):
 
 
 def test_files_decode_to_what_the_renderer_produced(small, world):
-    """Disparity PNG (float16 bits of (S/2)/depth) -> depth, segmentation PNG -> labels, JPEG -> colours."""
+    """Disparity PNG (float16 bits of 512/depth, Mid-Air's convention at any size) -> depth, segmentation PNG ->
+    labels, JPEG -> colours."""
     cfg, _ = small
     root = Path(cfg.out)
     flights = plan_flights(cfg, world)
@@ -137,7 +138,7 @@ def test_files_decode_to_what_the_renderer_produced(small, world):
             raw = np.asarray(disp_img).astype(np.uint16)
             disparity = raw.view(np.float16).astype(np.float64)
             assert (disparity > 0).all() and np.isfinite(disparity).all()
-            depth = (SIZE / 2) / disparity
+            depth = 512.0 / disparity  # not (SIZE / 2) / disparity: the old, wrong convention
             np.testing.assert_allclose(depth, frame.depth, rtol=1e-3)
             sky = frame.labels == 0
             np.testing.assert_allclose(depth[sky], SKY_DEPTH, rtol=1e-3)
@@ -226,3 +227,21 @@ def test_bad_arguments_are_refused_before_anything_is_written(tmp_path, kwargs, 
     with pytest.raises(ConfigError, match=match):
         generate(SynthConfig(out=out, **{"frames": 8, "size": 16, **kwargs}), progress=False)
     assert not out.exists()
+
+
+def test_a_128px_set_read_by_an_independent_mid_air_reader_gives_the_rendered_depth(world, tmp_path):
+    """Mid-Air's convention, as every Mid-Air tool reads it (spec 9.2): depth = 512 / disparity whatever the PNG's
+    size. A minimal reader written here (PNG -> uint16 -> float16 bits -> 512 / disparity) must give the renderer's
+    depth from a 128 px set; the old writer stored (S/2)/z, which this reader would read 8x too far."""
+    cfg = SynthConfig(out=tmp_path / "s128", trajectories=1, frames=8, size=128, seed=0, climates=("sunny",))
+    generate(cfg, progress=False)
+    planned = plan_flights(cfg, world)["sunny"][0]
+    for k in (4,):  # camera frame 4 (ground-truth sample 16): the first CSV row
+        frame = render_frame(world, get_climate("sunny").with_sun_azimuth(planned.sun_azimuth),
+                             planned.flight.attitude[4 * k], planned.flight.position[4 * k], 128, 128)
+        with Image.open(tmp_path / f"s128/SynthAir/sunny/stereo_disparity/trajectory_0000/{k:06d}.PNG") as im:
+            raw = np.array(im, dtype=np.uint16)
+        depth = 512.0 / raw.view(np.float16).astype(np.float64)
+        # float16 keeps 11 significant bits: a relative rounding of at most 2^-11 on the disparity
+        np.testing.assert_allclose(depth, frame.depth, rtol=2.0**-11 * 1.01)
+        assert abs(np.median(depth / frame.depth) - 1.0) < 1e-4

@@ -2,11 +2,11 @@
 
 Decoding of one row (spec 9.2, 9.6):
 
-* colour: ``camera_l`` JPEG -> uint8 -> ``/255`` -> BL2 resize to the output size;
-* depth: ``disp`` 16-bit PNG whose values are float16 bit patterns -> disparity -> z-depth
-  ``(W_native / 2) / disparity`` (= ``512 / disparity`` at 1024 px) at the native size -> BL2 resize (in the depth
-  domain). A zero disparity (infinitely far) is read as the smallest positive float16 disparity (2^-24), i.e. a depth
-  of ``W_native / 2 * 2^24`` m, so that the bilinear resize stays finite (spec 15.1); a negative, NaN or infinite
+* colour: ``camera_l`` JPEG -> uint8 (libjpeg-turbo, fast integer IDCT like the original by default; ``jpeg_idct``) -> ``/255`` -> BL2 resize to the output size;
+* depth: ``disp`` 16-bit PNG whose values are float16 bit patterns -> disparity -> z-depth ``512 / disparity``
+  whatever the PNG's size (Mid-Air's convention, spec 9.2: resizing a PNG never rescales its values) at the native
+  size -> BL2 resize (in the depth domain). A zero disparity (infinitely far) is read as the smallest positive float16
+  disparity (2^-24), i.e. a depth of ``512 * 2^24`` m, so that the bilinear resize stays finite (spec 15.1); a negative, NaN or infinite
   disparity is a :class:`DatasetError`;
 * labels: ``semantic`` PNG, channel 0 (8-bit gray, 16-bit gray, palette indices or RGB) -> OpenCV nearest (NN1)
   to the output size -> the 14 Mid-Air IDs mapped to the 7 classes on the fly (``labels="midair"``; the dataset is
@@ -26,7 +26,7 @@ import torch
 
 from ...errors import ConfigError, DatasetError
 from ..csvsplits import open_csv_split
-from ..decode import read_label_ids, read_rgb, read_uint16_png
+from ..decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, read_label_ids, read_rgb, read_uint16_png
 from ..frames import Size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
 from ..sequence import FrameRecord, SequenceDataset
 from . import format as fmt
@@ -54,7 +54,7 @@ def read_depth(path: str | Path) -> np.ndarray:
             f"(first at row {i}, column {j}: {disp[i, j]})"
         )
     disp = np.maximum(disp, np.float32(MIN_DISPARITY))
-    return fmt.disparity_to_depth(disp, disp.shape[1]).astype(np.float32, copy=False)
+    return fmt.disparity_to_depth(disp).astype(np.float32, copy=False)
 
 
 def read_labels(path: str | Path, labels: str = "midair") -> np.ndarray:
@@ -68,14 +68,15 @@ _MAP_14_TO_7 = torch.from_numpy(fmt.MIDAIR_TO_7.astype(np.int64))
 class MidAirFrameLoader:
     """Loads one row at the output size (see the module docstring). Picklable, for DataLoader workers."""
 
-    def __init__(self, size: Size, labels: str = "midair") -> None:
+    def __init__(self, size: Size, labels: str = "midair", jpeg_idct: str = DEFAULT_JPEG_IDCT) -> None:
         if labels not in LABEL_MODES:
             raise ConfigError(f"labels must be one of {sorted(LABEL_MODES)}, got {labels!r}")
         self.size = size
         self.labels = labels
+        self.jpeg_idct = check_jpeg_idct(jpeg_idct)
 
     def __call__(self, rec: FrameRecord) -> dict[str, torch.Tensor]:
-        out = {"rgb": rgb_to_tensor(read_rgb(rec.rgb), self.size)}
+        out = {"rgb": rgb_to_tensor(read_rgb(rec.rgb, self.jpeg_idct), self.size)}
         if rec.depth is not None:
             out["depth"] = depth_to_tensor(read_depth(rec.depth), self.size)
         if rec.semantic is not None:
@@ -110,6 +111,7 @@ def open_midair(
     modalities: Iterable[str] | None = None,
     seed: int = 0,
     name: str = "midair",
+    jpeg_idct: str = DEFAULT_JPEG_IDCT,
 ) -> SequenceDataset:
     """Open a split of a Mid-Air-format dataset (Mid-Air itself or SynthAir).
 
@@ -129,7 +131,10 @@ def open_midair(
         modalities: subset of ``("depth", "semantic")`` to load (default: all the CSVs provide).
         seed: base seed of the random window offsets and augmentations.
         name: stored as ``dataset.name``.
+        jpeg_idct: JPEG decoding, ``"fast"`` (default: libjpeg-turbo's fast integer IDCT, bit-exact with the
+            original's ``tf.io.decode_jpeg``) or ``"accurate"`` (see :mod:`cosemdepth.data.decode`).
     """
+    check_jpeg_idct(jpeg_idct)
     return open_csv_split(
         root,
         split_dir,
@@ -140,7 +145,7 @@ def open_midair(
         columns={"rgb": "camera_l", "depth": "disp", "semantic": "semantic"},
         reset_rule=lambda ids: ids == 0,
         derive={"semantic": _derive_semantic},
-        make_loader=lambda out_size: MidAirFrameLoader(out_size, labels),
+        make_loader=lambda out_size: MidAirFrameLoader(out_size, labels, jpeg_idct),
         mode=mode,
         db_seq_len=db_seq_len,
         modalities=modalities,

@@ -1,8 +1,9 @@
 """Mid-Air on-disk encodings (spec sections 9.1-9.5), shared by the reader and by the SynthAir writer.
 
 Depth is stored as stereo disparity in a 16-bit PNG whose uint16 values are the *bit patterns* of float16
-disparities. At 1024 px (focal 512 px, 1 m baseline) ``z_depth = 512 / disparity``; at width ``W`` the focal is
-``W / 2`` so ``z_depth = (W / 2) / disparity``.
+disparities, ``z_depth = 512 / disparity`` (Mid-Air's native focal of 512 px, 1 m baseline) **whatever the PNG's
+size**: like every Mid-Air tool (the authors' loader included, spec 9.2) we never rescale the stored values when an
+image is resized, so a PNG downsized by a user keeps its meaning, and SynthAir writes ``512 / z_depth`` at every size.
 """
 
 from __future__ import annotations
@@ -81,14 +82,18 @@ def focal_at_width(width: int) -> float:
     return NATIVE_FOCAL * width / NATIVE_SIZE
 
 
-def disparity_to_depth(disparity: np.ndarray, width: int) -> np.ndarray:
-    """Disparity (pixels at ``width``, 1 m baseline) -> z-depth in metres: ``(width / 2) / disparity``."""
-    return focal_at_width(width) / np.asarray(disparity, dtype=np.float32)
+#: ``z_depth = DISPARITY_SCALE / disparity`` for a stored disparity value at any PNG size (Mid-Air's convention).
+DISPARITY_SCALE = NATIVE_FOCAL
 
 
-def depth_to_disparity(depth: np.ndarray, width: int) -> np.ndarray:
-    """z-depth in metres -> disparity (pixels at ``width``, 1 m baseline)."""
-    return focal_at_width(width) / np.asarray(depth, dtype=np.float32)
+def disparity_to_depth(disparity: np.ndarray) -> np.ndarray:
+    """Stored disparity value -> z-depth in metres: ``512 / disparity``, whatever the image size."""
+    return np.float32(DISPARITY_SCALE) / np.asarray(disparity, dtype=np.float32)
+
+
+def depth_to_disparity(depth: np.ndarray) -> np.ndarray:
+    """z-depth in metres -> the disparity value to store: ``512 / z_depth``, whatever the image size."""
+    return np.float32(DISPARITY_SCALE) / np.asarray(depth, dtype=np.float32)
 
 
 def map_labels(midair_ids: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ Layout under the output folder ``DIR``::
     DIR/synthair.json                                  generation parameters (seed, size, version, ...)
     DIR/SynthAir/<climate>/sensor_records.hdf5         100 Hz ground truth + camera_data path lists
     DIR/SynthAir/<climate>/color_left/trajectory_XXXX/NNNNNN.JPEG
-    DIR/SynthAir/<climate>/stereo_disparity/trajectory_XXXX/NNNNNN.PNG    float16 bits of (S/2)/z-depth
+    DIR/SynthAir/<climate>/stereo_disparity/trajectory_XXXX/NNNNNN.PNG    float16 bits of 512/z-depth (any S)
     DIR/SynthAir/<climate>/segmentation/trajectory_XXXX/NNNNNN.PNG        8-bit Mid-Air label IDs
     DIR/splits/{train,val,test}_data/SynthAir/<climate>/traj_XXXX.csv      from generate_splits(DIR, DIR/splits)
 
@@ -104,7 +104,7 @@ class SynthConfig:
             "camera": {"width": self.size, "height": self.size, "fx": self.size / 2, "fy": self.size / 2,
                        "cx": self.size / 2, "cy": self.size / 2, "rate_hz": fmt.CAMERA_RATE},
             "groundtruth_rate_hz": fmt.GROUNDTRUTH_RATE,
-            "depth_encoding": "stereo_disparity PNG: uint16 = float16 bits of (size / 2) / z_depth",
+            "depth_encoding": "stereo_disparity PNG: uint16 = float16 bits of 512 / z_depth (Mid-Air convention, any size)",
         }
 
 
@@ -180,9 +180,9 @@ def encode_png(array: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def depth_to_png_disparity(depth: np.ndarray, width: int) -> np.ndarray:
-    """z-depth [H, W] metres -> uint16 float16 bit patterns of ``(width / 2) / depth``."""
-    return fmt.encode_disparity(fmt.depth_to_disparity(depth, width))
+def depth_to_png_disparity(depth: np.ndarray) -> np.ndarray:
+    """z-depth [H, W] metres -> uint16 float16 bit patterns of ``512 / depth`` (Mid-Air's convention at any size)."""
+    return fmt.encode_disparity(fmt.depth_to_disparity(depth))
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -246,7 +246,7 @@ def _render_task(task: _Task) -> int:
     frames = render_frames(world, climate, att, pos, cfg.size, cfg.size, supersample=cfg.supersample)
     for (_, paths), frame in zip(todo, frames):
         atomic_write_bytes(paths[0], encode_jpeg(frame.rgb, cfg.jpeg_quality))
-        atomic_write_bytes(paths[1], encode_png(depth_to_png_disparity(frame.depth, cfg.size)))
+        atomic_write_bytes(paths[1], encode_png(depth_to_png_disparity(frame.depth)))
         atomic_write_bytes(paths[2], encode_png(frame.labels))
     return len(todo)
 
