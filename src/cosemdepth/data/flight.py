@@ -224,7 +224,17 @@ def open_flight(
 
     keep = np.arange(0, len(images), frame_skip)
     images = [images[i] for i in keep]
-    q_rel, t_rel = relative_camera_motions(quat[keep], pos[keep], convention)
+    with np.errstate(over="ignore", invalid="ignore"):
+        q_rel, t_rel = relative_camera_motions(quat[keep], pos[keep], convention)
+    # The dataset hands motions to the model as float32: each must be finite there.
+    big = np.finfo(np.float32).max
+    ok = (np.abs(q_rel) <= big).all(axis=1) & (np.abs(t_rel) <= big).all(axis=1)
+    if not ok.all():
+        i = int(np.flatnonzero(~ok)[0])
+        raise DatasetError(
+            f"{track.path}: the camera motion to image {images[i].name} is not finite in float32 "
+            "(positions too large or too far apart)"
+        )
     times = times[keep] if times is not None else None
 
     depth_dir = Path(depth_dir) if depth_dir is not None else None
