@@ -99,24 +99,28 @@ def mutate_bytes(draw, data: bytes, max_ops: int = 3) -> bytes:
 BAD_TOKENS = (
     "", "nan", "NaN", "-inf", "inf", "1e999", "-1e400", "1e38", "1e300", "-1e300", "abc", "0x10", "1_0", "1,5", "--1",
     "\x00", "\t", " ", '"', '"unterminated', "é", "\u2028", "#", "9" * 30, "-" + "9" * 30, "1e-320", "4.9e-324",
-    "True", "None", "[1]", "1" * 200_000,  # longer than the csv module's default field limit
+    "True", "None", "[1]",
 )
 
 
 @st.composite
 def mutate_text(draw, text: str, separators: str = " \t,\n", max_ops: int = 3) -> str:
-    """``text`` after 1..``max_ops`` token-level mutations: a field replaced by a :data:`BAD_TOKENS` entry or by
-    random text, a field or line duplicated/deleted, a separator inserted, the text truncated."""
+    """``text`` after 1..``max_ops`` token-level mutations: a field replaced by a :data:`BAD_TOKENS` entry, by
+    random text or by a very long token, a field or line duplicated/deleted, a separator inserted, the text truncated."""
     import re
 
     for _ in range(draw(st.integers(1, max_ops))):
         tokens = re.split(f"([{re.escape(separators)}]+)", text)
         fields = [i for i in range(0, len(tokens), 2)]
-        op = draw(st.sampled_from(("bad", "random", "dup_field", "del_field", "sep", "truncate", "dup_line", "del_line")))
-        if op in ("bad", "random", "dup_field", "del_field", "sep") and fields:
+        op = draw(st.sampled_from(
+            ("bad", "bad", "random", "long", "dup_field", "del_field", "sep", "truncate", "dup_line", "del_line")
+        ))
+        if op in ("bad", "random", "long", "dup_field", "del_field", "sep") and fields:
             i = draw(st.sampled_from(fields))
             if op == "bad":
                 tokens[i] = draw(st.sampled_from(BAD_TOKENS))
+            elif op == "long":  # longer than the csv module's field limit (131,072 characters)
+                tokens[i] = draw(st.sampled_from("1a ")) * 200_000
             elif op == "random":
                 tokens[i] = draw(st.text(max_size=8))
             elif op == "dup_field":

@@ -35,14 +35,19 @@ def read_airsim_rec(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """``(positions [N, 3], quaternions [N, 4] w-first)`` of an AirSim recording file."""
     text = read_text(path, "AirSim recording")
     reader = csv.DictReader(io.StringIO(text), delimiter="\t")
-    if reader.fieldnames is None or any(c not in reader.fieldnames for c in _COLUMNS):
-        raise DatasetError(f"{path}: AirSim recording header must contain {list(_COLUMNS)}, got {reader.fieldnames}")
     values = []
-    for row in reader:
-        try:
-            values.append([float(row[c]) for c in _COLUMNS])
-        except (TypeError, ValueError):
-            raise DatasetError(f"{path}:{reader.line_num}: malformed or missing pose values") from None
+    try:
+        if reader.fieldnames is None or any(c not in reader.fieldnames for c in _COLUMNS):
+            raise DatasetError(
+                f"{path}: AirSim recording header must contain {list(_COLUMNS)}, got {reader.fieldnames}"
+            )
+        for row in reader:
+            try:
+                values.append([float(row[c]) for c in _COLUMNS])
+            except (TypeError, ValueError):
+                raise DatasetError(f"{path}:{reader.line_num}: malformed or missing pose values") from None
+    except csv.Error as e:  # e.g. a field over the csv module's size limit
+        raise DatasetError(f"{path}: malformed AirSim recording ({e})") from None
     if not values:
         raise DatasetError(f"{path}: AirSim recording holds no rows")
     v = np.array(values, dtype=np.float64)

@@ -175,7 +175,18 @@ def read_csv(path: Path) -> list[dict]:
     """
     path = Path(path)
     text = read_text(path, "split CSV")
-    reader = csv.DictReader(io.StringIO(text), delimiter="\t")
+    try:
+        return _read_rows(path, csv.DictReader(io.StringIO(text), delimiter="\t"))
+    except csv.Error as e:  # e.g. a field over the csv module's size limit
+        raise DatasetError(f"{path}: malformed split CSV ({e})") from None
+
+
+#: Range of the values a split CSV may hold: ids are int64, motions float32 in the datasets built from them.
+_ID_RANGE = (-(2**63), 2**63 - 1)
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def _read_rows(path: Path, reader: csv.DictReader) -> list[dict]:
     if not reader.fieldnames:
         raise DatasetError(f"{path}: empty split CSV (no header)")
     missing = [c for c in _REQUIRED_COLUMNS if c not in reader.fieldnames]
@@ -191,13 +202,15 @@ def read_csv(path: Path) -> list[dict]:
             r["id"] = int(r["id"])
         except ValueError:
             raise DatasetError(f"{path}:{line_no}: malformed id {r['id']!r}") from None
+        if not _ID_RANGE[0] <= r["id"] <= _ID_RANGE[1]:
+            raise DatasetError(f"{path}:{line_no}: id {r['id']} out of the int64 range")
         for c in _MOTION_COLUMNS:
             try:
                 r[c] = float(r[c])
             except ValueError:
                 raise DatasetError(f"{path}:{line_no}: malformed number {r[c]!r} in column {c}") from None
-            if not math.isfinite(r[c]):
-                raise DatasetError(f"{path}:{line_no}: column {c} is {r[c]} (NaN/inf)")
+            if not abs(r[c]) <= _FLOAT32_MAX:
+                raise DatasetError(f"{path}:{line_no}: column {c} is {r[c]} (NaN/inf, or beyond float32's range)")
         norm = math.sqrt(sum(r[c] ** 2 for c in ("qw", "qx", "qy", "qz")))
         if abs(norm - 1.0) > QUATERNION_TOLERANCE:
             raise DatasetError(f"{path}:{line_no}: quaternion (qw, qx, qy, qz) is not unit (norm {norm:.6f})")
