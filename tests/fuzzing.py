@@ -19,7 +19,7 @@ from datetime import timedelta
 from pathlib import Path
 from typing import Callable, Iterable
 
-from hypothesis import settings
+from hypothesis import currently_in_test_context, event, settings
 from hypothesis import strategies as st
 
 from cosemdepth.errors import CosemdepthError
@@ -192,15 +192,48 @@ def outcome(call: Callable[[], object], paths: Iterable[str | os.PathLike], chec
     try:
         result = call()
     except CosemdepthError as e:
+        _event(f"error: {type(e).__name__}")
         msg = str(e)
         assert any(n in msg for n in names), f"error message does not name the file {names}: {msg!r}"
         assert "\n" not in msg, f"error message is not one line: {msg!r}"
         return None
+    _event("result")
     check(result)
     return result
+
+
+def _event(what: str) -> None:
+    """Count an outcome in hypothesis' statistics (``--hypothesis-show-statistics``); a no-op in plain tests."""
+    if currently_in_test_context():
+        event(what)
 
 
 def write(path: Path, data: bytes) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(data)
     return path
+
+
+def png_bytes(arr, bit_depth: int, colour_type: int, palette: bytes | None = None) -> bytes:
+    """A PNG of any bit depth / colour type, written from its definition (no Pillow): ``arr`` is ``[H, W]`` or
+    ``[H, W, C]`` of sample values (packed for bit depths < 8, big-endian for 16), one zlib stream, filter 0."""
+    import numpy as np
+
+    a = np.asarray(arr)
+    if a.ndim == 2:
+        a = a[..., None]
+    h, w, c = a.shape
+    if bit_depth == 16:
+        rows = a.astype(">u2").reshape(h, w * c).view(np.uint8).reshape(h, -1)
+    elif bit_depth == 8:
+        rows = a.astype(np.uint8).reshape(h, w * c)
+    else:
+        rows = np.packbits(
+            np.unpackbits(a.astype(np.uint8).reshape(h, w * c, 1), axis=2)[:, :, 8 - bit_depth:].reshape(h, -1),
+            axis=1,
+        )
+    raw = b"".join(b"\x00" + r.tobytes() for r in rows)
+    out = b"\x89PNG\r\n\x1a\n" + png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, bit_depth, colour_type, 0, 0, 0))
+    if palette is not None:
+        out += png_chunk(b"PLTE", palette)
+    return out + png_chunk(b"IDAT", zlib.compress(raw)) + png_chunk(b"IEND", b"")

@@ -23,12 +23,39 @@ _PNG_GRAY, _PNG_RGB, _PNG_PALETTE, _PNG_GRAY_ALPHA, _PNG_RGBA = 0, 2, 3, 4, 6
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
+#: Largest image the readers decode, in pixels (8192 x 8192). A header declaring more is refused before anything
+#: is allocated: it is corrupt, or an image far larger than any aerial dataset's (decoding it would take GBs).
+MAX_PIXELS = 1 << 26
+
+
+def check_image_size(path: str | os.PathLike, width: int, height: int) -> None:
+    """Raise a DatasetError naming ``path`` unless ``width x height`` (from a header) is a decodable image size."""
+    if width < 1 or height < 1 or width * height > MAX_PIXELS:
+        raise DatasetError(
+            f"{path}: header declares a {width}x{height} image; readable sizes are 1 to {MAX_PIXELS} pixels "
+            "(corrupt header?)"
+        )
+
+
+def _open_header(path: Path):
+    """Open an image with Pillow (header only), checking its declared size; failures are DatasetErrors."""
+    import warnings
+
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # MAX_PIXELS is checked below
+        img = Image.open(path)
+    check_image_size(path, *img.size)
+    return img
+
+
 def _open(path: Path):
     """Open and fully decode an image with Pillow; any failure becomes a DatasetError naming ``path``."""
     from PIL import Image, UnidentifiedImageError
 
     try:
-        img = Image.open(path)
+        img = _open_header(path)
         img.load()
     except FileNotFoundError:
         raise DatasetError(f"{path}: file not found") from None
@@ -36,7 +63,7 @@ def _open(path: Path):
         raise DatasetError(f"{path}: is a folder, expected an image file") from None
     except UnidentifiedImageError:
         raise DatasetError(f"{path}: not a readable image (corrupt or unknown format)") from None
-    except (OSError, SyntaxError, ValueError) as e:
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as e:
         raise DatasetError(f"{path}: corrupt image ({e})") from None
     return img
 
@@ -140,10 +167,10 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
 
     path = Path(path)
     try:
-        with Image.open(path) as img:
+        with _open_header(path) as img:
             w, h = img.size
     except FileNotFoundError:
         raise DatasetError(f"{path}: file not found") from None
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError, Image.DecompressionBombError) as e:
         raise DatasetError(f"{path}: not a readable image ({e})") from None
     return h, w
