@@ -169,3 +169,15 @@ def test_airsim_recording_field_over_csv_limit(tmp_path):
     with pytest.raises(DatasetError) as e:
         read_airsim_rec(path)
     assert str(path) in str(e.value)
+
+
+def test_topair_generator_far_positions(tmp_path):
+    """Found with the Mid-Air generator's fuzzing, same cause: positions near 1e308 (finite) gave motions that
+    overflow, written to the split CSV as inf, which the split CSV reader then refuses."""
+    from cosemdepth.data.topair_splits import generate_topair_splits
+
+    lines = ["POS_X\tPOS_Y\tPOS_Z\tQ_W\tQ_X\tQ_Y\tQ_Z", "-1e308\t0\t0\t1\t0\t0\t0", "1e308\t0\t0\t1\t0\t0\t0"]
+    path = write(tmp_path / "root" / "Africa_1" / "airsim_rec.txt", ("\n".join(lines) + "\n").encode())
+    with pytest.raises(DatasetError, match="float32") as e:
+        generate_topair_splits(tmp_path / "root", tmp_path / "out")
+    assert str(path) in str(e.value)

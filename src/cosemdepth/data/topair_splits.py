@@ -54,7 +54,8 @@ def read_airsim_rec(path: Path) -> tuple[np.ndarray, np.ndarray]:
     if not np.isfinite(v).all():
         line = int(np.flatnonzero(~np.isfinite(v).all(axis=1))[0]) + 2
         raise DatasetError(f"{path}:{line}: pose holds NaN/inf")
-    norms = np.linalg.norm(v[:, 3:], axis=1)
+    with np.errstate(over="ignore"):  # an overflowing norm is reported as not unit below
+        norms = np.linalg.norm(v[:, 3:], axis=1)
     bad = np.flatnonzero(np.abs(norms - 1) > QUATERNION_TOLERANCE)
     if bad.size:
         raise DatasetError(f"{path}:{bad[0] + 2}: quaternion is not unit (norm {norms[bad[0]]:.6f})")
@@ -97,7 +98,15 @@ def generate_topair_splits(root: str | Path, out_dir: str | Path) -> dict[str, l
     for env in envs:
         k = ENVIRONMENTS.index(env)
         pos, quat = read_airsim_rec(root / env / REC_FILE)
-        rows = topair_rows(env, pos, quat, FRAME_SKIPS[k])
+        with np.errstate(over="ignore", invalid="ignore"):
+            rows = topair_rows(env, pos, quat, FRAME_SKIPS[k])
+        big = float(np.finfo(np.float32).max)
+        for m, r in enumerate(rows):
+            if not all(abs(r[c]) <= big for c in ("qw", "qx", "qy", "qz", "tx", "ty", "tz")):
+                raise DatasetError(
+                    f"{root / env / REC_FILE}: the motion of row {m} is beyond float32's range "
+                    "(positions too large or too far apart)"
+                )
         split = "test" if env in TEST_ENVIRONMENTS else "train"
         path = out_dir / f"{split}_data" / f"traj_{k:04d}.csv"
         write_csv(path, rows, columns=TOPAIR_CSV_COLUMNS)

@@ -264,16 +264,13 @@ def generate_splits(
             raise DatasetError(f"{h5_path}: cannot open HDF5 file ({e})") from None
         with h5:
             for traj in (t for t in trajs if (t.env, t.climate) == (env, climate)):
-                try:
-                    gt = h5[traj.name]["groundtruth"]
-                    att = np.asarray(gt["attitude"], dtype=np.float64)
-                    pos = np.asarray(gt["position"], dtype=np.float64)
-                except KeyError as e:
-                    raise DatasetError(f"{h5_path}: trajectory {traj.name} lacks groundtruth data ({e})") from None
+                att, pos = _read_groundtruth(h5, h5_path, traj.name)
                 _check_groundtruth(h5_path, traj.name, att, pos)
-                rows = trajectory_rows(traj, att, pos)
+                with np.errstate(over="ignore", invalid="ignore"):
+                    rows = trajectory_rows(traj, att, pos)
                 if not rows:  # fewer than 2 x 16 ground-truth samples: nothing to write
                     continue
+                _check_motions(h5_path, traj.name, rows)
                 split = rule_fn(traj)
                 if split not in written:
                     raise ValueError(f"split rule returned {split!r}; expected one of {SPLITS}")
@@ -281,6 +278,52 @@ def generate_splits(
                 write_csv(path, rows)
                 written[split].append(path)
     return written
+
+
+#: Most ground-truth samples accepted per trajectory (about 28 hours at 100 Hz): a larger declared size is a
+#: corrupt or foreign file, and reading it would take gigabytes.
+MAX_GROUNDTRUTH_SAMPLES = 10_000_000
+
+
+def _read_groundtruth(h5, h5_path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(attitude [N, 4], position [N, 3])`` of trajectory ``name``, float64, after checking that both are numeric
+    datasets of that shape and a plausible size (nothing is read before)."""
+    import h5py
+
+    where = f"{h5_path}: {name}/groundtruth"
+    try:
+        traj = h5.get(name)
+        gt = traj.get("groundtruth") if isinstance(traj, h5py.Group) else None
+        if not isinstance(gt, h5py.Group):
+            raise DatasetError(f"{h5_path}: trajectory {name} lacks groundtruth data (no {name}/groundtruth group)")
+        out = []
+        for key, width in (("attitude", 4), ("position", 3)):
+            ds = gt.get(key)
+            if not isinstance(ds, h5py.Dataset):
+                raise DatasetError(f"{where}/{key} is missing or not a dataset")
+            if ds.dtype.kind not in "iuf":
+                raise DatasetError(f"{where}/{key} must hold real numbers, got dtype {ds.dtype}")
+            if len(ds.shape) != 2 or ds.shape[1] != width:
+                raise DatasetError(f"{where}/{key} must have shape [N, {width}], got {list(ds.shape)}")
+            if ds.shape[0] > MAX_GROUNDTRUTH_SAMPLES:
+                raise DatasetError(
+                    f"{where}/{key} declares {ds.shape[0]} samples, more than {MAX_GROUNDTRUTH_SAMPLES} (corrupt?)"
+                )
+            out.append(np.asarray(ds[()], dtype=np.float64))
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as e:  # h5py's errors on a damaged file
+        raise DatasetError(f"{where}: cannot read ({e})") from None
+    return out[0], out[1]
+
+
+def _check_motions(h5_path: Path, name: str, rows: list[dict]) -> None:
+    """The CSV motions must be finite in float32 (the readers' precision), e.g. not from positions near 1e308."""
+    big = float(np.finfo(np.float32).max)
+    for k, r in enumerate(rows):
+        if not all(abs(r[c]) <= big for c in _MOTION_COLUMNS):
+            raise DatasetError(
+                f"{h5_path}: {name}/groundtruth gives a motion beyond float32's range at row {k} "
+                "(positions too large or too far apart)"
+            )
 
 
 def _check_groundtruth(h5_path: Path, name: str, att: np.ndarray, pos: np.ndarray) -> None:
@@ -291,7 +334,8 @@ def _check_groundtruth(h5_path: Path, name: str, att: np.ndarray, pos: np.ndarra
         raise DatasetError(f"{where}/position must have shape [{len(att)}, 3], got {list(pos.shape)}")
     if not (np.isfinite(att).all() and np.isfinite(pos).all()):
         raise DatasetError(f"{where}: attitude or position holds NaN/inf")
-    norms = np.linalg.norm(att, axis=1)
+    with np.errstate(over="ignore"):  # an overflowing norm is reported as not unit below
+        norms = np.linalg.norm(att, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
     if bad.size:
         raise DatasetError(f"{where}/attitude[{bad[0]}] is not a unit quaternion (norm {norms[bad[0]]:.6f})")
