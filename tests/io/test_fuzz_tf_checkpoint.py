@@ -202,3 +202,53 @@ def test_real_checkpoint_truncated_everywhere(tfref_dir, tmp_path):
             CheckpointReader(tmp_path / "cp-0000.ckpt")
         assert "cp-0000.ckpt.index" in str(e.value)
     shutil.rmtree(tmp_path)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The converter behind the reader: a readable checkpoint whose tensors are not the expected ones
+
+
+@st.composite
+def model_variant(draw):
+    """TF tensors of a small model with a few random changes: a tensor dropped, reshaped, retyped (int, float16,
+    bool, string), renamed, or given an extra unexpected key."""
+    from tf_bundle_writer import model_tensors
+
+    t = model_tensors(levels=2, semantic=draw(st.booleans()), extras=False, zeros=True)
+    keys = sorted(t)
+    for _ in range(draw(st.integers(0, 3))):
+        key = draw(st.sampled_from(keys))
+        if key not in t:
+            continue
+        op = draw(st.sampled_from(("drop", "reshape", "retype", "rename", "extra")))
+        arr = np.asarray(t[key])
+        if op == "drop":
+            del t[key]
+        elif op == "reshape":
+            t[key] = np.zeros(draw(st.sampled_from(((), (1,), (arr.size,), (*arr.shape, 1), (2, 2, 2, 2)))), np.float32)
+        elif op == "retype":
+            kind = draw(st.sampled_from(("int32", "float16", "bool", "string")))
+            t[key] = [b"x"] * max(1, min(arr.size, 3)) if kind == "string" else arr.astype(kind)
+        elif op == "rename":
+            t[key.replace("/0/", "/7/").replace("kernel", "kernal")] = t.pop(key)
+        else:
+            t[draw(st.sampled_from(("encoder/conv_layers_s1/9/kernel", "d_estimator/levels/0/x/bias")))
+              + "/.ATTRIBUTES/VARIABLE_VALUE"] = arr
+    return t
+
+
+@fuzz_settings(max_examples=25, deadline_s=10)
+@given(tensors=model_variant())
+def test_fuzz_checkpoint_conversion(tmp_path_factory, tensors):
+    from cosemdepth.io.convert import expected_param_shapes, import_checkpoint
+
+    folder = tmp_path_factory.getbasetemp() / "fuzz_convert"
+    shutil.rmtree(folder, ignore_errors=True)
+    prefix = write_bundle(folder / "ckpt", tensors)
+
+    def check(conv) -> None:
+        shapes = expected_param_shapes(conv.config)
+        assert {k: tuple(v.shape) for k, v in conv.state_dict.items() if k in shapes} == shapes
+        assert all(v.dtype.is_floating_point for k, v in conv.state_dict.items() if k in shapes)
+
+    outcome(lambda: import_checkpoint(prefix), [prefix], check)
