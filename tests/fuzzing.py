@@ -99,7 +99,7 @@ def mutate_bytes(draw, data: bytes, max_ops: int = 3) -> bytes:
 BAD_TOKENS = (
     "", "nan", "NaN", "-inf", "inf", "1e999", "-1e400", "1e38", "1e300", "-1e300", "abc", "0x10", "1_0", "1,5", "--1",
     "\x00", "\t", " ", '"', '"unterminated', "é", "\u2028", "#", "9" * 30, "-" + "9" * 30, "1e-320", "4.9e-324",
-    "True", "None", "[1]",
+    "True", "None", "[1]", "x" * 5000,  # longer than a file name may be (ENAMETOOLONG)
 )
 
 

@@ -166,22 +166,40 @@ def test_fuzz_label_and_8bit_maps(tmp_path_factory, data, which):
 
 
 @fuzz_settings(max_examples=40)
-@given(data=st.data())
-def test_fuzz_aeroscapes_frame(tmp_path_factory, data):
-    """An Aeroscapes frame (JPEG + 12-class label PNG) through its frame loader, at another size."""
-    folder = tmp_path_factory.getbasetemp() / "fuzz_aeroscapes_frame"
+@given(data=st.data(), dataset=st.sampled_from(("midair", "topair", "aeroscapes")))
+def test_fuzz_frame_loaders(tmp_path_factory, data, dataset):
+    """A whole frame (colour + depth + labels, each possibly damaged) through each dataset's frame loader, resized
+    to another size: finite tensors of the right shapes and ranges, or an error naming the damaged file."""
+    from cosemdepth.data.midair.dataset import MidAirFrameLoader
+    from cosemdepth.data.topair import TopAirFrameLoader
+
+    folder = tmp_path_factory.getbasetemp() / "fuzz_frames"
     h, w = data.draw(sizes())
-    rgb = write(folder / "JPEGImages" / "a.jpg", data.draw(damaged(jpeg_bytes(np.full((h, w, 3), 90, np.uint8), 0),
-                                                                   False)))
-    good, samples, fmt = data.draw(png_file(st.integers(0, 13), fmt=(8, GRAY)))
-    sem = write(folder / "SegmentationClass" / "a.png", data.draw(damaged(good, True)))
+    colour = jpeg_bytes(np.full((h, w, 3), 90, np.uint8), 0)
+    rgb = write(folder / "rgb.jpg", data.draw(damaged(colour, False)))
+    depth = None
+    if dataset == "midair":
+        disp = np.full((h, w), 2.0, np.float16).view(np.uint16)
+        depth = write(folder / "disp.png", data.draw(damaged(png_bytes(disp, 16, GRAY), True)))
+        loader, classes = MidAirFrameLoader((5, 7), "midair"), 7
+    elif dataset == "topair":
+        depth = write(folder / "depth.png", data.draw(damaged(png_bytes(np.full((h, w), 128), 8, GRAY), True)))
+        loader, classes = TopAirFrameLoader((5, 7)), 9
+    else:
+        loader, classes = AeroscapesFrameLoader((5, 7)), 12
+    good, samples, fmt = data.draw(png_file(st.integers(0, 8), fmt=(8, GRAY)))
+    sem = write(folder / "sem.png", data.draw(damaged(good, True)))
 
     def check(item) -> None:
         assert item["rgb"].shape == (3, 5, 7) and item["semantic"].shape == (5, 7)
         assert bool(item["rgb"].isfinite().all()) and float(item["rgb"].min()) >= 0 and float(item["rgb"].max()) <= 1
-        assert int(item["semantic"].min()) >= 0 and int(item["semantic"].max()) < 12
+        assert int(item["semantic"].min()) >= 0 and int(item["semantic"].max()) < classes
+        if depth is not None:
+            d = item["depth"]
+            assert d.shape == (1, 5, 7) and bool(d.isfinite().all()) and float(d.min()) >= 0
 
-    outcome(lambda: AeroscapesFrameLoader((5, 7))(FrameRecord(rgb=rgb, semantic=sem)), [rgb, sem], check)
+    paths = [rgb, sem] + ([depth] if depth is not None else [])
+    outcome(lambda: loader(FrameRecord(rgb=rgb, depth=depth, semantic=sem)), paths, check)
 
 
 def _npy_bytes(a: np.ndarray) -> bytes:

@@ -21,6 +21,8 @@ from cosemdepth.errors import DatasetError
 from fuzzing import fuzz_settings, outcome, text_file_bytes, write
 
 MIDAIR_COLUMNS = ("id", "camera_l", "disp", "semantic", "qw", "qx", "qy", "qz", "tx", "ty", "tz")
+#: The original generator's CSVs have no semantic column: the reader derives it from camera_l.
+ORIGINAL_COLUMNS = ("id", "camera_l", "disp", "qw", "qx", "qy", "qz", "tx", "ty", "tz")
 TOPAIR_COLUMNS = ("id", "camera_l", "depth", "semantic", "qw", "qx", "qy", "qz", "tx", "ty", "tz")
 
 
@@ -43,6 +45,7 @@ def split_text(rows, columns, env: str = "env") -> str:
     for i, qi, ti in zip(ids, q, t):
         name = f"{max(int(i), 0):06d}"
         paths = [f"{env}/color_left/trajectory_0000/{name}.JPEG", f"{env}/depth/{name}.PNG", f"{env}/seg/{name}.PNG"]
+        paths = paths[: len(columns) - 8]
         lines.append("\t".join([str(i), *paths, *(f"{v:.6f}" for v in (*qi, *ti))]))
     return "\n".join(lines) + "\n"
 
@@ -65,12 +68,13 @@ def check_dataset(ds, truth) -> None:
 
 
 @fuzz_settings(max_examples=50)
-@given(rows=split_rows(), data=st.data(), topair=st.booleans())
-def test_fuzz_split_csv(tmp_path_factory, rows, data, topair):
+@given(rows=split_rows(), data=st.data(), kind=st.sampled_from(("midair", "original", "topair")))
+def test_fuzz_split_csv(tmp_path_factory, rows, data, kind):
     """A damaged Mid-Air or TopAir split CSV, opened as a dataset (the CSV is all that is read at open time)."""
     base = tmp_path_factory.getbasetemp() / "fuzz_splits"
-    (base / "root").mkdir(parents=True, exist_ok=True)
-    text = split_text(rows, TOPAIR_COLUMNS if topair else MIDAIR_COLUMNS)
+    (base / "root" / "env" / "segmentation" / "trajectory_0000").mkdir(parents=True, exist_ok=True)
+    topair = kind == "topair"
+    text = split_text(rows, {"midair": MIDAIR_COLUMNS, "original": ORIGINAL_COLUMNS, "topair": TOPAIR_COLUMNS}[kind])
     raw = data.draw(text_file_bytes(text, separators="\t\n"))
     path = write(base / "splits" / "test_data" / "traj_0000.csv", raw)
     opener = open_topair if topair else open_midair
@@ -181,3 +185,13 @@ def test_topair_generator_far_positions(tmp_path):
     with pytest.raises(DatasetError, match="float32") as e:
         generate_topair_splits(tmp_path / "root", tmp_path / "out")
     assert str(path) in str(e.value)
+
+
+def test_split_csv_path_too_long(tmp_path):
+    """Found by the fuzzer: a camera_l path longer than the file system allows made the semantic-path derivation
+    (CSVs without a semantic column) raise OSError (ENAMETOOLONG)."""
+    text = split_text(ONE_ROW, ORIGINAL_COLUMNS).replace("color_left/", "color_left/" + "x" * 5000 + "/")
+    write(tmp_path / "splits" / "test_data" / "traj_0000.csv", text.encode())
+    (tmp_path / "root").mkdir()
+    ds = open_midair(tmp_path / "root", tmp_path / "splits", "test", size=8)
+    assert ds.trajectories[0].semantic is None  # the derived folder does not exist: no labels, as for a short path

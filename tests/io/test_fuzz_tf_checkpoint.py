@@ -252,3 +252,39 @@ def test_fuzz_checkpoint_conversion(tmp_path_factory, tensors):
         assert all(v.dtype.is_floating_point for k, v in conv.state_dict.items() if k in shapes)
 
     outcome(lambda: import_checkpoint(prefix), [prefix], check)
+
+
+@fuzz_settings(max_examples=40)
+@given(data=st.data())
+def test_fuzz_checkpoint_state_file(tmp_path_factory, bundle, data):
+    """The ``checkpoint`` text file of a checkpoint folder (which names the prefix), damaged."""
+    from cosemdepth.io.tf_checkpoint import resolve_checkpoint
+
+    from fuzzing import text_file_bytes
+
+    folder = bundle[0].parent
+    text = f'model_checkpoint_path: "{bundle[0].name}"\nall_model_checkpoint_paths: "{bundle[0].name}"\n'
+    raw = data.draw(text_file_bytes(text, separators=' :"\n'))
+    state = write(folder / "checkpoint", raw)
+
+    def check(prefix) -> None:
+        assert os.path.isfile(f"{prefix}.index")
+        if raw == text.encode():
+            assert prefix == bundle[0]
+
+    try:
+        outcome(lambda: resolve_checkpoint(folder), [state], check)
+    finally:
+        write(state, text.encode())
+
+
+def test_checkpoint_state_naming_too_long_a_path(tmp_path):
+    """Found by the fuzzer: a state file naming a prefix longer than the file system allows raised OSError."""
+    from cosemdepth.io.tf_checkpoint import resolve_checkpoint
+
+    state = write(tmp_path / "checkpoint", f'model_checkpoint_path: "{"1" * 5000}"\n'.encode())
+    with pytest.raises(CheckpointError) as e:
+        resolve_checkpoint(tmp_path)
+    assert str(state) in str(e.value)
+    with pytest.raises(CheckpointError, match="cannot access"):
+        resolve_checkpoint(tmp_path / ("y" * 5000))

@@ -101,7 +101,13 @@ def resolve_checkpoint(path: str | os.PathLike) -> Path:
     folder holding a ``checkpoint`` text file, whose ``model_checkpoint_path: "..."`` line names the prefix
     (relative to that folder, or absolute).
     """
-    p = Path(path)
+    try:
+        return _resolve_checkpoint(Path(path))
+    except OSError as e:  # a path the file system cannot even look up, e.g. a name too long
+        raise CheckpointError(f"{e.filename or path}: cannot access ({e.strerror})") from None
+
+
+def _resolve_checkpoint(p: Path) -> Path:
     if p.is_dir():
         state = p / "checkpoint"
         if not state.is_file():
@@ -111,7 +117,11 @@ def resolve_checkpoint(path: str | os.PathLike) -> Path:
         prefix = _read_checkpoint_state(state)
         if not prefix.is_absolute():
             prefix = p / prefix
-        if not Path(f"{prefix}.index").is_file():
+        try:
+            found = Path(f"{prefix}.index").is_file()
+        except OSError as e:
+            raise CheckpointError(f"{state}: names checkpoint {prefix}, which cannot be accessed ({e.strerror})") from None
+        if not found:
             raise CheckpointError(
                 f"{state}: names checkpoint {prefix}, but {prefix}.index does not exist"
             )
