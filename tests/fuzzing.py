@@ -98,7 +98,8 @@ def mutate_bytes(draw, data: bytes, max_ops: int = 3) -> bytes:
 #: control characters, quotes, huge integers.
 BAD_TOKENS = (
     "", "nan", "NaN", "-inf", "inf", "1e999", "-1e400", "1e38", "1e300", "-1e300", "abc", "0x10", "1_0", "1,5", "--1",
-    "\x00", "\t", " ", '"', '"unterminated', "é", "\u2028", "#", "9" * 30, "-" + "9" * 30, "1e-320", "4.9e-324",
+    "\x00", "\t", " ", '"', '"unterminated', "é", "\u2028", "#", "9" * 30, "-" + "9" * 30,
+    "1e-320", "4.9e-324",
     "True", "None", "[1]", "x" * 5000,  # longer than a file name may be (ENAMETOOLONG)
 )
 
@@ -106,7 +107,8 @@ BAD_TOKENS = (
 @st.composite
 def mutate_text(draw, text: str, separators: str = " \t,\n", max_ops: int = 3) -> str:
     """``text`` after 1..``max_ops`` token-level mutations: a field replaced by a :data:`BAD_TOKENS` entry, by
-    random text or by a very long token, a field or line duplicated/deleted, a separator inserted, the text truncated."""
+    random text or by a very long token, a field or line duplicated/deleted, a separator inserted, the text
+    truncated."""
     import re
 
     for _ in range(draw(st.integers(1, max_ops))):

@@ -66,7 +66,7 @@ def check_track(track, data: bytes, truth) -> None:
         np.testing.assert_allclose(track.quaternions, q, atol=1e-15)
 
 
-@fuzz_settings(max_examples=60)
+@fuzz_settings(max_examples=80)
 @given(truth=poses(), data=st.data())
 @example(truth=(np.array([1.0]), np.zeros((1, 3)), np.array([[1.0, 0, 0, 0]])), data=None)
 def test_fuzz_tum(tmp_path_factory, truth, data):
@@ -76,7 +76,7 @@ def test_fuzz_tum(tmp_path_factory, truth, data):
     outcome(lambda: read_tum(path), [path], lambda t: check_track(t, raw, truth if raw == text.encode() else None))
 
 
-@fuzz_settings(max_examples=60)
+@fuzz_settings(max_examples=80)
 @given(truth=poses(), data=st.data())
 def test_fuzz_pose_csv(tmp_path_factory, truth, data):
     text = csv_text(*truth)

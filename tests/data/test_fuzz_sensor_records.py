@@ -86,7 +86,7 @@ def sensor_records(draw):
     return build
 
 
-@fuzz_settings(max_examples=60)
+@fuzz_settings(max_examples=80)
 @given(build=sensor_records(), data=st.data())
 def test_fuzz_sensor_records(tmp_path_factory, build, data):
     base = tmp_path_factory.getbasetemp() / "fuzz_h5"

@@ -67,7 +67,7 @@ def check_dataset(ds, truth) -> None:
         np.testing.assert_allclose(traj.trans, t, atol=1e-5)
 
 
-@fuzz_settings(max_examples=50)
+@fuzz_settings(max_examples=80)
 @given(rows=split_rows(), data=st.data(), kind=st.sampled_from(("midair", "original", "topair")))
 def test_fuzz_split_csv(tmp_path_factory, rows, data, kind):
     """A damaged Mid-Air or TopAir split CSV, opened as a dataset (the CSV is all that is read at open time)."""
@@ -169,7 +169,8 @@ def test_split_csv_regressions(tmp_path, column, bad):
 
 def test_airsim_recording_field_over_csv_limit(tmp_path):
     """Found by the fuzzer: _csv.Error escaped from the AirSim recording reader."""
-    path = write(tmp_path / "airsim_rec.txt", b"POS_X\tPOS_Y\tPOS_Z\tQ_W\tQ_X\tQ_Y\tQ_Z\n" + b"1" * 200_000 + b"\t0\t0\t1\t0\t0\t0\n")
+    header = b"POS_X\tPOS_Y\tPOS_Z\tQ_W\tQ_X\tQ_Y\tQ_Z\n"
+    path = write(tmp_path / "airsim_rec.txt", header + b"1" * 200_000 + b"\t0\t0\t1\t0\t0\t0\n")
     with pytest.raises(DatasetError) as e:
         read_airsim_rec(path)
     assert str(path) in str(e.value)

@@ -67,7 +67,7 @@ def bundle(tmp_path_factory):
     return prefix, open(f"{prefix}.index", "rb").read(), open(f"{prefix}.data-00000-of-00001", "rb").read()
 
 
-@fuzz_settings(max_examples=80)
+@fuzz_settings(max_examples=120)
 @given(data=st.data(), which=st.sampled_from(("index", "data")))
 def test_fuzz_bundle_bytes(tmp_path_factory, bundle, data, which):
     _, index, shard = bundle
@@ -118,7 +118,7 @@ def entry_or_random(draw, dtype: int, shape, offset: int, size: int, crc: int):
     return {"valid": valid, "append": valid + extra, "random": extra}[kind]
 
 
-@fuzz_settings(max_examples=80)
+@fuzz_settings(max_examples=120)
 @given(data=st.data())
 def test_fuzz_bundle_entries(tmp_path_factory, bundle, data):
     """Entries and header of random protobuf fields (wrong wire types, huge dims/offsets/sizes, unknown dtypes) in
@@ -218,7 +218,7 @@ def model_variant(draw):
     keys = sorted(t)
     for _ in range(draw(st.integers(0, 3))):
         key = draw(st.sampled_from(keys))
-        if key not in t:
+        if key not in t or isinstance(t[key], list):  # dropped or already a string tensor
             continue
         op = draw(st.sampled_from(("drop", "reshape", "retype", "rename", "extra")))
         arr = np.asarray(t[key])

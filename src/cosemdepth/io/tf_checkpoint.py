@@ -120,7 +120,9 @@ def _resolve_checkpoint(p: Path) -> Path:
         try:
             found = Path(f"{prefix}.index").is_file()
         except OSError as e:
-            raise CheckpointError(f"{state}: names checkpoint {prefix}, which cannot be accessed ({e.strerror})") from None
+            raise CheckpointError(
+                f"{state}: names checkpoint {prefix}, which cannot be accessed ({e.strerror})"
+            ) from None
         if not found:
             raise CheckpointError(
                 f"{state}: names checkpoint {prefix}, but {prefix}.index does not exist"
