@@ -87,6 +87,8 @@ def test_fuzz_pose_csv(tmp_path_factory, truth, data):
 
 def _flight_images(folder, n: int) -> None:
     folder.mkdir(parents=True, exist_ok=True)
+    for old in folder.glob("*.png"):
+        old.unlink()
     for i in range(n):
         p = folder / f"{i:06d}.png"
         if not p.exists():
@@ -118,7 +120,14 @@ def test_fuzz_flight_poses(tmp_path_factory, truth, data):
         assert np.isfinite(traj.rot).all() and np.isfinite(traj.trans).all()
         np.testing.assert_allclose(np.linalg.norm(traj.rot, axis=1), 1.0, atol=1e-5)
 
-    outcome(lambda: open_flight(root, poses=path, fov=90.0, match="order"), [path], check)
+    match = data.draw(st.sampled_from(("order", "auto", "timestamp"))) if data is not None else "order"
+    if match != "order":  # images named by the poses' timestamps (or near them), matched by timestamp
+        for old in root.glob("*.png"):
+            old.unlink()
+        for t in truth[0]:
+            stamp = t + data.draw(st.sampled_from((0.0, 0.0, 0.05, -0.3)))
+            Image.fromarray(np.zeros((4, 6, 3), np.uint8)).save(root / f"{stamp:.6f}.png")
+    outcome(lambda: open_flight(root, poses=path, fov=90.0, match=match), [path], check)
 
 
 def test_pose_csv_field_over_csv_limit(tmp_path):
