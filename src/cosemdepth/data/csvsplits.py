@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import ConfigError, DatasetError
 from .augment import resolve_augment
 from .decode import image_size
-from .files import dataset_root
+from .files import dataset_root, is_dir
 from .frames import Size, as_size, midair_intrinsics
 from .midair.splits import read_csv
 from .sequence import FrameLoader, SequenceDataset, Trajectory, default_mode
@@ -75,7 +75,7 @@ def trajectories_from_csvs(
             elif modality in derive:
                 rule = derive[modality]
                 first = root / rule(rows[0][columns["rgb"]])
-                sources[modality] = (lambda r, f=rule: f(r[columns["rgb"]])) if first.parent.is_dir() else None
+                sources[modality] = (lambda r, f=rule: f(r[columns["rgb"]])) if is_dir(first.parent) else None
             else:
                 sources[modality] = None
         rgb_col = columns["rgb"]

@@ -38,8 +38,9 @@ _JPEG_SUFFIXES = (".jpg", ".jpeg", ".jpe", ".jfif")
 #: The JPEG IDCT choices (``jpeg_idct`` option, ``--jpeg-idct`` flag); the first is the default (the original's).
 JPEG_IDCTS = ("fast", "accurate")
 DEFAULT_JPEG_IDCT = "fast"
-#: Largest JPEG accepted, in pixels (Pillow's decompression-bomb limit): a corrupt header cannot ask for gigabytes.
-MAX_JPEG_PIXELS = 2 * 89_478_485
+#: Largest image the readers decode, in pixels (8192 x 8192). A header declaring more is refused before anything
+#: is allocated: it is corrupt, or an image far larger than any aerial dataset's (decoding it would take GBs).
+MAX_PIXELS = 1 << 26
 
 
 def check_jpeg_idct(jpeg_idct: str) -> str:
@@ -47,6 +48,15 @@ def check_jpeg_idct(jpeg_idct: str) -> str:
     if jpeg_idct not in JPEG_IDCTS:
         raise ConfigError(f"jpeg_idct must be one of {', '.join(map(repr, JPEG_IDCTS))}, got {jpeg_idct!r}")
     return jpeg_idct
+
+
+def check_image_size(path: str | os.PathLike, width: int, height: int) -> None:
+    """Raise a DatasetError naming ``path`` unless ``width x height`` (from a header) is a decodable image size."""
+    if width < 1 or height < 1 or width * height > MAX_PIXELS:
+        raise DatasetError(
+            f"{path}: header declares a {width}x{height} image; readable sizes are 1 to {MAX_PIXELS} pixels "
+            "(corrupt header?)"
+        )
 
 
 def decode_jpeg(data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.ndarray:
@@ -61,8 +71,7 @@ def decode_jpeg(data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_J
         h, w, colorspace, _ = simplejpeg.decode_jpeg_header(data)
     except Exception as e:  # the C library's errors (ValueError mostly): the file cannot be decoded
         raise DatasetError(f"{path}: corrupt JPEG ({_jpeg_message(e)})") from None
-    if h * w > MAX_JPEG_PIXELS:
-        raise DatasetError(f"{path}: JPEG of {w}x{h} pixels is too large (corrupt header?)")
+    check_image_size(path, w, h)
     if colorspace not in ("Gray", "YCbCr", "RGB"):
         raise DatasetError(f"{path}: unsupported JPEG colour space {colorspace} (expected RGB/YCbCr or gray)")
     try:
@@ -93,6 +102,20 @@ def _read_bytes(path: Path) -> bytes:
         raise DatasetError(f"{path}: cannot read ({e.strerror or e})") from None
 
 
+def _open_header(path, where=None):
+    """Open an image with Pillow (header only; ``path``: a file or a binary stream whose errors name ``where``),
+    checking its declared size before anything is decoded."""
+    import warnings
+
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # MAX_PIXELS is checked below
+        img = Image.open(path)
+    check_image_size(path if where is None else where, *img.size)
+    return img
+
+
 def _open(path, where=None):
     """Open and fully decode an image with Pillow (``path``: a file, or a binary stream whose errors name
     ``where``); any failure becomes a DatasetError naming it."""
@@ -100,7 +123,7 @@ def _open(path, where=None):
 
     where = path if where is None else where
     try:
-        img = Image.open(path)
+        img = _open_header(path, where)
         img.load()
     except FileNotFoundError:
         raise DatasetError(f"{where}: file not found") from None
@@ -108,7 +131,7 @@ def _open(path, where=None):
         raise DatasetError(f"{where}: is a folder, expected an image file") from None
     except UnidentifiedImageError:
         raise DatasetError(f"{where}: not a readable image (corrupt or unknown format)") from None
-    except (OSError, SyntaxError, ValueError) as e:
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as e:
         raise DatasetError(f"{where}: corrupt image ({e})") from None
     return img
 
@@ -228,10 +251,10 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
 
     path = Path(path)
     try:
-        with Image.open(path) as img:
+        with _open_header(path) as img:
             w, h = img.size
     except FileNotFoundError:
         raise DatasetError(f"{path}: file not found") from None
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError, Image.DecompressionBombError) as e:
         raise DatasetError(f"{path}: not a readable image ({e})") from None
     return h, w

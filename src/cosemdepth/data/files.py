@@ -25,3 +25,12 @@ def read_text(path: Path, what: str) -> str:
         raise DatasetError(f"{path}: {what} not found") from None
     except (OSError, UnicodeDecodeError) as e:
         raise DatasetError(f"{path}: cannot read {what} ({e})") from None
+
+
+def is_dir(path: Path) -> bool:
+    """``path.is_dir()``, also False when the path cannot even be looked up (e.g. a name longer than the file system
+    allows, from a damaged split file), where :meth:`Path.is_dir` raises."""
+    try:
+        return path.is_dir()
+    except OSError:
+        return False

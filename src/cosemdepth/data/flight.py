@@ -28,7 +28,8 @@ motion; every other frame carries the motion from the previous kept frame, ``X_p
 (x right, y down, z forward). Intrinsics are rescaled to the output size (``fx, cx`` by ``W_out/W``, ``fy, cy`` by
 ``H_out/H``).
 
-Optional ground truth: ``depth_dir`` with one file per image of the same stem, ``.npy`` (float metres) or a 16-bit
+Optional ground truth: ``depth_dir`` with one file per image of the same stem, ``.npy`` (float metres, finite and
+>= 0, 0 where unknown; see :func:`read_depth_npy`) or a 16-bit
 ``.png`` times ``depth_scale`` metres (default 0.001); ``semantic_dir`` with class-ID PNGs (checked against
 ``num_classes``). Depth is BL2-resized, labels NN2-resized.
 """
@@ -45,7 +46,7 @@ import torch
 
 from ..errors import ConfigError, DatasetError
 from .augment import resolve_augment
-from .decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, image_size, read_label_ids, read_rgb, read_uint16_png
+from .decode import DEFAULT_JPEG_IDCT, check_image_size, check_jpeg_idct, image_size, read_label_ids, read_rgb, read_uint16_png
 from .frames import Size, as_size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
 from .poses import poses_at, read_poses, relative_camera_motions
 from .sequence import FrameRecord, SequenceDataset, Trajectory
@@ -138,17 +139,54 @@ class FlightFrameLoader:
 
     def _depth(self, path: Path) -> np.ndarray:
         if path.suffix.lower() == ".npy":
-            try:
-                d = np.load(path, allow_pickle=False)
-            except FileNotFoundError:
-                raise DatasetError(f"{path}: file not found") from None
-            except (OSError, ValueError) as e:
-                raise DatasetError(f"{path}: cannot read depth array ({e})") from None
-            d = np.squeeze(d)
-            if d.ndim != 2:
-                raise DatasetError(f"{path}: depth array must be 2-D, got shape {list(d.shape)}")
-            return d.astype(np.float32)
+            return read_depth_npy(path)
         return read_uint16_png(path).astype(np.float32) * np.float32(self.depth_scale)
+
+
+def read_depth_npy(path: str | Path) -> np.ndarray:
+    """A ``.npy`` depth map -> ``[H, W]`` float32 metres.
+
+    The header is checked before any data is read: a real numeric dtype (bool, int, float), 2-D once unit axes
+    are dropped, at most :data:`~cosemdepth.data.decode.MAX_PIXELS` values, and as many bytes as it declares.
+    The values must be finite and non-negative in float32 (write 0 where the depth is unknown).
+    """
+    import tokenize
+
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            version = np.lib.format.read_magic(f)
+            if version == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(f)
+            elif version == (2, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
+            else:
+                raise DatasetError(f"{path}: unsupported .npy format version {version[0]}.{version[1]}")
+            if dtype.kind not in "biuf":
+                raise DatasetError(f"{path}: depth array must hold real numbers, got dtype {dtype}")
+            squeezed = [d for d in shape if d != 1]
+            if len(squeezed) != 2:
+                raise DatasetError(f"{path}: depth array must be 2-D, got shape {list(shape)}")
+            check_image_size(path, squeezed[1], squeezed[0])
+            count = squeezed[0] * squeezed[1]
+            data = f.read(count * dtype.itemsize)
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: file not found") from None
+    except (OSError, ValueError, SyntaxError, EOFError, tokenize.TokenError) as e:
+        raise DatasetError(f"{path}: cannot read depth array ({e})") from None
+    if len(data) != count * dtype.itemsize:
+        raise DatasetError(f"{path}: depth array is truncated ({len(data)} of {count * dtype.itemsize} bytes)")
+    d = np.frombuffer(data, dtype=dtype).reshape(squeezed, order="F" if fortran else "C")
+    with np.errstate(over="ignore"):
+        d = d.astype(np.float32)
+    bad = ~np.isfinite(d) | (d < 0)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        raise DatasetError(
+            f"{path}: {int(bad.sum())} depth value(s) are negative, NaN or infinite in float32 (first at row {i}, "
+            f"column {j}: {d[i, j]}); write 0 where the depth is unknown"
+        )
+    return d
 
 
 def _companion(folder: Path, stem: str, exts: Sequence[str], what: str) -> Path:
@@ -229,7 +267,17 @@ def open_flight(
 
     keep = np.arange(0, len(images), frame_skip)
     images = [images[i] for i in keep]
-    q_rel, t_rel = relative_camera_motions(quat[keep], pos[keep], convention)
+    with np.errstate(over="ignore", invalid="ignore"):
+        q_rel, t_rel = relative_camera_motions(quat[keep], pos[keep], convention)
+    # The dataset hands motions to the model as float32: each must be finite there.
+    big = np.finfo(np.float32).max
+    ok = (np.abs(q_rel) <= big).all(axis=1) & (np.abs(t_rel) <= big).all(axis=1)
+    if not ok.all():
+        i = int(np.flatnonzero(~ok)[0])
+        raise DatasetError(
+            f"{track.path}: the camera motion to image {images[i].name} is not finite in float32 "
+            "(positions too large or too far apart)"
+        )
     times = times[keep] if times is not None else None
 
     depth_dir = Path(depth_dir) if depth_dir is not None else None

@@ -108,7 +108,13 @@ def read_pose_csv(path: str | Path) -> PoseTrack:
     if not data:
         raise DatasetError(f"{path}: empty pose file")
     text = "\n".join(ln for _, ln in data)
-    reader = csv.reader(io.StringIO(text))
+    try:
+        return _parse_pose_csv(path, data, csv.reader(io.StringIO(text)))
+    except csv.Error as e:  # e.g. a field over the csv module's size limit, a NUL byte
+        raise DatasetError(f"{path}: malformed pose CSV ({e})") from None
+
+
+def _parse_pose_csv(path: Path, data: list[tuple[int, str]], reader) -> PoseTrack:
     header = [h.strip().lower() for h in next(reader)]
     cols: dict[str, int] = {}
     for key, aliases in _CSV_ALIASES.items():
@@ -138,7 +144,8 @@ def _finish(path: Path, ts: np.ndarray | None, pos: list, quat: list, lines: lis
     pos_a = np.asarray(pos, dtype=np.float64)
     quat_a = np.asarray(quat, dtype=np.float64)
     lines_a = np.asarray(lines)
-    norms = np.linalg.norm(quat_a, axis=1)
+    with np.errstate(over="ignore"):  # an overflowing norm is reported as not unit below
+        norms = np.linalg.norm(quat_a, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1) > QUATERNION_TOLERANCE)
     if bad.size:
         raise DatasetError(f"{path}:{lines_a[bad[0]]}: quaternion is not unit (norm {norms[bad[0]]:.6f})")

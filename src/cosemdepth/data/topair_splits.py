@@ -35,21 +35,27 @@ def read_airsim_rec(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """``(positions [N, 3], quaternions [N, 4] w-first)`` of an AirSim recording file."""
     text = read_text(path, "AirSim recording")
     reader = csv.DictReader(io.StringIO(text), delimiter="\t")
-    if reader.fieldnames is None or any(c not in reader.fieldnames for c in _COLUMNS):
-        raise DatasetError(f"{path}: AirSim recording header must contain {list(_COLUMNS)}, got {reader.fieldnames}")
     values = []
-    for row in reader:
-        try:
-            values.append([float(row[c]) for c in _COLUMNS])
-        except (TypeError, ValueError):
-            raise DatasetError(f"{path}:{reader.line_num}: malformed or missing pose values") from None
+    try:
+        if reader.fieldnames is None or any(c not in reader.fieldnames for c in _COLUMNS):
+            raise DatasetError(
+                f"{path}: AirSim recording header must contain {list(_COLUMNS)}, got {reader.fieldnames}"
+            )
+        for row in reader:
+            try:
+                values.append([float(row[c]) for c in _COLUMNS])
+            except (TypeError, ValueError):
+                raise DatasetError(f"{path}:{reader.line_num}: malformed or missing pose values") from None
+    except csv.Error as e:  # e.g. a field over the csv module's size limit
+        raise DatasetError(f"{path}: malformed AirSim recording ({e})") from None
     if not values:
         raise DatasetError(f"{path}: AirSim recording holds no rows")
     v = np.array(values, dtype=np.float64)
     if not np.isfinite(v).all():
         line = int(np.flatnonzero(~np.isfinite(v).all(axis=1))[0]) + 2
         raise DatasetError(f"{path}:{line}: pose holds NaN/inf")
-    norms = np.linalg.norm(v[:, 3:], axis=1)
+    with np.errstate(over="ignore"):  # an overflowing norm is reported as not unit below
+        norms = np.linalg.norm(v[:, 3:], axis=1)
     bad = np.flatnonzero(np.abs(norms - 1) > QUATERNION_TOLERANCE)
     if bad.size:
         raise DatasetError(f"{path}:{bad[0] + 2}: quaternion is not unit (norm {norms[bad[0]]:.6f})")
@@ -93,7 +99,15 @@ def generate_topair_splits(root: str | Path, out_dir: str | Path) -> dict[str, l
     for env in envs:
         k = ENVIRONMENTS.index(env)
         pos, quat = read_airsim_rec(root / env / REC_FILE)
-        rows = topair_rows(env, pos, quat, FRAME_SKIPS[k])
+        with np.errstate(over="ignore", invalid="ignore"):
+            rows = topair_rows(env, pos, quat, FRAME_SKIPS[k])
+        big = float(np.finfo(np.float32).max)
+        for m, r in enumerate(rows):
+            if not all(abs(r[c]) <= big for c in ("qw", "qx", "qy", "qz", "tx", "ty", "tz")):
+                raise DatasetError(
+                    f"{root / env / REC_FILE}: the motion of row {m} is beyond float32's range "
+                    "(positions too large or too far apart)"
+                )
         split = "test" if env in TEST_ENVIRONMENTS else "train"
         planned.append((split, Path(f"{split}_data") / f"traj_{k:04d}.csv", rows))
     return write_split_files(out_dir, planned, written, columns=TOPAIR_CSV_COLUMNS)

@@ -19,6 +19,7 @@ Every problem is a :class:`~cosemdepth.errors.CheckpointError` naming the file a
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import struct
@@ -100,7 +101,13 @@ def resolve_checkpoint(path: str | os.PathLike) -> Path:
     folder holding a ``checkpoint`` text file, whose ``model_checkpoint_path: "..."`` line names the prefix
     (relative to that folder, or absolute).
     """
-    p = Path(path)
+    try:
+        return _resolve_checkpoint(Path(path))
+    except OSError as e:  # a path the file system cannot even look up, e.g. a name too long
+        raise CheckpointError(f"{e.filename or path}: cannot access ({e.strerror})") from None
+
+
+def _resolve_checkpoint(p: Path) -> Path:
     if p.is_dir():
         state = p / "checkpoint"
         if not state.is_file():
@@ -110,7 +117,13 @@ def resolve_checkpoint(path: str | os.PathLike) -> Path:
         prefix = _read_checkpoint_state(state)
         if not prefix.is_absolute():
             prefix = p / prefix
-        if not Path(f"{prefix}.index").is_file():
+        try:
+            found = Path(f"{prefix}.index").is_file()
+        except OSError as e:
+            raise CheckpointError(
+                f"{state}: names checkpoint {prefix}, which cannot be accessed ({e.strerror})"
+            ) from None
+        if not found:
             raise CheckpointError(
                 f"{state}: names checkpoint {prefix}, but {prefix}.index does not exist"
             )
@@ -224,8 +237,20 @@ def _int64(v: int) -> int:
     return v - (1 << 64) if v >= 1 << 63 else v
 
 
+def _all(fields: dict[int, list], number: int, kind: type) -> list:
+    """Every value of field ``number``, checked to be of ``kind`` (``int`` for varint/fixed fields, ``bytes`` for
+    length-delimited ones): a field of the wrong wire type is a malformed message."""
+    values = fields.get(number, [])
+    for v in values:
+        if not isinstance(v, kind):
+            expected = "a number" if kind is int else "bytes"
+            raise _Truncated(f"field {number} has the wrong wire type (expected {expected})")
+    return values
+
+
 def _last(fields: dict[int, list], number: int, default=0):
-    values = fields.get(number)
+    """The last value of field ``number`` (protobuf's rule for repeated scalars), of the type of ``default``."""
+    values = _all(fields, number, type(default))
     return values[-1] if values else default
 
 
@@ -234,7 +259,7 @@ def _decode_shape(data: bytes) -> tuple[int, ...]:
     if _last(f, 3, 0):
         raise _Truncated("tensor shape has unknown rank")
     dims = []
-    for dim in f.get(2, []):
+    for dim in _all(f, 2, bytes):
         size = _int64(_last(_proto_fields(dim), 1, 0))
         if size < 0:
             raise _Truncated(f"tensor shape has an unknown dimension ({size})")
@@ -248,7 +273,7 @@ def _decode_entry(key: str, value: bytes) -> TensorEntry:
     name = DTYPES.get(code, (f"dtype<{code}>", None))[0]
     shape_bytes = _last(f, 2, b"")
     shape = _decode_shape(shape_bytes) if shape_bytes else ()
-    crc = f.get(6)
+    crc = _all(f, 6, int)
     return TensorEntry(
         key=key,
         dtype=name,
@@ -379,17 +404,17 @@ class CheckpointReader:
         try:
             header = _proto_fields(pairs[0][1])
             version = _proto_fields(_last(header, 3, b""))
+            self.num_shards = _last(header, 1, 0)
+            endianness = _last(header, 2, 0)
+            min_consumer = _int64(_last(version, 2, 0))
         except _Truncated as e:
             raise CheckpointError(f"{self.index_path}: malformed bundle header ({e})") from None
-        self.num_shards = int(_last(header, 1, 0))
-        endianness = _last(header, 2, 0)
         if endianness == 1:
             raise CheckpointError(
                 f"{self.index_path}: big-endian checkpoint; only little-endian checkpoints are supported"
             )
         if endianness != 0:
             raise CheckpointError(f"{self.index_path}: unknown endianness {endianness} in bundle header")
-        min_consumer = _int64(_last(version, 2, 0))
         if min_consumer > BUNDLE_VERSION:
             raise CheckpointError(
                 f"{self.index_path}: bundle format version {min_consumer} or newer is required to read it; "
@@ -460,7 +485,7 @@ class CheckpointReader:
         shard = self.shard_file(entry.shard_id)
         with _open_shard(shard) as f:
             data = self._read_bytes(f, shard, _file_size(f), entry, check_crc=False)
-        count = int(np.prod(entry.shape, dtype=np.int64))
+        count = math.prod(entry.shape)  # exact: a huge declared shape must not wrap around
         bad = CheckpointError(f"{shard}: malformed string tensor {key!r}: corrupt data shard")
         pos, lengths, crc = 0, [], 0
         try:
@@ -530,7 +555,7 @@ class CheckpointReader:
 
     def _decode(self, shard: Path, e: TensorEntry, data: bytes) -> np.ndarray:
         np_dtype = np.dtype(DTYPES[e.dtype_code][1])
-        count = int(np.prod(e.shape, dtype=np.int64))
+        count = math.prod(e.shape)  # exact: a huge declared shape must not wrap around
         if count * np_dtype.itemsize != len(data):
             raise CheckpointError(
                 f"{shard}: tensor {e.key!r} of dtype {e.dtype} and shape {list(e.shape)} should take "

@@ -175,7 +175,18 @@ def read_csv(path: Path) -> list[dict]:
     """
     path = Path(path)
     text = read_text(path, "split CSV")
-    reader = csv.DictReader(io.StringIO(text), delimiter="\t")
+    try:
+        return _read_rows(path, csv.DictReader(io.StringIO(text), delimiter="\t"))
+    except csv.Error as e:  # e.g. a field over the csv module's size limit
+        raise DatasetError(f"{path}: malformed split CSV ({e})") from None
+
+
+#: Range of the values a split CSV may hold: ids are int64, motions float32 in the datasets built from them.
+_ID_RANGE = (-(2**63), 2**63 - 1)
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def _read_rows(path: Path, reader: csv.DictReader) -> list[dict]:
     if not reader.fieldnames:
         raise DatasetError(f"{path}: empty split CSV (no header)")
     missing = [c for c in _REQUIRED_COLUMNS if c not in reader.fieldnames]
@@ -191,13 +202,15 @@ def read_csv(path: Path) -> list[dict]:
             r["id"] = int(r["id"])
         except ValueError:
             raise DatasetError(f"{path}:{line_no}: malformed id {r['id']!r}") from None
+        if not _ID_RANGE[0] <= r["id"] <= _ID_RANGE[1]:
+            raise DatasetError(f"{path}:{line_no}: id {r['id']} out of the int64 range")
         for c in _MOTION_COLUMNS:
             try:
                 r[c] = float(r[c])
             except ValueError:
                 raise DatasetError(f"{path}:{line_no}: malformed number {r[c]!r} in column {c}") from None
-            if not math.isfinite(r[c]):
-                raise DatasetError(f"{path}:{line_no}: column {c} is {r[c]} (NaN/inf)")
+            if not abs(r[c]) <= _FLOAT32_MAX:
+                raise DatasetError(f"{path}:{line_no}: column {c} is {r[c]} (NaN/inf, or beyond float32's range)")
         norm = math.sqrt(sum(r[c] ** 2 for c in ("qw", "qx", "qy", "qz")))
         if abs(norm - 1.0) > QUATERNION_TOLERANCE:
             raise DatasetError(f"{path}:{line_no}: quaternion (qw, qx, qy, qz) is not unit (norm {norm:.6f})")
@@ -252,16 +265,13 @@ def generate_splits(
             raise DatasetError(f"{h5_path}: cannot open HDF5 file ({e})") from None
         with h5:
             for traj in (t for t in trajs if (t.env, t.climate) == (env, climate)):
-                try:
-                    gt = h5[traj.name]["groundtruth"]
-                    att = np.asarray(gt["attitude"], dtype=np.float64)
-                    pos = np.asarray(gt["position"], dtype=np.float64)
-                except KeyError as e:
-                    raise DatasetError(f"{h5_path}: trajectory {traj.name} lacks groundtruth data ({e})") from None
+                att, pos = _read_groundtruth(h5, h5_path, traj.name)
                 _check_groundtruth(h5_path, traj.name, att, pos)
-                rows = trajectory_rows(traj, att, pos)
+                with np.errstate(over="ignore", invalid="ignore"):
+                    rows = trajectory_rows(traj, att, pos)
                 if not rows:  # fewer than 2 x 16 ground-truth samples: nothing to write
                     continue
+                _check_motions(h5_path, traj.name, rows)
                 split = rule_fn(traj)
                 if split not in written:
                     raise ValueError(f"split rule returned {split!r}; expected one of {SPLITS}")
@@ -288,6 +298,52 @@ def write_split_files(out_dir: Path, planned: list, written: dict[str, list[Path
     return written
 
 
+#: Most ground-truth samples accepted per trajectory (about 28 hours at 100 Hz): a larger declared size is a
+#: corrupt or foreign file, and reading it would take gigabytes.
+MAX_GROUNDTRUTH_SAMPLES = 10_000_000
+
+
+def _read_groundtruth(h5, h5_path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(attitude [N, 4], position [N, 3])`` of trajectory ``name``, float64, after checking that both are numeric
+    datasets of that shape and a plausible size (nothing is read before)."""
+    import h5py
+
+    where = f"{h5_path}: {name}/groundtruth"
+    try:
+        traj = h5.get(name)
+        gt = traj.get("groundtruth") if isinstance(traj, h5py.Group) else None
+        if not isinstance(gt, h5py.Group):
+            raise DatasetError(f"{h5_path}: trajectory {name} lacks groundtruth data (no {name}/groundtruth group)")
+        out = []
+        for key, width in (("attitude", 4), ("position", 3)):
+            ds = gt.get(key)
+            if not isinstance(ds, h5py.Dataset):
+                raise DatasetError(f"{where}/{key} is missing or not a dataset")
+            if ds.dtype.kind not in "iuf":
+                raise DatasetError(f"{where}/{key} must hold real numbers, got dtype {ds.dtype}")
+            if len(ds.shape) != 2 or ds.shape[1] != width:
+                raise DatasetError(f"{where}/{key} must have shape [N, {width}], got {list(ds.shape)}")
+            if ds.shape[0] > MAX_GROUNDTRUTH_SAMPLES:
+                raise DatasetError(
+                    f"{where}/{key} declares {ds.shape[0]} samples, more than {MAX_GROUNDTRUTH_SAMPLES} (corrupt?)"
+                )
+            out.append(np.asarray(ds[()], dtype=np.float64))
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as e:  # h5py's errors on a damaged file
+        raise DatasetError(f"{where}: cannot read ({e})") from None
+    return out[0], out[1]
+
+
+def _check_motions(h5_path: Path, name: str, rows: list[dict]) -> None:
+    """The CSV motions must be finite in float32 (the readers' precision), e.g. not from positions near 1e308."""
+    big = float(np.finfo(np.float32).max)
+    for k, r in enumerate(rows):
+        if not all(abs(r[c]) <= big for c in _MOTION_COLUMNS):
+            raise DatasetError(
+                f"{h5_path}: {name}/groundtruth gives a motion beyond float32's range at row {k} "
+                "(positions too large or too far apart)"
+            )
+
+
 def _check_groundtruth(h5_path: Path, name: str, att: np.ndarray, pos: np.ndarray) -> None:
     where = f"{h5_path}: {name}/groundtruth"
     if att.ndim != 2 or att.shape[1] != 4:
@@ -296,7 +352,8 @@ def _check_groundtruth(h5_path: Path, name: str, att: np.ndarray, pos: np.ndarra
         raise DatasetError(f"{where}/position must have shape [{len(att)}, 3], got {list(pos.shape)}")
     if not (np.isfinite(att).all() and np.isfinite(pos).all()):
         raise DatasetError(f"{where}: attitude or position holds NaN/inf")
-    norms = np.linalg.norm(att, axis=1)
+    with np.errstate(over="ignore"):  # an overflowing norm is reported as not unit below
+        norms = np.linalg.norm(att, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1) > 1e-3)
     if bad.size:
         raise DatasetError(f"{where}/attitude[{bad[0]}] is not a unit quaternion (norm {norms[bad[0]]:.6f})")
