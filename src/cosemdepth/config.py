@@ -16,11 +16,8 @@ from .errors import ConfigError
 
 #: Architecture -> the decoders it puts on the shared encoder (names of :data:`cosemdepth.models.registry.DECODERS`;
 #: ``cosemdepth.models.registry.register_architecture`` adds entries).
-ARCHITECTURES: dict[str, tuple[str, ...]] = {
-    "cosemdepth": ("depth", "semantic"),
-    "m4depth": ("depth",),
-    "m4semantic": ("semantic",),
-}
+ARCHITECTURES: dict[str, tuple[str, ...]] = {"cosemdepth": ("depth", "semantic"), "m4depth": ("depth",),
+                                              "m4semantic": ("semantic",)}
 
 #: Encoder output channels per absolute level (spec 2.1); a model with L levels uses the first L entries.
 ENCODER_CHANNELS = (16, 32, 64, 96, 128, 192)

@@ -16,7 +16,7 @@ from cosemdepth.io.model_io import load_model, save_model
 from cosemdepth.models import build_model
 from cosemdepth.models.layers import Refiner
 from cosemdepth.models.pyramid import PyramidDecoder, PyramidLevel
-from cosemdepth.models.registry import register_architecture, register_decoder, unregister
+from cosemdepth.models.registry import DECODERS, register_architecture, register_decoder
 
 B, T, H, W = 2, 3, 32, 48
 LEVELS = 3
@@ -69,8 +69,7 @@ def toy_registered():
     register_decoder("toy", ToyDecoder)
     register_architecture("cosemtoy", ("depth", "semantic", "toy"))
     yield
-    unregister("toy")
-    assert "cosemtoy" not in ARCHITECTURES
+    del ARCHITECTURES["cosemtoy"], DECODERS["toy"]
 
 
 ARCHS = [*BUILTIN, "cosemtoy"]

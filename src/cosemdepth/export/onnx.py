@@ -15,6 +15,7 @@ First frame: zeros for every state input with ``reset=True``. M4Semantic has no 
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from pathlib import Path
 
@@ -108,50 +109,31 @@ def export_onnx(
     if height < 1 or width < 1 or batch < 1:
         raise ConfigError(f"--size and --batch must be positive, got size {height}x{width}, batch {batch}")
     path = Path(path)
-    saved = _freeze_for_export(model)
-    try:
+    with _frozen_for_export(model):
         step = StreamingStep(model, reset_float=reset_float).eval()
         args = step.example_inputs(batch, height, width)
         in_names, out_names = step.names()
         dynamic_axes = {n: {0: "batch"} for n in in_names + out_names} if dynamic_batch else None
         with atomic_path(path) as tmp, torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore")  # tracer warnings about Python shape arithmetic (constant here)
-            torch.onnx.export(
-                step,
-                args,
-                str(tmp),
-                input_names=in_names,
-                output_names=out_names,
-                opset_version=opset,
-                dynamic_axes=dynamic_axes,
-                dynamo=False,
-                do_constant_folding=True,
-            )
-    finally:
-        _restore(model, saved)
+            torch.onnx.export(step, args, str(tmp), input_names=in_names, output_names=out_names, opset_version=opset,
+                              dynamic_axes=dynamic_axes, dynamo=False, do_constant_folding=True)
     return path
 
 
-def _freeze_for_export(model) -> dict:
-    """Reference path, eval mode, static numerics, float32 on CPU; returns what to restore."""
+@contextlib.contextmanager
+def _frozen_for_export(model):
+    """Reference path, eval mode, static numerics, float32 on CPU; everything restored on exit."""
     p = next(model.parameters())
-    saved = {
-        "training": model.training,
-        "mode": (model.inference_mode, model.inference_options),
-        "static": {name: dec.static for name, dec in model.decoders.items()},
-        "device": p.device,
-        "dtype": p.dtype,
-    }
-    model.optimize("reference")
-    model.eval().float().cpu()
+    device, dtype, training = p.device, p.dtype, model.training
+    mode, options = model.inference_mode, model.inference_options
+    static = {name: dec.static for name, dec in model.decoders.items()}
+    model.optimize("reference").eval().float().cpu()
     model.set_numerics(static=True)
-    return saved
-
-
-def _restore(model, saved: dict) -> None:
-    model.to(device=saved["device"], dtype=saved["dtype"])
-    model.train(saved["training"])
-    for name, dec in model.decoders.items():
-        dec.static = saved["static"][name]
-    mode, options = saved["mode"]
-    model.optimize(mode, **(options or {}))
+    try:
+        yield
+    finally:
+        model.to(device=device, dtype=dtype).train(training)
+        for name, dec in model.decoders.items():
+            dec.static = static[name]
+        model.optimize(mode, **(options or {}))

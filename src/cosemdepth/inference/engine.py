@@ -28,9 +28,9 @@ import torch
 import torch.nn.functional as F
 
 from ..models.depth_decoder import DepthLevel
-from ..models.model import register_streamer
+from ..models.model import STREAMERS
 from ..models.outputs import StepOutput, StreamState
-from ..models.pyramid import LevelOps, PyramidLevel, decode_step, state_shapes
+from ..models.pyramid import LevelOps, PyramidLevel, decode_step
 from ..ops.cost_volume import (
     parallax_sweep_cost_volume,
     parallax_sweep_cost_volume_fast,
@@ -41,20 +41,13 @@ from ..ops.resample import resize_nn1, resize_nn2
 from .convs import PackedConv
 
 _CL = torch.channels_last
-REDUCED_DTYPES = (torch.bfloat16, torch.float16)
 #: The channel-loop cost volumes pay off on the large, thin maps of the fine levels (16 and 32 channels); the coarse
 #: levels have many channels on small maps, where the reference's per-offset loop is cheaper.
 _CHANNEL_LOOP_MAX = 32
 
 
-_DTYPES = {
-    "float32": torch.float32,
-    "fp32": torch.float32,
-    "bfloat16": torch.bfloat16,
-    "bf16": torch.bfloat16,
-    "float16": torch.float16,
-    "fp16": torch.float16,
-}
+_DTYPES = {"float32": torch.float32, "fp32": torch.float32, "bfloat16": torch.bfloat16, "bf16": torch.bfloat16,
+           "float16": torch.float16, "fp16": torch.float16}
 
 
 def parse_dtype(dtype: torch.dtype | str) -> torch.dtype:
@@ -84,7 +77,6 @@ class _Refiner:
 
     def __init__(self, refiner, dtype: torch.dtype, device: torch.device, use_mkldnn: bool | None):
         convs = list(refiner.convs)
-        self.in_channels = convs[0].in_channels
         self.hidden = [PackedConv(c, dtype, device, act=True, use_mkldnn=use_mkldnn) for c in convs[:-1]]
         self.last = PackedConv(convs[-1], torch.float32, device, act=False, use_mkldnn=use_mkldnn)
         self.dtype = dtype
@@ -141,7 +133,8 @@ class FastEngine:
 
     Args:
         model: the source model (its configuration and numerics switches are read now; weights are copied).
-        dtype: compute dtype of the refiners' hidden convolutions: float32 (default), bfloat16 or float16.
+        dtype: compute dtype of the refiners' hidden convolutions: float32 (default), bfloat16 or float16 (a torch
+            dtype or a name, see :func:`parse_dtype`).
         device: where to run (default: the model's device).
         static: never branch on the values of the reset mask (the refiners always run and the reset is a per-sample
             select), for CUDA-graph capture; a state (zeros are fine, with ``reset=True``) must always be given.
@@ -151,18 +144,16 @@ class FastEngine:
     def __init__(
         self,
         model,
-        dtype: torch.dtype = torch.float32,
+        dtype: torch.dtype | str = torch.float32,
         device: torch.device | str | None = None,
         static: bool = False,
         use_mkldnn: bool | None = None,
     ):
-        if dtype not in (torch.float32, *REDUCED_DTYPES):
-            raise ValueError(f"dtype must be float32, bfloat16 or float16, got {dtype}")
+        dtype = parse_dtype(dtype)
         p = next(model.parameters())
         self.device = torch.device(device) if device is not None else p.device
         self.dtype = dtype
         self.static = static
-        self.config = model.config
         f32 = torch.float32
         enc = model.encoder
         self.enc_s1 = [
@@ -178,6 +169,7 @@ class FastEngine:
             )
         # the decoders' level modules give the structure and numerics switches; their weights are packed here
         self.decoders = model.decoders
+        self.state_shapes = model.state_shapes
         self.ops = {
             name: [_fast_ops(lvl, _Refiner(lvl.refiner, dtype, self.device, use_mkldnn)) for lvl in dec.levels]
             for name, dec in self.decoders.items()
@@ -233,12 +225,8 @@ class FastEngine:
 
     def zero_state(self, batch: int, height: int, width: int) -> StreamState:
         """An all-zero state for a ``batch x height x width`` input (use with ``reset=True`` on the first frame)."""
-        shapes = state_shapes(self.decoders, batch, height, width)
-        return StreamState(**{k: tuple(torch.zeros(s, device=self.device) for s in v) for k, v in shapes.items()})
+        shapes = self.state_shapes(batch, height, width).items()
+        return StreamState(**{k: tuple(torch.zeros(s, device=self.device) for s in v) for k, v in shapes})
 
 
-def _fast_engine(model, dtype: torch.dtype | str = torch.float32, device=None) -> FastEngine:
-    return FastEngine(model, dtype=parse_dtype(dtype), device=device)
-
-
-register_streamer("fast", _fast_engine)
+STREAMERS["fast"] = FastEngine

@@ -16,7 +16,7 @@ from typing import Optional
 import torch
 
 from ..models.outputs import StepOutput, StreamState
-from .engine import FastEngine, parse_dtype
+from .engine import FastEngine
 
 
 class StaticStreamer:
@@ -113,7 +113,7 @@ class StaticStreamer:
 
 def make_streamer(model, batch: int, height: int, width: int, dtype=torch.float32, device=None, **kw) -> StaticStreamer:
     """A :class:`StaticStreamer` over a static :class:`FastEngine` of ``model`` (CUDA graph on GPU)."""
-    engine = FastEngine(model, dtype=parse_dtype(dtype), device=device, static=True)
+    engine = FastEngine(model, dtype=dtype, device=device, static=True)
     return StaticStreamer(engine, batch, height, width, **kw)
 
 

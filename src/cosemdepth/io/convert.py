@@ -34,6 +34,7 @@ import torch
 
 from ..config import ARCHITECTURES, ENCODER_CHANNELS, ModelConfig
 from ..errors import CheckpointError, ConfigError
+from ..models.depth_decoder import refiner_in_channels
 from ..models.model import build_model
 
 #: Convs of the refiner's ``prep_conv_layers`` stack; the ``est_*_conv_layers`` stack holds the other four.
@@ -57,8 +58,6 @@ _IGNORED = (
     ("inference state", re.compile(r"(^|/)[A-Za-z0-9_]*prev_[A-Za-z0-9_]*/\.ATTRIBUTES/")),
 )
 
-PARTS = ("encoder", "depth_decoder", "semantic_decoder")
-
 
 @dataclass
 class Conversion:
@@ -77,20 +76,15 @@ class Conversion:
         return sum(int(t.numel()) for t in self.state_dict.values())
 
     def parameters_by_part(self) -> dict[str, int]:
-        out = {p: 0 for p in PARTS}
+        out: dict[str, int] = {}
         for name, t in self.state_dict.items():
-            out[name.split(".", 1)[0]] += int(t.numel())
-        return {p: n for p, n in out.items() if n}
+            part = name.split(".", 1)[0]
+            out[part] = out.get(part, 0) + int(t.numel())
+        return out
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # Expected parameters of a config
-
-
-def refiner_input_channels(level: int, sncv: bool, time_recurrence: bool, level_memory: bool, subdivision: bool) -> int:
-    """Input channels of the depth refiner at absolute level ``level`` (1 = finest), spec 4.1 / 4.6 step 5."""
-    k = 2 ** (level // 2) if subdivision else 1
-    return 9 * k + 1 + 4 * level_memory + 49 * k * sncv + 1 * time_recurrence
 
 
 def expected_param_shapes(cfg: ModelConfig) -> dict[str, tuple[int, ...]]:
@@ -167,6 +161,11 @@ def _level_count(names: set[str], pattern: str, what: str, origin: str) -> int:
     return len(idx)
 
 
+def _ablation_config(sncv: bool, time_recurrence: bool, level_memory: bool, subdivision: bool) -> ModelConfig:
+    return ModelConfig(sncv=sncv, time_recurrence=time_recurrence, level_memory=level_memory,
+                       feature_subdivision=subdivision)
+
+
 def _infer_depth_ablations(
     c_ins: list[int], origin: str
 ) -> tuple[bool, bool, bool, bool]:
@@ -174,7 +173,7 @@ def _infer_depth_ablations(
     matches = [
         combo
         for combo in itertools.product((True, False), repeat=4)
-        if all(refiner_input_channels(j + 1, *combo) == c for j, c in enumerate(c_ins))
+        if all(refiner_in_channels(j + 1, _ablation_config(*combo)) == c for j, c in enumerate(c_ins))
     ]
     if not matches:
         raise CheckpointError(
@@ -433,5 +432,4 @@ __all__ = [
     "expected_param_shapes",
     "import_checkpoint",
     "infer_config",
-    "refiner_input_channels",
 ]

@@ -17,7 +17,6 @@ from ..geometry.parallax import (
     prev_depth_to_parallax,
 )
 from ..geometry.rotation import quaternion_to_matrix
-from ..ops.normalize import grouped_l2_normalize
 from ..ops.resample import resize_bl1
 from .layers import Refiner
 from .outputs import DepthLevelOutput
@@ -70,10 +69,6 @@ class DepthLevel(PyramidLevel):
         self.use_memory = cfg.level_memory
         self.scale = 2.0 ** (level - 3)  # parallax unit of the log inputs/outputs: level-3 pixels
         self.refiner = Refiner(refiner_in_channels(level, cfg), 5)
-
-    def prepare(self, feat: torch.Tensor, guard: bool) -> torch.Tensor:
-        """Grouped L2 normalisation of the encoder features (spec 4.3)."""
-        return grouped_l2_normalize(feat, self.groups, guard=guard) if self.normalize else feat
 
     def coarse_inputs(self, coarse: DepthLevelOutput | None, like: torch.Tensor, ops: LevelOps) -> DepthLevelOutput:
         """``(rho_in, depth_in, other_in)`` from the coarser level (BL1 upsampling) or the constant init (spec 4.4)."""

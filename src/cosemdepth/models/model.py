@@ -22,7 +22,7 @@ from ..config import ModelConfig
 from ..ops.resample import resize_nn2
 from .encoder import Encoder
 from .outputs import SequenceOutput, StepOutput, StreamState
-from .pyramid import PyramidDecoder, decode_step, state_shapes
+from .pyramid import PyramidDecoder, decode_step
 from .registry import DECODERS
 
 #: Streaming implementations of :meth:`SceneModel.step` besides the reference modules, by :meth:`~SceneModel.optimize`
@@ -31,10 +31,6 @@ STREAMERS: dict[str, Callable] = {}
 #: The module that registers a mode into :data:`STREAMERS`, imported by name the first time the mode is asked for:
 #: the inference package sits above this one and is not imported by it.
 STREAMER_PLUGINS = {"fast": "cosemdepth.inference"}
-
-
-def register_streamer(mode: str, factory: Callable) -> None:
-    STREAMERS[mode] = factory
 
 
 class SceneModel(nn.Module):
@@ -66,8 +62,8 @@ class SceneModel(nn.Module):
 
     def state_shapes(self, batch: int, height: int, width: int) -> dict[str, list[tuple[int, ...]]]:
         """Per-level shapes of every :class:`StreamState` component for a ``batch x 3 x height x width`` input (no
-        weights needed: works on a model built on the meta device)."""
-        return state_shapes(self.decoders, batch, height, width)
+        weights needed: works on a model built on the meta device), in the order of :meth:`StreamState.flatten`."""
+        return {k: v for dec in self.decoders.values() for k, v in dec.state_shapes(batch, height, width).items()}
 
     # ------------------------------------------------------------------ fast inference switch
     def optimize(self, mode: str = "fast", dtype: torch.dtype | str = torch.float32, device=None) -> "SceneModel":
@@ -148,7 +144,7 @@ class SceneModel(nn.Module):
         Returns:
             :class:`SequenceOutput` with per-level lists (finest first) of ``[B, T, ...]`` tensors.
         """
-        _check_sequence(rgb, rot, trans, intrinsics, reset)
+        _check_inputs(rgb, rot, trans, intrinsics, reset, sequence=True)
         b, t = rgb.shape[:2]
         feats = self.encoder(rgb.flatten(0, 1))
         out = SequenceOutput(features=[f.unflatten(0, (b, t)) for f in feats])
@@ -191,7 +187,7 @@ class SceneModel(nn.Module):
             ``(out, new_state)``; ``out.depth [B,1,H,W]`` metres and ``out.semantic [B,N,H,W]`` probabilities at the
             input size (nearest upsampling of the finest level), ``out.levels`` the per-level maps.
         """
-        _check_step(rgb, rot, trans, intrinsics, reset)
+        _check_inputs(rgb, rot, trans, intrinsics, reset, sequence=False)
         streamer = self._streamer()
         if streamer is not None:
             return streamer.step(rgb, rot, trans, intrinsics, reset, state)
@@ -216,7 +212,8 @@ class SceneModel(nn.Module):
             intrinsics: ``[4]`` or ``[B, 4]`` (fx, fy, cx, cy) at the frame size.
             reset: optional ``[T]`` / ``[B, T]`` bool; frame 0 always resets.
         Returns:
-            :class:`StepOutput` whose ``depth`` is ``[.., T, 1, H, W]`` and ``semantic`` ``[.., T, N, H, W]``.
+            :class:`StepOutput` whose ``depth`` is ``[.., T, 1, H, W]`` and ``semantic`` ``[.., T, N, H, W]`` (and
+            ``heads`` every decoder's output), without per-level maps.
         """
         p = next(self.parameters())
         frames = torch.as_tensor(frames, dtype=p.dtype, device=p.device)
@@ -237,18 +234,12 @@ class SceneModel(nn.Module):
         if reset is not None:
             rs |= torch.as_tensor(reset, dtype=torch.bool, device=p.device).view(-1, t).expand(b, t)
         rs[:, 0] = True
-        state = None
-        depths, sems = [], []
+        state, heads = None, []
         for k in range(t):
             out, state = self.step(frames[:, k], rot[:, k], trans[:, k], intr, rs[:, k], state)
-            depths.append(out.depth)
-            sems.append(out.semantic)
-        depth = torch.stack(depths, 1) if depths[0] is not None else None
-        semantic = torch.stack(sems, 1) if sems[0] is not None else None
-        if single:
-            depth = None if depth is None else depth[0]
-            semantic = None if semantic is None else semantic[0]
-        return StepOutput(depth, semantic)
+            heads.append(out.heads)
+        full = {h: torch.stack([o[h] for o in heads], 1)[0 if single else slice(None)] for h in heads[0]}
+        return StepOutput(full.get("depth"), full.get("semantic"), heads=full)
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
@@ -281,7 +272,7 @@ def build_model(config: ModelConfig | None = None, **overrides) -> SceneModel:
         config = ModelConfig(**overrides)
     elif overrides:
         config = ModelConfig.from_dict({**config.to_dict(), **overrides})
-    return MODELS[config.arch](config)
+    return MODELS.get(config.arch, SceneModel)(config)
 
 
 def _rebuild_streamer(module: SceneModel, incompatible_keys) -> None:
@@ -295,29 +286,16 @@ def _shape_error(name: str, expected: str, got: torch.Tensor) -> ValueError:
     return ValueError(f"argument {name} must have shape {expected}, got {list(got.shape)}")
 
 
-def _check_step(rgb, rot, trans, intrinsics, reset) -> None:
-    if rgb.dim() != 4 or rgb.shape[1] != 3:
-        raise _shape_error("rgb", "[B, 3, H, W]", rgb)
-    b = rgb.shape[0]
-    if rot.shape != (b, 4):
-        raise _shape_error("rot", f"[{b}, 4]", rot)
-    if trans.shape != (b, 3):
-        raise _shape_error("trans", f"[{b}, 3]", trans)
-    if intrinsics.shape != (b, 4):
-        raise _shape_error("intrinsics", f"[{b}, 4]", intrinsics)
-    if reset is not None and (reset.shape != (b,) or reset.dtype != torch.bool):
-        raise ValueError(f"argument reset must be a bool tensor of shape [{b}], got {reset.dtype} {list(reset.shape)}")
-
-
-def _check_sequence(rgb, rot, trans, intrinsics, reset) -> None:
-    if rgb.dim() != 5 or rgb.shape[2] != 3:
-        raise _shape_error("rgb", "[B, T, 3, H, W]", rgb)
-    b, t = rgb.shape[:2]
-    if rot.shape != (b, t, 4):
-        raise _shape_error("rot", f"[{b}, {t}, 4]", rot)
-    if trans.shape != (b, t, 3):
-        raise _shape_error("trans", f"[{b}, {t}, 3]", trans)
-    if intrinsics.shape not in ((b, 4), (b, t, 4)):
-        raise _shape_error("intrinsics", f"[{b}, 4] or [{b}, {t}, 4]", intrinsics)
-    if reset is not None and (reset.shape != (b, t) or reset.dtype != torch.bool):
-        raise ValueError(f"argument reset must be a bool tensor of shape [{b}, {t}], got {list(reset.shape)}")
+def _check_inputs(rgb, rot, trans, intrinsics, reset, sequence: bool) -> None:
+    """Shapes of the inputs of :meth:`SceneModel.step` (``[B, ...]``) or ``forward_sequence`` (``[B, T, ...]``)."""
+    if rgb.dim() != 4 + sequence or rgb.shape[-3] != 3:
+        raise _shape_error("rgb", "[B, T, 3, H, W]" if sequence else "[B, 3, H, W]", rgb)
+    lead = tuple(rgb.shape[: 1 + sequence])
+    dims = ", ".join(map(str, lead))
+    for name, t, n in (("rot", rot, 4), ("trans", trans, 3)):
+        if t.shape != (*lead, n):
+            raise _shape_error(name, f"[{dims}, {n}]", t)
+    if intrinsics.shape not in ((lead[0], 4), (*lead, 4)):
+        raise _shape_error("intrinsics", f"[{lead[0]}, 4]" + (f" or [{dims}, 4]" if sequence else ""), intrinsics)
+    if reset is not None and (reset.shape != lead or reset.dtype != torch.bool):
+        raise ValueError(f"argument reset must be a bool tensor of shape [{dims}], got {reset.dtype} {list(reset.shape)}")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Optional, Sequence
+from typing import Optional, Sequence
 
 import torch
 
@@ -71,10 +71,6 @@ class StreamState:
             return False
         return all(torch.equal(a, b) for a, b in zip(self.flatten(), other.flatten()))
 
-    def __repr__(self) -> str:
-        shapes = {k: [list(t.shape) for t in v] for k, v in self.components.items()}
-        return f"StreamState({shapes})"
-
 
 @dataclass
 class StepOutput:
@@ -97,15 +93,6 @@ class StepOutput:
     def labels(self) -> Optional[Tensor]:
         """``[B, H, W]`` int64 argmax of ``semantic``."""
         return None if self.semantic is None else self.semantic.argmax(dim=1)
-
-
-def step_output(
-    levels: dict[str, list[Tensor]], heads: Sequence[str], upsample: Callable[[Tensor], Tensor]
-) -> StepOutput:
-    """Assemble a :class:`StepOutput` from the per-level maps of one step (finest first): each of ``heads`` (a key of
-    ``levels``) is its finest map passed through ``upsample`` (to the input size)."""
-    full = {h: upsample(levels[h][0]) for h in heads}
-    return StepOutput(full.get("depth"), full.get("semantic"), levels, full)
 
 
 @dataclass

@@ -18,8 +18,9 @@ import torch
 import torch.nn as nn
 
 from ..ops.cost_volume import parallax_sweep_cost_volume, spatial_cost_volume
+from ..ops.normalize import grouped_l2_normalize
 from ..ops.resample import resize_nn1
-from .outputs import StepOutput, StreamState, step_output
+from .outputs import StepOutput, StreamState
 
 Tensor = torch.Tensor
 
@@ -55,28 +56,29 @@ REFERENCE_OPS = LevelOps()
 
 
 class PyramidLevel(nn.Module):
-    """One level l (absolute, 1 = finest) of a decoder; subclasses own a ``refiner`` and define the operations."""
+    """One level l (absolute, 1 = finest) of a decoder. Its operations:
+
+    * ``prepare(feat, guard)``: the encoder features as the level uses them (grouped L2 normalisation, spec 4.3, if
+      ``normalize``);
+    * ``coarse_inputs(coarse, f_hat, ops)``: the level's inputs from the coarser level's output (None at the
+      coarsest level), a dataclass of tensors like the output: also what a resetting sample outputs;
+    * ``refine(f_hat, inputs, frame, prev, ops)``: the output; ``prev`` is this level's entry of every state
+      component (temporal decoders), ``frame`` the decoder's per-frame context;
+    * ``next_state(f_hat, out)`` / ``reset_state(f_hat, inputs)``: this level's entry of every state component after
+      a normal step / for a sample that resets (temporal decoders).
+    """
 
     level: int
+    groups: int = 1  # channel groups of the feature normalisation
+    normalize: bool = False
 
     def prepare(self, feat: Tensor, guard: bool) -> Tensor:
-        return feat
-
-    def coarse_inputs(self, coarse: Any, f_hat: Tensor, ops: LevelOps) -> Any:
-        """The level's inputs from the coarser level's output (None at the coarsest level); also the output of a
-        sample that resets (a dataclass of tensors, like the level's output)."""
-        raise NotImplementedError
-
-    def refine(self, f_hat: Tensor, inputs: Any, frame: Any, prev: Optional[tuple[Tensor, ...]], ops: LevelOps) -> Any:
-        """The level's output; ``prev`` is this level's entry of every state component (temporal decoders)."""
-        raise NotImplementedError
+        return grouped_l2_normalize(feat, self.groups, guard=guard) if self.normalize else feat
 
     def next_state(self, f_hat: Tensor, out: Any) -> tuple[Tensor, ...]:
-        """This level's entry of every state component after a normal step (temporal decoders)."""
         return ()
 
     def reset_state(self, f_hat: Tensor, inputs: Any) -> tuple[Tensor, ...]:
-        """This level's entry of every state component for a sample that resets (temporal decoders)."""
         return ()
 
 
@@ -111,35 +113,24 @@ class PyramidDecoder(nn.Module):
 
     def frame(self, rot: Tensor, trans: Tensor, intrinsics: Tensor) -> Any:
         """Per-frame context handed to every level's ``refine`` (e.g. the rotation matrix)."""
-        return None
 
     def level_state_shapes(self, level: PyramidLevel, batch: int, h: int, w: int) -> tuple[tuple[int, ...], ...]:
-        """Shape of each state component at ``level`` for an ``h x w`` level map."""
+        """Shape of each state component at ``level`` for an ``h x w`` level map (temporal decoders)."""
         return ()
 
     def state_shapes(self, batch: int, height: int, width: int) -> dict[str, list[tuple[int, ...]]]:
         """Per-level shapes of every state component (finest first) for a ``batch x 3 x height x width`` input."""
-        out: dict[str, list[tuple[int, ...]]] = {n: [] for n in self.state_names}
-        h, w = height, width
-        for lvl in self.levels:
-            h, w = (h + 1) // 2, (w + 1) // 2
-            for name, shape in zip(self.state_names, self.level_state_shapes(lvl, batch, h, w)):
-                out[name].append(shape)
-        return out
+        sizes = [(-(-height // 2**lvl.level), -(-width // 2**lvl.level)) for lvl in self.levels]
+        per_level = [self.level_state_shapes(lvl, batch, h, w) for lvl, (h, w) in zip(self.levels, sizes)]
+        return {name: [shapes[k] for shapes in per_level] for k, name in enumerate(self.state_names)}
 
     def level_maps(self, outs: Sequence[Any]) -> dict[str, list[Tensor]]:
         return {key: [getattr(o, attr) for o in outs] for key, attr in self.maps.items()}
 
     def forward(
-        self,
-        feats: Sequence[Tensor],
-        rot: Optional[Tensor] = None,
-        trans: Optional[Tensor] = None,
-        intrinsics: Optional[Tensor] = None,
-        prev: Optional[Sequence[Sequence[Tensor]]] = None,
-        reset: Optional[Tensor] = None,
-        ops: Optional[Sequence[LevelOps]] = None,
-        static: Optional[bool] = None,
+        self, feats: Sequence[Tensor], rot: Optional[Tensor] = None, trans: Optional[Tensor] = None,
+        intrinsics: Optional[Tensor] = None, prev: Optional[Sequence[Sequence[Tensor]]] = None,
+        reset: Optional[Tensor] = None, ops: Optional[Sequence[LevelOps]] = None, static: Optional[bool] = None,
     ) -> tuple[list[Any], tuple[tuple[Tensor, ...], ...]]:
         """Decode one frame.
 
@@ -157,12 +148,10 @@ class PyramidDecoder(nn.Module):
         n = len(self.levels)
         ops = ops or [REFERENCE_OPS] * n
         static = self.static if static is None else static
-        if not self.temporal:
+        if not self.temporal or (prev is not None and reset is None):
             all_reset = any_reset = False
         elif prev is None:
             all_reset = any_reset = True
-        elif reset is None:
-            all_reset = any_reset = False
         elif static:
             all_reset, any_reset = False, True
         else:
@@ -216,19 +205,13 @@ def check_state(prev: Sequence[Sequence[Tensor]], feats: Sequence[Tensor]) -> No
 
 
 def decode_step(
-    decoders: Mapping[str, PyramidDecoder],
-    feats: Sequence[Tensor],
-    rot: Tensor,
-    trans: Tensor,
-    intrinsics: Tensor,
-    reset: Optional[Tensor],
-    state: Optional[StreamState],
-    upsample: Callable[[Tensor], Tensor],
-    ops: Optional[Mapping[str, Sequence[LevelOps]]] = None,
-    static: Optional[bool] = None,
+    decoders: Mapping[str, PyramidDecoder], feats: Sequence[Tensor], rot: Tensor, trans: Tensor, intrinsics: Tensor,
+    reset: Optional[Tensor], state: Optional[StreamState], upsample: Callable[[Tensor], Tensor],
+    ops: Optional[Mapping[str, Sequence[LevelOps]]] = None, static: Optional[bool] = None,
 ) -> tuple[StepOutput, StreamState]:
     """One streaming step of every decoder on the encoder features of a frame (the reference path and the fast
-    engine both run this): the per-level maps, the heads upsampled by ``upsample``, and the new state."""
+    engine both run this): the per-level maps, each decoder's head (its finest map passed through ``upsample``, to
+    the input size) and the new state."""
     levels: dict[str, list[Tensor]] = {}
     components: dict[str, tuple[Tensor, ...]] = {}
     for name, dec in decoders.items():
@@ -238,15 +221,6 @@ def decode_step(
         outs, new = dec(feats, rot, trans, intrinsics, prev, reset, None if ops is None else ops[name], static)
         levels.update(dec.level_maps(outs))
         components.update(zip(dec.state_names, new))
-    heads = [dec.head for dec in decoders.values()]
-    return step_output(levels, heads, upsample), StreamState(**components)
+    heads = {dec.head: upsample(levels[dec.head][0]) for dec in decoders.values()}
+    return StepOutput(heads.get("depth"), heads.get("semantic"), levels, heads), StreamState(**components)
 
-
-def state_shapes(
-    decoders: Mapping[str, PyramidDecoder], batch: int, height: int, width: int
-) -> dict[str, list[tuple[int, ...]]]:
-    """Per-level shapes of every state component of ``decoders`` (in the order of :meth:`StreamState.flatten`)."""
-    out: dict[str, list[tuple[int, ...]]] = {}
-    for dec in decoders.values():
-        out.update(dec.state_shapes(batch, height, width))
-    return out

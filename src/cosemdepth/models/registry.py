@@ -34,11 +34,3 @@ def register_architecture(name: str, decoders: tuple[str, ...]) -> None:
     if len(set(heads)) != len(heads) or len(set(states)) != len(states):
         raise ConfigError(f"architecture {name!r}: decoders {decoders} share a head or state name")
     ARCHITECTURES[name] = tuple(decoders)
-
-
-def unregister(name: str) -> None:
-    """Remove architecture or decoder ``name`` (and the architectures that use it), e.g. after a test."""
-    ARCHITECTURES.pop(name, None)
-    if DECODERS.pop(name, None) is not None:
-        for arch in [a for a, decs in ARCHITECTURES.items() if name in decs]:
-            del ARCHITECTURES[arch]

@@ -6,7 +6,6 @@ from __future__ import annotations
 import torch
 
 from ..config import ModelConfig
-from ..ops.normalize import grouped_l2_normalize
 from .layers import Refiner
 from .outputs import SemanticLevelOutput
 from .pyramid import LevelOps, PyramidDecoder, PyramidLevel
@@ -22,9 +21,6 @@ class SemanticLevel(PyramidLevel):
         self.num_classes = cfg.num_classes
         self.normalize = cfg.feature_normalization
         self.refiner = Refiner(cfg.num_classes + 4 + channels, cfg.num_classes + 4)
-
-    def prepare(self, feat: torch.Tensor, guard: bool) -> torch.Tensor:
-        return grouped_l2_normalize(feat, 1, guard=guard) if self.normalize else feat
 
     def coarse_inputs(self, coarse: SemanticLevelOutput | None, f_hat: torch.Tensor, ops: LevelOps) -> SemanticLevelOutput:
         """The coarser level's probabilities and "other" channels (NN1 upsampling), or the one-hot of the last class
