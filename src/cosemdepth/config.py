@@ -14,7 +14,10 @@ from typing import Any, Mapping, Optional, Union
 
 from .errors import ConfigError
 
-ARCHITECTURES = ("cosemdepth", "m4depth", "m4semantic")
+#: Architecture -> the decoders it puts on the shared encoder (names of :data:`cosemdepth.models.registry.DECODERS`;
+#: ``cosemdepth.models.registry.register_architecture`` adds entries).
+ARCHITECTURES: dict[str, tuple[str, ...]] = {"cosemdepth": ("depth", "semantic"), "m4depth": ("depth",),
+                                              "m4semantic": ("semantic",)}
 
 #: Encoder output channels per absolute level (spec 2.1); a model with L levels uses the first L entries.
 ENCODER_CHANNELS = (16, 32, 64, 96, 128, 192)
@@ -46,7 +49,7 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         if self.arch not in ARCHITECTURES:
-            raise ConfigError(f"model arch must be one of {ARCHITECTURES}, got {self.arch!r}")
+            raise ConfigError(f"model arch must be one of {tuple(ARCHITECTURES)}, got {self.arch!r}")
         if not isinstance(self.levels, int) or not 1 <= self.levels <= len(ENCODER_CHANNELS):
             raise ConfigError(f"model levels must be an integer in 1..{len(ENCODER_CHANNELS)}, got {self.levels!r}")
         if not isinstance(self.num_classes, int) or self.num_classes < 2:
@@ -55,12 +58,17 @@ class ModelConfig:
             raise ConfigError(f"model pscv_dtype must be 'float32' or 'float16', got {self.pscv_dtype!r}")
 
     @property
+    def decoders(self) -> tuple[str, ...]:
+        """The decoders of this architecture, in order."""
+        return ARCHITECTURES[self.arch]
+
+    @property
     def has_depth(self) -> bool:
-        return self.arch in ("cosemdepth", "m4depth")
+        return "depth" in self.decoders
 
     @property
     def has_semantic(self) -> bool:
-        return self.arch in ("cosemdepth", "m4semantic")
+        return "semantic" in self.decoders
 
     @property
     def encoder_channels(self) -> tuple[int, ...]:

@@ -128,8 +128,8 @@ def test_bf16_refiners_stay_close_and_outputs_are_float32(models):
             assert (fast.semantic - ref.semantic).abs().max() < 0.02
     # it is really reduced precision: not bit-equal to fp32
     assert (fast.semantic - ref.semantic).abs().max() > 1e-6
-    assert engine.depth_levels[0].refiner.hidden[0].weight.dtype == torch.bfloat16
-    assert engine.depth_levels[0].refiner.last.weight.dtype == torch.float32
+    assert engine.ops["depth"][0].refiner.hidden[0].weight.dtype == torch.bfloat16
+    assert engine.ops["depth"][0].refiner.last.weight.dtype == torch.float32
 
 
 @pytest.mark.parametrize("use_mkldnn", [False, True] if HAS_MKLDNN_POINTWISE else [False])

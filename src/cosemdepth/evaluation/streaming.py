@@ -118,11 +118,10 @@ class StreamBatch:
 
 
 def _slice_state(state, rows: list[int]):
-    if state is None or not getattr(state, "features", ()):
+    if state is None or not state.flatten():
         return state
-    idx = torch.tensor(rows, device=state.features[0].device)
-    return type(state)(tuple(t.index_select(0, idx) for t in state.features),
-                       tuple(t.index_select(0, idx) for t in state.depths))
+    idx = torch.tensor(rows, device=state.flatten()[0].device)
+    return type(state)(**{k: tuple(t.index_select(0, idx) for t in v) for k, v in state.components.items()})
 
 
 def _model_device(model) -> torch.device:

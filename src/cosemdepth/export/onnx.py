@@ -15,6 +15,7 @@ First frame: zeros for every state input with ``reset=True``. M4Semantic has no 
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from pathlib import Path
 
@@ -29,22 +30,14 @@ from ..models.outputs import StreamState
 DEFAULT_OPSET = 17
 
 
-def state_names(levels: int, prefix: str = "state") -> list[str]:
+def state_names(levels: int, prefix: str = "state", components: tuple[str, ...] = ("feat", "depth")) -> list[str]:
     """``[prefix_feat_1, .., prefix_feat_L, prefix_depth_1, .., prefix_depth_L]`` (the order of StreamState.flatten)."""
-    return [f"{prefix}_feat_{l}" for l in range(1, levels + 1)] + [f"{prefix}_depth_{l}" for l in range(1, levels + 1)]
+    return [f"{prefix}_{c}_{l}" for c in components for l in range(1, levels + 1)]
 
 
 def state_shapes(model, batch: int, height: int, width: int) -> list[tuple[int, ...]]:
     """Shapes of the flattened state for a ``batch x 3 x height x width`` input (empty for M4Semantic)."""
-    if model.depth_decoder is None:
-        return []
-    feats, depths = [], []
-    h, w = height, width
-    for c in model.config.encoder_channels:
-        h, w = (h + 1) // 2, (w + 1) // 2
-        feats.append((batch, c, h, w))
-        depths.append((batch, 1, h, w))
-    return feats + depths
+    return [s for comp in model.state_shapes(batch, height, width).values() for s in comp]
 
 
 class StreamingStep(nn.Module):
@@ -59,20 +52,19 @@ class StreamingStep(nn.Module):
     def forward(self, rgb, rot, trans, intrinsics, reset, *state):
         if self.reset_float:
             reset = reset > 0.5
-        st = StreamState.unflatten(state) if state else None
+        st = StreamState.unflatten(state, self._components()) if state else None
         out, new = self.model.step(rgb, rot, trans, intrinsics, reset, st)
-        outs = [t for t in (out.depth, out.semantic) if t is not None]
-        return (*outs, *new.flatten())
+        return (*out.heads.values(), *new.flatten())
+
+    def _components(self) -> tuple[str, ...]:
+        return tuple(n for dec in self.model.decoders.values() for n in dec.state_names)
 
     def names(self) -> tuple[list[str], list[str]]:
         """ONNX input and output names."""
-        m = self.model
-        levels = m.config.levels if m.depth_decoder is not None else 0
-        inputs = ["rgb", "rot", "trans", "intrinsics", "reset", *state_names(levels)]
-        outputs = (["depth"] if m.depth_decoder is not None else []) + (
-            ["semantic"] if m.semantic_decoder is not None else []
-        )
-        return inputs, outputs + state_names(levels, "next_state")
+        levels, comps = self.model.config.levels, self._components()
+        inputs = ["rgb", "rot", "trans", "intrinsics", "reset", *state_names(levels, components=comps)]
+        heads = [dec.head for dec in self.model.decoders.values()]
+        return inputs, heads + state_names(levels, "next_state", comps)
 
     def example_inputs(self, batch: int, height: int, width: int, reset: bool = True) -> tuple[torch.Tensor, ...]:
         """A first-frame input: a mid-grey image, identity motion with 1 m forward, f = W/2, zero state."""
@@ -117,28 +109,16 @@ def export_onnx(
     if height < 1 or width < 1 or batch < 1:
         raise ConfigError(f"--size and --batch must be positive, got size {height}x{width}, batch {batch}")
     path = Path(path)
-    saved = _freeze_for_export(model)
-    try:
+    with _frozen_for_export(model):
         step = StreamingStep(model, reset_float=reset_float).eval()
         args = step.example_inputs(batch, height, width)
         in_names, out_names = step.names()
         dynamic_axes = {n: {0: "batch"} for n in in_names + out_names} if dynamic_batch else None
         with atomic_path(path) as tmp, torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore")  # tracer warnings about Python shape arithmetic (constant here)
-            torch.onnx.export(
-                step,
-                args,
-                str(tmp),
-                input_names=in_names,
-                output_names=out_names,
-                opset_version=opset,
-                dynamic_axes=dynamic_axes,
-                dynamo=False,
-                do_constant_folding=True,
-            )
+            torch.onnx.export(step, args, str(tmp), input_names=in_names, output_names=out_names, opset_version=opset,
+                              dynamic_axes=dynamic_axes, dynamo=False, do_constant_folding=True)
             mark_onnx(tmp)
-    finally:
-        _restore(model, saved)
     return path
 
 
@@ -168,27 +148,19 @@ def is_our_onnx(path: str | Path) -> bool:
     return any(p.key == ONNX_MARK for p in m.metadata_props)
 
 
-def _freeze_for_export(model) -> dict:
-    """Reference path, eval mode, static numerics, float32 on CPU; returns what to restore."""
-    dd = model.depth_decoder
+@contextlib.contextmanager
+def _frozen_for_export(model):
+    """Reference path, eval mode, static numerics, float32 on CPU; everything restored on exit."""
     p = next(model.parameters())
-    saved = {
-        "training": model.training,
-        "fast": (model._fast, model._fast_options),
-        "static": None if dd is None else dd.static,
-        "device": p.device,
-        "dtype": p.dtype,
-    }
-    model._fast, model._fast_options = None, None
-    model.eval().float().cpu()
-    if dd is not None:
-        model.set_numerics(static=True)
-    return saved
-
-
-def _restore(model, saved: dict) -> None:
-    model.to(device=saved["device"], dtype=saved["dtype"])
-    model.train(saved["training"])
-    if saved["static"] is not None:
-        model.set_numerics(static=saved["static"])
-    model._fast, model._fast_options = saved["fast"]
+    device, dtype, training = p.device, p.dtype, model.training
+    mode, options = model.inference_mode, model.inference_options
+    static = {name: dec.static for name, dec in model.decoders.items()}
+    model.optimize("reference").eval().float().cpu()
+    model.set_numerics(static=True)
+    try:
+        yield
+    finally:
+        model.to(device=device, dtype=dtype).train(training)
+        for name, dec in model.decoders.items():
+            dec.static = static[name]
+        model.optimize(mode, **(options or {}))

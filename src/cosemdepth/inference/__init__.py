@@ -1,4 +1,5 @@
-"""Fast inference: packed convolutions, the fast streaming engine, CUDA-graph streaming."""
+"""Fast inference: packed convolutions, the fast streaming engine (registered as ``SceneModel.optimize("fast")``),
+CUDA-graph streaming."""
 
 from .engine import FastEngine
 

@@ -51,7 +51,7 @@ class PackedConv:
         self.bias = None if conv.bias is None else conv.bias.detach().to(device=device, dtype=dtype).contiguous()
         self.kernel = conv.kernel_size[0]
         self.stride = conv.stride[0]
-        self.symmetric = conv._symmetric
+        self.symmetric = conv.symmetric
         self.act = act
         self.dtype = dtype
         self.device = torch.device(device)

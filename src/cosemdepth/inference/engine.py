@@ -20,44 +20,34 @@ convolutions and the cost volume), which the tests check. Everything runs withou
 
 from __future__ import annotations
 
+import dataclasses
 import functools
-from dataclasses import dataclass
 from typing import Optional
 
 import torch
 import torch.nn.functional as F
 
-from ..geometry.camera import level_intrinsics
-from ..geometry.parallax import epipolar_geometry
-from ..geometry.rotation import quaternion_to_matrix
-from ..models.depth_decoder import INIT_DEPTH, DepthLevel, RefineOps
-from ..models.outputs import DepthLevelOutput, SemanticLevelOutput, StepOutput, StreamState, step_output
-from ..models.semantic_decoder import SemanticLevel
+from ..models.depth_decoder import DepthLevel
+from ..models.model import STREAMERS
+from ..models.outputs import StepOutput, StreamState
+from ..models.pyramid import LevelOps, PyramidLevel, decode_step
 from ..ops.cost_volume import (
     parallax_sweep_cost_volume,
     parallax_sweep_cost_volume_fast,
     spatial_cost_volume,
     spatial_cost_volume_fast,
 )
-from ..ops.normalize import grouped_l2_normalize
 from ..ops.resample import resize_nn1, resize_nn2
 from .convs import PackedConv
 
 _CL = torch.channels_last
-REDUCED_DTYPES = (torch.bfloat16, torch.float16)
 #: The channel-loop cost volumes pay off on the large, thin maps of the fine levels (16 and 32 channels); the coarse
 #: levels have many channels on small maps, where the reference's per-offset loop is cheaper.
 _CHANNEL_LOOP_MAX = 32
 
 
-_DTYPES = {
-    "float32": torch.float32,
-    "fp32": torch.float32,
-    "bfloat16": torch.bfloat16,
-    "bf16": torch.bfloat16,
-    "float16": torch.float16,
-    "fp16": torch.float16,
-}
+_DTYPES = {"float32": torch.float32, "fp32": torch.float32, "bfloat16": torch.bfloat16, "bf16": torch.bfloat16,
+           "float16": torch.float16, "fp16": torch.float16}
 
 
 def parse_dtype(dtype: torch.dtype | str) -> torch.dtype:
@@ -87,7 +77,6 @@ class _Refiner:
 
     def __init__(self, refiner, dtype: torch.dtype, device: torch.device, use_mkldnn: bool | None):
         convs = list(refiner.convs)
-        self.in_channels = convs[0].in_channels
         self.hidden = [PackedConv(c, dtype, device, act=True, use_mkldnn=use_mkldnn) for c in convs[:-1]]
         self.last = PackedConv(convs[-1], torch.float32, device, act=False, use_mkldnn=use_mkldnn)
         self.dtype = dtype
@@ -110,32 +99,33 @@ def _concat_channels_last(blocks: list[torch.Tensor], dtype: torch.dtype) -> tor
     return out
 
 
-@dataclass
-class _DepthLevelSpec:
-    module: DepthLevel
-    refiner: _Refiner
-    ops: RefineOps
-
-
-def _fast_pscv(feat, prev, points, groups, half):
+def _pscv_channel_loop(feat, prev, points, groups, half):
+    if half:  # float16 products like the original: the reference kernel
+        return parallax_sweep_cost_volume(feat, prev, points, groups, half)
     return parallax_sweep_cost_volume_fast(feat, prev, points, groups)
 
 
-def _depth_ops(level: DepthLevel, refiner: _Refiner, pscv_half: bool) -> RefineOps:
-    """The fast operations of one depth level (channel-loop cost volumes on the thin fine levels only)."""
-    thin = level.channels <= _CHANNEL_LOOP_MAX
-    return RefineOps(
-        pscv=_fast_pscv if thin and not pscv_half else parallax_sweep_cost_volume,
-        sncv=spatial_cost_volume_fast if thin else spatial_cost_volume,
-        concat=functools.partial(_concat_channels_last, dtype=refiner.dtype),
-        refiner=refiner,
+def _nearest_nn1(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    return upsample_nearest(x, size, half_pixel=False)
+
+
+def _fast_ops(level: PyramidLevel, refiner: _Refiner) -> LevelOps:
+    """The fast operations of one level: packed refiner, channels-last concatenation, nearest resize by pixel
+    replication; for a depth level NCHW features (one layout change here instead of one per cost volume and per
+    frame) and the channel-loop cost volumes on the thin fine levels only."""
+    ops = LevelOps(
+        concat=functools.partial(_concat_channels_last, dtype=refiner.dtype), refiner=refiner, nearest=_nearest_nn1
     )
-
-
-@dataclass
-class _SemanticLevelSpec:
-    module: SemanticLevel
-    refiner: _Refiner
+    if not isinstance(level, DepthLevel):
+        return ops
+    thin = level.channels <= _CHANNEL_LOOP_MAX
+    return dataclasses.replace(
+        ops,
+        layout=torch.Tensor.contiguous,
+        pscv=_pscv_channel_loop if thin else parallax_sweep_cost_volume,
+        sncv=spatial_cost_volume_fast if thin else spatial_cost_volume,
+        hypot=True,
+    )
 
 
 class FastEngine:
@@ -143,7 +133,8 @@ class FastEngine:
 
     Args:
         model: the source model (its configuration and numerics switches are read now; weights are copied).
-        dtype: compute dtype of the refiners' hidden convolutions: float32 (default), bfloat16 or float16.
+        dtype: compute dtype of the refiners' hidden convolutions: float32 (default), bfloat16 or float16 (a torch
+            dtype or a name, see :func:`parse_dtype`).
         device: where to run (default: the model's device).
         static: never branch on the values of the reset mask (the refiners always run and the reset is a per-sample
             select), for CUDA-graph capture; a state (zeros are fine, with ``reset=True``) must always be given.
@@ -153,18 +144,16 @@ class FastEngine:
     def __init__(
         self,
         model,
-        dtype: torch.dtype = torch.float32,
+        dtype: torch.dtype | str = torch.float32,
         device: torch.device | str | None = None,
         static: bool = False,
         use_mkldnn: bool | None = None,
     ):
-        if dtype not in (torch.float32, *REDUCED_DTYPES):
-            raise ValueError(f"dtype must be float32, bfloat16 or float16, got {dtype}")
+        dtype = parse_dtype(dtype)
         p = next(model.parameters())
         self.device = torch.device(device) if device is not None else p.device
         self.dtype = dtype
         self.static = static
-        self.config = model.config
         f32 = torch.float32
         enc = model.encoder
         self.enc_s1 = [
@@ -178,21 +167,13 @@ class FastEngine:
                 enc.dinl.weight.detach().to(self.device, f32).view(1, -1, 1, 1),
                 enc.dinl.bias.detach().to(self.device, f32).view(1, -1, 1, 1),
             )
-        self.depth_levels: list[_DepthLevelSpec] = []
-        self.semantic_levels: list[_SemanticLevelSpec] = []
-        dd, sd = model.depth_decoder, model.semantic_decoder
-        if dd is not None:
-            self.guard = dd.guard
-            self.pscv_half = dd.pscv_half
-            self.depth_levels = []
-            for lvl in dd.levels:
-                refiner = _Refiner(lvl.refiner, dtype, self.device, use_mkldnn)
-                self.depth_levels.append(_DepthLevelSpec(lvl, refiner, _depth_ops(lvl, refiner, self.pscv_half)))
-        if sd is not None:
-            self.sem_guard = sd.guard
-            self.semantic_levels = [
-                _SemanticLevelSpec(lvl, _Refiner(lvl.refiner, dtype, self.device, use_mkldnn)) for lvl in sd.levels
-            ]
+        # the decoders' level modules give the structure and numerics switches; their weights are packed here
+        self.decoders = model.decoders
+        self.state_shapes = model.state_shapes
+        self.ops = {
+            name: [_fast_ops(lvl, _Refiner(lvl.refiner, dtype, self.device, use_mkldnn)) for lvl in dec.levels]
+            for name, dec in self.decoders.items()
+        }
 
     # ------------------------------------------------------------------ encoder
     def encode(self, rgb: torch.Tensor) -> list[torch.Tensor]:
@@ -217,84 +198,6 @@ class FastEngine:
         rnorm = torch.linalg.vector_norm(z, dim=1, keepdim=True).clamp_min_(1e-6).reciprocal_()
         return torch.addcmul(beta, z.mul_(rnorm), gamma)
 
-    # ------------------------------------------------------------------ depth
-    def _depth_refine(self, spec: _DepthLevelSpec, f_hat, rho_in, other_in, R, trans, intrinsics, prev_f, prev_d):
-        lvl = spec.module
-        h, w = f_hat.shape[-2:]
-        geom = epipolar_geometry(h, w, R, trans, level_intrinsics(intrinsics, lvl.level), guard=self.guard, hypot=True)
-        return lvl.refine(f_hat, rho_in, other_in, geom, prev_f, prev_d, trans, self.guard, self.pscv_half, spec.ops)
-
-    def decode_depth(self, feats, rot, trans, intrinsics, reset, state: Optional[StreamState]):
-        prev_f = prev_d = None
-        if state is not None and state.features:
-            prev_f, prev_d = state.features, state.depths
-        if prev_f is None:
-            if self.static:
-                raise ValueError("a static engine needs an explicit state (zeros with reset=True for a first frame)")
-            all_reset = any_reset = True
-        elif reset is None:
-            all_reset = any_reset = False
-        elif self.static:
-            all_reset, any_reset = False, True
-        else:
-            all_reset, any_reset = bool(reset.all()), bool(reset.any())
-        if prev_f is not None and not all_reset:
-            _check_state(state, feats)
-        R = quaternion_to_matrix(rot)
-        n = len(self.depth_levels)
-        outs: list = [None] * n
-        new_f: list = [None] * n
-        new_d: list = [None] * n
-        coarse = None
-        for j in range(n - 1, -1, -1):
-            spec = self.depth_levels[j]
-            lvl = spec.module
-            # NCHW for the cost volumes (one layout change here instead of one per cost volume and per frame)
-            feat = feats[j].contiguous()
-            f_hat = grouped_l2_normalize(feat, lvl.groups, guard=self.guard) if lvl.normalize else feat
-            rho_in, depth_in, other_in = lvl.coarse_inputs(coarse, f_hat)
-            if all_reset:
-                out = DepthLevelOutput(rho_in, depth_in, other_in)
-                state_depth = torch.full_like(depth_in, INIT_DEPTH)
-            else:
-                out = self._depth_refine(spec, f_hat, rho_in, other_in, R, trans, intrinsics, prev_f[j], prev_d[j])
-                state_depth = out.depth
-                if any_reset:
-                    m = reset.view(-1, 1, 1, 1)
-                    out = DepthLevelOutput(
-                        torch.where(m, rho_in, out.parallax),
-                        torch.where(m, depth_in, out.depth),
-                        torch.where(m, other_in, out.other),
-                    )
-                    state_depth = torch.where(m, torch.full_like(state_depth, INIT_DEPTH), state_depth)
-            outs[j], new_f[j], new_d[j] = out, f_hat, state_depth
-            coarse = out
-        return outs, StreamState(tuple(new_f), tuple(new_d))
-
-    # ------------------------------------------------------------------ semantic
-    def decode_semantic(self, feats) -> list[SemanticLevelOutput]:
-        n_levels = len(self.semantic_levels)
-        outs: list = [None] * n_levels
-        coarse = None
-        for j in range(n_levels - 1, -1, -1):
-            spec = self.semantic_levels[j]
-            lvl = spec.module
-            feat = feats[j]
-            n = lvl.num_classes
-            f_hat = grouped_l2_normalize(feat, 1, guard=self.sem_guard) if lvl.normalize else feat
-            b, _, h, w = feat.shape
-            if coarse is None:
-                probs_in = feat.new_zeros(b, n, h, w)
-                probs_in[:, n - 1] = 1.0
-                other_in = feat.new_zeros(b, 4, h, w)
-            else:
-                probs_in = upsample_nearest(coarse.probs, (h, w), half_pixel=False)
-                other_in = upsample_nearest(coarse.other, (h, w), half_pixel=False)
-            y = spec.refiner(_concat_channels_last([probs_in, other_in, f_hat], spec.refiner.dtype))
-            logits = y[:, :n]
-            coarse = outs[j] = SemanticLevelOutput(torch.softmax(logits, dim=1), logits, y[:, n:])
-        return outs
-
     # ------------------------------------------------------------------ step
     @torch.inference_mode()
     def step(
@@ -311,29 +214,19 @@ class FastEngine:
         rot, trans, intrinsics = (t.to(dev, torch.float32) for t in (rot, trans, intrinsics))
         if reset is not None:
             reset = reset.to(dev)
+        if self.static and any(dec.temporal for dec in self.decoders.values()) and not (state is not None and state.flatten()):
+            raise ValueError("a static engine needs an explicit state (zeros with reset=True for a first frame)")
         feats = self.encode(rgb)
         size = tuple(rgb.shape[-2:])
-        dl = sl = None
-        new_state = StreamState()
-        if self.depth_levels:
-            dl, new_state = self.decode_depth(feats, rot, trans, intrinsics, reset, state)
-        if self.semantic_levels:
-            sl = self.decode_semantic(feats)
-        return step_output(dl, sl, lambda x: upsample_nearest(x, size, half_pixel=True)), new_state
+        return decode_step(
+            self.decoders, feats, rot, trans, intrinsics, reset, state,
+            lambda x: upsample_nearest(x, size, half_pixel=True), self.ops, self.static,
+        )
 
     def zero_state(self, batch: int, height: int, width: int) -> StreamState:
         """An all-zero state for a ``batch x height x width`` input (use with ``reset=True`` on the first frame)."""
-        feats, depths = [], []
-        h, w = height, width
-        for spec in self.depth_levels:
-            h, w = (h + 1) // 2, (w + 1) // 2
-            c = spec.module.channels
-            feats.append(torch.zeros(batch, c, h, w, device=self.device))
-            depths.append(torch.zeros(batch, 1, h, w, device=self.device))
-        return StreamState(tuple(feats), tuple(depths))
+        shapes = self.state_shapes(batch, height, width).items()
+        return StreamState(**{k: tuple(torch.zeros(s, device=self.device) for s in v) for k, v in shapes})
 
 
-def _check_state(state: StreamState, feats: list[torch.Tensor]) -> None:
-    from ..models.model import _check_state as check
-
-    check(state, feats)
+STREAMERS["fast"] = FastEngine

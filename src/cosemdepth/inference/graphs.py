@@ -16,6 +16,7 @@ from typing import Optional
 import torch
 
 from ..models.outputs import StepOutput, StreamState
+from .engine import FastEngine
 
 
 class StaticStreamer:
@@ -107,14 +108,12 @@ class StaticStreamer:
 
     def current_state(self) -> StreamState:
         """The state buffers (after the last call): a copy, safe to keep."""
-        return StreamState(tuple(t.clone() for t in self.state.features), tuple(t.clone() for t in self.state.depths))
+        return StreamState(**{k: tuple(t.clone() for t in v) for k, v in self.state.components.items()})
 
 
 def make_streamer(model, batch: int, height: int, width: int, dtype=torch.float32, device=None, **kw) -> StaticStreamer:
     """A :class:`StaticStreamer` over a static :class:`FastEngine` of ``model`` (CUDA graph on GPU)."""
-    from .engine import FastEngine, parse_dtype
-
-    engine = FastEngine(model, dtype=parse_dtype(dtype), device=device, static=True)
+    engine = FastEngine(model, dtype=dtype, device=device, static=True)
     return StaticStreamer(engine, batch, height, width, **kw)
 
 

@@ -34,12 +34,11 @@ import torch
 
 from ..config import ARCHITECTURES, ENCODER_CHANNELS, ModelConfig
 from ..errors import CheckpointError, ConfigError
+from ..models.depth_decoder import refiner_in_channels
+from ..models.model import build_model
 
-#: Output channels of the seven refiner convs but the last (spec 4.6 step 6; the same stack for both decoders).
-REFINER_CHANNELS = (128, 128, 96, 64, 32, 16)
 #: Convs of the refiner's ``prep_conv_layers`` stack; the ``est_*_conv_layers`` stack holds the other four.
 PREP_CONVS = 3
-DEPTH_OUT_CHANNELS = 5
 
 _VAR = r"/\.ATTRIBUTES/VARIABLE_VALUE$"
 _ENC_CONV = re.compile(r"^(?P<root>(?:.*/)?)conv_layers_s(?P<s>[12])/(?P<k>\d+)/(?P<p>kernel|bias)" + _VAR)
@@ -59,8 +58,6 @@ _IGNORED = (
     ("inference state", re.compile(r"(^|/)[A-Za-z0-9_]*prev_[A-Za-z0-9_]*/\.ATTRIBUTES/")),
 )
 
-PARTS = ("encoder", "depth_decoder", "semantic_decoder")
-
 
 @dataclass
 class Conversion:
@@ -79,54 +76,23 @@ class Conversion:
         return sum(int(t.numel()) for t in self.state_dict.values())
 
     def parameters_by_part(self) -> dict[str, int]:
-        out = {p: 0 for p in PARTS}
+        out: dict[str, int] = {}
         for name, t in self.state_dict.items():
-            out[name.split(".", 1)[0]] += int(t.numel())
-        return {p: n for p, n in out.items() if n}
+            part = name.split(".", 1)[0]
+            out[part] = out.get(part, 0) + int(t.numel())
+        return out
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # Expected parameters of a config
 
 
-def refiner_input_channels(level: int, sncv: bool, time_recurrence: bool, level_memory: bool, subdivision: bool) -> int:
-    """Input channels of the depth refiner at absolute level ``level`` (1 = finest), spec 4.1 / 4.6 step 5."""
-    k = 2 ** (level // 2) if subdivision else 1
-    return 9 * k + 1 + 4 * level_memory + 49 * k * sncv + 1 * time_recurrence
-
-
-def _refiner_shapes(prefix: str, c_in: int, c_out: int) -> dict[str, tuple[int, ...]]:
-    chans = (c_in, *REFINER_CHANNELS, c_out)
-    out: dict[str, tuple[int, ...]] = {}
-    for k in range(7):
-        out[f"{prefix}.refiner.convs.{k}.weight"] = (chans[k + 1], chans[k], 3, 3)
-        out[f"{prefix}.refiner.convs.{k}.bias"] = (chans[k + 1],)
-    return out
-
-
 def expected_param_shapes(cfg: ModelConfig) -> dict[str, tuple[int, ...]]:
-    """Name -> shape of every parameter of a model with config ``cfg`` (our layout, PyTorch NCHW kernels)."""
-    shapes: dict[str, tuple[int, ...]] = {}
-    c_prev = 3
-    for k, c in enumerate(cfg.encoder_channels):
-        shapes[f"encoder.conv_s1.{k}.weight"] = (c, c_prev, 3, 3)
-        shapes[f"encoder.conv_s1.{k}.bias"] = (c,)
-        shapes[f"encoder.conv_s2.{k}.weight"] = (c, c, 3, 3)
-        shapes[f"encoder.conv_s2.{k}.bias"] = (c,)
-        c_prev = c
-    if cfg.dinl:
-        shapes["encoder.dinl.weight"] = (ENCODER_CHANNELS[0],)
-        shapes["encoder.dinl.bias"] = (ENCODER_CHANNELS[0],)
-    for j in range(cfg.levels):
-        if cfg.has_depth:
-            c_in = refiner_input_channels(
-                j + 1, cfg.sncv, cfg.time_recurrence, cfg.level_memory, cfg.feature_subdivision
-            )
-            shapes.update(_refiner_shapes(f"depth_decoder.levels.{j}", c_in, DEPTH_OUT_CHANNELS))
-        if cfg.has_semantic:
-            c_in = cfg.num_classes + 4 + ENCODER_CHANNELS[j]
-            shapes.update(_refiner_shapes(f"semantic_decoder.levels.{j}", c_in, cfg.num_classes + 4))
-    return shapes
+    """Name -> shape of every parameter of a model with config ``cfg`` (our layout, PyTorch NCHW kernels), read off
+    the model built on the meta device (nothing allocated)."""
+    with torch.device("meta"):
+        model = build_model(cfg)
+    return {k: tuple(v.shape) for k, v in model.state_dict().items()}
 
 
 def count_parameters(cfg: ModelConfig) -> int:
@@ -195,6 +161,11 @@ def _level_count(names: set[str], pattern: str, what: str, origin: str) -> int:
     return len(idx)
 
 
+def _ablation_config(sncv: bool, time_recurrence: bool, level_memory: bool, subdivision: bool) -> ModelConfig:
+    return ModelConfig(sncv=sncv, time_recurrence=time_recurrence, level_memory=level_memory,
+                       feature_subdivision=subdivision)
+
+
 def _infer_depth_ablations(
     c_ins: list[int], origin: str
 ) -> tuple[bool, bool, bool, bool]:
@@ -202,7 +173,7 @@ def _infer_depth_ablations(
     matches = [
         combo
         for combo in itertools.product((True, False), repeat=4)
-        if all(refiner_input_channels(j + 1, *combo) == c for j, c in enumerate(c_ins))
+        if all(refiner_in_channels(j + 1, _ablation_config(*combo)) == c for j, c in enumerate(c_ins))
     ]
     if not matches:
         raise CheckpointError(
@@ -255,7 +226,7 @@ def infer_config(
     if arch is None:
         arch = found
     elif arch not in ARCHITECTURES:
-        raise ConfigError(f"arch must be one of {ARCHITECTURES}, got {arch!r}")
+        raise ConfigError(f"arch must be one of {tuple(ARCHITECTURES)}, got {arch!r}")
     want_depth = arch in ("cosemdepth", "m4depth")
     want_sem = arch in ("cosemdepth", "m4semantic")
     for want, part, ref in (
@@ -461,5 +432,4 @@ __all__ = [
     "expected_param_shapes",
     "import_checkpoint",
     "infer_config",
-    "refiner_input_channels",
 ]

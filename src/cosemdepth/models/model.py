@@ -12,21 +12,30 @@ Both run the same per-frame decoder code, so they agree exactly.
 
 from __future__ import annotations
 
-from typing import Optional, Sequence
+import importlib
+from typing import Callable, Optional, Sequence
 
 import torch
 import torch.nn as nn
 
 from ..config import ModelConfig
 from ..ops.resample import resize_nn2
-from .depth_decoder import DepthDecoder
 from .encoder import Encoder
-from .outputs import SequenceOutput, StepOutput, StreamState, step_output
-from .semantic_decoder import SemanticDecoder
+from .outputs import SequenceOutput, StepOutput, StreamState
+from .pyramid import PyramidDecoder, decode_step
+from .registry import DECODERS
+
+#: Streaming implementations of :meth:`SceneModel.step` besides the reference modules, by :meth:`~SceneModel.optimize`
+#: mode: ``factory(model, dtype=..., device=...)`` returns an object with the same ``step`` and a ``device``.
+STREAMERS: dict[str, Callable] = {}
+#: The module that registers a mode into :data:`STREAMERS`, imported by name the first time the mode is asked for:
+#: the inference package sits above this one and is not imported by it.
+STREAMER_PLUGINS = {"fast": "cosemdepth.inference"}
 
 
 class SceneModel(nn.Module):
-    """Shared encoder + depth decoder and/or semantic decoder, as selected by ``config.arch``."""
+    """Shared encoder + the decoders of ``config.arch`` (see :mod:`cosemdepth.models.registry`); decoder ``name`` is
+    the submodule ``<name>_decoder`` (``depth_decoder``, ``semantic_decoder``; None when the architecture lacks it)."""
 
     def __init__(self, config: ModelConfig | None = None, **overrides):
         super().__init__()
@@ -36,14 +45,25 @@ class SceneModel(nn.Module):
             config = ModelConfig.from_dict({**config.to_dict(), **overrides})
         self.config = config
         self.encoder = Encoder(config.encoder_channels, dinl=config.dinl)
-        self.depth_decoder = DepthDecoder(config) if config.has_depth else None
-        self.semantic_decoder = SemanticDecoder(config) if config.has_semantic else None
+        for name in DECODERS:
+            setattr(self, f"{name}_decoder", DECODERS[name](config) if name in config.decoders else None)
         self.set_numerics(pscv_half=config.pscv_dtype == "float16")
-        self._fast = None  # the fast inference engine, see optimize()
+        self._fast = None  # the streaming implementation of optimize(), None: the reference modules
+        self._fast_mode: str | None = None
         self._fast_options: dict | None = None
-        self.register_load_state_dict_post_hook(_rebuild_fast_engine)
+        self.register_load_state_dict_post_hook(_rebuild_streamer)
 
     default_arch = "cosemdepth"
+
+    @property
+    def decoders(self) -> dict[str, PyramidDecoder]:
+        """The decoders of this architecture by registered name, in order."""
+        return {name: getattr(self, f"{name}_decoder") for name in self.config.decoders}
+
+    def state_shapes(self, batch: int, height: int, width: int) -> dict[str, list[tuple[int, ...]]]:
+        """Per-level shapes of every :class:`StreamState` component for a ``batch x 3 x height x width`` input (no
+        weights needed: works on a model built on the meta device), in the order of :meth:`StreamState.flatten`."""
+        return {k: v for dec in self.decoders.values() for k, v in dec.state_shapes(batch, height, width).items()}
 
     # ------------------------------------------------------------------ fast inference switch
     def optimize(self, mode: str = "fast", dtype: torch.dtype | str = torch.float32, device=None) -> "SceneModel":
@@ -61,44 +81,45 @@ class SceneModel(nn.Module):
         runs the reference modules. Loading a state dict rebuilds the engine; so does a change of device.
         """
         if mode == "reference":
-            self._fast = None
-            self._fast_options = None
+            self._fast = self._fast_mode = self._fast_options = None
             return self
-        if mode != "fast":
-            raise ValueError(f"mode must be 'fast' or 'reference', got {mode!r}")
-        from ..inference.engine import FastEngine, parse_dtype
-
-        self._fast_options = {"dtype": parse_dtype(dtype), "device": device}
-        self._fast = FastEngine(self, **self._fast_options)
+        if mode not in STREAMERS and mode in STREAMER_PLUGINS:
+            importlib.import_module(STREAMER_PLUGINS[mode])
+        if mode not in STREAMERS:
+            raise ValueError(f"mode must be one of {['reference', *sorted(set(STREAMERS) | set(STREAMER_PLUGINS))]}, "
+                             f"got {mode!r}")
+        options = {"dtype": dtype, "device": device}
+        self._fast = STREAMERS[mode](self, **options)
+        self._fast_mode, self._fast_options = mode, options
         return self
 
     @property
     def inference_mode(self) -> str:
         """``"fast"`` or ``"reference"``: the path :meth:`step` takes in eval mode."""
-        return "reference" if self._fast is None else "fast"
+        return self._fast_mode or "reference"
 
-    def _fast_engine(self):
+    @property
+    def inference_options(self) -> dict | None:
+        """The ``optimize`` options (dtype, device) of the current mode; None for the reference path."""
+        return None if self._fast_options is None else dict(self._fast_options)
+
+    def _streamer(self):
         if self._fast is None or self.training:
             return None
         p = next(self.parameters())
         if self._fast_options.get("device") is None and self._fast.device != p.device:
-            self._fast = type(self._fast)(self, **self._fast_options)
+            _rebuild_streamer(self, None)
         return self._fast
 
     # ------------------------------------------------------------------ numerics switches
     def set_numerics(self, guard: bool | None = None, pscv_half: bool | None = None, static: bool | None = None):
-        """Numerical options: ``guard`` (degenerate-case guards, default on), ``pscv_half`` (float16 cost-volume
-        products like the original, default off), ``static`` (no data-dependent branching on the reset mask)."""
-        for dec in (self.depth_decoder, self.semantic_decoder):
-            if dec is None:
-                continue
-            if guard is not None:
-                dec.guard = guard
-            if isinstance(dec, DepthDecoder):
-                if pscv_half is not None:
-                    dec.pscv_half = pscv_half
-                if static is not None:
-                    dec.static = static
+        """Numerical options of the decoders: ``guard`` (degenerate-case guards, default on), ``pscv_half`` (float16
+        cost-volume products like the original, default off; depth decoder), ``static`` (no data-dependent branching
+        on the reset mask)."""
+        for dec in self.decoders.values():
+            for name, value in (("guard", guard), ("pscv_half", pscv_half), ("static", static)):
+                if value is not None and hasattr(dec, name):
+                    setattr(dec, name, value)
         return self
 
     # ------------------------------------------------------------------ training forward
@@ -123,29 +144,24 @@ class SceneModel(nn.Module):
         Returns:
             :class:`SequenceOutput` with per-level lists (finest first) of ``[B, T, ...]`` tensors.
         """
-        _check_sequence(rgb, rot, trans, intrinsics, reset)
+        _check_inputs(rgb, rot, trans, intrinsics, reset, sequence=True)
         b, t = rgb.shape[:2]
         feats = self.encoder(rgb.flatten(0, 1))
         out = SequenceOutput(features=[f.unflatten(0, (b, t)) for f in feats])
-        if self.depth_decoder is not None:
-            per_frame = []
-            state = None
-            for k in range(t):
-                intr = intrinsics[:, k] if intrinsics.dim() == 3 else intrinsics
-                frame_reset = None if reset is None else reset[:, k]
-                levels, state = self._decode_depth(
-                    [f[:, k] for f in out.features], rot[:, k], trans[:, k], intr, frame_reset, state
-                )
-                per_frame.append(levels)
-            n_levels = len(per_frame[0])
-            out.depth = [torch.stack([fr[j].depth for fr in per_frame], 1) for j in range(n_levels)]
-            out.parallax = [torch.stack([fr[j].parallax for fr in per_frame], 1) for j in range(n_levels)]
-            out.depth_other = [torch.stack([fr[j].other for fr in per_frame], 1) for j in range(n_levels)]
-        if self.semantic_decoder is not None:
-            sem = self.semantic_decoder(feats)
-            out.semantic = [s.probs.unflatten(0, (b, t)) for s in sem]
-            out.semantic_logits = [s.logits.unflatten(0, (b, t)) for s in sem]
-            out.semantic_other = [s.other.unflatten(0, (b, t)) for s in sem]
+        for dec in self.decoders.values():
+            if dec.temporal:  # frame by frame, the state carried along
+                per_frame, state = [], None
+                for k in range(t):
+                    intr = intrinsics[:, k] if intrinsics.dim() == 3 else intrinsics
+                    frame_reset = None if reset is None else reset[:, k]
+                    levels, state = dec([f[:, k] for f in out.features], rot[:, k], trans[:, k], intr, state, frame_reset)
+                    per_frame.append(dec.level_maps(levels))
+                maps = {key: [torch.stack(per_level, 1) for per_level in zip(*(fr[key] for fr in per_frame))]
+                        for key in dec.maps}
+            else:  # every frame at once
+                maps = {key: [m.unflatten(0, (b, t)) for m in v] for key, v in dec.level_maps(dec(feats)[0]).items()}
+            for key, v in maps.items():
+                out.put(key, v)
         return out
 
     # ------------------------------------------------------------------ streaming
@@ -171,30 +187,13 @@ class SceneModel(nn.Module):
             ``(out, new_state)``; ``out.depth [B,1,H,W]`` metres and ``out.semantic [B,N,H,W]`` probabilities at the
             input size (nearest upsampling of the finest level), ``out.levels`` the per-level maps.
         """
-        _check_step(rgb, rot, trans, intrinsics, reset)
-        engine = self._fast_engine()
-        if engine is not None:
-            return engine.step(rgb, rot, trans, intrinsics, reset, state)
-        feats = self.encoder(rgb)
+        _check_inputs(rgb, rot, trans, intrinsics, reset, sequence=False)
+        streamer = self._streamer()
+        if streamer is not None:
+            return streamer.step(rgb, rot, trans, intrinsics, reset, state)
         size = tuple(rgb.shape[-2:])
-        dl = sl = None
-        new_state = StreamState()
-        if self.depth_decoder is not None:
-            dl, new_state = self._decode_depth(feats, rot, trans, intrinsics, reset, state)
-        if self.semantic_decoder is not None:
-            sl = self.semantic_decoder(feats)
-        return step_output(dl, sl, lambda x: resize_nn2(x, size)), new_state
-
-    def _decode_depth(self, feats, rot, trans, intrinsics, reset, state):
-        prev_f = prev_d = None
-        if state is not None and state.features:
-            if reset is not None and not self.depth_decoder.static and bool(reset.all()):
-                pass  # nothing of the state is used: a new batch size or resolution is fine
-            else:
-                _check_state(state, feats)
-                prev_f, prev_d = state.features, state.depths
-        outs, nf, nd = self.depth_decoder(feats, rot, trans, intrinsics, prev_f, prev_d, reset)
-        return outs, StreamState(nf, nd)
+        feats = self.encoder(rgb)
+        return decode_step(self.decoders, feats, rot, trans, intrinsics, reset, state, lambda x: resize_nn2(x, size))
 
     @torch.no_grad()
     def infer(
@@ -213,7 +212,8 @@ class SceneModel(nn.Module):
             intrinsics: ``[4]`` or ``[B, 4]`` (fx, fy, cx, cy) at the frame size.
             reset: optional ``[T]`` / ``[B, T]`` bool; frame 0 always resets.
         Returns:
-            :class:`StepOutput` whose ``depth`` is ``[.., T, 1, H, W]`` and ``semantic`` ``[.., T, N, H, W]``.
+            :class:`StepOutput` whose ``depth`` is ``[.., T, 1, H, W]`` and ``semantic`` ``[.., T, N, H, W]`` (and
+            ``heads`` every decoder's output), without per-level maps.
         """
         p = next(self.parameters())
         frames = torch.as_tensor(frames, dtype=p.dtype, device=p.device)
@@ -234,18 +234,12 @@ class SceneModel(nn.Module):
         if reset is not None:
             rs |= torch.as_tensor(reset, dtype=torch.bool, device=p.device).view(-1, t).expand(b, t)
         rs[:, 0] = True
-        state = None
-        depths, sems = [], []
+        state, heads = None, []
         for k in range(t):
             out, state = self.step(frames[:, k], rot[:, k], trans[:, k], intr, rs[:, k], state)
-            depths.append(out.depth)
-            sems.append(out.semantic)
-        depth = torch.stack(depths, 1) if depths[0] is not None else None
-        semantic = torch.stack(sems, 1) if sems[0] is not None else None
-        if single:
-            depth = None if depth is None else depth[0]
-            semantic = None if semantic is None else semantic[0]
-        return StepOutput(depth, semantic)
+            heads.append(out.heads)
+        full = {h: torch.stack([o[h] for o in heads], 1)[0 if single else slice(None)] for h in heads[0]}
+        return StepOutput(full.get("depth"), full.get("semantic"), heads=full)
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
@@ -278,13 +272,13 @@ def build_model(config: ModelConfig | None = None, **overrides) -> SceneModel:
         config = ModelConfig(**overrides)
     elif overrides:
         config = ModelConfig.from_dict({**config.to_dict(), **overrides})
-    return MODELS[config.arch](config)
+    return MODELS.get(config.arch, SceneModel)(config)
 
 
-def _rebuild_fast_engine(module: SceneModel, incompatible_keys) -> None:
-    """``load_state_dict`` post-hook: the fast engine holds copies of the weights, refresh them."""
+def _rebuild_streamer(module: SceneModel, incompatible_keys) -> None:
+    """``load_state_dict`` post-hook (and device change): the streamer holds copies of the weights, refresh them."""
     if module._fast is not None:
-        module._fast = type(module._fast)(module, **module._fast_options)
+        module._fast = STREAMERS[module._fast_mode](module, **module._fast_options)
 
 
 # ---------------------------------------------------------------------- input checks
@@ -292,40 +286,16 @@ def _shape_error(name: str, expected: str, got: torch.Tensor) -> ValueError:
     return ValueError(f"argument {name} must have shape {expected}, got {list(got.shape)}")
 
 
-def _check_step(rgb, rot, trans, intrinsics, reset) -> None:
-    if rgb.dim() != 4 or rgb.shape[1] != 3:
-        raise _shape_error("rgb", "[B, 3, H, W]", rgb)
-    b = rgb.shape[0]
-    if rot.shape != (b, 4):
-        raise _shape_error("rot", f"[{b}, 4]", rot)
-    if trans.shape != (b, 3):
-        raise _shape_error("trans", f"[{b}, 3]", trans)
-    if intrinsics.shape != (b, 4):
-        raise _shape_error("intrinsics", f"[{b}, 4]", intrinsics)
-    if reset is not None and (reset.shape != (b,) or reset.dtype != torch.bool):
-        raise ValueError(f"argument reset must be a bool tensor of shape [{b}], got {reset.dtype} {list(reset.shape)}")
-
-
-def _check_sequence(rgb, rot, trans, intrinsics, reset) -> None:
-    if rgb.dim() != 5 or rgb.shape[2] != 3:
-        raise _shape_error("rgb", "[B, T, 3, H, W]", rgb)
-    b, t = rgb.shape[:2]
-    if rot.shape != (b, t, 4):
-        raise _shape_error("rot", f"[{b}, {t}, 4]", rot)
-    if trans.shape != (b, t, 3):
-        raise _shape_error("trans", f"[{b}, {t}, 3]", trans)
-    if intrinsics.shape not in ((b, 4), (b, t, 4)):
-        raise _shape_error("intrinsics", f"[{b}, 4] or [{b}, {t}, 4]", intrinsics)
-    if reset is not None and (reset.shape != (b, t) or reset.dtype != torch.bool):
-        raise ValueError(f"argument reset must be a bool tensor of shape [{b}, {t}], got {list(reset.shape)}")
-
-
-def _check_state(state: StreamState, feats: list[torch.Tensor]) -> None:
-    if len(state.features) != len(feats):
-        raise ValueError(f"state has {len(state.features)} levels, the model has {len(feats)}")
-    for j, (s, f) in enumerate(zip(state.features, feats)):
-        if s.shape != f.shape:
-            raise ValueError(
-                f"state level {j + 1} has shape {list(s.shape)} but this frame gives {list(f.shape)}: the batch size "
-                "or resolution changed; pass reset=True for every sample (or state=None) to start over"
-            )
+def _check_inputs(rgb, rot, trans, intrinsics, reset, sequence: bool) -> None:
+    """Shapes of the inputs of :meth:`SceneModel.step` (``[B, ...]``) or ``forward_sequence`` (``[B, T, ...]``)."""
+    if rgb.dim() != 4 + sequence or rgb.shape[-3] != 3:
+        raise _shape_error("rgb", "[B, T, 3, H, W]" if sequence else "[B, 3, H, W]", rgb)
+    lead = tuple(rgb.shape[: 1 + sequence])
+    dims = ", ".join(map(str, lead))
+    for name, t, n in (("rot", rot, 4), ("trans", trans, 3)):
+        if t.shape != (*lead, n):
+            raise _shape_error(name, f"[{dims}, {n}]", t)
+    if intrinsics.shape not in ((lead[0], 4), (*lead, 4)):
+        raise _shape_error("intrinsics", f"[{lead[0]}, 4]" + (f" or [{dims}, 4]" if sequence else ""), intrinsics)
+    if reset is not None and (reset.shape != lead or reset.dtype != torch.bool):
+        raise ValueError(f"argument reset must be a bool tensor of shape [{dims}], got {reset.dtype} {list(reset.shape)}")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Optional, Sequence
+from typing import Optional, Sequence
 
 import torch
 
@@ -28,30 +28,48 @@ class SemanticLevelOutput:
     other: Tensor
 
 
-@dataclass
 class StreamState:
-    """Explicit streaming state: for every depth level (finest first), the normalised features of the last frame
-    ``[B, C_l, h_l, w_l]`` and the depth it predicted ``[B, 1, h_l, w_l]``. Empty for M4Semantic (no temporal input).
+    """Explicit streaming state: named components, each a tuple of per-level tensors (finest first), contributed by
+    the model's temporal decoders in order. The depth decoder's are ``features`` (component ``"feat"``: the
+    normalised features of the last frame ``[B, C_l, h_l, w_l]``) and ``depths`` (``"depth"``: the depth it
+    predicted ``[B, 1, h_l, w_l]``). Empty for M4Semantic (no temporal input).
     """
 
-    features: tuple[Tensor, ...] = ()
-    depths: tuple[Tensor, ...] = ()
+    def __init__(self, features: Sequence[Tensor] = (), depths: Sequence[Tensor] = (), **components: Sequence[Tensor]):
+        named = {"feat": features, "depth": depths, **components}
+        self.components: dict[str, tuple[Tensor, ...]] = {k: tuple(v) for k, v in named.items() if len(v)}
+
+    @property
+    def features(self) -> tuple[Tensor, ...]:
+        return self.components.get("feat", ())
+
+    @property
+    def depths(self) -> tuple[Tensor, ...]:
+        return self.components.get("depth", ())
 
     def flatten(self) -> tuple[Tensor, ...]:
-        """``(f_1, ..., f_L, d_1, ..., d_L)`` e.g. for ONNX inputs/outputs or CUDA-graph buffers."""
-        return (*self.features, *self.depths)
+        """``(f_1, ..., f_L, d_1, ..., d_L, ...)`` component after component, e.g. for ONNX inputs/outputs or CUDA-graph
+        buffers."""
+        return tuple(t for comp in self.components.values() for t in comp)
 
     @classmethod
-    def unflatten(cls, tensors: tuple[Tensor, ...] | list[Tensor]) -> "StreamState":
-        n = len(tensors) // 2
-        return cls(tuple(tensors[:n]), tuple(tensors[n:]))
+    def unflatten(cls, tensors: Sequence[Tensor], names: Sequence[str] = ("feat", "depth")) -> "StreamState":
+        """Inverse of :meth:`flatten` for components ``names`` of equal length."""
+        n = len(tensors) // len(names)
+        return cls(**{name: tuple(tensors[k * n : (k + 1) * n]) for k, name in enumerate(names)})
 
     @property
     def batch_size(self) -> Optional[int]:
-        return self.features[0].shape[0] if self.features else None
+        flat = self.flatten()
+        return flat[0].shape[0] if flat else None
 
     def detach(self) -> "StreamState":
-        return StreamState(tuple(t.detach() for t in self.features), tuple(t.detach() for t in self.depths))
+        return StreamState(**{k: tuple(t.detach() for t in v) for k, v in self.components.items()})
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, StreamState) or self.components.keys() != other.components.keys():
+            return False
+        return all(torch.equal(a, b) for a, b in zip(self.flatten(), other.flatten()))
 
 
 @dataclass
@@ -62,12 +80,14 @@ class StepOutput:
         depth: ``[B, 1, H, W]`` metres at the input size (nearest-upsampled finest level), or None (M4Semantic).
         semantic: ``[B, N, H, W]`` class probabilities at the input size, or None (M4Depth).
         levels: per-level maps, finest first: keys ``depth``, ``parallax``, ``depth_other``, ``semantic``,
-            ``semantic_logits``, ``semantic_other`` (those the model has).
+            ``semantic_logits``, ``semantic_other`` (those the model has, and those of any further decoder).
+        heads: the input-size output of every decoder by its head name (``depth``, ``semantic``, ...).
     """
 
     depth: Optional[Tensor]
     semantic: Optional[Tensor]
     levels: dict[str, list[Tensor]] = field(default_factory=dict)
+    heads: dict[str, Tensor] = field(default_factory=dict)
 
     @property
     def labels(self) -> Optional[Tensor]:
@@ -75,35 +95,13 @@ class StepOutput:
         return None if self.semantic is None else self.semantic.argmax(dim=1)
 
 
-def step_output(
-    depth_levels: Optional[Sequence[DepthLevelOutput]],
-    semantic_levels: Optional[Sequence[SemanticLevelOutput]],
-    upsample: Callable[[Tensor], Tensor],
-) -> StepOutput:
-    """Assemble a :class:`StepOutput` from the per-level outputs of one step (finest first; ``None`` for a decoder
-    the model does not have): ``levels`` gets every per-level map, ``depth``/``semantic`` are the finest level's
-    depth ``[B,1,h,w]`` / probabilities ``[B,N,h,w]`` passed through ``upsample`` (to the input size)."""
-    levels: dict[str, list[Tensor]] = {}
-    depth = semantic = None
-    if depth_levels is not None:
-        levels["depth"] = [o.depth for o in depth_levels]
-        levels["parallax"] = [o.parallax for o in depth_levels]
-        levels["depth_other"] = [o.other for o in depth_levels]
-        depth = upsample(depth_levels[0].depth)
-    if semantic_levels is not None:
-        levels["semantic"] = [o.probs for o in semantic_levels]
-        levels["semantic_logits"] = [o.logits for o in semantic_levels]
-        levels["semantic_other"] = [o.other for o in semantic_levels]
-        semantic = upsample(semantic_levels[0].probs)
-    return StepOutput(depth, semantic, levels)
-
-
 @dataclass
 class SequenceOutput:
     """Training-mode output for a whole sequence; every list is finest level first, each entry ``[B, T, ...]``.
 
     ``depth``, ``parallax`` ``[B,T,1,h,w]``, ``depth_other`` ``[B,T,4,h,w]``, ``semantic`` (probabilities) and
-    ``semantic_logits`` ``[B,T,N,h,w]``, ``semantic_other`` ``[B,T,4,h,w]``. Lists are empty for a missing decoder.
+    ``semantic_logits`` ``[B,T,N,h,w]``, ``semantic_other`` ``[B,T,4,h,w]``. Lists are empty for a missing decoder;
+    ``extra`` holds the maps of further decoders by key.
     """
 
     depth: list[Tensor] = field(default_factory=list)
@@ -113,3 +111,10 @@ class SequenceOutput:
     semantic_logits: list[Tensor] = field(default_factory=list)
     semantic_other: list[Tensor] = field(default_factory=list)
     features: list[Tensor] = field(default_factory=list)
+    extra: dict[str, list[Tensor]] = field(default_factory=dict)
+
+    def put(self, key: str, maps: list[Tensor]) -> None:
+        if key in self.__dataclass_fields__ and key not in ("features", "extra"):
+            setattr(self, key, maps)
+        else:
+            self.extra[key] = maps

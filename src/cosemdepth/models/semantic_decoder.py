@@ -4,54 +4,45 @@ and "other" channels of the coarser level go through a refiner; softmax gives th
 from __future__ import annotations
 
 import torch
-import torch.nn as nn
 
 from ..config import ModelConfig
-from ..ops.normalize import grouped_l2_normalize
-from ..ops.resample import resize_nn1
 from .layers import Refiner
 from .outputs import SemanticLevelOutput
+from .pyramid import LevelOps, PyramidDecoder, PyramidLevel
 
 
-class SemanticLevel(nn.Module):
+class SemanticLevel(PyramidLevel):
     """One level l (absolute, 1 = finest) of the semantic decoder."""
 
     def __init__(self, level: int, channels: int, cfg: ModelConfig):
         super().__init__()
         self.level = level
+        self.channels = channels
         self.num_classes = cfg.num_classes
         self.normalize = cfg.feature_normalization
         self.refiner = Refiner(cfg.num_classes + 4 + channels, cfg.num_classes + 4)
 
-    def forward(self, feat: torch.Tensor, coarse: SemanticLevelOutput | None, guard: bool = True) -> SemanticLevelOutput:
+    def coarse_inputs(self, coarse: SemanticLevelOutput | None, f_hat: torch.Tensor, ops: LevelOps) -> SemanticLevelOutput:
+        """The coarser level's probabilities and "other" channels (NN1 upsampling), or the one-hot of the last class
+        ("others") and zeros at the coarsest level; ``logits`` are not used as inputs (the probabilities stand in)."""
         n = self.num_classes
-        f_hat = grouped_l2_normalize(feat, 1, guard=guard) if self.normalize else feat
-        b, _, h, w = feat.shape
+        b, _, h, w = f_hat.shape
         if coarse is None:
-            probs_in = feat.new_zeros(b, n, h, w)
-            probs_in[:, n - 1] = 1.0  # one-hot of the last class ("others")
-            other_in = feat.new_zeros(b, 4, h, w)
-        else:
-            probs_in = resize_nn1(coarse.probs, (h, w))
-            other_in = resize_nn1(coarse.other, (h, w))
-        y = self.refiner(torch.cat([probs_in, other_in, f_hat], dim=1))
-        logits = y[:, :n]
-        return SemanticLevelOutput(torch.softmax(logits, dim=1), logits, y[:, n:])
+            probs_in = f_hat.new_zeros(b, n, h, w)
+            probs_in[:, n - 1] = 1.0
+            return SemanticLevelOutput(probs_in, probs_in, f_hat.new_zeros(b, 4, h, w))
+        probs_in = ops.nearest(coarse.probs, (h, w))
+        return SemanticLevelOutput(probs_in, probs_in, ops.nearest(coarse.other, (h, w)))
+
+    def refine(self, f_hat, inputs: SemanticLevelOutput, frame, prev, ops: LevelOps) -> SemanticLevelOutput:
+        y = (ops.refiner or self.refiner)(ops.concat([inputs.probs, inputs.other, f_hat]))
+        logits = y[:, : self.num_classes]
+        return SemanticLevelOutput(torch.softmax(logits, dim=1), logits, y[:, self.num_classes :])
 
 
-class SemanticDecoder(nn.Module):
-    """The M4Semantic decoder pyramid, run coarse -> fine; per frame, no temporal input (as the released code)."""
+class SemanticDecoder(PyramidDecoder):
+    """The M4Semantic decoder pyramid; per frame, no temporal input (as the released code)."""
 
-    def __init__(self, cfg: ModelConfig):
-        super().__init__()
-        self.levels = nn.ModuleList(
-            SemanticLevel(l, c, cfg) for l, c in enumerate(cfg.encoder_channels, start=1)
-        )
-        self.guard = True
-
-    def forward(self, feats: list[torch.Tensor]) -> list[SemanticLevelOutput]:
-        outs: list[SemanticLevelOutput | None] = [None] * len(self.levels)
-        coarse = None
-        for j in range(len(self.levels) - 1, -1, -1):
-            coarse = outs[j] = self.levels[j](feats[j], coarse, self.guard)
-        return outs
+    level_class = SemanticLevel
+    maps = {"semantic": "probs", "semantic_logits": "logits", "semantic_other": "other"}
+    head = "semantic"

@@ -29,18 +29,18 @@ class Conv2dSame(nn.Conv2d):
     """
 
     def __init__(self, in_channels: int, out_channels: int, kernel_size: int = 3, stride: int = 1, bias: bool = True):
-        self._symmetric = stride == 1 and kernel_size % 2 == 1
+        self.symmetric = stride == 1 and kernel_size % 2 == 1
         super().__init__(
             in_channels,
             out_channels,
             kernel_size,
             stride=stride,
-            padding=kernel_size // 2 if self._symmetric else 0,
+            padding=kernel_size // 2 if self.symmetric else 0,
             bias=bias,
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if not self._symmetric:
+        if not self.symmetric:
             k, s = self.kernel_size[0], self.stride[0]
             top, bottom = same_padding(x.shape[-2], k, s)
             left, right = same_padding(x.shape[-1], k, s)

@@ -1,0 +1,226 @@
+"""The decoder pyramid, once for every decoder: the coarse -> fine level loop and the per-sample reset logic.
+
+A decoder is a :class:`PyramidDecoder` whose levels (:class:`PyramidLevel`) provide a few per-level operations:
+``prepare`` the encoder features, the ``coarse_inputs`` from the coarser level (or the constant init, which is also
+what a resetting sample outputs), ``refine`` them, and for a temporal decoder the state it hands to the next frame.
+How the heavy parts of a level run (cost volumes, concatenation, refiner, nearest resize, feature layout) comes from
+:class:`LevelOps`: the reference modules by default, packed equivalents from the fast inference engine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Optional, Sequence
+
+import torch
+import torch.nn as nn
+
+from ..ops.cost_volume import parallax_sweep_cost_volume, spatial_cost_volume
+from ..ops.normalize import grouped_l2_normalize
+from ..ops.resample import resize_nn1
+from .outputs import StepOutput, StreamState
+
+Tensor = torch.Tensor
+
+
+def _identity(x: Tensor) -> Tensor:
+    return x
+
+
+@dataclass(frozen=True)
+class LevelOps:
+    """The operations of a level that an inference engine may replace by equivalents (defaults: the reference ones).
+
+    Attributes:
+        layout: applied to the encoder features before ``prepare`` (e.g. to NCHW for the cost volumes).
+        concat: ``blocks -> refiner input`` (channel concatenation).
+        refiner: ``x -> y``, or None for the level's own :class:`~cosemdepth.models.layers.Refiner`.
+        nearest: ``(x, size) -> x`` TF nearest resize without half-pixel centres (NN1).
+        pscv: ``(feat, prev, points, groups, half) -> (pscv, warped_parallax)`` (see ``parallax_sweep_cost_volume``).
+        sncv: ``(feat, groups, radius) -> volume`` (see ``spatial_cost_volume``).
+        hypot: compute the epipolar distances with ``hypot`` (see ``epipolar_geometry``).
+    """
+
+    layout: Callable = _identity
+    concat: Callable = functools.partial(torch.cat, dim=1)
+    refiner: Optional[Callable] = None
+    nearest: Callable = resize_nn1
+    pscv: Callable = parallax_sweep_cost_volume
+    sncv: Callable = spatial_cost_volume
+    hypot: bool = False
+
+
+REFERENCE_OPS = LevelOps()
+
+
+class PyramidLevel(nn.Module):
+    """One level l (absolute, 1 = finest) of a decoder. Its operations:
+
+    * ``prepare(feat, guard)``: the encoder features as the level uses them (grouped L2 normalisation, spec 4.3, if
+      ``normalize``);
+    * ``coarse_inputs(coarse, f_hat, ops)``: the level's inputs from the coarser level's output (None at the
+      coarsest level), a dataclass of tensors like the output: also what a resetting sample outputs;
+    * ``refine(f_hat, inputs, frame, prev, ops)``: the output; ``prev`` is this level's entry of every state
+      component (temporal decoders), ``frame`` the decoder's per-frame context;
+    * ``next_state(f_hat, out)`` / ``reset_state(f_hat, inputs)``: this level's entry of every state component after
+      a normal step / for a sample that resets (temporal decoders).
+    """
+
+    level: int
+    groups: int = 1  # channel groups of the feature normalisation
+    normalize: bool = False
+
+    def prepare(self, feat: Tensor, guard: bool) -> Tensor:
+        return grouped_l2_normalize(feat, self.groups, guard=guard) if self.normalize else feat
+
+    def next_state(self, f_hat: Tensor, out: Any) -> tuple[Tensor, ...]:
+        return ()
+
+    def reset_state(self, f_hat: Tensor, inputs: Any) -> tuple[Tensor, ...]:
+        return ()
+
+
+class PyramidDecoder(nn.Module):
+    """A decoder pyramid run coarse -> fine, one frame at a time; with ``state_names`` it is temporal (explicit state
+    per level, per-sample reset).
+
+    Class attributes of a subclass: ``level_class`` (its :class:`PyramidLevel`), ``state_names`` (state components,
+    empty: stateless), ``maps`` (``StepOutput.levels`` key -> attribute of a level output) and ``head`` (the key whose
+    finest map, upsampled to the input size, is the decoder's output).
+
+    Attributes:
+        guard: protect the degenerate cases of spec 3.4 (default True; results on normal inputs are unchanged).
+        static: never branch on the reset mask (always refine and select per sample); for graph capture and export.
+            The default skips the refiners when every sample resets.
+    """
+
+    level_class: type = PyramidLevel
+    state_names: tuple[str, ...] = ()
+    maps: Mapping[str, str] = {}
+    head: str = ""
+
+    def __init__(self, cfg):
+        super().__init__()
+        self.levels = nn.ModuleList(self.level_class(l, c, cfg) for l, c in enumerate(cfg.encoder_channels, start=1))
+        self.guard = True
+        self.static = False
+
+    @property
+    def temporal(self) -> bool:
+        return bool(self.state_names)
+
+    def frame(self, rot: Tensor, trans: Tensor, intrinsics: Tensor) -> Any:
+        """Per-frame context handed to every level's ``refine`` (e.g. the rotation matrix)."""
+
+    def level_state_shapes(self, level: PyramidLevel, batch: int, h: int, w: int) -> tuple[tuple[int, ...], ...]:
+        """Shape of each state component at ``level`` for an ``h x w`` level map (temporal decoders)."""
+        return ()
+
+    def state_shapes(self, batch: int, height: int, width: int) -> dict[str, list[tuple[int, ...]]]:
+        """Per-level shapes of every state component (finest first) for a ``batch x 3 x height x width`` input."""
+        sizes = [(-(-height // 2**lvl.level), -(-width // 2**lvl.level)) for lvl in self.levels]
+        per_level = [self.level_state_shapes(lvl, batch, h, w) for lvl, (h, w) in zip(self.levels, sizes)]
+        return {name: [shapes[k] for shapes in per_level] for k, name in enumerate(self.state_names)}
+
+    def level_maps(self, outs: Sequence[Any]) -> dict[str, list[Tensor]]:
+        return {key: [getattr(o, attr) for o in outs] for key, attr in self.maps.items()}
+
+    def forward(
+        self, feats: Sequence[Tensor], rot: Optional[Tensor] = None, trans: Optional[Tensor] = None,
+        intrinsics: Optional[Tensor] = None, prev: Optional[Sequence[Sequence[Tensor]]] = None,
+        reset: Optional[Tensor] = None, ops: Optional[Sequence[LevelOps]] = None, static: Optional[bool] = None,
+    ) -> tuple[list[Any], tuple[tuple[Tensor, ...], ...]]:
+        """Decode one frame.
+
+        Args:
+            feats: encoder features, finest first, ``[B, C_l, h_l, w_l]``.
+            rot, trans: ``[B, 4]``, ``[B, 3]`` relative motion previous -> current; intrinsics ``[B, 4]`` at the input
+                size (temporal decoders).
+            prev: the previous frame's state, one per-level tuple per state component (None: no previous frame,
+                every sample resets).
+            reset: ``[B]`` bool, samples that start a new trajectory (None: no sample resets).
+            ops: per-level operations (default: the reference ones); static: overrides ``self.static``.
+        Returns:
+            per-level outputs (finest first) and the new state (one per-level tuple per state component).
+        """
+        n = len(self.levels)
+        ops = ops or [REFERENCE_OPS] * n
+        static = self.static if static is None else static
+        if not self.temporal or (prev is not None and reset is None):
+            all_reset = any_reset = False
+        elif prev is None:
+            all_reset = any_reset = True
+        elif static:
+            all_reset, any_reset = False, True
+        else:
+            all_reset, any_reset = bool(reset.all()), bool(reset.any())
+        if prev is not None and self.temporal and not all_reset:
+            check_state(prev, feats)
+        frame = self.frame(rot, trans, intrinsics) if self.temporal else None
+        mask = reset.view(-1, 1, 1, 1) if any_reset and not all_reset else None
+        outs: list[Any] = [None] * n
+        states: list[tuple[Tensor, ...]] = [()] * n
+        coarse = None
+        for j in range(n - 1, -1, -1):
+            lvl: PyramidLevel = self.levels[j]
+            f_hat = lvl.prepare(ops[j].layout(feats[j]), self.guard)
+            inputs = lvl.coarse_inputs(coarse, f_hat, ops[j])
+            if all_reset:
+                out, states[j] = inputs, lvl.reset_state(f_hat, inputs)
+            else:
+                level_prev = None if prev is None else tuple(comp[j] for comp in prev)
+                out = lvl.refine(f_hat, inputs, frame, level_prev, ops[j])
+                states[j] = lvl.next_state(f_hat, out)
+                if mask is not None:
+                    out = _select(mask, inputs, out)
+                    states[j] = tuple(
+                        s if s is r else torch.where(mask, r, s) for r, s in zip(lvl.reset_state(f_hat, inputs), states[j])
+                    )
+            coarse = outs[j] = out
+        return outs, tuple(zip(*states)) if self.temporal else ()
+
+
+def _select(mask: Tensor, where_true: Any, where_false: Any) -> Any:
+    """Per-sample choice between two level outputs (dataclasses of tensors)."""
+    return type(where_false)(
+        *(torch.where(mask, getattr(where_true, f.name), getattr(where_false, f.name))
+          for f in dataclasses.fields(where_false))
+    )
+
+
+def check_state(prev: Sequence[Sequence[Tensor]], feats: Sequence[Tensor]) -> None:
+    """Raise ValueError unless every state component has one entry per level with the batch size and level size of
+    ``feats`` (a state from another batch size or resolution)."""
+    for comp in prev:
+        if len(comp) != len(feats):
+            raise ValueError(f"state has {len(comp)} levels, the model has {len(feats)}")
+        for j, (s, f) in enumerate(zip(comp, feats)):
+            if s.shape[0] != f.shape[0] or s.shape[2:] != f.shape[2:]:
+                raise ValueError(
+                    f"state level {j + 1} has shape {list(s.shape)} but this frame gives {list(f.shape)}: the batch "
+                    "size or resolution changed; pass reset=True for every sample (or state=None) to start over"
+                )
+
+
+def decode_step(
+    decoders: Mapping[str, PyramidDecoder], feats: Sequence[Tensor], rot: Tensor, trans: Tensor, intrinsics: Tensor,
+    reset: Optional[Tensor], state: Optional[StreamState], upsample: Callable[[Tensor], Tensor],
+    ops: Optional[Mapping[str, Sequence[LevelOps]]] = None, static: Optional[bool] = None,
+) -> tuple[StepOutput, StreamState]:
+    """One streaming step of every decoder on the encoder features of a frame (the reference path and the fast
+    engine both run this): the per-level maps, each decoder's head (its finest map passed through ``upsample``, to
+    the input size) and the new state."""
+    levels: dict[str, list[Tensor]] = {}
+    components: dict[str, tuple[Tensor, ...]] = {}
+    for name, dec in decoders.items():
+        prev = None
+        if dec.temporal and state is not None and all(state.components.get(c) for c in dec.state_names):
+            prev = [state.components[c] for c in dec.state_names]
+        outs, new = dec(feats, rot, trans, intrinsics, prev, reset, None if ops is None else ops[name], static)
+        levels.update(dec.level_maps(outs))
+        components.update(zip(dec.state_names, new))
+    heads = {dec.head: upsample(levels[dec.head][0]) for dec in decoders.values()}
+    return StepOutput(heads.get("depth"), heads.get("semantic"), levels, heads), StreamState(**components)
+
