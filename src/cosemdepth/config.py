@@ -100,18 +100,15 @@ def to_dict(cfg: Any) -> dict[str, Any]:
 # Training (spec 8): the paper's Mid-Air recipe as defaults
 # ---------------------------------------------------------------------------------------------------------------
 
-#: Dataset names a training run accepts: those of :func:`cosemdepth.data.open_dataset` and ``"toy"`` (a tiny
-#: procedural in-memory dataset for smoke tests, :mod:`cosemdepth.training.toy`).
-DATASET_NAMES = ("midair", "synthair", "topair", "aeroscapes", "flight", "toy")
-
-
 def known_datasets() -> tuple[str, ...]:
-    """The dataset names of :func:`cosemdepth.data.open_dataset` (when available) plus ``"toy"``."""
+    """The dataset names a training run accepts: the registered datasets of :mod:`cosemdepth.data.registry` (when
+    the readers are installed) plus ``"toy"`` (a tiny procedural in-memory dataset for smoke tests,
+    :mod:`cosemdepth.training.toy`)."""
     try:
-        from .data import DATASETS  # the data package's own list, when it has one
+        from .data import DATASETS  # the dataset table (deferred: the readers sit above the config)
     except ImportError:
-        return DATASET_NAMES
-    return tuple(DATASETS) + tuple(n for n in ("toy",) if n not in DATASETS)
+        return ("toy",)
+    return (*DATASETS, "toy")
 
 
 @dataclass(frozen=True)
@@ -434,6 +431,6 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
 
 
 __all__ = [
-    "ARCHITECTURES", "DATASET_NAMES", "DataConfig", "DatasetSource", "DebugConfig", "ENCODER_CHANNELS",
+    "ARCHITECTURES", "DataConfig", "DatasetSource", "DebugConfig", "ENCODER_CHANNELS",
     "MIDAIR_IMAGE_SIZE", "ModelConfig", "RunConfig", "TrainConfig", "build_config", "known_datasets", "to_dict",
 ]

@@ -8,9 +8,6 @@ from pathlib import Path
 from ..config import ARCHITECTURES, ModelConfig
 from ..errors import ConfigError
 
-#: Datasets with ground truth and split files (flights are opened by ``predict --flight``).
-SPLIT_DATASETS = ("midair", "synthair", "topair", "aeroscapes")
-
 
 def parse_size(text: str) -> int | tuple[int, int]:
     """``"384"`` -> 384; ``"720x1280"`` -> (720, 1280) (height x width)."""
@@ -102,13 +99,21 @@ def apply_threads(args: argparse.Namespace) -> None:
 
 
 def add_split_args(parser: argparse.ArgumentParser, required: bool = True) -> None:
-    parser.add_argument("--dataset", choices=SPLIT_DATASETS, required=required, metavar="NAME",
-                        help=f"dataset: {', '.join(SPLIT_DATASETS)}")
+    """``--dataset/--root/--split-dir/--split``; the dataset choices are the registered datasets with split files
+    (:func:`cosemdepth.data.registry.split_datasets`, read when the parser is built; flights are opened by
+    ``predict --flight``)."""
+    # deferred: the dataset table imports the readers (and torch), which the other commands' --help do not need
+    from ..data.registry import DATASETS, split_datasets
+
+    names = split_datasets()
+    parser.add_argument("--dataset", choices=names, required=required, metavar="NAME",
+                        help=f"dataset: {', '.join(names)}")
     parser.add_argument("--root", type=Path, required=required, metavar="ROOT", help="dataset root folder")
     parser.add_argument("--split-dir", type=Path, default=None, metavar="D",
                         help="folder of the split CSVs (required for midair; default ROOT/splits for synthair and "
                         "topair, ROOT/ImageSets for aeroscapes)")
-    parser.add_argument("--split", default=None, help="split to use (default test; val for aeroscapes)")
+    defaults = ", ".join(f"{name} {DATASETS[name].split}" for name in names)
+    parser.add_argument("--split", default=None, help=f"split to use (default: {defaults})")
 
 
 def add_run_args(parser: argparse.ArgumentParser) -> None:
@@ -150,6 +155,6 @@ def open_split(args: argparse.Namespace, size):
                         jpeg_idct=args.jpeg_idct)
 
 
-__all__ = ["SPLIT_DATASETS", "add_device_args", "add_model_args", "add_model_or_arch_args", "add_reference_arg",
+__all__ = ["add_device_args", "add_model_args", "add_model_or_arch_args", "add_reference_arg",
            "add_jpeg_idct_arg", "add_run_args", "add_split_args", "apply_threads", "load", "load_or_build", "open_split", "parse_size",
            "parse_size_pair", "positive_int"]

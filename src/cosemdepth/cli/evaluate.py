@@ -31,6 +31,7 @@ def run(args: argparse.Namespace) -> int:
     import contextlib
     from pathlib import Path
 
+    from ..data.registry import dataset_spec
     from ..evaluation.evaluator import evaluate
     from ..io.outdir import Input, model_inputs
     from ..io.staging import OutputFiles
@@ -45,8 +46,7 @@ def run(args: argparse.Namespace) -> int:
         result = evaluate(model, dataset, lanes=args.lanes, max_frames=args.max_frames, num_workers=args.workers,
                           progress=not args.no_progress and sys.stderr.isatty(), dataset_name=args.dataset)
         result.info["model"].update(path=str(args.model), name=Path(str(args.model)).name)
-        result.info["dataset"].update(root=str(args.root), split=args.split or ("val" if args.dataset ==
-                                      "aeroscapes" else "test"),
+        result.info["dataset"].update(root=str(args.root), split=args.split or dataset_spec(args.dataset).split,
                                       split_dir=None if args.split_dir is None else str(args.split_dir))
         text = result.to_markdown()
         print(text)

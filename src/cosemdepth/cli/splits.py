@@ -19,7 +19,11 @@ from ..errors import ConfigError
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("dataset", choices=("midair", "synthair", "topair"), help="dataset format")
+    # deferred: the dataset table imports the readers (and torch), which the other commands' --help do not need
+    from ..data.registry import DATASETS
+
+    names = tuple(n for n, spec in DATASETS.items() if spec.split_generator is not None)
+    parser.add_argument("dataset", choices=names, help="dataset format")
     parser.add_argument("root", type=Path, help="dataset root")
     parser.add_argument("out_dir", type=Path, nargs="?", help="output folder (default for synthair: ROOT/splits)")
     parser.add_argument(
@@ -33,30 +37,20 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..data.registry import dataset_spec
     from ..io.outdir import Input, check_output_dir
 
-    if args.out_dir is not None or args.dataset == "synthair":
-        out = args.out_dir if args.out_dir is not None else args.root / "splits"
-        # ROOT/splits is where the readers of SynthAir and TopAir look for a root's split CSVs
-        carve = ("splits",) if args.dataset in ("synthair", "topair") else ()
-        check_output_dir(out, command="splits", mode="into", what="OUT_DIR", inputs=[Input("ROOT", args.root, carve)])
-    if args.dataset == "topair":
-        from ..data.topair_splits import generate_topair_splits
-
-        if args.out_dir is None:
-            raise ConfigError("cosemdepth splits topair needs OUT_DIR")
-        written = generate_topair_splits(args.root, args.out_dir)
-    else:
-        from ..data.midair.splits import generate_splits
-
-        out_dir = args.out_dir
-        if out_dir is None:
-            if args.dataset == "midair":
-                raise ConfigError("cosemdepth splits midair needs OUT_DIR (nothing is written into the dataset)")
-            out_dir = args.root / "splits"
-        rule = args.rule or ("midair" if args.dataset == "midair" else "generic")
-        written = generate_splits(args.root, out_dir, rule=rule)
-        args.out_dir = out_dir
+    spec = dataset_spec(args.dataset)
+    out_dir = args.out_dir
+    if out_dir is None:
+        if not spec.splits_into_root:
+            raise ConfigError(f"cosemdepth splits {args.dataset} needs OUT_DIR (nothing is written into the dataset)")
+        out_dir = args.root / spec.split_dir
+    # ROOT/<split_dir> is where the reader looks for a root's split CSVs
+    carve = (spec.split_dir,) if spec.split_dir else ()
+    check_output_dir(out_dir, command="splits", mode="into", what="OUT_DIR", inputs=[Input("ROOT", args.root, carve)])
+    written = spec.split_generator(args.root, out_dir, rule=args.rule)
+    args.out_dir = out_dir
     for split, paths in written.items():
         rows = sum(_count_rows(p) for p in paths)
         print(f"{split}: {len(paths)} trajectories, {rows} rows")

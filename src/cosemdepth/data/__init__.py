@@ -12,9 +12,8 @@ from pathlib import Path
 from ..errors import ConfigError
 from .augment import AugmentConfig
 from .loader import MixedDataset, SeededLoader, collate, make_loader
+from .registry import DATASETS, DatasetSpec, dataset_spec, register_dataset
 from .sequence import SequenceDataset
-
-DATASETS = ("midair", "synthair", "topair", "aeroscapes", "flight")
 
 
 def open_dataset(
@@ -30,7 +29,8 @@ def open_dataset(
     """Open a dataset as a sequence dataset of item dicts.
 
     Args:
-        name: ``"midair"``, ``"synthair"``, ``"topair"``, ``"aeroscapes"`` or ``"flight"``.
+        name: a registered dataset (:mod:`cosemdepth.data.registry`): ``"midair"``, ``"synthair"``, ``"topair"``,
+            ``"aeroscapes"``, ``"flight"``, or one added with :func:`register_dataset`.
         root: dataset root (for ``"flight"``: the folder of images).
         split_dir: folder of the split files. Required for ``"midair"`` (``<split_dir>/<split>_data/**/*.csv``);
             ``"synthair"`` and ``"topair"`` default to ``<root>/splits``, ``"aeroscapes"`` to
@@ -52,34 +52,14 @@ def open_dataset(
         known), ``semantic`` [T,H,W] int64 (when known), ``rot`` [T,4], ``trans`` [T,3], ``intrinsics`` [4],
         ``reset`` [T] bool, plus ``frame``, ``id``, ``trajectory`` (and ``timestamp`` for flights).
     """
-    if name not in DATASETS:
-        raise ConfigError(f"unknown dataset {name!r}; choose one of {DATASETS}")
-    if name in ("midair", "synthair"):
-        from .midair.dataset import open_midair
-
-        if split_dir is None:
-            if name == "midair":
-                raise ConfigError("open_dataset('midair', ...) needs split_dir (the folder holding <split>_data/)")
-            split_dir = Path(root) / "splits"
-        _check_kwargs(open_midair, name, kwargs)
-        return open_midair(root, split_dir, split or "test", seq_len, 384 if size is None else size, augment,
-                           **{"name": name, **kwargs})
-    if name == "topair":
-        from .topair import open_topair
-
-        _check_kwargs(open_topair, name, kwargs)
-        return open_topair(root, split_dir, split or "test", seq_len, 384 if size is None else size, augment, **kwargs)
-    if name == "aeroscapes":
-        from .aeroscapes import open_aeroscapes
-
-        _check_kwargs(open_aeroscapes, name, kwargs)
-        return open_aeroscapes(root, split_dir, split or "val", seq_len, size, augment, **kwargs)
-    if name == "flight":
-        from .flight import open_flight
-
-        _check_kwargs(open_flight, name, kwargs)
-        return open_flight(root, split_dir, split, seq_len, size, augment, **kwargs)
-    raise AssertionError(name)
+    spec = dataset_spec(name)
+    if split_dir is None and spec.split_dir is not None:
+        split_dir = Path(root) / spec.split_dir
+    if split_dir is None and spec.needs_split_dir:
+        raise ConfigError(f"open_dataset({name!r}, ...) needs split_dir (the folder holding <split>_data/)")
+    _check_kwargs(spec.opener, name, kwargs)
+    return spec.opener(root, split_dir, split or spec.split, seq_len, spec.size if size is None else size, augment,
+                       **{**spec.options, **kwargs})
 
 
 def _check_kwargs(fn, name: str, kwargs: dict) -> None:
@@ -91,6 +71,6 @@ def _check_kwargs(fn, name: str, kwargs: dict) -> None:
 
 
 __all__ = [
-    "DATASETS", "AugmentConfig", "MixedDataset", "SeededLoader", "SequenceDataset", "collate", "make_loader",
+    "DATASETS", "AugmentConfig", "DatasetSpec", "dataset_spec", "register_dataset", "MixedDataset", "SeededLoader", "SequenceDataset", "collate", "make_loader",
     "open_dataset",
 ]

@@ -2,27 +2,25 @@
 
 from __future__ import annotations
 
+import colorsys
+
 import numpy as np
 
-#: Number of classes of each dataset's labels (as the readers return them).
-DATASET_CLASSES = {"midair": 7, "synthair": 7, "topair": 9, "aeroscapes": 12}
+from ..data.registry import DATASETS
 
 
-def _tables() -> dict[int, tuple[tuple[str, ...], np.ndarray]]:
-    from ..data import aeroscapes, topair
-    from ..data.midair import format as midair
+def dataset_classes() -> dict[str, int]:
+    """Number of classes of each registered dataset's labels (as the readers return them; datasets with labels)."""
+    return {name: spec.num_classes for name, spec in DATASETS.items() if spec.classes}
 
-    return {
-        7: (tuple(midair.CLASSES_7), np.asarray(midair.PALETTE_7, dtype=np.uint8)),
-        9: (tuple(topair.CLASSES), np.asarray(topair.PALETTE, dtype=np.uint8)),
-        12: (tuple(aeroscapes.CLASSES), np.asarray(aeroscapes.PALETTE, dtype=np.uint8)),
-    }
+
+def _table(spec) -> tuple[tuple[str, ...], np.ndarray]:
+    palette = spec.palette if spec.palette is not None else generic_palette(spec.num_classes)
+    return tuple(spec.classes), np.asarray(palette, dtype=np.uint8)
 
 
 def generic_palette(num_classes: int) -> np.ndarray:
     """A fixed, distinct-looking ``[N, 3]`` uint8 palette for class sets without one (golden-ratio hues)."""
-    import colorsys
-
     out = []
     for i in range(num_classes):
         h = (i * 0.618033988749895) % 1.0
@@ -35,17 +33,17 @@ def generic_palette(num_classes: int) -> np.ndarray:
 def class_info(num_classes: int, dataset: str | None = None) -> tuple[tuple[str, ...], np.ndarray]:
     """``(class names, palette [N, 3] uint8)`` for a model with ``num_classes`` classes (on ``dataset``).
 
-    The Mid-Air/SynthAir 7 classes, TopAir's 9 and Aeroscapes' 12 have their own names and palettes (the one of the
-    dataset when it matches the count, else the one of that count); other counts get ``class 0``, ... and
-    :func:`generic_palette`.
+    The class names and palette of ``dataset`` (a registered one, :mod:`cosemdepth.data.registry`) when its class
+    count matches, else those of the first registered dataset with that many classes (Mid-Air/SynthAir's 7,
+    TopAir's 9, Aeroscapes' 12); other counts get ``class 0``, ... and :func:`generic_palette`.
     """
-    tables = _tables()
-    n = DATASET_CLASSES.get(dataset or "", num_classes)
-    if n != num_classes:
-        n = num_classes
-    if n in tables:
-        return tables[n]
+    spec = DATASETS.get(dataset or "")
+    if spec is not None and spec.num_classes == num_classes:
+        return _table(spec)
+    for spec in DATASETS.values():
+        if spec.classes and spec.num_classes == num_classes:
+            return _table(spec)
     return tuple(f"class {i}" for i in range(num_classes)), generic_palette(num_classes)
 
 
-__all__ = ["DATASET_CLASSES", "class_info", "generic_palette"]
+__all__ = ["dataset_classes", "class_info", "generic_palette"]

@@ -36,7 +36,7 @@ from typing import Any, Callable, Iterable
 import torch
 
 from ..errors import ConfigError
-from .classes import DATASET_CLASSES, class_info
+from .classes import class_info, dataset_classes
 from .metrics import ALL_DEPTH_METRICS, EvaluationMetrics, format_markdown_table
 from .resources import PeakMemory, machine_info
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
@@ -218,7 +218,7 @@ class Evaluator:
                 f"{self.dataset_name!r} has no {' and no '.join(what)} ground truth"
             )
         if self.eval_semantic:
-            expected = DATASET_CLASSES.get(self.dataset_name)
+            expected = dataset_classes().get(self.dataset_name)
             if expected is not None and expected != self.cfg.num_classes:
                 raise ConfigError(
                     f"the model predicts {self.cfg.num_classes} classes but the {self.dataset_name} labels have "

@@ -64,12 +64,12 @@ def open_source(
     if src.split_dir is not None and not Path(src.split_dir).is_dir():
         raise DatasetError(f"{key}.split_dir: split folder {src.split_dir} not found")
     try:
-        from ..data import open_dataset
+        from ..data import dataset_spec, open_dataset
     except ImportError as e:
         raise ConfigError(f"{key}: the dataset readers (cosemdepth.data.open_dataset) are not available in this "
                           f"installation ({e}); only the 'toy' dataset can be used") from e
     kwargs: dict[str, Any] = {"seed": seed}
-    if src.name != "aeroscapes":  # single images: no window modes
+    if dataset_spec(src.name).windows:  # (not for single images)
         kwargs.update(mode=mode, db_seq_len=db_seq_len)
     kwargs.update(src.options)
     try:
