@@ -18,6 +18,7 @@ from dataclasses import asdict
 import torch
 
 from ..config import ARCHITECTURES
+from ..devices import resolve_device
 from ..errors import ConfigError
 from ._shared import parse_size_pair
 
@@ -75,20 +76,6 @@ def _is_our_md(path) -> bool:
     return first.startswith("Measured ") and ", PyTorch " in first
 
 
-def resolve_device(name: str) -> str:
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    try:
-        dev = torch.device(name)
-    except RuntimeError as e:
-        raise ConfigError(f"--device {name!r} is not a device name: {e}") from e
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError(f"--device {name}: CUDA is not available in this PyTorch/machine")
-    if dev.type not in ("cpu", "cuda"):
-        raise ConfigError(f"--device must be cpu or cuda, got {name!r}")
-    return str(dev)
-
-
 def run(args: argparse.Namespace) -> int:
     from ..bench.report import markdown, write_report
     from ..bench.runner import (
@@ -103,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     )
 
     h, w = parse_size_pair(args.size)
-    device = resolve_device(args.device)
+    device = str(resolve_device(args.device))
     cuda = device.startswith("cuda")
     if args.threads:
         torch.set_num_threads(args.threads)

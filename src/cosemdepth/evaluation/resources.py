@@ -20,6 +20,8 @@ from pathlib import Path
 
 import torch
 
+from ..devices import resolve_device  # re-exported: the commands import it from here
+
 
 def _status_kb(field: str) -> int | None:
     try:
@@ -113,27 +115,6 @@ def machine_info(device: torch.device | str = "cpu") -> dict[str, object]:
     if device.type == "cuda" and torch.cuda.is_available():
         info["gpu"] = torch.cuda.get_device_name(device)
     return info
-
-
-def resolve_device(name: str) -> torch.device:
-    """``"cpu"``, ``"cuda"``, ``"cuda:1"``, ``"mps"`` -> a device that exists, else :class:`ConfigError`."""
-    from ..errors import ConfigError
-
-    try:
-        device = torch.device(name)
-    except (RuntimeError, TypeError) as e:
-        raise ConfigError(f"--device: not a device name: {name!r} ({e})") from None
-    if device.type == "cuda":
-        if not torch.cuda.is_available():
-            raise ConfigError(f"--device {name}: CUDA is not available on this machine")
-        if device.index is not None and device.index >= torch.cuda.device_count():
-            raise ConfigError(f"--device {name}: only {torch.cuda.device_count()} CUDA device(s) here")
-    elif device.type == "mps":
-        if not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
-            raise ConfigError(f"--device {name}: MPS is not available on this machine")
-    elif device.type != "cpu":
-        raise ConfigError(f"--device: unsupported device {name!r} (cpu, cuda[:N] or mps)")
-    return device
 
 
 __all__ = ["PeakMemory", "cpu_model", "machine_info", "resolve_device"]

@@ -33,6 +33,7 @@ import torch
 from torch.utils.data import Dataset
 
 from ..config import RunConfig
+from ..devices import resolve_device
 from ..errors import ConfigError, CosemdepthError, DatasetError
 from ..evaluation.metrics import selection_rule
 from ..models import build_model
@@ -112,17 +113,6 @@ class NonFiniteGuard:
         self.streak = 0
 
 
-def resolve_device(name: str) -> torch.device:
-    """``train.device`` -> a torch device; "auto" is CUDA when available, else the CPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ConfigError(f"train.device: {name!r} asked for, but CUDA is not available (use 'auto' or 'cpu')")
-    if name == "mps" and not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
-        raise ConfigError("train.device: 'mps' asked for, but MPS is not available")
-    return torch.device(name)
-
-
 def seed_everything(seed: int) -> None:
     """Seed python's, numpy's and torch's global generators (CPU and CUDA)."""
     random.seed(seed)
@@ -181,7 +171,7 @@ class Trainer:
         self.listeners = list(listeners)
         self.console = console
         tc = config.train
-        device = resolve_device(tc.device)
+        device = resolve_device(tc.device, "train.device")
         self.dist = D.init_distributed(device.type == "cuda")
         if self.dist.enabled and device.type == "cuda":
             device = torch.device("cuda", self.dist.local_rank)
