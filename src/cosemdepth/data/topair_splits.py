@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import DatasetError
 from .files import dataset_root, read_text
-from .midair.splits import write_csv, write_split_files
+from .midair.splits import write_split_files
 from .poses import QUATERNION_TOLERANCE, relative_camera_motions
 from .topair import ENVIRONMENTS, FRAME_SKIPS, TEST_ENVIRONMENTS
 
