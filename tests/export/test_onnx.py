@@ -170,14 +170,19 @@ def test_check_catches_a_real_semantic_difference(shipped_export):
     assert max(report.depth_rel) <= report.depth_tol
 
 
-def test_sequential_spatial_mean_sums_in_float32_one_term_after_the_other():
-    """Hand-made: 1 + 2^-24 + 2^-24 + ... rounds every small term away when summed in order (each addition ties to
-    even at 1.0), whereas the exact mean keeps them; float64 input keeps them too."""
+def test_sequential_spatial_mean_sums_in_float32_chains():
+    """Hand-made: 1 followed by 2^-24's. One chain (the textbook loop) rounds every small term away (each addition
+    ties to even at 1.0); with 4 lanes, lanes 1-3 sum their small terms exactly and only then meet the 1; float64
+    keeps everything. 18 terms are padded with exact zeros to 20."""
     from cosemdepth.export.check import sequential_spatial_mean
 
-    x = torch.full((1, 1, 4, 4), 2.0**-24)
+    x = torch.full((1, 1, 3, 6), 2.0**-24)
     x[0, 0, 0, 0] = 1.0
-    assert sequential_spatial_mean(x).item() == 1.0 / 16
-    exact = (1.0 + 15 * 2.0**-24) / 16
-    assert sequential_spatial_mean(x.double()).item() == exact
+    assert sequential_spatial_mean(x, lanes=1).item() == np.float32(1.0) / np.float32(18)
+    # lane 0: 1 + 4 tiny terms (all lost); lanes 1-3: 13 tiny terms exactly (5+4+4); 1 + 13 * 2^-24 rounds to
+    # 1 + 12 * 2^-24 (float32 spacing at 1 is 2^-23, ties to even)
+    four = (np.float32(1.0) + np.float32(5 * 2.0**-24) + np.float32(4 * 2.0**-24) + np.float32(4 * 2.0**-24))
+    assert four == np.float32(1 + 12 * 2.0**-24)
+    assert sequential_spatial_mean(x, lanes=4).item() == four / np.float32(18)
+    assert sequential_spatial_mean(x.double(), lanes=4).item() == (1.0 + 17 * 2.0**-24) / 18
     assert sequential_spatial_mean(x).shape == (1, 1, 1, 1)

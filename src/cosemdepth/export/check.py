@@ -11,10 +11,11 @@ What ``cosemdepth export --check`` runs (the derivation is in ``docs/deploy.md``
 * **a derived tolerance**: differences are normalised RMS differences ``||a - b|| / ||b||`` (per frame, per output).
   Two float32 implementations of the same graph differ by their summation orders. The two measured on the same
   inputs against a float64 copy of the model are PyTorch's own (``e``) and the same model with the long reductions of
-  the graph (DINL's means over H x W terms) summed sequentially (``s``, :func:`sequential_spatial_mean`), the
-  textbook order whose rounding grows with the number of terms (measured: it is what separates ONNX Runtime from
-  PyTorch at 384 px, see docs/deploy.md). A runtime no further from the exact result than ``s`` lies within
-  ``e + s`` of PyTorch (triangle inequality): tolerance = ``max(e) + max(s)`` over the frames, at least ``2^-24``.
+  the graph (DINL's means over H x W terms) summed the way vectorised runtimes sum them, in ``SUMMATION_LANES``
+  sequential chains (``s``, :func:`sequential_spatial_mean`), whose rounding grows with the number of terms
+  (measured: these reductions are what separates ONNX Runtime from PyTorch at 384 px, see docs/deploy.md). A runtime
+  no further from the exact result than ``s`` lies within ``e + s`` of PyTorch (triangle inequality): tolerance =
+  ``max(e) + max(s)`` over the frames, at least ``2^-24``.
 """
 
 from __future__ import annotations
@@ -80,14 +81,29 @@ def flight_sequence(batch: int, frames: int, height: int, width: int, seed: int 
     return expand(rgb), expand(rot), expand(trans), k
 
 
-def sequential_spatial_mean(x: torch.Tensor) -> torch.Tensor:
-    """Per-image, per-channel mean over H x W (``[B,C,H,W] -> [B,C,1,1]``) summed one term after the other in the
-    tensor's dtype: the textbook summation order, whose rounding error grows with the number of terms (PyTorch sums
-    pairwise, whose error grows with its logarithm). A legitimate float32 implementation of the same mean."""
+#: Lanes of the sequential summation that :func:`sequential_spatial_mean` models: the float32 lanes of a 128-bit SIMD
+#: register (SSE, NEON), the narrowest vector unit a runtime's reduction kernel uses. Measured: ONNX Runtime 1.31's
+#: ReduceMean on this x86 CPU sums in 8 lanes (AVX2; its means equal the 8-lane model bit for bit on half the
+#: channels); wider units (AVX-512: 16) make shorter chains and smaller errors.
+SUMMATION_LANES = 4
+
+
+def sequential_spatial_mean(x: torch.Tensor, lanes: int = SUMMATION_LANES) -> torch.Tensor:
+    """Per-image, per-channel mean over H x W (``[B,C,H,W] -> [B,C,1,1]``) as a vectorised runtime sums it, in the
+    tensor's dtype: ``lanes`` accumulators, accumulator ``j`` adds terms ``j, j + lanes, ...`` one after the other,
+    then the accumulators are added in order and the sum divided by H x W. Its rounding grows with the length of the
+    chains (``H W / lanes``), unlike PyTorch's pairwise sums (logarithmic). ``lanes = 1`` is the textbook loop."""
     b, c, h, w = x.shape
-    flat = x.detach().cpu().reshape(b * c, h * w).numpy()
-    total = np.cumsum(flat, axis=1, dtype=flat.dtype)[:, -1]
-    mean = torch.from_numpy(total / flat.dtype.type(h * w)).to(x.device, x.dtype)
+    n = h * w
+    flat = x.detach().cpu().reshape(b * c, n).numpy()
+    pad = (-n) % lanes
+    if pad:  # zeros add exactly
+        flat = np.concatenate([flat, np.zeros((b * c, pad), flat.dtype)], axis=1)
+    chains = np.cumsum(flat.reshape(b * c, -1, lanes), axis=1, dtype=flat.dtype)[:, -1, :]
+    total = chains[:, 0].copy()
+    for j in range(1, lanes):
+        total += chains[:, j]
+    mean = torch.from_numpy(total / flat.dtype.type(n)).to(x.device, x.dtype)
     return mean.view(b, c, 1, 1)
 
 
@@ -103,7 +119,7 @@ def nrms(a, b) -> float:
 class OnnxComparison:
     """Per frame, as normalised RMS differences, for depth, semantic probabilities and the outgoing state (the worst
     tensor): ONNX Runtime vs PyTorch float32 (``*_rel``), PyTorch float32 vs float64 (``*_e``) and PyTorch float32
-    with sequentially summed DINL means vs float64 (``*_s``). ``depth_max_rel`` is the largest per-pixel relative depth
+    with DINL's means summed in ``SUMMATION_LANES`` sequential chains vs float64 (``*_s``). ``depth_max_rel`` is the largest per-pixel relative depth
     difference, for information only (ill-conditioned where the predicted depth is near 0)."""
 
     depth_rel: list[float] = field(default_factory=list)
@@ -146,8 +162,8 @@ class OnnxComparison:
     def summary(self) -> str:
         n = max(len(self.depth_rel), len(self.semantic_rel))
         rows = [f"ONNX Runtime vs PyTorch, step by step on {n} frames of a SynthAir flight (normalised RMS "
-                "difference; tolerance = e + s, the float32 rounding of PyTorch (e) and of sequentially summed "
-                "normalisation means (s), each measured against float64 on the same frames):"]
+                "difference; tolerance = e + s, the float32 rounding of PyTorch (e) and of the normalisation means "
+                f"summed in {SUMMATION_LANES} sequential chains (s), each measured against float64 on the same frames):"]
         for name, ds, es, ss, tol in self._pairs():
             if not ds:
                 continue
