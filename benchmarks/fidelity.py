@@ -1,9 +1,11 @@
 """Per-frame fidelity figures of a converted official checkpoint against the authors' TensorFlow outputs.
 
-    python benchmarks/fidelity.py [--fixture ../shared/fixtures/tfref-s128] [--out benchmarks/results/fidelity.json]
+    python benchmarks/fidelity.py [--fixture ../shared/fixtures/tfref-s128] [--out FILE | --update]
 
-Writes JSON with, for both cost-volume precisions, the median / 99th percentile / max relative error of depth and
-parallax per frame and level, and the max absolute error of the semantic probabilities and encoder features.
+Prints, for both cost-volume precisions, the per-frame figures; with ``--out FILE`` writes the JSON (median / 99th
+percentile / max relative error of depth and parallax per frame and level, max absolute error of the semantic
+probabilities and encoder features) to FILE; ``--update`` writes it to the tracked
+``benchmarks/results/fidelity.json``. By default nothing is written, so a run leaves ``git status`` clean.
 """
 
 from __future__ import annotations
@@ -21,13 +23,25 @@ from cosemdepth.io.atomic import atomic_write_text
 from cosemdepth.io.model_io import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
+TRACKED = ROOT / "benchmarks" / "results" / "fidelity.json"
 
 
-def main() -> None:
+def output_path(args: argparse.Namespace) -> Path | None:
+    """Where the JSON goes: ``--out``, the tracked result file with ``--update``, else nowhere."""
+    return args.out if args.out is not None else (TRACKED if args.update else None)
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--fixture", type=Path, default=ROOT.parent / "shared" / "fixtures" / "tfref-s128")
-    p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "fidelity.json")
-    args = p.parse_args()
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--out", type=Path, default=None, help="write the JSON here")
+    where.add_argument("--update", action="store_true", help="write the JSON to the tracked benchmarks/results/fidelity.json")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
     model = load_model(args.fixture / "ckpt")
     result = {
         "fixture": str(args.fixture),
@@ -47,8 +61,10 @@ def main() -> None:
                 f"  frame {t}: depth median {d.get('median', 0):.2e} p99 {d.get('p99', 0):.2e} max {d.get('max', 0):.2e}"
                 f" | worst level p99 {worst[0]:.2e} ({worst[1]}) | semantic max abs {sem:.2e}"
             )
-    atomic_write_text(args.out, json.dumps(result, indent=1))
-    print(f"wrote {args.out}")
+    out = output_path(args)
+    if out is not None:
+        atomic_write_text(out, json.dumps(result, indent=1))
+        print(f"wrote {out}")
 
 
 if __name__ == "__main__":

@@ -66,3 +66,42 @@ def test_graph_path_runs_the_static_program_on_cpu():
     case = BenchCase(arch="m4depth", height=16, width=16, warmup=1, iters=2, levels=2, path="graph", batch=2)
     s = run_case(case).summary()
     assert s["path"] == "graph" and len(s["step_ms"]) == 2 and s["params"] > 0
+
+
+def test_noise_verdict_on_hand_made_samples():
+    """Issue 9: "joint faster: no" was drawn from a difference inside the run-to-run noise."""
+    from cosemdepth.bench.noise import compare_times, format_busy, format_spread, quantile, spread
+
+    a = [10.0, 11.0, 12.0, 13.0, 14.0]  # IQR 11-13
+    assert spread(a) == {"min": 10.0, "q25": 11.0, "median": 12.0, "q75": 13.0, "max": 14.0}
+    assert quantile([4.0, 1.0, 3.0, 2.0], 0.5) == 2.5 and quantile([4.0, 1.0, 3.0, 2.0], 0.25) == 1.75
+    assert compare_times(a, [12.0, 12.5, 13.5, 15.0, 16.0]) == "within noise"  # medians differ, IQRs overlap
+    assert compare_times(a, [12.5, 13.5, 14.0, 15.0, 16.0]) == "faster"  # IQR 13.5-15 above 11-13
+    assert compare_times(a, [13.5, 14.0, 14.5, 30.0, 31.0]) == "faster"  # 13 < 14 (b's q25)
+    assert compare_times([13.5, 14.0, 14.5, 30.0, 31.0], a) == "slower"
+    assert compare_times(a, [9.0, 13.0, 13.5, 14.0, 100.0]) == "within noise"  # touching ranges are not apart
+    assert compare_times(a, list(reversed(a))) == "within noise"
+    assert format_spread(spread(a), "ms/frame") == "12.0 ms/frame (min 10.0, IQR 11.0-13.0, max 14.0)"
+    assert format_busy(0.505050505050505) == "machine busy: 51 %" and format_busy(None) == "machine busy: unknown"
+    with pytest.raises(ValueError):
+        spread([])
+
+
+def test_joint_vs_separate_verdict_uses_the_spread():
+    from cosemdepth.bench.runner import BenchResult
+
+    case = BenchCase(arch="cosemdepth", height=16, width=16)
+
+    def result(times, arch="cosemdepth"):
+        r = BenchResult(BenchCase(**{**case.__dict__, "arch": arch}), 10, list(times), [], 1.0)
+        r.others = [0.0] * len(times)
+        return r
+
+    close = joint_vs_separate(result([10, 11, 12, 13, 14]), result([12, 12.5, 13.5, 15, 16], "m4depth+m4semantic"))
+    assert close["joint_faster"] == "within noise" and close["time_basis"] == "quiet steps"
+    assert close["joint_spread_ms_per_frame"]["q75"] == 13 and close["separate_spread_ms_per_frame"]["q25"] == 12.5
+    apart = joint_vs_separate(result([10, 11, 12, 13, 14]), result([20, 21, 22, 23, 24], "m4depth+m4semantic"))
+    assert apart["joint_faster"] == "yes"
+    md = markdown({"meta": {"date": "d", "cpu": "c", "cpu_count": 2, "torch_threads": 2, "torch": "t"},
+                   "results": [], "joint_vs_separate": [close, {**apart, "joint_faster": True}]})
+    assert "| 12.0 (11.0-13.0) | 13.5 (12.5-15.0) |" in md and "| within noise |" in md and "| yes |" in md

@@ -22,7 +22,7 @@ def test_export_command_errors_name_the_argument(tmp_path, capsys):
     assert not (tmp_path / "a.onnx").exists()
 
 
-def test_benchmark_command_writes_json_and_markdown(tmp_path):
+def test_benchmark_command_writes_json_and_markdown(tmp_path, capsys):
     j, md = tmp_path / "b.json", tmp_path / "b.md"
     rc = main(
         ["benchmark", "--models", "m4semantic", "--levels", "2", "--size", "16", "16", "--batch", "1", "2",
@@ -38,6 +38,13 @@ def test_benchmark_command_writes_json_and_markdown(tmp_path):
     params = build_model(arch="m4semantic", levels=2).num_parameters()
     assert all(r["height"] == 16 and r["levels"] == 2 and r["params"] == params for r in rep["results"])
     assert rep["meta"]["cpu_count"] >= 1 and "M4Semantic" in md.read_text()
+    # issue 9: the spread of the repeats and a readable busy figure ("machine busy 0.505050505050505" before)
+    import re
+
+    rows = [line for line in capsys.readouterr().out.splitlines() if "ms/frame" in line]
+    assert len(rows) == 5
+    assert all(re.search(r"\(min [\d.]+, IQR [\d.]+-[\d.]+, max [\d.]+\)", r) for r in rows), rows
+    assert all(re.search(r"\(machine busy: (\d{1,3} %|unknown)\)$", r) for r in rows), rows
 
 
 def test_benchmark_command_rejects_fp16_on_cpu(capsys):

@@ -49,6 +49,9 @@ def markdown(report: dict) -> str:
             "",
             "Joint vs separate (Co-SemDepth vs M4Depth then M4Semantic on every frame, both loaded):",
             "",
+            "Times: median (interquartile range) over the repeated steps; \"joint faster\" says \"within noise\" when "
+            "the two interquartile ranges overlap.",
+            "",
             "| precision | path | batch | resolution | joint ms/frame | separate ms/frame | time basis | joint params "
             "| separate params | joint peak memory | separate peak memory | joint faster | joint smaller |",
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
@@ -56,12 +59,22 @@ def markdown(report: dict) -> str:
         for j in jvs:
             lines.append(
                 f"| {j['precision']} | {j['path']} | {j['batch']} | {j['height']}x{j['width']} "
-                f"| {j['joint_median_ms_per_frame']:.1f} | {j['separate_median_ms_per_frame']:.1f} "
+                f"| {_with_iqr(j['joint_median_ms_per_frame'], j.get('joint_spread_ms_per_frame'))} "
+                f"| {_with_iqr(j['separate_median_ms_per_frame'], j.get('separate_spread_ms_per_frame'))} "
                 f"| {j.get('time_basis', 'all steps')} | {_fmt_params(j['joint_params'])} | {_fmt_params(j['separate_params'])} "
                 f"| {j['joint_peak_mem_mb']:.0f} MB | {j['separate_peak_mem_mb']:.0f} MB "
-                f"| {'yes' if j['joint_faster'] else 'no'} | {'yes' if j['joint_smaller_memory'] else 'no'} |"
+                f"| {_verdict(j['joint_faster'])} | {'yes' if j['joint_smaller_memory'] else 'no'} |"
             )
     return "\n".join(lines) + "\n"
+
+
+def _with_iqr(median: float, sp: dict | None) -> str:
+    return f"{median:.1f}" if not sp else f"{median:.1f} ({sp['q25']:.1f}-{sp['q75']:.1f})"
+
+
+def _verdict(v) -> str:
+    """``joint_faster``: "yes" / "no" / "within noise" (reports before issue 9 hold a bool)."""
+    return ("yes" if v else "no") if isinstance(v, bool) else str(v)
 
 
 def _quiet(r: dict) -> str:

@@ -24,6 +24,7 @@ from ..config import ModelConfig
 from ..evaluation.resources import cpu_model
 from ..export.check import synthetic_sequence
 from .memory import PeakMemory, exact_rss
+from .noise import compare_times, spread
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
 #: A timed step is "quiet" when all other processes together used at most this many cores during it.
@@ -62,16 +63,24 @@ class BenchResult:
     def ms_per_frame(self) -> list[float]:
         return [t / self.case.batch for t in self.step_ms]
 
+    def quiet_ms_per_frame(self) -> list[float]:
+        """Per-frame times of the quiet steps (other processes used at most ``QUIET_OTHERS`` cores)."""
+        return [t for t, o in zip(self.ms_per_frame, self.others) if o <= QUIET_OTHERS]
+
     def summary(self) -> dict:
         per_frame = sorted(self.ms_per_frame)
-        quiet = [t for t, o in zip(self.ms_per_frame, self.others) if o <= QUIET_OTHERS]
+        quiet = self.quiet_ms_per_frame()
         med = statistics.median(per_frame)
+        sp = spread(per_frame)
         d = {
             **asdict(self.case),
             "params": self.params,
             "median_ms_per_frame": round(med, 3),
             "p90_ms_per_frame": round(percentile(per_frame, 90), 3),
             "min_ms_per_frame": round(per_frame[0], 3),
+            "q25_ms_per_frame": round(sp["q25"], 3),
+            "q75_ms_per_frame": round(sp["q75"], 3),
+            "max_ms_per_frame": round(sp["max"], 3),
             "fps": round(1000.0 / med, 2),
             "median_ms_per_step": round(statistics.median(self.step_ms), 3),
             "median_cpu_ms_per_frame": round(statistics.median(self.cpu_ms) / self.case.batch, 3)
@@ -233,11 +242,16 @@ def run_separate(case: BenchCase) -> BenchResult:
 
 def joint_vs_separate(joint: BenchResult, separate: BenchResult, min_quiet: int = 3) -> dict:
     """Time, parameters and peak memory of the joint model against the two single-task models run one after the
-    other. Times compare the quiet medians when both runs have at least ``min_quiet`` quiet steps, else the medians
-    of all steps (``time_basis`` says which)."""
+    other. Times compare the quiet steps when both runs have at least ``min_quiet`` of them, else all steps
+    (``time_basis`` says which); ``joint_faster`` is "yes", "no" or "within noise" (:func:`.noise.compare_times`:
+    the interquartile ranges of the two overlap), with each side's spread (min, quartiles, median, max)."""
     j, s = joint.summary(), separate.summary()
     quiet = (j["quiet_steps"] or 0) >= min_quiet and (s["quiet_steps"] or 0) >= min_quiet
     key = "quiet_median_ms_per_frame" if quiet else "median_ms_per_frame"
+    jt = joint.quiet_ms_per_frame() if quiet else joint.ms_per_frame
+    st = separate.quiet_ms_per_frame() if quiet else separate.ms_per_frame
+    verdict = compare_times(jt, st)
+    rounded = lambda d: {k: round(v, 3) for k, v in d.items()}  # noqa: E731
     return {
         "precision": joint.case.precision,
         "path": joint.case.path,
@@ -256,7 +270,9 @@ def joint_vs_separate(joint: BenchResult, separate: BenchResult, min_quiet: int 
         "separate_params": s["params"],
         "joint_peak_mem_mb": j["peak_mem_mb"],
         "separate_peak_mem_mb": s["peak_mem_mb"],
-        "joint_faster": j[key] < s[key],
+        "joint_spread_ms_per_frame": rounded(spread(jt)),
+        "separate_spread_ms_per_frame": rounded(spread(st)),
+        "joint_faster": {"faster": "yes", "slower": "no"}.get(verdict, verdict),
         "joint_smaller_memory": j["peak_mem_mb"] < s["peak_mem_mb"],
         "joint_fewer_params": j["params"] < s["params"],
     }

@@ -77,6 +77,7 @@ def _is_our_md(path) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..bench.noise import format_busy, format_spread, spread
     from ..bench.report import markdown, write_report
     from ..bench.runner import (
         BenchCase,
@@ -146,8 +147,8 @@ def run(args: argparse.Namespace) -> int:
         report["results"].append(s)
         print(
             f"{s['arch']:>20} {s['device']:>6} {s['precision']:>5} {s['path']:>9} b={s['batch']:<3} "
-            f"{s['median_ms_per_frame']:8.1f} ms/frame (p90 {s['p90_ms_per_frame']:.1f}) {s['fps']:8.1f} FPS "
-            f"peak {s['peak_mem_mb']:.0f} MB (machine busy {busy})",
+            f"{format_spread(spread(res.ms_per_frame), 'ms/frame')} {s['fps']:.1f} FPS "
+            f"peak {s['peak_mem_mb']:.0f} MB ({format_busy(busy)})",
             flush=True,
         )
         return res

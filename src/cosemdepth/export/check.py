@@ -8,10 +8,14 @@ What ``cosemdepth export --check`` runs (the derivation is in ``docs/deploy.md``
 * **like with like**: every frame, PyTorch runs the step on the *same* inputs as ONNX Runtime, the incoming state
   included (ONNX Runtime's own state, fed back), so that rounding differences are not compounded through the
   recurrence; the outgoing states are compared too;
-* **a derived tolerance**: differences are normalised RMS differences ``||a - b|| / ||b||`` (per frame, per output),
-  and the tolerance of each is ``2 * RUNTIME_ULP_FACTOR * e``, where ``e`` is the same measure between the PyTorch
-  float32 step and a float64 copy of the model on the same inputs: the float32 rounding sensitivity of this model on
-  these inputs (float16 cost-volume products included, which a float64 copy keeps).
+* **a derived tolerance**: differences are normalised RMS differences ``||a - b|| / ||b||`` (per frame, per output).
+  Two float32 implementations of the same graph differ by their summation orders. The two measured on the same
+  inputs against a float64 copy of the model are PyTorch's own (``e``) and the same model with the long reductions of
+  the graph (DINL's means over H x W terms) summed the way vectorised runtimes sum them, in ``SUMMATION_LANES``
+  sequential chains (``s``, :func:`sequential_spatial_mean`), whose rounding grows with the number of terms
+  (measured: these reductions are what separates ONNX Runtime from PyTorch at 384 px, see docs/deploy.md). A runtime
+  no further from the exact result than ``s`` lies within ``e + s`` of PyTorch (triangle inequality): tolerance =
+  ``max(e) + max(s)`` over the frames, at least ``2^-24``.
 """
 
 from __future__ import annotations
@@ -44,10 +48,6 @@ def synthetic_sequence(batch: int, frames: int, height: int, width: int, seed: i
 
 #: Float32 rounding unit (2^-24): the smallest tolerance, for outputs that PyTorch computes exactly (a reset frame).
 FLOAT32_UNIT = 2.0**-24
-#: How much noisier than PyTorch's float32 arithmetic another float32 runtime may be: 16 x = 4 of float32's 24
-#: mantissa bits. Measured with ONNX Runtime 1.31 (CPU) on the shipped weights: 1.6-2x on the convolutions (another
-#: summation order), 7-9x on the semantic probabilities (MLAS's vectorised exp in Softmax); see docs/deploy.md.
-RUNTIME_ULP_FACTOR = 16.0
 
 
 def flight_sequence(batch: int, frames: int, height: int, width: int, seed: int = 0):
@@ -81,6 +81,32 @@ def flight_sequence(batch: int, frames: int, height: int, width: int, seed: int 
     return expand(rgb), expand(rot), expand(trans), k
 
 
+#: Lanes of the sequential summation that :func:`sequential_spatial_mean` models: the float32 lanes of a 128-bit SIMD
+#: register (SSE, NEON), the narrowest vector unit a runtime's reduction kernel uses. Measured: ONNX Runtime 1.31's
+#: ReduceMean on this x86 CPU sums in 8 lanes (AVX2; its means equal the 8-lane model bit for bit on half the
+#: channels); wider units (AVX-512: 16) make shorter chains and smaller errors.
+SUMMATION_LANES = 4
+
+
+def sequential_spatial_mean(x: torch.Tensor, lanes: int = SUMMATION_LANES) -> torch.Tensor:
+    """Per-image, per-channel mean over H x W (``[B,C,H,W] -> [B,C,1,1]``) as a vectorised runtime sums it, in the
+    tensor's dtype: ``lanes`` accumulators, accumulator ``j`` adds terms ``j, j + lanes, ...`` one after the other,
+    then the accumulators are added in order and the sum divided by H x W. Its rounding grows with the length of the
+    chains (``H W / lanes``), unlike PyTorch's pairwise sums (logarithmic). ``lanes = 1`` is the textbook loop."""
+    b, c, h, w = x.shape
+    n = h * w
+    flat = x.detach().cpu().reshape(b * c, n).numpy()
+    pad = (-n) % lanes
+    if pad:  # zeros add exactly
+        flat = np.concatenate([flat, np.zeros((b * c, pad), flat.dtype)], axis=1)
+    chains = np.cumsum(flat.reshape(b * c, -1, lanes), axis=1, dtype=flat.dtype)[:, -1, :]
+    total = chains[:, 0].copy()
+    for j in range(1, lanes):
+        total += chains[:, j]
+    mean = torch.from_numpy(total / flat.dtype.type(n)).to(x.device, x.dtype)
+    return mean.view(b, c, 1, 1)
+
+
 def nrms(a, b) -> float:
     """Normalised RMS difference ``||a - b|| / ||b||`` (float64; 0 when both are 0)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
@@ -91,10 +117,10 @@ def nrms(a, b) -> float:
 
 @dataclass
 class OnnxComparison:
-    """Per frame: ONNX Runtime vs PyTorch (float32), and PyTorch float32 vs float64 (the rounding sensitivity ``e``),
-    as normalised RMS differences, for depth, semantic probabilities and the outgoing state (the worst tensor).
-    ``depth_max_rel`` is the largest per-pixel relative depth difference, for information only (ill-conditioned
-    where the predicted depth is near 0)."""
+    """Per frame, as normalised RMS differences, for depth, semantic probabilities and the outgoing state (the worst
+    tensor): ONNX Runtime vs PyTorch float32 (``*_rel``), PyTorch float32 vs float64 (``*_e``) and PyTorch float32
+    with DINL's means summed in ``SUMMATION_LANES`` sequential chains vs float64 (``*_s``). ``depth_max_rel`` is the largest per-pixel relative depth
+    difference, for information only (ill-conditioned where the predicted depth is near 0)."""
 
     depth_rel: list[float] = field(default_factory=list)
     semantic_rel: list[float] = field(default_factory=list)
@@ -102,47 +128,48 @@ class OnnxComparison:
     depth_e: list[float] = field(default_factory=list)
     semantic_e: list[float] = field(default_factory=list)
     state_e: list[float] = field(default_factory=list)
+    depth_s: list[float] = field(default_factory=list)
+    semantic_s: list[float] = field(default_factory=list)
+    state_s: list[float] = field(default_factory=list)
     depth_max_rel: list[float] = field(default_factory=list)
-    factor: float = RUNTIME_ULP_FACTOR
 
     @staticmethod
-    def _tol(es: list[float], factor: float) -> float:
-        return 2.0 * factor * max([*es, FLOAT32_UNIT])
+    def _tol(es: list[float], ss: list[float]) -> float:
+        return max(max(es, default=0.0) + max(ss, default=0.0), FLOAT32_UNIT)
 
     @property
     def depth_tol(self) -> float:
-        """``2 * factor * max(e over the frames, 2^-24)``: both runtimes may be ``factor x`` the model's float32
-        rounding noise ``e`` away from the exact result (see docs/deploy.md)."""
-        return self._tol(self.depth_e, self.factor)
+        """``max(e) + max(s)`` over the frames, at least 2^-24 (see the module docstring and docs/deploy.md)."""
+        return self._tol(self.depth_e, self.depth_s)
 
     @property
     def semantic_tol(self) -> float:
-        return self._tol(self.semantic_e, self.factor)
+        return self._tol(self.semantic_e, self.semantic_s)
 
     @property
     def state_tol(self) -> float:
-        return self._tol(self.state_e, self.factor)
+        return self._tol(self.state_e, self.state_s)
 
     def _pairs(self):
-        return [("depth", self.depth_rel, self.depth_e, self.depth_tol),
-                ("semantic", self.semantic_rel, self.semantic_e, self.semantic_tol),
-                ("state", self.state_rel, self.state_e, self.state_tol)]
+        return [("depth", self.depth_rel, self.depth_e, self.depth_s, self.depth_tol),
+                ("semantic", self.semantic_rel, self.semantic_e, self.semantic_s, self.semantic_tol),
+                ("state", self.state_rel, self.state_e, self.state_s, self.state_tol)]
 
     @property
     def ok(self) -> bool:
-        return all(d <= tol for _, ds, _, tol in self._pairs() for d in ds)
+        return all(d <= tol for _, ds, _, _, tol in self._pairs() for d in ds)
 
     def summary(self) -> str:
         n = max(len(self.depth_rel), len(self.semantic_rel))
         rows = [f"ONNX Runtime vs PyTorch, step by step on {n} frames of a SynthAir flight (normalised RMS "
-                f"difference; tolerance = 2 x {self.factor:g} x the model's float32 rounding noise, measured as "
-                "PyTorch float32 vs float64 on the same frames):"]
-        for name, ds, es, tol in self._pairs():
+                "difference; tolerance = e + s, the float32 rounding of PyTorch (e) and of the normalisation means "
+                f"summed in {SUMMATION_LANES} sequential chains (s), each measured against float64 on the same frames):"]
+        for name, ds, es, ss, tol in self._pairs():
             if not ds:
                 continue
             bad = sum(d > tol for d in ds)
-            rows.append(f"  {name:8s} max difference {max(ds):.2e}, tolerance {tol:.2e} (float32 rounding "
-                        f"{max(es):.2e})" + (f": {bad} frame(s) over" if bad else ""))
+            rows.append(f"  {name:8s} max difference {max(ds):.2e}, tolerance {tol:.2e} (e {max(es):.2e}, "
+                        f"s {max(ss):.2e})" + (f": {bad} frame(s) over" if bad else ""))
         if self.depth_max_rel:
             rows.append(f"  (largest per-pixel relative depth difference {max(self.depth_max_rel):.2e}, information)")
         rows.append("  OK" if self.ok else "  MISMATCH")
@@ -189,6 +216,9 @@ def compare_onnx(model, path: str | Path, frames: int = 6, reset_at: int | None 
     model.optimize("reference")
     p = next(model.parameters())
     m64 = copy.deepcopy(model).to(device="cpu", dtype=torch.float64)
+    mseq = copy.deepcopy(model)
+    if getattr(mseq.encoder, "dinl", None) is not None:
+        mseq.encoder.dinl.spatial_mean = sequential_spatial_mean
     report = OnnxComparison()
     try:
         with torch.no_grad():
@@ -202,20 +232,25 @@ def compare_onnx(model, path: str | Path, frames: int = 6, reset_at: int | None 
                 out, new = model.step(*(a.to(p.device) for a in args), reset[:, k].to(p.device), st32)
                 st64 = StreamState.unflatten([s.double() for s in st_in]) if st_in and k > 0 else None
                 out64, new64 = m64.step(*(a.double() for a in args), reset[:, k], st64)
+                outs, news = mseq.step(*(a.to(p.device) for a in args), reset[:, k].to(p.device), st32)
                 if out.depth is not None:
                     d, d64 = out.depth.cpu().numpy(), out64.depth.numpy()
                     report.depth_rel.append(nrms(res["depth"], d))
                     report.depth_e.append(nrms(d, d64))
+                    report.depth_s.append(nrms(outs.depth.cpu().numpy(), d64))
                     report.depth_max_rel.append(
                         float(np.max(np.abs(res["depth"] - d) / np.maximum(np.abs(d), 1e-6))))
                 if out.semantic is not None:
                     sem, sem64 = out.semantic.cpu().numpy(), out64.semantic.numpy()
                     report.semantic_rel.append(nrms(res["semantic"], sem))
                     report.semantic_e.append(nrms(sem, sem64))
+                    report.semantic_s.append(nrms(outs.semantic.cpu().numpy(), sem64))
                 if new.features:
                     pairs = list(zip(ort_state, new.flatten(), new64.flatten()))
                     report.state_rel.append(max(nrms(a, t.cpu().numpy()) for a, t, _ in pairs))
                     report.state_e.append(max(nrms(t.cpu().numpy(), t64.numpy()) for _, t, t64 in pairs))
+                    report.state_s.append(max(nrms(t.cpu().numpy(), t64.numpy())
+                                              for t, t64 in zip(news.flatten(), new64.flatten())))
     finally:
         if fast_options is not None:
             model.optimize("fast", **fast_options)

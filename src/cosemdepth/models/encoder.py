@@ -8,22 +8,31 @@ import torch.nn as nn
 from .layers import conv3x3, lrelu
 
 
+def _spatial_mean(x: torch.Tensor) -> torch.Tensor:
+    return x.mean(dim=(2, 3), keepdim=True)
+
+
 class DINL(nn.Module):
     """Domain-invariant normalisation layer exactly as the original codes it (spec 2.2).
 
     Per image and channel: ``z = (x - mean) / (variance + 1e-12)`` (the variance, not the std), then L2
     normalisation across channels per pixel (``max(sum z^2, 1e-12)``), then an affine ``gamma * n + beta``.
+
+    ``spatial_mean`` computes the per-image, per-channel means (``[B,C,H,W] -> [B,C,1,1]``); the default is PyTorch's
+    ``mean`` (pairwise summation). ``export --check`` swaps in a sequential float32 summation to measure how much the
+    summation order of these long reductions (H x W terms) moves the outputs.
     """
 
     def __init__(self, channels: int):
         super().__init__()
         self.weight = nn.Parameter(torch.ones(channels))
         self.bias = nn.Parameter(torch.zeros(channels))
+        self.spatial_mean = _spatial_mean
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        mean = x.mean(dim=(2, 3), keepdim=True)
+        mean = self.spatial_mean(x)
         centred = x - mean
-        var = (centred * centred).mean(dim=(2, 3), keepdim=True)
+        var = self.spatial_mean(centred * centred)
         z = centred / (var + 1e-12)
         n = z / torch.sqrt((z * z).sum(dim=1, keepdim=True).clamp_min(1e-12))
         return n * self.weight.view(1, -1, 1, 1) + self.bias.view(1, -1, 1, 1)
