@@ -212,7 +212,7 @@ def compare_onnx(model, path: str | Path, frames: int = 6, reset_at: int | None 
     reset[:, frames // 2 if reset_at is None else reset_at] = True
     state_shapes = [[d if isinstance(d, int) else b for d in i.shape] for i in sess.get_inputs() if i.name.startswith("state_")]
     ort_state = [np.zeros(s, np.float32) for s in state_shapes]
-    fast_options = model._fast_options
+    mode, options = model.inference_mode, model.inference_options
     model.optimize("reference")
     p = next(model.parameters())
     m64 = copy.deepcopy(model).to(device="cpu", dtype=torch.float64)
@@ -252,6 +252,5 @@ def compare_onnx(model, path: str | Path, frames: int = 6, reset_at: int | None 
                     report.state_s.append(max(nrms(t.cpu().numpy(), t64.numpy())
                                               for t, t64 in zip(news.flatten(), new64.flatten())))
     finally:
-        if fast_options is not None:
-            model.optimize("fast", **fast_options)
+        model.optimize(mode, **(options or {}))
     return report
