@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -300,3 +301,37 @@ def test_weights_stored_in_float16_load_as_float32(tmp_path):
     for k, v in loaded.state_dict().items():
         assert v.dtype == torch.float32, k
         assert torch.equal(v, half[k].float()), k
+
+
+def test_a_changed_byte_in_saved_weights_is_refused_by_its_checksum(tmp_path):
+    """save_model records the SHA-256 of model.safetensors in config.json; a flipped byte (which may still decode
+    to finite weights) is refused on load, naming the file; a folder without the key (older) still loads."""
+    import json
+
+    from cosemdepth.io.model_io import WEIGHTS_CHECKSUM, load_model, save_model
+    from cosemdepth.models import build_model
+
+    out = save_model(build_model(arch="m4semantic"), tmp_path / "m")
+    meta = json.loads((out / "config.json").read_text())
+    assert len(meta[WEIGHTS_CHECKSUM]) == 64
+    load_model(out)
+    w = out / "model.safetensors"
+    data = bytearray(w.read_bytes())
+    data[-5] ^= 0x01  # the last bytes of the tensor data: still a valid, finite float32
+    w.write_bytes(bytes(data))
+    with pytest.raises(CheckpointError, match=r"model\.safetensors: checksum mismatch"):
+        load_model(out)
+    del meta[WEIGHTS_CHECKSUM]
+    (out / "config.json").write_text(json.dumps(meta))
+    load_model(out)  # no recorded checksum: shapes and finiteness are still checked, the flip is not detectable
+
+
+def test_shipped_weights_carry_their_checksum():
+    import hashlib
+    import json
+
+    from cosemdepth.io.model_io import WEIGHTS_CHECKSUM
+
+    folder = Path(__file__).resolve().parents[2] / "weights" / "synthair-cosemdepth"
+    meta = json.loads((folder / "config.json").read_text())
+    assert meta[WEIGHTS_CHECKSUM] == hashlib.sha256((folder / "model.safetensors").read_bytes()).hexdigest()

@@ -25,13 +25,15 @@ from ..config import ModelConfig
 from ..errors import CheckpointError, ConfigError
 from .atomic import atomic_open, atomic_path
 from .convert import expected_param_shapes
-from .manifest import MANIFEST_FILE, validate_manifest
+from .manifest import MANIFEST_FILE, sha256_file, validate_manifest
 from .staging import missing_ancestors, remove_empty
 
 FORMAT = "cosemdepth"
 FORMAT_VERSION = 1
 WEIGHTS_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
+#: config.json key holding the SHA-256 of model.safetensors (written by save_weights, checked by every load).
+WEIGHTS_CHECKSUM = "weights_sha256"
 
 
 def check_state_dict(state_dict: Mapping[str, torch.Tensor], cfg: ModelConfig, origin: str) -> None:
@@ -111,12 +113,12 @@ def save_weights(
         "num_parameters": sum(int(t.numel()) for t in tensors.values()),
         "cosemdepth_version": __version__,
     }
-    text = json.dumps(meta, indent=2) + "\n"
     created = missing_ancestors(out)
     try:
         with atomic_path(out / WEIGHTS_FILE) as tmp_weights, atomic_open(out / CONFIG_FILE, "w") as f:
             save_file(tensors, str(tmp_weights), metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
-            f.write(text)
+            meta[WEIGHTS_CHECKSUM] = sha256_file(Path(tmp_weights))  # verified on every load
+            f.write(json.dumps(meta, indent=2) + "\n")
     except BaseException:
         remove_empty(created)  # only folders we made and that are still empty
         raise
@@ -175,8 +177,9 @@ def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], 
     """``(state_dict, ModelConfig, meta)`` of the model folder ``path`` (or its config.json / model.safetensors).
 
     ``meta`` is the whole parsed config.json (format, source, ...). A folder with a checkpoint ``manifest.json`` is
-    verified against it (sizes, SHA-256); the weights are checked against the config (names, shapes, floating
-    point) and must be finite. Any problem is a :class:`CheckpointError` naming the file.
+    verified against it (sizes, SHA-256), and the weights against the SHA-256 that config.json records (every folder
+    :func:`save_weights` wrote); the weights are checked against the config (names, shapes, floating point) and must
+    be finite. Any problem is a :class:`CheckpointError` naming the file.
     """
     from safetensors import SafetensorError
     from safetensors.torch import load_file
@@ -194,6 +197,11 @@ def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], 
         raise CheckpointError(f"{weights}: corrupt or truncated safetensors file ({type(e).__name__}: {e})") from e
     check_state_dict(state_dict, cfg, str(weights))
     check_finite(state_dict, str(weights))
+    if WEIGHTS_CHECKSUM in meta:  # what still decodes: the checksum that save_weights recorded
+        expected = meta[WEIGHTS_CHECKSUM]
+        if not isinstance(expected, str) or sha256_file(weights) != expected:
+            raise CheckpointError(f"{weights}: checksum mismatch with {folder / CONFIG_FILE} (corrupt or modified "
+                                  "weights file)")
     return state_dict, cfg, meta
 
 
@@ -239,6 +247,7 @@ __all__ = [
     "CONFIG_FILE",
     "FORMAT",
     "FORMAT_VERSION",
+    "WEIGHTS_CHECKSUM",
     "WEIGHTS_FILE",
     "check_finite",
     "check_state_dict",
