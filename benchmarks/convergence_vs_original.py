@@ -144,12 +144,21 @@ def run_seed(a, seed: int, out: Path, orig: dict | None) -> dict:
         procs.append((name, p, fh, logf, time.time()))
         if a.sequential:
             p.wait()
-    for name, p, fh, logf, t0 in procs:
-        rc = p.wait()
-        fh.close()
-        if rc != 0:
-            raise SystemExit(f"seed {seed}: {name} failed (exit {rc}); see {logf}")
-        log(f"seed {seed}: {name} done in {time.time() - t0:.0f} s")
+    running = list(procs)
+    while running:
+        for item in list(running):
+            name, p, fh, logf, t0 = item
+            rc = p.poll()
+            if rc is None:
+                continue
+            running.remove(item)
+            fh.close()
+            if rc != 0:
+                for other in running:
+                    other[1].terminate()
+                raise SystemExit(f"seed {seed}: {name} failed (exit {rc}); see {logf}")
+            log(f"seed {seed}: {name} finished after {time.time() - t0:.0f} s")
+        time.sleep(2)
     if "ours" not in res:
         cmd = ours_eval_cmd(a, last_checkpoint(u_dir), u_dir / "eval")
         with open(out / "ours" / f"seed{seed}.eval.log", "w") as fh:
