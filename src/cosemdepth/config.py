@@ -201,6 +201,9 @@ class TrainConfig:
     max_steps: int = 0
     batch_size: int = 3
     #: Adam as Keras' defaults in the original: lr 1e-4 constant, betas 0.9/0.999, eps 1e-7, no weight decay.
+    #: ``optimizer``: "adam_keras" (Keras 2's update, epsilon added to sqrt(v) before the bias correction: the
+    #: original's) or "adam_torch" (torch.optim.Adam); see :mod:`cosemdepth.training.optim`.
+    optimizer: str = "adam_keras"
     lr: float = 1e-4
     betas: tuple[float, float] = (0.9, 0.999)
     eps: float = 1e-7
@@ -247,6 +250,8 @@ class TrainConfig:
         _positive_int("train.epochs", self.epochs)
         _positive_int("train.max_steps", self.max_steps, minimum=0)
         _positive_int("train.batch_size", self.batch_size)
+        if self.optimizer not in ("adam_keras", "adam_torch"):
+            raise ConfigError(f"train.optimizer must be 'adam_keras' or 'adam_torch', got {self.optimizer!r}")
         _positive_number("train.lr", self.lr)
         if len(self.betas) != 2 or not all(0.0 <= b < 1.0 for b in self.betas):
             raise ConfigError(f"train.betas must be two numbers in [0, 1), got {list(self.betas)}")

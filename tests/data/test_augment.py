@@ -216,6 +216,21 @@ def test_hue_by_hand():
     close(adjust_hue(px(0.6, 0.0, 0.0), 1 / 6), px(0.6, 0.6, 0.0))
 
 
+def test_hue_rotates_pixels_with_all_channels_negative_as_tf():
+    # TF's hue kernel keeps max and min: a third of a turn still permutes (r, g, b) -> (b, r, g) when every channel
+    # is <= 0 (after a negative brightness shift); an HSV round trip would have returned grey (V <= 0 -> S = 0)
+    close(adjust_hue(px(-0.3, -0.1, -0.2), 1 / 3), px(-0.2, -0.3, -0.1))
+    close(adjust_hue(px(0.0, -0.2, -0.1), -1 / 3), px(-0.2, -0.1, 0.0))
+    # a sixth of a turn from hue 0 (max r, g = b = min): g rises to the max -> (max, max, min)
+    close(adjust_hue(px(-0.1, -0.5, -0.5), 1 / 6), px(-0.1, -0.1, -0.5))
+
+
+def test_saturation_turns_all_negative_pixels_grey_as_tf():
+    # TF's saturation kernel: S = 0 when V <= 0, so the pixel becomes (V, V, V) whatever the factor (!= 1)
+    close(adjust_saturation(px(-0.3, -0.1, -0.2), 1.2), px(-0.1, -0.1, -0.1))
+    close(adjust_saturation(px(-0.3, -0.1, -0.2), 0.8), px(-0.1, -0.1, -0.1))
+
+
 def test_inversion_and_full_pipeline_by_hand():
     close(invert(px(0.25, 1.2, -0.1)), px(0.75, -0.2, 1.1))
     s = {"rgb": px(0.7, 0.3, 0.1)[None].repeat(2, 1, 1, 1), "rot": torch.zeros(2, 4), "trans": torch.zeros(2, 3),

@@ -28,11 +28,13 @@ Colour operations, on ``rgb`` only, with TensorFlow ``tf.image`` semantics writt
 * brightness: ``x + delta``, ``delta ~ U[-0.2, 0.2]``;
 * contrast: ``(x - mean) * f + mean``, mean per frame and per channel over H, W, ``f ~ U[0.75, 1.25]``;
 * saturation: RGB -> HSV, ``S <- clip(S * f, 0, 1)``, HSV -> RGB, ``f ~ U[0.75, 1.25]``;
-* hue: RGB -> HSV, ``H <- (H + delta) mod 1``, HSV -> RGB, ``delta ~ U[-0.4, 0.4]``;
+* hue: ``H <- (H + delta) mod 1`` keeping each pixel's max and min (TF's hue kernel; unlike an HSV round trip it
+  also rotates pixels whose channels are all <= 0), ``delta ~ U[-0.4, 0.4]``;
 * inversion ``x -> 1 - x`` with probability 0.5 (in the code, not in the paper).
 
 No clipping follows (spec 15.10, reproduced), so values can leave [0, 1]. The HSV conversion follows TF's kernel:
-``V = max``, ``S = (max - min) / V`` if ``V > 0`` else 0, hue in [0, 1) (0 for gray pixels).
+``V = max``, ``S = (max - min) / V`` if ``V > 0`` else 0 (so saturation turns a pixel with all channels <= 0 grey,
+as TF does), hue in [0, 1) (0 for gray pixels).
 
 Randomness comes only from the ``torch.Generator`` passed in: the draws are ``torch.rand(8)`` in the order
 vflip, hflip, transpose, brightness, contrast, saturation, hue, inversion (all eight are drawn even when an
@@ -240,7 +242,11 @@ def hsv_to_rgb(hsv: torch.Tensor) -> torch.Tensor:
     """``[..., 3, H, W]`` HSV (H in [0, 1)) -> RGB: chroma ``C = S V``, ``m = V - C``, sector ``floor(6 H)``."""
     h, s, v = hsv.unbind(dim=-3)
     c = s * v
-    m = v - c
+    return _hue_chroma_to_rgb(h, c, v - c)
+
+
+def _hue_chroma_to_rgb(h: torch.Tensor, c: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+    """Hue ``h`` in [0, 1), chroma ``c = max - min`` and ``m = min`` -> ``[..., 3, H, W]`` RGB."""
     dh = h * 6
     sector = torch.floor(dh)
     x = c * (1 - torch.abs(torch.remainder(dh, 2) - 1))
@@ -269,11 +275,15 @@ def adjust_saturation(rgb: torch.Tensor, factor: float) -> torch.Tensor:
 
 
 def adjust_hue(rgb: torch.Tensor, delta: float) -> torch.Tensor:
-    """HSV hue plus ``delta``, wrapped to [0, 1) (TF ``adjust_hue``)."""
-    hsv = rgb_to_hsv(rgb)
-    h, s, v = hsv.unbind(dim=-3)
-    h = torch.remainder(h + delta, 1.0)
-    return hsv_to_rgb(torch.stack([h, s, v], dim=-3))
+    """Hue plus ``delta``, wrapped to [0, 1), keeping each pixel's max and min (TF ``adjust_hue``).
+
+    TF's hue kernel works on (hue, min, max) rather than HSV, so a pixel whose channels are all <= 0 (possible after
+    the brightness shift) keeps its colour and is rotated like any other, where an HSV round trip (S = 0 when
+    V <= 0) would turn it grey. For V > 0 both are the same."""
+    h = rgb_to_hsv(rgb)[..., 0, :, :]
+    mx = torch.amax(rgb, dim=-3)
+    mn = torch.amin(rgb, dim=-3)
+    return _hue_chroma_to_rgb(torch.remainder(h + delta, 1.0), mx - mn, mn)
 
 
 def invert(rgb: torch.Tensor) -> torch.Tensor:

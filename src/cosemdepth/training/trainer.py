@@ -2,7 +2,8 @@
 
 One :class:`Trainer` runs one run folder (layout in :mod:`cosemdepth.training.rundir`):
 
-* Adam with the configured recipe (the paper's: lr 1e-4 constant, betas 0.9/0.999, eps 1e-7) on the loss of spec 7;
+* Adam with the configured recipe (the paper's: lr 1e-4 constant, betas 0.9/0.999, eps 1e-7, Keras 2's update of
+  :mod:`.optim`) on the loss of spec 7;
 * a checkpoint every ``train.checkpoint_every`` steps and at every epoch end, the newest ``train.keep_last`` kept;
   running the same command again resumes from the newest valid checkpoint (weights, optimizer, position in the
   epoch, RNG states, best metrics), so the resumed run continues exactly where the checkpoint was taken;
@@ -52,6 +53,7 @@ from .data import (
 )
 from .events import CONSOLE_KINDS, EventLog
 from .losses import LossTerms, total_loss
+from .optim import make_optimizer
 from .rundir import (
     BEST_METRICS_NAME,
     BEST_NAME,
@@ -251,8 +253,8 @@ class Trainer:
         else:
             self.net = self.model
         t = cfg.train
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=t.lr, betas=t.betas, eps=t.eps,
-                                          weight_decay=t.weight_decay)
+        self.optimizer = make_optimizer(t.optimizer, self.model.parameters(), lr=t.lr, betas=t.betas, eps=t.eps,
+                                        weight_decay=t.weight_decay)
         self.sampler = ResumableSampler(self.train_set, num_replicas=dist.world_size, rank=dist.rank, shuffle=True,
                                         seed=t.seed)
 
