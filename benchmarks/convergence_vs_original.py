@@ -8,8 +8,8 @@ dataloader, augmentation, model, ``train_step`` and Keras Adam, imported unmodif
 --config midair``) for ``--steps`` steps with the same recipe (``--size``, batch 3, sequences of 4, Adam 1e-4, the
 paper's augmentations), by default both at the same time with ``--threads`` threads each, then evaluates each on the
 test split (the original's own test protocol; ``cosemdepth evaluate``). The original reads the tree through a
-prepared folder (``tfref_prep.py``: its loader's CSV layout and label files, and disparities rescaled so that its
-``512 / disparity`` gives the same depths as ours).
+prepared folder (``tfref_prep.py``: its loader's CSV layout and label files; the disparities are Mid-Air's
+``512 / z`` at every size, so both sides read the same depths).
 
 Writes ``OUT/convergence.json``: per implementation and seed the loss of every step and its means over consecutive
 blocks of ``--every`` steps (the loss is ``L_depth + 0.1 L_sem`` on both sides), the test metrics; per

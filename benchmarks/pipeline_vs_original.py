@@ -7,8 +7,8 @@ Our side: the training dataset of ``cosemdepth train --config midair`` (``build_
 ``ResumableSampler`` order) at ``--size``. The original's side: the authors' midair dataloader, ``get_dataset("train")``
 with their augmentation (imported unmodified from ``COSEM_AUTHORS`` by the project's tfref harness,
 ``train_reference.setup_tensorflow``; nothing of it is copied here), run in ``TFREF_PY`` on the tfref-prepared
-``--prep`` (made by ``tfref_prep.py`` when missing: the harness' prepare stage, plus disparities rescaled to the
-original's 512-px-focal convention so that both sides read the same depths). ``--epochs`` passes over the training
+``--prep`` (made by ``tfref_prep.py`` when missing: the harness' prepare stage; SynthAir's disparities are
+Mid-Air's ``512 / z`` at every size, so both sides read the same depths). ``--epochs`` passes over the training
 chunks on each side.
 
 Per sequence, both sides record: pixel statistics of the colour frames after augmentation (mean, std, min, max,

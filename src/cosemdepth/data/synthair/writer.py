@@ -32,6 +32,9 @@ from ..midair.splits import GT_PER_ROW, generate_splits
 from .climate import CLIMATES, get_climate
 from .trajectory import Flight
 
+#: How the disparity PNGs encode depth (recorded in synthair.json; a tree in another encoding is refused).
+DEPTH_ENCODING = "stereo_disparity PNG: uint16 = float16 bits of 512 / z_depth (Mid-Air convention, any size)"
+
 ENVIRONMENT = "SynthAir"
 #: Version of the generator's output; bump whenever the same arguments would give different files.
 VERSION = "1.0"
@@ -104,7 +107,7 @@ class SynthConfig:
             "camera": {"width": self.size, "height": self.size, "fx": self.size / 2, "fy": self.size / 2,
                        "cx": self.size / 2, "cy": self.size / 2, "rate_hz": fmt.CAMERA_RATE},
             "groundtruth_rate_hz": fmt.GROUNDTRUTH_RATE,
-            "depth_encoding": "stereo_disparity PNG: uint16 = float16 bits of 512 / z_depth (Mid-Air convention, any size)",
+            "depth_encoding": DEPTH_ENCODING,
         }
 
 
