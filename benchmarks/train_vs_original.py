@@ -81,6 +81,12 @@ def run_original(a, tree: Path, work: Path, tfpy: str, authors: str) -> tuple[di
         _run([tfpy, TFREF / "train_reference.py", authors, "--data", tree, "--prep", prep, "--stages", "prepare",
               "--sets", "SynthAir", "--val-trajectories"], work / "tf_prepare.log", env=dict(os.environ))
     out = work / "tf_train"
+    if a.reuse_original and (out / "results.json").is_file():
+        res = json.loads((out / "results.json").read_text())
+        thr = res["train"]["throughput"] if "train" in res else res["throughput"]
+        return {"steps_per_s": thr["steps_per_s"], "s_per_step_median": thr.get("s_per_step_median"),
+                "steps_timed": thr["steps_timed"], "loadavg_before": None, "reused": str(out / "results.json"),
+                "log": str(work / "tf_train.log")}, prep / "splits"
     load = _load()
     t0 = time.time()
     _run([tfpy, TFREF / "train_reference.py", authors, "--prep", prep, "--out", out, "--stages", "train",
@@ -106,7 +112,7 @@ def run_ours(a, tree: Path, splits: Path, work: Path, precision: str) -> dict:
            "--set", f"data.size={a.size}", "--set", f"data.seq_len={a.seq_len}",
            "--set", f"data.db_seq_len={max(a.seq_len, 4)}", "--set", f"train.num_threads={a.threads}",
            "--set", "train.log_every=1", "--set", "train.validate_every_epochs=0", "--set", "train.image_every=0",
-           "--set", "train.checkpoint_every=0", "--set", f"train.epochs={10 ** 6}"]
+           "--set", "train.checkpoint_every=0", "--set", f"train.epochs={10 ** 6}", "--set", "data.validate=false"]
     if a.workers is not None:
         cmd += ["--set", f"data.num_workers={a.workers}"]
     if precision == "bf16":
@@ -164,6 +170,8 @@ def main(argv=None) -> int:
     p.add_argument("--precision", nargs="+", choices=["fp32", "bf16"], default=["fp32", "bf16"])
     p.add_argument("--workers", type=int, default=None, help="our data.num_workers (default: the config's)")
     p.add_argument("--no-original", action="store_true", help="do not run the original even if available")
+    p.add_argument("--reuse-original", action="store_true",
+                   help="reuse the original's results.json already in --work (its run is the slow part)")
     p.add_argument("--work", type=Path, help="working folder, kept (default: a temporary one, removed)")
     p.add_argument("--out", default="benchmarks/results/train_vs_original")
     a = p.parse_args(argv)
