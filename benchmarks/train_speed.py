@@ -11,7 +11,6 @@ the non-finite check and Adam. The checkpoint figures are for the model of ``--l
 from __future__ import annotations
 
 import argparse
-import contextlib
 import platform
 import tempfile
 import time
@@ -25,7 +24,7 @@ from cosemdepth.models import build_model
 from cosemdepth.training.checkpoint import CheckpointManager, get_rng_state, load_checkpoint, validate_checkpoint
 from cosemdepth.training.data import collate, to_device
 from cosemdepth.training.toy import ToyDataset
-from cosemdepth.training.trainer import compute_loss
+from cosemdepth.training.trainer import bf16_autocast, compute_loss
 
 
 def main() -> None:
@@ -47,8 +46,7 @@ def main() -> None:
     batch = to_device(collate([ToyDataset(length=a.batch, size=(a.size, a.size))[i] for i in range(a.batch)]), device)
 
     def step() -> None:
-        bf16 = a.bf16 and device.type == "cuda"
-        with torch.autocast("cuda", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext():
+        with bf16_autocast(device, a.bf16):
             out = model(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch["reset"])
         loss = compute_loss(out, batch, cfg).total
         opt.zero_grad(set_to_none=True)

@@ -220,7 +220,7 @@ class TrainConfig:
     seed: int = 42
     #: "auto" (CUDA when available), "cpu", "cuda", "cuda:1"...
     device: str = "auto"
-    #: bfloat16 autocast of the forward pass on CUDA (ignored on CPU).
+    #: bfloat16 autocast of the forward pass on the CPU and CUDA (float32 weights, optimizer and loss).
     bf16: bool = False
     #: torch CPU threads (0: torch's default).
     num_threads: int = 0

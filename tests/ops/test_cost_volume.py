@@ -63,3 +63,27 @@ def test_pscv_fast_equals_reference_on_fractional_points():
     fast = parallax_sweep_cost_volume_fast(f.contiguous(memory_format=torch.channels_last), prev, pts, 2)
     torch.testing.assert_close(fast[0], ref[0], rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(fast[1], ref[1])
+
+
+def test_sncv_reference_hand_computed_with_groups():
+    """Two groups of two channels, radius 1: corr[o, g](p) = mean over the group's channels of f(p) f(p + d_o)."""
+    g = torch.Generator().manual_seed(0)
+    f = torch.randn(1, 4, 3, 4, generator=g, dtype=torch.float64)
+    out = spatial_cost_volume(f, groups=2, radius=1, negative_slope=1.0).view(3, 3, 2, 3, 4)  # slope 1: no activation
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            for grp in range(2):
+                for y in range(3):
+                    for x in range(4):
+                        yy, xx = y + dy, x + dx
+                        want = 0.0
+                        if 0 <= yy < 3 and 0 <= xx < 4:
+                            want = sum(float(f[0, c, y, x] * f[0, c, yy, xx]) for c in (2 * grp, 2 * grp + 1)) / 2
+                        assert float(out[dy + 1, dx + 1, grp, y, x]) == pytest.approx(want, abs=1e-12)
+
+
+@pytest.mark.parametrize("shape, groups, radius", [((2, 4, 5, 6), 2, 1), ((1, 6, 4, 3), 3, 2), ((1, 2, 1, 2), 1, 3)])
+def test_sncv_backward_matches_finite_differences(shape, groups, radius):
+    """The hand-written backward (window columns + fold) against torch's numerical gradient, in float64."""
+    x = torch.randn(shape, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda t: spatial_cost_volume(t, groups, radius), (x,))

@@ -176,6 +176,23 @@ def test_print_config(capsys, tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+def test_bf16_flag_and_key_round_trip(capsys, tmp_path):
+    """--bf16 sets train.bf16; the printed config loads back with it; without the flag it stays false."""
+    import yaml
+
+    from cosemdepth.config import RunConfig
+
+    assert main(["train", "--out", str(tmp_path / "x"), "--dataset", "toy", "--bf16", "--print-config"]) == 0
+    on = yaml.safe_load(capsys.readouterr().out)
+    assert on["train"]["bf16"] is True and RunConfig.from_dict(on).train.bf16 is True
+    assert main(["train", "--out", str(tmp_path / "x"), "--dataset", "toy", "--print-config"]) == 0
+    assert yaml.safe_load(capsys.readouterr().out)["train"]["bf16"] is False
+    assert main(["train", "--out", str(tmp_path / "x"), "--dataset", "toy", "--set", "train.bf16=true",
+                 "--print-config"]) == 0
+    assert yaml.safe_load(capsys.readouterr().out)["train"]["bf16"] is True
+    assert not (tmp_path / "x").exists()
+
+
 def test_the_module_runs_as_a_command(python, cli_env):
     r = subprocess.run([python, "-m", "cosemdepth", "train", "--help"], env=cli_env, capture_output=True, text=True,
                        timeout=120)

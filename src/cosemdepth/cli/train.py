@@ -36,7 +36,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     g.add_argument("--lr", type=float, help="train.lr")
     g.add_argument("--seed", type=int, help="train.seed")
     g.add_argument("--device", help="train.device (auto, cpu, cuda, cuda:N)")
-    g.add_argument("--bf16", action="store_true", default=None, help="train.bf16: bfloat16 autocast on CUDA")
+    g.add_argument("--bf16", action="store_true", default=None, help="train.bf16: bfloat16 autocast of the forward (CPU and CUDA); fp32 weights and loss")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
 

@@ -65,6 +65,10 @@ def parallax_sweep_cost_volume(
 def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negative_slope: float = 0.1) -> torch.Tensor:
     """SNCV: self-correlation of the features over a ``(2r+1)^2`` window with zero padding, then LeakyReLU.
 
+    ``corr[o, g](p) = (1 / n_g) sum_{c in g} f_c(p) f_c(p + d_o)`` for the window offsets ``d_o``, zero where
+    ``p + d_o`` leaves the image. Computed for all offsets at once from the ``(2r+1)^2`` window columns of the
+    features (``unfold``), with a backward that recomputes them instead of keeping them (memory: the output only).
+
     Args:
         feat: ``[B, C, H, W]`` normalised features.
         groups: number of channel groups ``K``.
@@ -73,14 +77,50 @@ def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negati
         ``[B, (2r+1)^2 * K, H, W]`` with channel ``((dy + r)(2r + 1) + (dx + r)) * K + g`` (offset-major).
     """
     b, c, h, w = feat.shape
-    padded = F.pad(feat, (radius, radius, radius, radius))
-    outs = []
-    for dy in range(-radius, radius + 1):
-        for dx in range(-radius, radius + 1):
-            shifted = padded[:, :, radius + dy : radius + dy + h, radius + dx : radius + dx + w]
-            outs.append(group_correlation(feat, shifted, groups))
-    vol = torch.stack(outs, dim=1).reshape(b, len(outs) * groups, h, w)
+    if c % groups:
+        raise ValueError(f"{c} channels cannot be split into {groups} groups")
+    vol = _SpatialCorrelation.apply(feat, groups, radius)  # [B, K, (2r+1)^2, H*W]
+    vol = vol.transpose(1, 2).reshape(b, (2 * radius + 1) ** 2 * groups, h, w)
     return F.leaky_relu(vol, negative_slope)
+
+
+def _window_columns(f: torch.Tensor, radius: int) -> torch.Tensor:
+    """``[B, C, (2r+1)^2, H*W]``: ``out[b, c, o, p] = f[b, c, p + d_o]`` (zero outside)."""
+    b, c = f.shape[:2]
+    k = 2 * radius + 1
+    return F.unfold(f, k, padding=radius).view(b, c, k * k, -1)
+
+
+class _SpatialCorrelation(torch.autograd.Function):
+    """``[B, C, H, W] -> [B, K, (2r+1)^2, H*W]`` group-mean correlation with the window offsets (no activation).
+
+    Backward: ``dL/df_c(q) = (1/n) [ sum_o G[g,o](q) f_c(q + d_o) + sum_o G[g,o](q - d_o) f_c(q - d_o) ]``; the first
+    sum reads the window columns of ``f`` again, the second scatters ``G f_c`` back along the offsets (``fold``).
+    """
+
+    @staticmethod
+    def forward(ctx, feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
+        b, c, h, w = feat.shape
+        n = c // groups
+        f = feat.contiguous()
+        cols = _window_columns(f, radius).view(b, groups, n, -1, h * w)
+        out = (cols * f.view(b, groups, n, 1, h * w)).sum(dim=2).mul_(1.0 / n)
+        ctx.save_for_backward(f)
+        ctx.groups, ctx.radius = groups, radius
+        return out
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        (f,) = ctx.saved_tensors
+        groups, radius = ctx.groups, ctx.radius
+        b, c, h, w = f.shape
+        n = c // groups
+        k = 2 * radius + 1
+        g = grad.to(f.dtype).contiguous().view(b, groups, 1, k * k, h * w)
+        fv = f.view(b, groups, n, 1, h * w)
+        direct = (_window_columns(f, radius).view(b, groups, n, k * k, h * w) * g).sum(dim=3)  # [B,K,n,HW]
+        scattered = F.fold((g * fv).reshape(b, c * k * k, h * w), (h, w), k, padding=radius)
+        return (direct.view(b, c, h, w) + scattered).mul_(1.0 / n), None, None
 
 
 def spatial_cost_volume_fast(

@@ -123,18 +123,46 @@ def seed_everything(seed: int) -> None:
 
 
 def compute_loss(out, batch: dict, cfg: RunConfig) -> LossTerms:
-    """The training loss (spec 7) of a :class:`SequenceOutput` against a batch, for any of the three models."""
+    """The training loss (spec 7) of a :class:`SequenceOutput` against a batch, for any of the three models.
+
+    Always float32: autocast is switched off here and bfloat16 predictions (``train.bf16``) are cast to float32
+    before the log, the resizes and the means, so the loss and its gradient have float32 rounding."""
     m = cfg.model
     from_logits = cfg.train.semantic_from_logits
     sem = (out.semantic_logits if from_logits else out.semantic) if m.has_semantic else None
-    return total_loss(
-        out.depth if m.has_depth else None,
-        batch["depth"] if m.has_depth else None,
-        sem,
-        batch["semantic"] if m.has_semantic else None,
-        semantic_weight=cfg.train.semantic_weight,
-        from_logits=from_logits,
-    )
+    depth = out.depth if m.has_depth else None
+    device_type = (depth or sem)[0].device.type
+    with torch.autocast(device_type, enabled=False) if device_type in ("cpu", "cuda") else contextlib.nullcontext():
+        return total_loss(
+            _float32(depth),
+            batch["depth"] if m.has_depth else None,
+            _float32(sem),
+            batch["semantic"] if m.has_semantic else None,
+            semantic_weight=cfg.train.semantic_weight,
+            from_logits=from_logits,
+        )
+
+
+def _float32(levels):
+    """Per-level predictions in float32 (unchanged if they already are, or None)."""
+    return None if levels is None else [p if p.dtype == torch.float32 else p.float() for p in levels]
+
+
+def bf16_supported(device: torch.device) -> bool:
+    """Whether ``train.bf16`` applies on ``device``: bfloat16 autocast exists for the CPU and CUDA."""
+    return device.type in ("cpu", "cuda")
+
+
+def bf16_autocast(device: torch.device, enabled: bool):
+    """The forward pass's precision context: bfloat16 autocast on the CPU or CUDA when ``enabled``, else none.
+
+    The parameters stay float32 (the master weights Adam updates); autocast runs the convolutions and matrix
+    products in bfloat16 and keeps precision-sensitive ops (normalisations, reductions, ``exp``/``log``) in float32.
+    The loss is computed outside this context and casts the predictions to float32 (:func:`compute_loss`).
+    """
+    if enabled and bf16_supported(device):
+        return torch.autocast(device.type, dtype=torch.bfloat16)
+    return contextlib.nullcontext()
 
 
 def learning_rate(cfg: RunConfig, epoch: int) -> float:
@@ -274,7 +302,7 @@ class Trainer:
         else:
             self.events("start", run_dir=str(self.run_dir), total_steps=self.total_steps,
                         steps_per_epoch=self.steps_per_epoch, world_size=dist.world_size, device=str(self.device),
-                        bf16_autocast=bool(cfg.train.bf16 and self.device.type == "cuda"),
+                        bf16_autocast=bf16_supported(self.device) and bool(cfg.train.bf16),
                         num_parameters=self.model.num_parameters(), train_items=len(self.train_set),
                         val_items=None if self.val_set is None else len(self.val_set))
             self._save_checkpoint()
@@ -374,9 +402,7 @@ class Trainer:
 
     # ------------------------------------------------------------------------------------------------ steps
     def _autocast(self):
-        if self.cfg.train.bf16 and self.device.type == "cuda":
-            return torch.autocast("cuda", dtype=torch.bfloat16)
-        return contextlib.nullcontext()
+        return bf16_autocast(self.device, self.cfg.train.bf16)
 
     def _train_step(self, batch: dict) -> str:
         """One batch: forward, loss, backward, guard, update. Returns the guard's verdict."""
@@ -586,5 +612,6 @@ def _scalars(metrics: dict) -> dict:
     return {k: v for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
 
 
-__all__ = ["LoopState", "NonFiniteGuard", "Trainer", "TrainingDiverged", "compute_loss", "learning_rate",
+__all__ = ["LoopState", "NonFiniteGuard", "Trainer", "TrainingDiverged", "bf16_autocast", "bf16_supported",
+           "compute_loss", "learning_rate",
            "resolve_device", "seed_everything"]
