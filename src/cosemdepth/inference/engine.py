@@ -52,6 +52,8 @@ _DTYPES = {"float32": torch.float32, "fp32": torch.float32, "bfloat16": torch.bf
 
 
 INT8_NAMES = ("int8", "qint8")
+#: int8 path: per decoder, the hidden refiner convolutions (0-5) that stay float32 (measured, see the docstring)
+INT8_KEEP_FLOAT: dict[str, tuple[int, ...]] = {"depth": (0, 1, 2, 3, 4, 5)}
 
 
 def is_int8(dtype) -> bool:
@@ -164,7 +166,9 @@ class FastEngine:
         use_mkldnn: bool | None = None,
         calibration=None,
         calibration_frames: int = 8,
+        int8_keep_float: dict[str, tuple[int, ...]] | None = None,
     ):
+        self.int8_keep_float = dict(INT8_KEEP_FLOAT if int8_keep_float is None else int8_keep_float)
         self.int8 = is_int8(dtype)
         dtype = torch.float32 if self.int8 else parse_dtype(dtype)
         p = next(model.parameters())
@@ -216,7 +220,7 @@ class FastEngine:
 
     def _finish_calibration(self) -> None:
         self.ops = {
-            name: [dataclasses.replace(o, refiner=QuantRefiner(lvl.refiner, o.refiner, o.refiner.refiner.last))
+            name: [dataclasses.replace(o, refiner=QuantRefiner(lvl.refiner, o.refiner, self.int8_keep_float.get(name, ())))
                    for lvl, o in zip(self.decoders[name].levels, ops)]
             for name, ops in self.ops.items()
         }
