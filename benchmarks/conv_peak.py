@@ -3,7 +3,8 @@
     PYTHONPATH=src python benchmarks/conv_peak.py [--threads 1 2] [--out FILE]
 
 Times the largest convolution of the model (3x3, 128 -> 128 channels at 192x192, 10.9 GFLOP, channels-last, fused
-LeakyReLU, the fast path's kernel) in fp32 and bf16 at each thread count, reports GFLOP/s and the time the model's
+LeakyReLU, the fast path's kernel) in fp32 and bf16, and as the int8 path runs it (uint8 activations, oneDNN
+quantized convolution, then the LeakyReLU requantisation) at each thread count, reports GFLOP/s and the time the model's
 81 GFLOP per 384x384 frame (spec 12.2) would need at that rate. Also records whether NNPACK's Winograd convolution
 runs here. Writes JSON.
 """
@@ -23,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from cosemdepth.bench.runner import hardware_info  # noqa: E402
 from cosemdepth.inference.convs import PackedConv  # noqa: E402
+from cosemdepth.inference.int8 import QuantConv, Range, has_int8, quantize  # noqa: E402
 from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
 from cosemdepth.ops.padding import Conv2dSame  # noqa: E402
 
@@ -60,6 +62,27 @@ def main(argv=None) -> int:
                     "gflops_at_min": round(gflop / best * 1e3, 1),
                     "frame_conv_floor_ms": round(FRAME_GFLOP / (gflop / best * 1e3) * 1e3, 1),
                 }
+                rows.append(row)
+                print(row)
+    if has_int8():
+        with torch.inference_mode():
+            xr, yr = Range(), Range()
+            xr.update(x)
+            yr.update(conv(x))
+            q = QuantConv(conv, xr, yr)
+            qx = quantize(x.clone(), q.x_scale, q.x_zp)
+            for th in a.threads:
+                torch.set_num_threads(th)
+                q(qx)
+                ts = []
+                for _ in range(a.iters):
+                    t0 = time.perf_counter()
+                    q(qx)
+                    ts.append((time.perf_counter() - t0) * 1e3)
+                best = min(ts)
+                row = {"dtype": "int8", "threads": th, "min_ms": round(best, 2), "median_ms": round(statistics.median(ts), 2),
+                       "gflops_at_min": round(gflop / best * 1e3, 1),
+                       "frame_conv_floor_ms": round(FRAME_GFLOP / (gflop / best * 1e3) * 1e3, 1)}
                 rows.append(row)
                 print(row)
     nnpack = {"available": torch.backends.nnpack.is_available(), "shapes": {}}

@@ -1,13 +1,17 @@
 """Accuracy of every fast inference mode against the fp32 reference path, with trained weights on a real flight.
 
     PYTHONPATH=src python benchmarks/fast_accuracy.py --model MODEL_DIR --dataset synthair --root DATA_ROOT \
-        [--split test] [--max-frames N] [--modes fast-fp32 fast-bf16] [--device cpu] [--out FILE]
+        [--split test] [--max-frames N] [--modes fast-fp32 fast-bf16 fast-int8] [--device cpu] [--out FILE] \
+        [--calibration-root ROOT2 --calibration-frames 16]
 
 Streams the split's trajectories frame by frame (as the test protocol, spec 10.3: reset frames count in no metric)
 through the reference path and through each fast mode, computes mIoU and the depth metrics with
 ``cosemdepth.evaluation.metrics.EvaluationMetrics``, and checks the acceptance of issue 5: each fast mode within
 0.5 points of mIoU and within 1% (relative) of AbsRel of the fp32 reference. Writes JSON; exit status 1 if a mode
 fails.
+
+``fast-int8`` calibrates its activation ranges on the first ``--calibration-frames`` frames of
+``--calibration-root`` (another flight: default the evaluated split itself, which the report then says).
 
 Needs ``cosemdepth.io.model_io.load_model`` (model folders) and ``cosemdepth.data.open_dataset`` (dataset readers).
 """
@@ -31,6 +35,7 @@ MODES = {
     "fast-fp32": ("fast", "float32"),
     "fast-bf16": ("fast", "bfloat16"),
     "fast-fp16": ("fast", "float16"),
+    "fast-int8": ("fast", "int8"),
 }
 MIOU_TOL_POINTS = 0.5
 ABSREL_TOL_REL = 0.01
@@ -82,6 +87,9 @@ def main(argv=None) -> int:
     p.add_argument("--max-frames", type=int, help="stop after this many frames (whole split by default)")
     p.add_argument("--modes", nargs="+", choices=[m for m in MODES if m != "reference"], default=["fast-fp32", "fast-bf16"])
     p.add_argument("--device", default="cpu")
+    p.add_argument("--calibration-root", help="int8: dataset root whose first frames calibrate (default: --root)")
+    p.add_argument("--calibration-split", default=None, help="int8: split of --calibration-root (default: --split)")
+    p.add_argument("--calibration-frames", type=int, default=16, help="int8: calibration frames (default 16)")
     p.add_argument("--out", default="benchmarks/results/fast_accuracy.json")
     a = p.parse_args(argv)
     from cosemdepth.data import open_dataset
@@ -93,11 +101,21 @@ def main(argv=None) -> int:
 
     size = a.size or _training_size(read_model_files(a.model)[2]) or 384
     dataset = open_dataset(a.dataset, a.root, split_dir=a.split_dir, split=a.split, seq_len=1, size=size)
+    calib_root = a.calibration_root or a.root
+    calibration = None
+    if "fast-int8" in a.modes:
+        cal = open_dataset(a.dataset, calib_root, split=a.calibration_split or a.split, seq_len=1, size=size)
+        calibration = []
+        for i in range(min(len(cal), a.calibration_frames)):
+            it = cal[i]
+            calibration.append((it["rgb"][:1], it["rot"][:1], it["trans"][:1], it["intrinsics"].view(1, 4),
+                                it["reset"][:1] | (i == 0)))
     results = {}
     for name in ["reference", *a.modes]:
         path, dtype = MODES[name]
         model = load_model(a.model, device=device).eval()
-        model.optimize(path, **({"dtype": dtype} if dtype else {}))
+        extra = {"calibration": calibration} if dtype == "int8" else {}
+        model.optimize(path, **({"dtype": dtype} if dtype else {}), **extra)
         results[name] = evaluate(model, dataset, device, a.max_frames)
         print(name, {k: v for k, v in results[name].items() if k in ("miou", "abs_rel", "rmse", "delta1", "seconds")})
     ref = results["reference"]
@@ -121,6 +139,8 @@ def main(argv=None) -> int:
         "split": a.split,
         "size": size,
         "device": a.device,
+        "int8_calibration": None if calibration is None else {"root": str(calib_root), "frames": len(calibration),
+                                                               "same_as_evaluated": calib_root == a.root},
         "tolerances": {"miou_points": MIOU_TOL_POINTS, "abs_rel_relative": ABSREL_TOL_REL},
         "results": results,
         "verdicts": verdicts,

@@ -40,6 +40,7 @@ def add_model_args(parser: argparse.ArgumentParser, required: bool = True) -> No
     parser.add_argument("--model", required=required, metavar="MODEL",
                         help="a model folder (config.json + model.safetensors) or an official TensorFlow checkpoint")
     add_reference_arg(parser)
+    add_precision_arg(parser)
     add_device_args(parser)
 
 
@@ -47,6 +48,18 @@ def add_reference_arg(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reference", action="store_true",
                         help="run the plain PyTorch modules instead of the fast inference path (the default: fp32, "
                         "the same results up to float rounding, about 1.5-2x faster on CPU)")
+
+
+#: ``--precision`` -> ``SceneModel.optimize("fast", dtype)``
+PRECISION_DTYPES = {"fp32": "float32", "bf16": "bfloat16", "int8": "int8"}
+
+
+def add_precision_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--precision", choices=list(PRECISION_DTYPES), default="fp32",
+                        help="precision of the fast path's refiners: fp32 (default; the reference results up to float "
+                        "rounding), bf16, or int8 (CPU; oneDNN int8 convolutions in the semantic refiners, activation "
+                        "ranges calibrated on the first 8 frames, which run in fp32); check the accuracy of your "
+                        "weights with benchmarks/fast_accuracy.py before using bf16 or int8")
 
 
 def add_model_or_arch_args(parser: argparse.ArgumentParser) -> None:
@@ -134,15 +147,24 @@ def add_jpeg_idct_arg(parser: argparse.ArgumentParser) -> None:
                              "original's tf.io.decode_jpeg) or accurate (the accurate integer IDCT, as Pillow)")
 
 
-def load(model_path, device_name: str, fast: bool = True):
+def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32"):
     """``(model, device)``: the model at ``model_path`` on the device named ``device_name``, in eval mode, on the
-    fast fp32 inference path unless ``fast`` is False (``--reference``)."""
+    fast inference path in ``precision`` (``--precision``) unless ``fast`` is False (``--reference``)."""
+    if precision not in PRECISION_DTYPES:
+        raise ConfigError(f"--precision must be one of {list(PRECISION_DTYPES)}, got {precision!r}")
+    if not fast and precision != "fp32":
+        raise ConfigError(f"--precision {precision} is a setting of the fast path: drop --reference (which runs fp32)")
     from ..io.model_io import load_model
     from ..evaluation.resources import resolve_device
 
     device = resolve_device(device_name)
     model = load_model(model_path, device=device)
-    return (model.optimize("fast") if fast else model), device
+    if not fast:
+        return model, device
+    try:
+        return model.optimize("fast", PRECISION_DTYPES[precision]), device
+    except ValueError as e:
+        raise ConfigError(f"--precision {precision}: {e}") from None
 
 
 def open_split(args: argparse.Namespace, size):
@@ -155,6 +177,6 @@ def open_split(args: argparse.Namespace, size):
                         jpeg_idct=args.jpeg_idct)
 
 
-__all__ = ["add_device_args", "add_model_args", "add_model_or_arch_args", "add_reference_arg",
+__all__ = ["add_device_args", "add_model_args", "add_model_or_arch_args", "add_precision_arg", "add_reference_arg",
            "add_jpeg_idct_arg", "add_run_args", "add_split_args", "apply_threads", "load", "load_or_build", "open_split", "parse_size",
            "parse_size_pair", "positive_int"]

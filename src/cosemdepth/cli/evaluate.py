@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
                              inputs=inputs) if args.out else contextlib.nullcontext())
     with files_ctx as files:
         dataset = open_split(args, args.size)
-        model, device = load(args.model, args.device, fast=not args.reference)
+        model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
         result = evaluate(model, dataset, lanes=args.lanes, max_frames=args.max_frames, num_workers=args.workers,
                           progress=not args.no_progress and sys.stderr.isatty(), dataset_name=args.dataset)
         result.info["model"].update(path=str(args.model), name=Path(str(args.model)).name)

@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     StagedDir(args.out, "predict", overwrite=args.overwrite, what="--out folder", inputs=inputs).check()  # first
     check_rrd_path(args.rerun, inputs=[*inputs, Input("--out", args.out)]) if args.rerun is not None else None
     dataset = _open(args)
-    model, device = load(args.model, args.device, fast=not args.reference)
+    model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
     info = {
         "model": {"path": str(args.model)},
         "dataset": {"root": str(args.bag if args.bag else args.images if args.flight else args.root),

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     _validate(args)
     check_rrd_path(args.rrd, option="--rrd", inputs=command_inputs(args))
     dataset = _open(args)
-    model, _ = load(args.model, args.device, fast=not args.reference)
+    model, _ = load(args.model, args.device, fast=not args.reference, precision=args.precision)
     args.rerun = args.rrd
     (writer,) = make_sinks(args, dataset, model, bag_output=False)
     schedule = make_schedule(trajectory_rows(dataset, args.max_frames), args.lanes)

@@ -39,6 +39,7 @@ from ..ops.cost_volume import (
 )
 from ..ops.resample import resize_nn1, resize_nn2
 from .convs import PackedConv
+from .int8 import QuantRefiner, RangeRecorder, has_int8
 
 _CL = torch.channels_last
 #: The channel-loop cost volumes pay off on the large, thin maps of the fine levels (16 and 32 channels); the coarse
@@ -48,6 +49,16 @@ _CHANNEL_LOOP_MAX = 32
 
 _DTYPES = {"float32": torch.float32, "fp32": torch.float32, "bfloat16": torch.bfloat16, "bf16": torch.bfloat16,
            "float16": torch.float16, "fp16": torch.float16}
+
+
+INT8_NAMES = ("int8", "qint8")
+#: int8 path: per decoder, the hidden refiner convolutions (0-5) that stay float32 (measured, see the docstring)
+INT8_KEEP_FLOAT: dict[str, tuple[int, ...]] = {"depth": (0, 1, 2, 3, 4, 5)}
+
+
+def is_int8(dtype) -> bool:
+    """Whether ``dtype`` asks for the int8 path (``"int8"`` or ``torch.int8``)."""
+    return dtype is torch.int8 or (isinstance(dtype, str) and dtype.lower() in INT8_NAMES)
 
 
 def parse_dtype(dtype: torch.dtype | str) -> torch.dtype:
@@ -139,6 +150,11 @@ class FastEngine:
         static: never branch on the values of the reset mask (the refiners always run and the reset is a per-sample
             select), for CUDA-graph capture; a state (zeros are fine, with ``reset=True``) must always be given.
         use_mkldnn: use the fused oneDNN convolution kernels on CPU (default: when this PyTorch build has them).
+        calibration: with ``dtype="int8"``: an iterable of ``(rgb, rot, trans, intrinsics, reset)`` frames streamed
+            once at construction to calibrate the activation ranges (see :mod:`cosemdepth.inference.int8`).
+            Without it, the first ``calibration_frames`` frames given to :meth:`step` calibrate (they run in float32)
+            and the int8 refiners take over from the next frame.
+        calibration_frames: frames of :meth:`step` used to calibrate when no ``calibration`` is given.
     """
 
     def __init__(
@@ -148,8 +164,13 @@ class FastEngine:
         device: torch.device | str | None = None,
         static: bool = False,
         use_mkldnn: bool | None = None,
+        calibration=None,
+        calibration_frames: int = 8,
+        int8_keep_float: dict[str, tuple[int, ...]] | None = None,
     ):
-        dtype = parse_dtype(dtype)
+        self.int8_keep_float = dict(INT8_KEEP_FLOAT if int8_keep_float is None else int8_keep_float)
+        self.int8 = is_int8(dtype)
+        dtype = torch.float32 if self.int8 else parse_dtype(dtype)
         p = next(model.parameters())
         self.device = torch.device(device) if device is not None else p.device
         self.dtype = dtype
@@ -174,6 +195,41 @@ class FastEngine:
             name: [_fast_ops(lvl, _Refiner(lvl.refiner, dtype, self.device, use_mkldnn)) for lvl in dec.levels]
             for name, dec in self.decoders.items()
         }
+        self._calibrating = 0
+        if self.int8:
+            if self.device.type != "cpu" or not has_int8():
+                raise ValueError("dtype int8 needs the CPU and a PyTorch build with oneDNN quantized convolutions")
+            if calibration_frames < 1:
+                raise ValueError(f"calibration_frames must be at least 1, got {calibration_frames}")
+            self._start_calibration()
+            if calibration is None:
+                self._calibrating = calibration_frames
+            else:
+                n, state = 0, None
+                for frame in calibration:
+                    _, state = self.step(*frame, state=state)
+                    n += 1
+                if n == 0:
+                    raise ValueError("the int8 calibration sequence is empty")
+                self._finish_calibration()
+
+    # ------------------------------------------------------------------ int8 calibration
+    def _start_calibration(self) -> None:
+        self.ops = {name: [dataclasses.replace(o, refiner=RangeRecorder(o.refiner)) for o in ops]
+                    for name, ops in self.ops.items()}
+
+    def _finish_calibration(self) -> None:
+        self.ops = {
+            name: [dataclasses.replace(o, refiner=QuantRefiner(lvl.refiner, o.refiner, self.int8_keep_float.get(name, ())))
+                   for lvl, o in zip(self.decoders[name].levels, ops)]
+            for name, ops in self.ops.items()
+        }
+        self._calibrating = 0
+
+    @property
+    def calibrated(self) -> bool:
+        """False while an int8 engine still records activation ranges (its refiners then run in float32)."""
+        return not any(isinstance(o.refiner, RangeRecorder) for ops in self.ops.values() for o in ops)
 
     # ------------------------------------------------------------------ encoder
     def encode(self, rgb: torch.Tensor) -> list[torch.Tensor]:
@@ -218,10 +274,15 @@ class FastEngine:
             raise ValueError("a static engine needs an explicit state (zeros with reset=True for a first frame)")
         feats = self.encode(rgb)
         size = tuple(rgb.shape[-2:])
-        return decode_step(
+        result = decode_step(
             self.decoders, feats, rot, trans, intrinsics, reset, state,
             lambda x: upsample_nearest(x, size, half_pixel=True), self.ops, self.static,
         )
+        if self._calibrating:
+            self._calibrating -= 1
+            if not self._calibrating:
+                self._finish_calibration()
+        return result
 
     def zero_state(self, batch: int, height: int, width: int) -> StreamState:
         """An all-zero state for a ``batch x height x width`` input (use with ``reset=True`` on the first frame)."""

@@ -66,7 +66,8 @@ class SceneModel(nn.Module):
         return {k: v for dec in self.decoders.values() for k, v in dec.state_shapes(batch, height, width).items()}
 
     # ------------------------------------------------------------------ fast inference switch
-    def optimize(self, mode: str = "fast", dtype: torch.dtype | str = torch.float32, device=None) -> "SceneModel":
+    def optimize(self, mode: str = "fast", dtype: torch.dtype | str = torch.float32, device=None,
+                 **options) -> "SceneModel":
         """Select the streaming inference path of :meth:`step` / :meth:`infer`; returns ``self``.
 
         * ``mode="fast"``: a :class:`~cosemdepth.inference.FastEngine` built from the current weights (channels-last
@@ -74,7 +75,10 @@ class SceneModel(nn.Module):
           gives the reference results up to float rounding (the *safe* setting, which the inference commands use by
           default). ``dtype=torch.bfloat16`` (CPU or GPU) or ``torch.float16`` (GPU) runs the refiners' hidden
           convolutions in that precision, faster and less exact: opt in after checking the accuracy of your weights
-          (``benchmarks/fast_accuracy.py``).
+          (``benchmarks/fast_accuracy.py``). ``dtype="int8"`` (CPU) runs the refiners' hidden convolutions as oneDNN
+          int8 convolutions with statically calibrated activations (:mod:`cosemdepth.inference.int8`): pass
+          ``calibration=`` (an iterable of ``(rgb, rot, trans, intrinsics, reset)`` frames), or the first
+          ``calibration_frames`` (default 8) streamed frames calibrate, in float32.
         * ``mode="reference"``: the plain PyTorch modules (the default of a freshly built model).
 
         The fast path is used only in eval mode and never records gradients; ``forward_sequence`` (training) always
@@ -88,7 +92,7 @@ class SceneModel(nn.Module):
         if mode not in STREAMERS:
             raise ValueError(f"mode must be one of {['reference', *sorted(set(STREAMERS) | set(STREAMER_PLUGINS))]}, "
                              f"got {mode!r}")
-        options = {"dtype": dtype, "device": device}
+        options = {"dtype": dtype, "device": device, **options}
         self._fast = STREAMERS[mode](self, **options)
         self._fast_mode, self._fast_options = mode, options
         return self

@@ -1,0 +1,39 @@
+import pytest
+import torch
+
+from cosemdepth.cli._shared import load
+from cosemdepth.cli.main import main
+from cosemdepth.errors import ConfigError
+from cosemdepth.io.model_io import save_model
+from cosemdepth.models import build_model
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory):
+    torch.manual_seed(0)
+    return save_model(build_model(), tmp_path_factory.mktemp("m") / "model")
+
+
+@pytest.mark.parametrize("precision,dtype", [("fp32", torch.float32), ("bf16", torch.bfloat16), ("int8", "int8")])
+def test_load_selects_the_fast_path_in_the_precision(model_dir, precision, dtype):
+    model, _ = load(model_dir, "cpu", precision=precision)
+    assert model.inference_mode == "fast"
+    if dtype == "int8":
+        assert model._fast.int8 and not model._fast.calibrated  # calibrates on the first frames it sees
+    else:
+        assert model._fast.dtype == dtype and not model._fast.int8
+
+
+def test_reference_with_a_reduced_precision_is_a_user_error(model_dir):
+    with pytest.raises(ConfigError, match="--precision int8 is a setting of the fast path: drop --reference"):
+        load(model_dir, "cpu", fast=False, precision="int8")
+    model, _ = load(model_dir, "cpu", fast=False, precision="fp32")
+    assert model.inference_mode == "reference"
+
+
+@pytest.mark.parametrize("cmd", ["predict", "evaluate"])
+def test_unknown_precision_exits_2(cmd, model_dir, capsys):
+    with pytest.raises(SystemExit) as e:
+        main([cmd, "--model", str(model_dir), "--precision", "int4"])
+    assert e.value.code == 2
+    assert "--precision" in capsys.readouterr().err

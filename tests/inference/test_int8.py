@@ -1,0 +1,150 @@
+import pytest
+import torch
+import torch.nn.functional as F
+
+from cosemdepth.inference import FastEngine
+from cosemdepth.inference.int8 import QTensor, QuantConv, Range, has_int8, quantize, quantize_weight
+from cosemdepth.models import build_model
+from cosemdepth.ops.padding import Conv2dSame
+
+
+
+def sequence(b=2, t=4, h=32, w=48, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    coarse = torch.rand(b * t, 3, h // 8, w // 8, generator=g)
+    rgb = F.interpolate(coarse, size=(h, w), mode="bilinear").view(b, t, 3, h, w)
+    q = F.normalize(torch.tensor([1.0, 0, 0, 0]) + 0.01 * torch.randn(b, t, 4, generator=g), dim=-1)
+    tr = torch.tensor([0.05, -0.02, 1.0]) + 0.1 * torch.randn(b, t, 3, generator=g)
+    K = torch.tensor([w / 2, h / 2, w / 2, h / 2]).expand(b, 4).contiguous()
+    return rgb, q, tr, K
+
+
+def tame(model, scale=0.1):
+    """Damp the depth refiners' last layer of an untrained model (well-conditioned recurrence, as test_fast_engine)."""
+    with torch.no_grad():
+        for lvl in model.depth_decoder.levels:
+            lvl.refiner.convs[-1].weight.mul_(scale)
+    return model
+
+
+def resets(b, t, extra=()):
+    r = torch.zeros(b, t, dtype=torch.bool)
+    r[:, 0] = True
+    for i, k in extra:
+        r[i, k] = True
+    return r
+
+pytestmark = pytest.mark.skipif(not has_int8(), reason="this PyTorch build has no oneDNN quantized convolution")
+
+
+def frames(b=2, t=4, seed=0, extra=((1, 2),)):
+    rgb, q, tr, K = sequence(b=b, t=t, seed=seed)
+    rs = resets(b, t, extra=extra)
+    return [(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k]) for k in range(t)]
+
+
+def test_range_qparams_hand_computed():
+    assert Range(-1.0, 3.0).qparams() == pytest.approx((4 / 255, 64))  # round(1 / (4/255)) = round(63.75)
+    assert Range(0.5, 2.0).qparams() == pytest.approx((2 / 255, 0))  # 0 always representable
+    with pytest.raises(RuntimeError, match="no data"):
+        Range().qparams()
+
+
+def test_weight_quantisation_round_trip_within_half_a_step():
+    w = torch.randn(5, 3, 3, 3)
+    w[2] = 0.0
+    q, s = quantize_weight(w)
+    assert q.dtype == torch.int8 and q.abs().max() <= 127
+    assert torch.all(q[2] == 0) and s[2] == 1.0
+    assert torch.all((q.float() * s.view(-1, 1, 1, 1) - w).abs() <= s.view(-1, 1, 1, 1) / 2 + 1e-7)
+    assert torch.allclose(q.float().abs().amax(dim=(1, 2, 3))[[0, 1, 3, 4]], torch.tensor(127.0))
+
+
+def test_quant_conv_equals_the_float_conv_of_its_quantised_operands_up_to_output_rounding():
+    torch.manual_seed(0)
+    conv = Conv2dSame(8, 6, 3)
+    x = F.leaky_relu(torch.randn(1, 8, 9, 11), 0.1)
+    xr, yr = Range(), Range()
+    xr.update(x)
+    yr.update(conv(x))
+    qc = QuantConv(conv, xr, yr)
+    out = qc(x.clone())
+    assert isinstance(out, QTensor) and out.q.dtype == torch.uint8
+    xq = (quantize(x.clone(), qc.x_scale, qc.x_zp).q.float() - qc.x_zp) * qc.x_scale
+    wq = qc.qw.float() * qc.w_scales.view(-1, 1, 1, 1)
+    expect = F.leaky_relu(F.conv2d(xq, wq, conv.bias, padding=1), 0.1)
+    # two roundings: the convolution's output to y_scale, the LeakyReLU's requantisation to out_scale
+    bound = 0.5 * qc.y_scale + 0.5 * qc.out_scale + 1e-5
+    assert (out.dequantize() - expect).abs().max() <= bound
+    # padding is a real zero, not the zero point: the border pixels obey the same bound (checked above) and
+    # the result is close to the plain float convolution on the scale of its range
+    assert (out.dequantize() - F.leaky_relu(conv(x), 0.1)).abs().max() < 0.05 * (yr.hi - yr.lo)
+
+
+def test_int8_engine_calibrates_on_the_first_frames_then_switches():
+    torch.manual_seed(5)
+    m = tame(build_model().eval())
+    fp32 = FastEngine(m)
+    eng = FastEngine(m, dtype="int8", calibration_frames=2)
+    assert not eng.calibrated
+    fs = frames(t=4)
+    s8 = s32 = None
+    for k, f in enumerate(fs):
+        o8, s8 = eng.step(*f, state=s8)
+        o32, s32 = fp32.step(*f, state=s32)
+        if k < 2:  # calibration frames run the float32 refiners: the fp32 engine's results exactly
+            assert torch.equal(o8.depth, o32.depth) and torch.equal(o8.semantic, o32.semantic)
+    assert eng.calibrated
+    assert type(eng.ops["semantic"][0].refiner.hidden[0]).__name__ == "QuantConv"
+    assert type(eng.ops["depth"][0].refiner.hidden[0]).__name__ == "PackedConv"  # INT8_KEEP_FLOAT
+
+
+def test_int8_step_contract_reset_logic_and_closeness():
+    torch.manual_seed(5)
+    m = tame(build_model().eval())
+    fp32 = FastEngine(m)
+    eng = FastEngine(m, dtype=torch.int8, calibration=frames(t=4, seed=1), int8_keep_float={})
+    assert eng.calibrated and type(eng.ops["depth"][0].refiner.hidden[0]).__name__ == "QuantConv"
+    fs = frames(t=4, seed=0, extra=((1, 2),))
+    s8 = s32 = None
+    for k, f in enumerate(fs):
+        o8, s8 = eng.step(*f, state=s8)
+        o32, s32 = fp32.step(*f, state=s32)
+        assert o8.depth.dtype == torch.float32 and o8.semantic.dtype == torch.float32
+        assert o8.depth.shape == o32.depth.shape and o8.semantic.shape == o32.semantic.shape
+        assert list(s8.components) == list(s32.components)
+        assert [t.shape for t in s8.flatten()] == [t.shape for t in s32.flatten()]
+        reset = f[4]
+        # a resetting sample of the temporal (depth) decoder outputs the init and the reset state, as in fp32,
+        # whatever the precision of the refiners (the semantic decoder is stateless: it always refines)
+        for i in torch.nonzero(reset).flatten().tolist():
+            assert torch.equal(o8.depth[i], o32.depth[i]) and torch.all(o8.depth[i] == 1000.0)
+            for a, b in zip(s8.flatten(), s32.flatten()):
+                assert torch.equal(a[i], b[i])
+        if k > 0 and not reset.all():
+            live = ~reset
+            agree = (o8.semantic[live].argmax(1) == o32.semantic[live].argmax(1)).float().mean()
+            assert agree > 0.9, (k, agree)
+            d8, d32 = o8.levels["parallax"][0][live], o32.levels["parallax"][0][live]
+            assert ((d8 - d32).abs() / d32.abs().clamp_min(1e-6)).median() < 0.1, k
+    # not silently float: int8 differs from fp32 on a frame that refines
+    assert not torch.equal(o8.semantic, o32.semantic)
+
+
+def test_int8_engine_bad_arguments():
+    m = build_model().eval()
+    with pytest.raises(ValueError, match="calibration sequence is empty"):
+        FastEngine(m, dtype="int8", calibration=[])
+    with pytest.raises(ValueError, match="calibration_frames"):
+        FastEngine(m, dtype="int8", calibration_frames=0)
+    with pytest.raises(ValueError, match="dtype must be one of"):
+        FastEngine(m, dtype="int4")
+
+
+def test_optimize_int8_through_the_model():
+    torch.manual_seed(5)
+    m = tame(build_model().eval())
+    m.optimize("fast", "int8", calibration=frames(t=3, seed=1))
+    assert m.inference_mode == "fast" and m._fast.int8 and m._fast.calibrated
+    out, state = m.step(*frames(t=1, extra=())[0])
+    assert out.depth.dtype == torch.float32
