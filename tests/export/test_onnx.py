@@ -136,18 +136,22 @@ def test_documented_check_passes_on_the_shipped_weights(shipped_export):
     assert "OK" in report.summary()
 
 
-def test_check_catches_a_real_difference(shipped_export):
-    """A graph that computes something else (one weight of the PyTorch model changed by 0.1 %) is a MISMATCH."""
-    m, path = shipped_export
-    w = m.depth_decoder.levels[0].refiner.convs[-1].weight
+def _compare_with_changed_weight(m, path, decoder):
+    """``compare_onnx`` after the last convolution of ``decoder``'s finest refiner was scaled by 1.001 (restored)."""
+    w = getattr(m, f"{decoder}_decoder").levels[0].refiner.convs[-1].weight
     saved = w.detach().clone()
     try:
         with torch.no_grad():
             w.mul_(1.001)
-        report = compare_onnx(m, path, frames=4)
+        return compare_onnx(m, path, frames=4)
     finally:
         with torch.no_grad():
             w.copy_(saved)
+
+
+def test_check_catches_a_real_difference(shipped_export):
+    """A graph that computes something else (one weight of the PyTorch model changed by 0.1 %) is a MISMATCH."""
+    report = _compare_with_changed_weight(*shipped_export, "depth")
     assert not report.ok and "MISMATCH" in report.summary()
     assert max(report.depth_rel) > report.depth_tol
 
@@ -155,16 +159,7 @@ def test_check_catches_a_real_difference(shipped_export):
 def test_check_catches_a_real_semantic_difference(shipped_export):
     """The same for the semantic decoder: its last convolution's weights changed by 0.1 % is a MISMATCH on the
     semantic probabilities (the depth is untouched and stays within its tolerance)."""
-    m, path = shipped_export
-    w = m.semantic_decoder.levels[0].refiner.convs[-1].weight
-    saved = w.detach().clone()
-    try:
-        with torch.no_grad():
-            w.mul_(1.001)
-        report = compare_onnx(m, path, frames=4)
-    finally:
-        with torch.no_grad():
-            w.copy_(saved)
+    report = _compare_with_changed_weight(*shipped_export, "semantic")
     assert not report.ok and "MISMATCH" in report.summary()
     assert max(report.semantic_rel) > report.semantic_tol
     assert max(report.depth_rel) <= report.depth_tol

@@ -278,12 +278,7 @@ def check_output_file(
         if recognize is None or not recognize(out):
             raise ConfigError(f"{out}: the {what} exists and was not written by cosemdepth; nothing was overwritten "
                               "(move it, or choose another file name)")
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".probe.", dir=parent)
-    except OSError as e:
-        raise ConfigError(f"{out}: cannot write the {what} ({parent}: {_why(e)})") from None
-    os.close(fd)
-    os.unlink(probe)
+    probe_writable(parent, f"{out}: cannot write the {what}")
 
 
 __all__ = ["Input", "MARKER", "check_files_replaceable", "check_not_input", "check_not_under_file",

@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -23,6 +22,7 @@ import yaml
 
 from ..config import ModelConfig, RunConfig
 from ..errors import ConfigError
+from ..io.outdir import probe_writable
 from ..io.atomic import _fsync_dir, atomic_write_text
 from ..io.outdir import Input, check_not_input
 from .checkpoint import _jsonable, save_model_files
@@ -82,13 +82,7 @@ def check_output_dir(run_dir: str | os.PathLike, config: RunConfig | None = None
 
 
 def _check_writable(folder: Path, what: str | None = None) -> None:
-    what = what or f"--out {folder}"
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".cosemdepth-write-test-", dir=folder)
-    except OSError as e:
-        raise ConfigError(f"{what}: the folder is not writable ({e.strerror or e})") from None
-    os.close(fd)
-    os.unlink(probe)
+    probe_writable(folder, f"{what or f'--out {folder}'}: the folder is not writable")
 
 
 def create_run_dir(run_dir: str | os.PathLike, config: RunConfig) -> list[Path]:
