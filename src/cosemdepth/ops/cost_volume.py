@@ -67,7 +67,8 @@ def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negati
 
     ``corr[o, g](p) = (1 / n_g) sum_{c in g} f_c(p) f_c(p + d_o)`` for the window offsets ``d_o``, zero where
     ``p + d_o`` leaves the image. Computed for all offsets at once from the ``(2r+1)^2`` window columns of the
-    features (``unfold``), with a backward that recomputes them instead of keeping them (memory: the output only).
+    features (one window row at a time), with a backward that recomputes them instead of keeping them (memory: the
+    output only).
 
     Args:
         feat: ``[B, C, H, W]`` normalised features.
@@ -79,7 +80,10 @@ def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negati
     b, c, h, w = feat.shape
     if c % groups:
         raise ValueError(f"{c} channels cannot be split into {groups} groups")
-    vol = _SpatialCorrelation.apply(feat, groups, radius)  # [B, K, (2r+1)^2, H*W]
+    if torch.is_grad_enabled() and feat.requires_grad:
+        vol = _SpatialCorrelation.apply(feat, groups, radius)  # [B, K, (2r+1)^2, H*W]
+    else:  # the same arithmetic as plain ops (traceable for export, no autograd bookkeeping)
+        vol = _spatial_correlation(feat, groups, radius)
     vol = vol.transpose(1, 2).reshape(b, (2 * radius + 1) ** 2 * groups, h, w)
     return F.leaky_relu(vol, negative_slope)
 
@@ -91,6 +95,25 @@ def _window_columns(f: torch.Tensor, radius: int) -> torch.Tensor:
     return F.unfold(f, k, padding=radius).view(b, c, k * k, -1)
 
 
+def _spatial_correlation(feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
+    """``[B, C, H, W] -> [B, K, (2r+1)^2, H*W]`` group-mean correlation with the window offsets (no activation)."""
+    b, c, h, w = feat.shape
+    n = c // groups
+    k = 2 * radius + 1
+    f = feat.contiguous()
+    # One window row (2r + 1 offsets) at a time, gathered from the padded rows: the
+    # working memory is (2r + 1) feature maps, not (2r + 1)^2.
+    padded = F.pad(f, (radius, radius, radius, radius))
+    fv = f.view(b, groups, n, h, 1, w)
+    rows = []
+    for i in range(k):
+        cols = torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], dim=3)  # [B, C, H, 2r+1, W]
+        rows.append((cols.view(b, groups, n, h, k, w) * fv).sum(dim=2))  # [B, K, H, 2r+1, W]
+    out = torch.stack(rows, dim=2).permute(0, 1, 2, 4, 3, 5)  # [B, K, 2r+1, 2r+1, H, W]
+    out = out.reshape(b, groups, k * k, h * w).mul(1.0 / n)
+    return out
+
+
 class _SpatialCorrelation(torch.autograd.Function):
     """``[B, C, H, W] -> [B, K, (2r+1)^2, H*W]`` group-mean correlation with the window offsets (no activation).
 
@@ -100,11 +123,8 @@ class _SpatialCorrelation(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
-        b, c, h, w = feat.shape
-        n = c // groups
         f = feat.contiguous()
-        cols = _window_columns(f, radius).view(b, groups, n, -1, h * w)
-        out = (cols * f.view(b, groups, n, 1, h * w)).sum(dim=2).mul_(1.0 / n)
+        out = _spatial_correlation(f, groups, radius)
         ctx.save_for_backward(f)
         ctx.groups, ctx.radius = groups, radius
         return out
