@@ -104,13 +104,12 @@ def _spatial_correlation(feat: torch.Tensor, groups: int, radius: int) -> torch.
     # One window row (2r + 1 offsets) at a time, gathered from the padded rows: the
     # working memory is (2r + 1) feature maps, not (2r + 1)^2.
     padded = F.pad(f, (radius, radius, radius, radius))
-    fv = f.view(b, groups, n, h, 1, w)
-    rows = []
+    fv = f.view(b, groups, n, 1, h, w)
+    out = f.new_empty(b, groups, k, k, h, w)
     for i in range(k):
-        cols = torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], dim=3)  # [B, C, H, 2r+1, W]
-        rows.append((cols.view(b, groups, n, h, k, w) * fv).sum(dim=2))  # [B, K, H, 2r+1, W]
-    out = torch.stack(rows, dim=2).permute(0, 1, 2, 4, 3, 5)  # [B, K, 2r+1, 2r+1, H, W]
-    out = out.reshape(b, groups, k * k, h * w).mul(1.0 / n)
+        cols = torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], dim=2)  # [B, C, 2r+1, H, W]
+        torch.sum(cols.view(b, groups, n, k, h, w) * fv, dim=2, out=out[:, :, i])
+    out = out.view(b, groups, k * k, h * w).mul(1.0 / n)
     return out
 
 
