@@ -101,14 +101,17 @@ def _spatial_correlation(feat: torch.Tensor, groups: int, radius: int) -> torch.
     n = c // groups
     k = 2 * radius + 1
     f = feat.contiguous()
-    # One window row (2r + 1 offsets) at a time, gathered from the padded rows: the
-    # working memory is (2r + 1) feature maps, not (2r + 1)^2.
     padded = F.pad(f, (radius, radius, radius, radius))
     fv = f.view(b, groups, n, 1, h, w)
-    out = f.new_empty(b, groups, k, k, h, w)
-    for i in range(k):
-        cols = torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], dim=2)  # [B, C, 2r+1, H, W]
-        torch.sum(cols.view(b, groups, n, k, h, w) * fv, dim=2, out=out[:, :, i])
+    if torch.onnx.is_in_onnx_export():  # the exporter traces neither the strided view nor writes into slices
+        rows = [torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], 2) for i in range(k)]
+        out = torch.stack([(r.view(b, groups, n, k, h, w) * fv).sum(dim=2) for r in rows], 2)
+    else:  # one window row (2r + 1 offsets) at a time from a zero-copy strided view: (2r + 1) maps of memory
+        s_b, s_c, s_h, s_w = padded.stride()  # window[b, c, i, j, y, x] = padded[b, c, y + i, x + j]
+        window = padded.as_strided((b, c, k, k, h, w), (s_b, s_c, s_h, s_w, s_h, s_w), padded.storage_offset())
+        out = f.new_empty(b, groups, k, k, h, w)
+        for i in range(k):
+            torch.sum(window[:, :, i].reshape(b, groups, n, k, h, w) * fv, dim=2, out=out[:, :, i])
     out = out.view(b, groups, k * k, h * w).mul(1.0 / n)
     return out
 
