@@ -20,7 +20,7 @@ from typing import Callable, Optional
 
 import torch
 
-from ..config import ModelConfig
+from ..config import MIDAIR_IMAGE_SIZE, ModelConfig
 from ..evaluation.resources import cpu_model
 from ..export.check import synthetic_sequence
 from .memory import PeakMemory, exact_rss
@@ -31,19 +31,24 @@ PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float
 QUIET_OTHERS = 0.1
 
 
+_MODEL = ModelConfig()
+
+
 @dataclass
 class BenchCase:
-    arch: str
+    """One measurement; the defaults are the model config's and the paper's image size."""
+
+    arch: str = _MODEL.arch
     batch: int = 1
-    height: int = 384
-    width: int = 384
+    height: int = MIDAIR_IMAGE_SIZE
+    width: int = MIDAIR_IMAGE_SIZE
     device: str = "cpu"
     precision: str = "fp32"
     path: str = "fast"  # "fast", "reference", or "graph" (static buffers; a CUDA graph on GPU)
     warmup: int = 2
     iters: int = 10
-    levels: int = 5
-    num_classes: int = 7
+    levels: int = _MODEL.levels
+    num_classes: int = _MODEL.num_classes
 
 
 @dataclass

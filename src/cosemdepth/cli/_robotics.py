@@ -6,7 +6,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..data.bag_flight import DEFAULT_MAX_POSE_GAP
 from ..errors import ConfigError
+from ..io.bag_writer import DEFAULT_NAMESPACE
 
 
 def add_robotics_args(parser: argparse.ArgumentParser) -> None:
@@ -18,14 +20,15 @@ def add_robotics_args(parser: argparse.ArgumentParser) -> None:
                      "poses of the body (axes: --convention, default flu = REP 103) or of the camera")
     bag.add_argument("--camera-info-topic", metavar="T", help="sensor_msgs/CameraInfo topic for the intrinsics "
                      "(instead of --intrinsics / --hfov)")
-    bag.add_argument("--max-pose-gap", type=float, default=0.05, metavar="S",
-                     help="interpolate an image's pose only between poses at most S seconds apart (default 0.05)")
+    bag.add_argument("--max-pose-gap", type=float, default=DEFAULT_MAX_POSE_GAP, metavar="S",
+                     help="interpolate an image's pose only between poses at most S seconds apart (default "
+                     f"{DEFAULT_MAX_POSE_GAP:g})")
     bag.add_argument("--skip-unposed", action="store_true",
                      help="skip images without poses around them (counted in the report) instead of failing")
     bag.add_argument("--ignore-distortion", action="store_true",
                      help="use camera_info's K even when it has a non-zero distortion")
-    bag.add_argument("--out-namespace", default="/cosemdepth", metavar="NS",
-                     help="topic prefix of the output bag DIR/bag/ (default /cosemdepth)")
+    bag.add_argument("--out-namespace", default=DEFAULT_NAMESPACE, metavar="NS",
+                     help=f"topic prefix of the output bag DIR/bag/ (default {DEFAULT_NAMESPACE})")
     parser.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd",
                         help="also write a rerun recording (open it with: rerun FILE.rrd; needs cosemdepth[viz])")
 

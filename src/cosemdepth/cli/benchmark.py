@@ -17,17 +17,23 @@ from dataclasses import asdict
 
 import torch
 
+from ..bench.runner import BenchCase
 from ..config import ARCHITECTURES
 from ..devices import resolve_device
 from ..errors import ConfigError
-from ._shared import parse_size_pair
+from ._shared import DEFAULT_SIZE_PAIR, parse_size_pair
+
+#: The defaults of one measurement (size, levels, classes, warm-up and timed frames at batch 1).
+CASE = BenchCase()
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", nargs="+", choices=ARCHITECTURES, default=list(ARCHITECTURES))
     parser.add_argument("--model", metavar="DIR", help="time these weights (its architecture) instead of --models")
-    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), help="input size (default 384 384)")
-    parser.add_argument("--levels", type=int, default=5, help="pyramid levels of the --models (default 5)")
+    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"),
+                        help="input size (default {} {})".format(*DEFAULT_SIZE_PAIR))
+    parser.add_argument("--levels", type=int, default=CASE.levels,
+                        help=f"pyramid levels of the --models (default {CASE.levels})")
     parser.add_argument("--batch", nargs="+", type=int, default=[1, 8, 32], help="batch sizes (default 1 8 32)")
     parser.add_argument(
         "--precision",
@@ -35,12 +41,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         choices=["fp32", "bf16", "fp16"],
         help="fast-path precisions (default: fp32 bf16 on CPU, fp32 fp16 bf16 on CUDA)",
     )
-    parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default: CUDA when present)")
+    parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default auto: CUDA when present)")
     parser.add_argument("--no-reference", action="store_true", help="skip the reference-path (fp32, batch 1) rows")
     parser.add_argument("--no-joint", action="store_true", help="skip the joint-vs-separate comparison")
     parser.add_argument("--no-graph", action="store_true", help="on CUDA, skip the CUDA-graph rows")
-    parser.add_argument("--warmup", type=int, default=2, help="warm-up frames at batch 1 (default 2)")
-    parser.add_argument("--iters", type=int, default=10, help="timed frames at batch 1 (default 10)")
+    parser.add_argument("--warmup", type=int, default=CASE.warmup,
+                        help=f"warm-up frames at batch 1 (default {CASE.warmup})")
+    parser.add_argument("--iters", type=int, default=CASE.iters, help=f"timed frames at batch 1 (default {CASE.iters})")
     parser.add_argument("--batched-warmup", type=int, default=1, help="warm-up steps at batch > 1 (default 1)")
     parser.add_argument("--batched-iters", type=int, default=2, help="timed steps at batch > 1 (default 2)")
     parser.add_argument("--threads", type=int, help="torch CPU threads (default: PyTorch's choice)")
@@ -131,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
             warmup=args.batched_warmup if big else args.warmup,
             iters=args.batched_iters if big else args.iters,
             levels=cfg.levels if cfg else args.levels,
-            num_classes=cfg.num_classes if cfg else 7,
+            num_classes=cfg.num_classes if cfg else CASE.num_classes,
         )
 
     report = {"meta": hardware_info(device), "results": [], "joint_vs_separate": []}

@@ -12,14 +12,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, open_split, parse_size
+from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, open_split, parse_size, size_help
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     add_model_args(parser)
     add_split_args(parser)
     parser.add_argument("--size", type=parse_size, default=None, metavar="S",
-                        help="network input size, S or HxW (default 384; native for aeroscapes)")
+                        help=size_help())
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="write metrics.json and metrics.md into DIR (created if needed; other files in DIR are "
                         "left alone, and files cosemdepth did not write are never replaced)")

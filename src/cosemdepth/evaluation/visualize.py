@@ -100,6 +100,12 @@ def ffmpeg_exe() -> str | None:
         return shutil.which("ffmpeg")
 
 
+#: Video formats of :class:`VideoWriter` (``--video``; the commands add ``"none"``), the default one and frame rate.
+VIDEO_FORMATS = ("mp4", "gif")
+DEFAULT_VIDEO = "mp4"
+DEFAULT_FPS = 8.0
+
+
 class VideoWriter:
     """Stream frames (``[H, W, 3]`` uint8, all the same size) into an MP4 (H.264, imageio-ffmpeg's ``write_frames``)
     or a GIF (Pillow).
@@ -109,8 +115,8 @@ class VideoWriter:
     Odd frame sizes are padded by one black row/column for H.264.
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float = 8.0, fmt: str = "mp4") -> None:
-        if fmt not in ("mp4", "gif"):
+    def __init__(self, path: str | os.PathLike, fps: float = DEFAULT_FPS, fmt: str = DEFAULT_VIDEO) -> None:
+        if fmt not in VIDEO_FORMATS:
             raise ValueError(f"video format must be 'mp4' or 'gif', got {fmt!r}")
         self.fps = float(fps)
         self.exe = ffmpeg_exe() if fmt == "mp4" else None

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from ...errors import ConfigError, DatasetError
+from ...model_config import MIDAIR_IMAGE_SIZE
 from ..csvsplits import open_csv_split
 from ..decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, read_label_ids, read_rgb, read_uint16_png
 from ..frames import Size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
@@ -102,7 +103,7 @@ def open_midair(
     split_dir: str | Path,
     split: str = "test",
     seq_len: int = 1,
-    size: int | tuple[int, int] | None = 384,
+    size: int | tuple[int, int] | None = MIDAIR_IMAGE_SIZE,
     augment=False,
     *,
     mode: str | None = None,

@@ -27,6 +27,7 @@ import numpy as np
 
 from ...errors import ConfigError
 from ...io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from ...model_config import MIDAIR_IMAGE_SIZE
 from ..midair import format as fmt
 from ..midair.splits import GT_PER_ROW, generate_splits
 from .climate import CLIMATES, get_climate
@@ -43,6 +44,8 @@ SPLITS_DIR = "splits"
 #: Mid-Air's climate numbering (trajectory numbers climate * 1000 + i).
 CLIMATE_NUMBER = {"sunny": 0, "sunset": 1, "foggy": 2, "cloudy": 3}
 MAX_SIZE = 4096
+#: Colour rays per pixel per axis that the renderer supports (``--supersample``).
+SUPERSAMPLES = (1, 3, 5)
 MIN_SIZE = 16
 
 
@@ -54,7 +57,7 @@ class SynthConfig:
     out: Path
     trajectories: int = 4
     frames: int = 200
-    size: int = 384
+    size: int = MIDAIR_IMAGE_SIZE
     seed: int = 0
     climates: tuple[str, ...] = CLIMATES
     all_frames: bool = False
@@ -82,8 +85,9 @@ class SynthConfig:
             raise ConfigError(f"--climates: unknown climate(s) {unknown}; choose from {', '.join(CLIMATES)}")
         if len(set(self.climates)) != len(self.climates):
             raise ConfigError(f"--climates lists a climate twice: {list(self.climates)}")
-        if self.supersample not in (1, 3, 5):
-            raise ConfigError(f"--supersample must be 1, 3 or 5, got {self.supersample!r}")
+        if self.supersample not in SUPERSAMPLES:
+            raise ConfigError(f"--supersample must be one of {', '.join(map(str, SUPERSAMPLES))}, got "
+                              f"{self.supersample!r}")
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError(f"--jpeg-quality must be in [1, 100], got {self.jpeg_quality!r}")
         if not isinstance(self.workers, int) or self.workers < 1:
