@@ -203,6 +203,7 @@ class TrainConfig:
         _positive_int("train.max_rollbacks", self.max_rollbacks, minimum=0)
         _positive_int("train.log_every", self.log_every)
         _positive_int("train.image_every", self.image_every, minimum=0)
+        # deferred: the metrics sit above the config (the run recipe should move above them; see docs/architecture.md)
         from .evaluation.metrics import selection_rule
 
         try:

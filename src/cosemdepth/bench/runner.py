@@ -23,6 +23,8 @@ import torch
 from ..config import MIDAIR_IMAGE_SIZE, ModelConfig
 from ..evaluation.resources import cpu_model
 from ..export.check import synthetic_sequence
+from ..inference.graphs import make_streamer
+from ..models import build_model
 from .memory import PeakMemory, exact_rss
 from .noise import compare_times, spread
 
@@ -121,8 +123,6 @@ def _sync(device: torch.device) -> None:
 
 def build(case: BenchCase, model=None):
     """The model of ``case`` on its device with its inference path selected (``model``: use these weights)."""
-    from ..models import build_model
-
     if model is None:
         torch.manual_seed(0)
         model = build_model(ModelConfig(arch=case.arch, levels=case.levels, num_classes=case.num_classes))
@@ -144,8 +144,6 @@ class _GraphStepper:
     """``step`` over a :class:`StaticStreamer` (a CUDA graph on GPU; the same static program eagerly on CPU)."""
 
     def __init__(self, model, case: BenchCase):
-        from ..inference.graphs import make_streamer
-
         self.model = model
         self.streamer = make_streamer(
             model, case.batch, case.height, case.width, dtype=PRECISIONS[case.precision], device=case.device

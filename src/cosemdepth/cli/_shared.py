@@ -5,10 +5,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import torch
+
 from ..config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
+from ..data import open_dataset
 from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from ..data.registry import DATASETS, split_datasets
 from ..errors import ConfigError
+from ..devices import resolve_device
+from ..io.model_io import load_model
+from ..models import build_model
 
 #: The model config's defaults (``--arch/--levels/--classes`` read them: one home for defaults).
 MODEL_DEFAULTS = ModelConfig()
@@ -89,11 +95,7 @@ def add_model_or_arch_args(parser: argparse.ArgumentParser) -> None:
 def load_or_build(args: argparse.Namespace, device: str = "cpu"):
     """The model named by ``--model``, or a freshly initialised one from ``--arch/--levels/--classes``; eval mode."""
     if getattr(args, "model", None):
-        from ..io.model_io import load_model
-
         return load_model(args.model, device=device)
-    from ..models import build_model
-
     cfg = ModelConfig(arch=args.arch, levels=args.levels, num_classes=args.classes)
     return build_model(cfg).to(device).eval()
 
@@ -117,8 +119,6 @@ def add_device_args(parser: argparse.ArgumentParser) -> None:
 def apply_threads(args: argparse.Namespace) -> None:
     """``torch.set_num_threads(args.threads)`` when given."""
     if getattr(args, "threads", None):
-        import torch
-
         torch.set_num_threads(args.threads)
 
 
@@ -175,9 +175,6 @@ def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32
         raise ConfigError(f"--precision must be one of {list(PRECISION_DTYPES)}, got {precision!r}")
     if not fast and precision != "fp32":
         raise ConfigError(f"--precision {precision} is a setting of the fast path: drop --reference (which runs fp32)")
-    from ..io.model_io import load_model
-    from ..evaluation.resources import resolve_device
-
     device = resolve_device(device_name)
     model = load_model(model_path, device=device)
     if not fast:
@@ -190,8 +187,6 @@ def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32
 
 def open_split(args: argparse.Namespace, size):
     """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1)."""
-    from ..data import open_dataset
-
     if args.workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {args.workers}")
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size,

@@ -10,6 +10,7 @@ persistent buffers, one graph replay per step). Writes JSON and Markdown.
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 import shlex
 import sys
@@ -17,11 +18,23 @@ from dataclasses import asdict
 
 import torch
 
-from ..bench.runner import BenchCase
+from ..bench.noise import format_busy, format_spread, spread
+from ..bench.report import markdown, write_report
+from ..bench.runner import (
+    BenchCase,
+    _loadavg,
+    cpu_busy_fraction,
+    hardware_info,
+    joint_vs_separate,
+    run_case,
+    run_separate,
+    wait_for_idle,
+)
 from ..config import ARCHITECTURES
 from ..devices import resolve_device
 from ..errors import ConfigError
-from ._shared import DEFAULT_SIZE_PAIR, parse_size_pair
+from ..io.outdir import check_output_file, model_inputs
+from ._shared import DEFAULT_SIZE_PAIR, load_or_build, parse_size_pair
 
 #: The defaults of one measurement (size, levels, classes, warm-up and timed frames at batch 1).
 CASE = BenchCase()
@@ -64,8 +77,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def _is_our_json(path) -> bool:
     """A benchmark report written by ``cosemdepth benchmark`` (replaced by a new run; anything else is kept)."""
-    import json
-
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError):
@@ -84,19 +95,6 @@ def _is_our_md(path) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..bench.noise import format_busy, format_spread, spread
-    from ..bench.report import markdown, write_report
-    from ..bench.runner import (
-        BenchCase,
-        _loadavg,
-        cpu_busy_fraction,
-        hardware_info,
-        joint_vs_separate,
-        run_case,
-        run_separate,
-        wait_for_idle,
-    )
-
     h, w = parse_size_pair(args.size)
     device = str(resolve_device(args.device))
     cuda = device.startswith("cuda")
@@ -107,8 +105,6 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f"{name} must be at least 1, got {v}")
     if any(b < 1 for b in args.batch):
         raise ConfigError(f"--batch values must be at least 1, got {args.batch}")
-    from ..io.outdir import check_output_file, model_inputs
-
     for flag, path, ours in (("--json", args.json, _is_our_json), ("--md", args.md, _is_our_md)):
         if path:
             check_output_file(path, what=f"{flag} file", inputs=model_inputs(args.model), recognize=ours)
@@ -119,8 +115,6 @@ def run(args: argparse.Namespace) -> int:
     weights = None
     models = args.models
     if args.model:
-        from ._shared import load_or_build
-
         weights = load_or_build(argparse.Namespace(model=args.model))
         models = [weights.config.arch]
 

@@ -6,6 +6,10 @@ import argparse
 from pathlib import Path
 
 from ..config import ARCHITECTURES
+from ..errors import CheckpointError
+from ..io.convert import import_checkpoint
+from ..io.model_io import CONFIG_FILE, WEIGHTS_FILE, save_weights
+from ..io.outdir import check_output_dir, model_inputs, write_marker
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -41,12 +45,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import CheckpointError
-    from ..io.convert import import_checkpoint
-    from ..io.model_io import CONFIG_FILE, WEIGHTS_FILE, save_weights
-
-    from ..io.outdir import check_output_dir, model_inputs, write_marker
-
     out = Path(args.out_dir)
     if out.exists() and not out.is_dir():
         raise CheckpointError(f"{out}: OUT_DIR exists and is not a folder")

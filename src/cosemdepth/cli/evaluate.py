@@ -10,9 +10,16 @@ into place together at the end; nothing is written if the run fails).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from pathlib import Path
 
-from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, open_split, parse_size, size_help
+from ..data.registry import dataset_spec
+from ..evaluation.evaluator import evaluate
+from ..io.outdir import Input, model_inputs
+from ..io.staging import OutputFiles
+from ._shared import (add_model_args, add_run_args, add_split_args, apply_threads, load, open_split, parse_size,
+                      size_help)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -28,14 +35,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
-    import contextlib
-    from pathlib import Path
-
-    from ..data.registry import dataset_spec
-    from ..evaluation.evaluator import evaluate
-    from ..io.outdir import Input, model_inputs
-    from ..io.staging import OutputFiles
-
     inputs = [*model_inputs(args.model), Input("--root", args.root),
               Input("--split-dir", args.split_dir) if args.split_dir is not None else None]
     files_ctx = (OutputFiles(args.out, "--out folder", command="evaluate", names=("metrics.json", "metrics.md"),

@@ -14,10 +14,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..data import open_dataset
 from ..data.poses import CONVENTIONS
 from ..errors import ConfigError
+from ..evaluation.predict import predict
 from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
+from ..io.outdir import Input, model_inputs
 from ..io.rerun_writer import check_rrd_path
+from ..io.staging import StagedDir
 from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
 from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, parse_size, size_help
 
@@ -75,8 +79,6 @@ def _validate(args: argparse.Namespace) -> None:
 
 
 def _open(args: argparse.Namespace):
-    from ..data import open_dataset
-
     if args.bag is not None:
         return open_bag(args)
     if args.flight:
@@ -89,8 +91,6 @@ def _open(args: argparse.Namespace):
 
 def command_inputs(args: argparse.Namespace) -> list:
     """The input paths of predict / view (for the output policy of :mod:`cosemdepth.io.outdir`)."""
-    from ..io.outdir import Input, model_inputs
-
     return [*model_inputs(args.model), *(Input(label, p) for label, p in (
         ("--root", args.root), ("--split-dir", args.split_dir), ("--images", args.images), ("--poses", args.poses),
         ("--bag", args.bag)) if p is not None)]
@@ -98,10 +98,6 @@ def command_inputs(args: argparse.Namespace) -> list:
 
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
-    from ..evaluation.predict import predict
-    from ..io.outdir import Input
-    from ..io.staging import StagedDir
-
     _validate(args)
     inputs = command_inputs(args)
     StagedDir(args.out, "predict", overwrite=args.overwrite, what="--out folder", inputs=inputs).check()  # first

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import re
+import tokenize
 from pathlib import Path
 from typing import Sequence
 
@@ -150,8 +151,6 @@ def read_depth_npy(path: str | Path) -> np.ndarray:
     are dropped, at most :data:`~cosemdepth.data.decode.MAX_PIXELS` values, and as many bytes as it declares.
     The values must be finite and non-negative in float32 (write 0 where the depth is unknown).
     """
-    import tokenize
-
     path = Path(path)
     try:
         with open(path, "rb") as f:

@@ -62,7 +62,7 @@ class Bag:
 
     def __init__(self, path: str | Path) -> None:
         require_rosbags()
-        from rosbags.highlevel import AnyReader
+        from rosbags.highlevel import AnyReader  # deferred: an optional dependency (cosemdepth[ros])
 
         self.path = Path(path)
         if not self.path.exists():

@@ -34,7 +34,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
 import torch
+from tqdm.auto import tqdm
 
+from .. import __version__
 from ..errors import ConfigError
 from .classes import class_info, dataset_classes
 from .metrics import ALL_DEPTH_METRICS, EvaluationMetrics, format_markdown_table
@@ -236,8 +238,6 @@ class Evaluator:
         return sum(len(s.indices) for s in self.schedule)
 
     def run(self) -> EvaluationResult:
-        from tqdm.auto import tqdm
-
         metrics = EvaluationMetrics(self.cfg.num_classes if self.eval_semantic else None, depth=self.eval_depth)
         device = next((p.device for p in self.model.parameters()), torch.device("cpu"))
         timed_seconds = 0.0
@@ -295,8 +295,6 @@ class Evaluator:
             "machine": machine_info(device),
             "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
         }
-        from .. import __version__
-
         info["cosemdepth_version"] = __version__
         return EvaluationResult(
             metrics=values,

@@ -33,7 +33,9 @@ from typing import Any, Sequence
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
+from ..errors import ConfigError
 from ..io.atomic import atomic_write_text
 from ..io.outdir import Input
 from ..io.staging import StagedDir
@@ -224,10 +226,6 @@ def predict(
     Returns:
         the manifest (also written to ``out/predictions.json``).
     """
-    from tqdm.auto import tqdm
-
-    from ..errors import ConfigError
-
     if video == "none":
         video = None
     if video is not None and video not in VIDEO_FORMATS:

@@ -19,7 +19,9 @@ from dataclasses import dataclass
 from typing import Iterator, Sequence
 
 import torch
+from torch.utils.data import DataLoader
 
+from ..data.loader import collate
 from ..errors import ConfigError, NonFiniteOutputError
 
 @dataclass(frozen=True)
@@ -191,10 +193,6 @@ def stream(
         num_workers: DataLoader worker processes reading the frames (0: in this process).
         schedule: a precomputed :func:`make_schedule` result (default: computed from the dataset).
     """
-    from torch.utils.data import DataLoader
-
-    from ..data.loader import collate
-
     if schedule is None:
         schedule = make_schedule(trajectory_rows(dataset, max_frames), lanes)
     device = _model_device(model)

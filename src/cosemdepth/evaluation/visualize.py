@@ -19,6 +19,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from ..io.atomic import atomic_open, atomic_path
 
@@ -40,7 +41,7 @@ def png16_to_depth(png: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def _lut(name: str) -> np.ndarray:
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # deferred: matplotlib is heavy (~0.5 s) and only the colour maps need it
 
     return (colormaps[name](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0 + 0.5).astype(np.uint8)
 
@@ -78,8 +79,6 @@ def rgb_to_uint8(rgb: np.ndarray) -> np.ndarray:
 
 def save_png(path: str | os.PathLike, array: np.ndarray) -> None:
     """Write ``array`` (``[H, W]`` uint8/uint16 or ``[H, W, 3]`` uint8) as a PNG, atomically."""
-    from PIL import Image
-
     with atomic_path(path) as tmp:
         Image.fromarray(np.ascontiguousarray(array)).save(tmp, format="PNG")
 
@@ -93,7 +92,7 @@ def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
 def ffmpeg_exe() -> str | None:
     """Path of the ffmpeg binary of imageio-ffmpeg (or on PATH), or None."""
     try:
-        import imageio_ffmpeg
+        import imageio_ffmpeg  # deferred: only videos need it (and it may be missing: GIF fallback)
 
         return imageio_ffmpeg.get_ffmpeg_exe()
     except Exception:  # noqa: BLE001 - any failure means "no ffmpeg"
@@ -133,7 +132,7 @@ class VideoWriter:
         self.frames = 0
 
     def _start_ffmpeg(self, w: int, h: int) -> None:
-        import imageio_ffmpeg
+        import imageio_ffmpeg  # deferred: only MP4 videos need it
 
         self._proc = imageio_ffmpeg.write_frames(
             str(self._tmp), (w, h), fps=self.fps, codec="libx264", quality=None, macro_block_size=2,
@@ -157,8 +156,6 @@ class VideoWriter:
             assert self._proc is not None
             self._proc.send(np.ascontiguousarray(frame))
         else:
-            from PIL import Image
-
             self._gif.append(Image.fromarray(frame).quantize(colors=255, method=Image.Quantize.MEDIANCUT))
         self.frames += 1
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import torch
 import torch.nn as nn
 
+from .. import __version__
 from ..errors import ConfigError
 from ..io.atomic import atomic_path
 from ..model_config import MIDAIR_IMAGE_SIZE
@@ -130,9 +131,7 @@ ONNX_MARK = "cosemdepth_export"
 
 def mark_onnx(path: str | Path) -> None:
     """Record in the ONNX file's metadata that cosemdepth wrote it."""
-    import onnx
-
-    from .. import __version__
+    import onnx  # deferred: heavy, and only present with torch.onnx's export requirements
 
     m = onnx.load(str(path), load_external_data=False)
     onnx.helper.set_model_props(m, {**{p.key: p.value for p in m.metadata_props}, ONNX_MARK: __version__})
@@ -142,7 +141,7 @@ def mark_onnx(path: str | Path) -> None:
 def is_our_onnx(path: str | Path) -> bool:
     """True if ``path`` is an ONNX file that ``cosemdepth export`` wrote (see :func:`mark_onnx`)."""
     try:
-        import onnx
+        import onnx  # deferred: heavy; without it no file can be ours
 
         m = onnx.load(str(path), load_external_data=False)
     except Exception:  # noqa: BLE001 - anything unreadable is not ours

@@ -23,6 +23,7 @@ so is the cost-volume precision (default float16, as the original computes it).
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import os
 import re
@@ -32,10 +33,12 @@ from typing import Any, Mapping
 import numpy as np
 import torch
 
+from .. import __version__
 from ..config import ARCHITECTURES, ENCODER_CHANNELS, ModelConfig
 from ..errors import CheckpointError, ConfigError
 from ..models.depth_decoder import refiner_in_channels
 from ..models.model import build_model
+from .tf_checkpoint import CheckpointReader
 
 #: Convs of the refiner's ``prep_conv_layers`` stack; the ``est_*_conv_layers`` stack holds the other four.
 PREP_CONVS = 3
@@ -383,11 +386,6 @@ def import_checkpoint(
 
     The returned :class:`Conversion` carries a ``source`` dict recording where the weights came from.
     """
-    import hashlib
-
-    from .. import __version__
-    from .tf_checkpoint import CheckpointReader
-
     reader = CheckpointReader(path)
     origin = str(reader.prefix)
     conv = convert_tensors(

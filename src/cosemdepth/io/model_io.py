@@ -20,13 +20,18 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
 
+from .. import __version__
 from ..config import ModelConfig
 from ..errors import CheckpointError, ConfigError
+from ..models import build_model
 from .atomic import atomic_open, atomic_path
-from .convert import expected_param_shapes
+from .convert import convert_checkpoint, expected_param_shapes
 from .manifest import MANIFEST_FILE, sha256_file, validate_manifest
 from .staging import missing_ancestors, remove_empty
+from .tf_checkpoint import is_tf_checkpoint
 
 FORMAT = "cosemdepth"
 FORMAT_VERSION = 1
@@ -95,10 +100,6 @@ def save_weights(
     The state dict is checked against ``config`` first; nothing is written if it does not match. ``OUT_DIR`` is
     created if needed (and removed again if writing fails); existing files of ours in it are replaced atomically.
     """
-    from safetensors.torch import save_file
-
-    from .. import __version__
-
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise CheckpointError(f"{out}: exists and is not a folder; the output must be a folder (it gets {CONFIG_FILE} "
@@ -181,9 +182,6 @@ def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], 
     :func:`save_weights` wrote); the weights are checked against the config (names, shapes, floating point) and must
     be finite. Any problem is a :class:`CheckpointError` naming the file.
     """
-    from safetensors import SafetensorError
-    from safetensors.torch import load_file
-
     folder = _model_dir(path)
     cfg, meta = read_config_file(folder)
     weights = folder / WEIGHTS_FILE
@@ -211,13 +209,9 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
     ``path`` is one of our model folders, or an official TensorFlow checkpoint (a prefix such as
     ``.../cp-0059.ckpt``, its ``.index`` file, or a folder with a ``checkpoint`` file), converted on the fly.
     """
-    from .tf_checkpoint import is_tf_checkpoint
-
     p = Path(path)
     ours = p.is_dir() and ((p / CONFIG_FILE).exists() or (p / WEIGHTS_FILE).exists())
     if not ours and p.name not in (CONFIG_FILE, WEIGHTS_FILE) and is_tf_checkpoint(p):
-        from .convert import convert_checkpoint
-
         state_dict, cfg = convert_checkpoint(p)
         origin = str(p)
         check_finite(state_dict, origin)
@@ -229,8 +223,6 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
             )
         state_dict, cfg, _ = read_model_files(p)
         origin = str(_model_dir(p))
-    from ..models import build_model  # imported late: the checks above do not need the model code
-
     # Build on the meta device (no random initialisation to throw away) and adopt the loaded tensors, in float32
     # whatever precision they were stored in.
     with torch.device("meta"):
