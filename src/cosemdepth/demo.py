@@ -342,7 +342,7 @@ def report_markdown(m: dict[str, Any]) -> str:
     if m.get("files", {}).get("video"):
         lines.append(f"The whole flight: [{m['files']['video']}]({m['files']['video']}) "
                      f"(the same panels{': ' + panels if panels else ''}).")
-    lines += ["", "## Timings", "", "| step | seconds |", "|---|---|"]
+    lines += ["", "## Timings", "", "| stage | seconds |", "|---|---|"]
     for k, v in tm.items():
         lines.append(f"| {k.replace('_', ' ')} | {v:.1f} |")
     lines += ["", f"Model speed: {_num(ev['speed']['ms_per_frame'], '.1f')} ms/frame at {fl['size']}x{fl['size']} "

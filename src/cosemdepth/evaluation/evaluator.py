@@ -43,7 +43,7 @@ from .metrics import ALL_DEPTH_METRICS, EvaluationMetrics, format_markdown_table
 from .resources import PeakMemory, machine_info
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
 
-#: Callback run on every step: ``(batch, include [B] bool) -> None``.
+#: Callback run after every streaming step: ``(batch, include [B] bool) -> None``.
 FrameCallback = Callable[[StreamBatch, torch.Tensor], None]
 
 
@@ -328,9 +328,9 @@ def evaluate(model, dataset, **options: Any) -> EvaluationResult:
         max_frames: evaluate only the first N rows of the split (in order).
         num_workers: DataLoader workers reading frames.
         exclude_resets: leave reset frames out of the metrics (default: yes, unless every frame is a reset).
-        warmup: steps left out of the timing.
+        warmup: streaming steps left out of the timing.
         progress: show a progress bar (tqdm, on stderr).
-        callbacks: ``f(batch, include)`` run after every step (e.g. writers, baselines).
+        callbacks: ``f(batch, include)`` run after every streaming step (e.g. writers, baselines).
         dataset_name: dataset name for class names/palette and class-count checks (default ``dataset.name``).
     Returns:
         :class:`EvaluationResult`.

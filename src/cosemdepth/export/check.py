@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..data.midair.splits import relative_motions
+from ..data.midair.splits import GT_PER_ROW, relative_motions
 from ..data.synthair.climate import get_climate
 from ..data.synthair.render import render_frames
 from ..data.synthair.world import get_world
@@ -69,10 +69,10 @@ def flight_sequence(batch: int, frames: int, height: int, width: int, seed: int 
                       seed=seed, climates=("sunny",))
     planned = plan_flights(cfg, world)["sunny"][0]
     att, pos = planned.flight.attitude, planned.flight.position
-    step = 16  # ground-truth samples between two CSV rows (100 Hz, every 4th 25 Hz frame)
+    stride = GT_PER_ROW  # ground-truth samples between two CSV rows (100 Hz, every 4th 25 Hz frame)
     shots = render_frames(world, get_climate("sunny").with_sun_azimuth(planned.sun_azimuth),
-                          att[0 : step * frames : step], pos[0 : step * frames : step], height, width)
-    q, t = relative_motions(att[: step * frames + step], pos[: step * frames + step])
+                          att[0 : stride * frames : stride], pos[0 : stride * frames : stride], height, width)
+    q, t = relative_motions(att[: stride * frames + stride], pos[: stride * frames + stride])
     rgb = torch.from_numpy(np.stack([f.rgb for f in shots])).permute(0, 3, 1, 2).float().div(255)
     rot = torch.from_numpy(np.concatenate([[[1.0, 0.0, 0.0, 0.0]], q[: frames - 1]])).float()
     trans = torch.from_numpy(np.concatenate([[[0.0, 0.0, 0.0]], t[: frames - 1]])).float()
