@@ -20,6 +20,11 @@ ARCHITECTURES: dict[str, tuple[str, ...]] = {"cosemdepth": ("depth", "semantic")
 #: Encoder output channels per absolute level (spec 2.1); a model with L levels uses the first L entries.
 ENCODER_CHANNELS = (16, 32, 64, 96, 128, 192)
 
+#: Precisions of the parallax-sweeping cost-volume products (``ModelConfig.pscv_dtype``); the original computes them
+#: in float16, so converted official checkpoints use it to reproduce the original's numbers.
+PSCV_DTYPES = ("float32", "float16")
+ORIGINAL_PSCV_DTYPE = "float16"
+
 #: Mid-Air camera: 90 degree horizontal FOV, so f = W/2 and c = (W/2, H/2) (spec 3.1).
 MIDAIR_IMAGE_SIZE = 384
 
@@ -52,8 +57,9 @@ class ModelConfig:
             raise ConfigError(f"model levels must be an integer in 1..{len(ENCODER_CHANNELS)}, got {self.levels!r}")
         if not isinstance(self.num_classes, int) or self.num_classes < 2:
             raise ConfigError(f"model num_classes must be an integer >= 2, got {self.num_classes!r}")
-        if self.pscv_dtype not in ("float32", "float16"):
-            raise ConfigError(f"model pscv_dtype must be 'float32' or 'float16', got {self.pscv_dtype!r}")
+        if self.pscv_dtype not in PSCV_DTYPES:
+            raise ConfigError(f"model pscv_dtype must be {' or '.join(map(repr, PSCV_DTYPES))}, got "
+                              f"{self.pscv_dtype!r}")
 
     @property
     def decoders(self) -> tuple[str, ...]:
@@ -90,4 +96,4 @@ def _from_dict(cls, d: Mapping[str, Any], what: str):
     return cls(**dict(d))
 
 
-__all__ = ["ARCHITECTURES", "ENCODER_CHANNELS", "MIDAIR_IMAGE_SIZE", "ModelConfig"]
+__all__ = ["ARCHITECTURES", "ENCODER_CHANNELS", "MIDAIR_IMAGE_SIZE", "ModelConfig", "ORIGINAL_PSCV_DTYPE", "PSCV_DTYPES"]

@@ -69,7 +69,7 @@ def test_synth_defaults_are_the_generator_config():
 def test_predict_defaults_are_the_functions_it_calls():
     args = parse("predict", "--model", "m", "--out", "o")
     fn = defaults_of(predict)
-    assert (args.video, args.fps) == (fn["video"], fn["fps"])
+    assert (args.video, args.fps, args.lanes, args.workers) == (fn["video"], fn["fps"], fn["lanes"], fn["num_workers"])
     bag = defaults_of(open_bag_flight)
     assert (args.max_pose_gap, args.jpeg_idct, args.frame_skip) == (bag["max_pose_gap"], bag["jpeg_idct"],
                                                                      bag["frame_skip"])
@@ -79,7 +79,7 @@ def test_demo_defaults_are_run_demo_s():
     args = parse("demo", "--out", "o")
     fn = defaults_of(run_demo)
     for name in ("frames", "seed", "climate", "supersample", "video", "jpeg_idct", "model", "size", "data_root",
-                 "data_dir"):
+                 "data_dir", "device"):
         assert getattr(args, name) == fn[name], name
 
 

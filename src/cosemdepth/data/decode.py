@@ -52,6 +52,16 @@ def check_jpeg_idct(jpeg_idct: str) -> str:
     return jpeg_idct
 
 
+def check_nonnegative(path: str | os.PathLike, values: np.ndarray, what: str, note: str = "", hint: str = "") -> None:
+    """Raise a DatasetError naming ``path`` and the first bad pixel if any of the ``[H, W]`` ``values`` (``what``:
+    "depth", "disparity") is negative, NaN or infinite; ``note`` follows the problem, ``hint`` ends the message."""
+    bad = ~np.isfinite(values) | (values < 0)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        raise DatasetError(f"{path}: {int(bad.sum())} {what} value(s) are negative, NaN or infinite{note} (first at "
+                           f"row {i}, column {j}: {values[i, j]}){hint}")
+
+
 def check_image_size(path: str | os.PathLike, width: int, height: int) -> None:
     """Raise a DatasetError naming ``path`` unless ``width x height`` (from a header) is a decodable image size."""
     if width < 1 or height < 1 or width * height > MAX_PIXELS:
