@@ -19,9 +19,9 @@ import os
 from pathlib import Path
 from typing import Any, Mapping
 
+import safetensors.torch
 import torch
 from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
 
 from .. import __version__
 from ..config import ModelConfig
@@ -117,7 +117,9 @@ def save_weights(
     created = missing_ancestors(out)
     try:
         with atomic_path(out / WEIGHTS_FILE) as tmp_weights, atomic_open(out / CONFIG_FILE, "w") as f:
-            save_file(tensors, str(tmp_weights), metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
+            # looked up at call time (module attribute): tests replace it to simulate a full disk
+            safetensors.torch.save_file(tensors, str(tmp_weights),
+                                        metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
             meta[WEIGHTS_CHECKSUM] = sha256_file(Path(tmp_weights))  # verified on every load
             f.write(json.dumps(meta, indent=2) + "\n")
     except BaseException:
@@ -190,7 +192,7 @@ def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], 
     if (folder / MANIFEST_FILE).exists():  # a training checkpoint: its checksums first (the same check as resume)
         validate_manifest(folder, (CONFIG_FILE, WEIGHTS_FILE))
     try:
-        state_dict = load_file(str(weights))
+        state_dict = safetensors.torch.load_file(str(weights))
     except (SafetensorError, OSError, ValueError, RuntimeError, OverflowError, MemoryError) as e:
         raise CheckpointError(f"{weights}: corrupt or truncated safetensors file ({type(e).__name__}: {e})") from e
     check_state_dict(state_dict, cfg, str(weights))
