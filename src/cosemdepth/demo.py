@@ -43,7 +43,21 @@ from typing import Any
 import numpy as np
 import torch
 
+from . import __version__
+from .cli import main as cli
+from .data import open_dataset
+from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from .errors import CheckpointError, ConfigError, DatasetError
+from .evaluation.classes import class_info
+from .evaluation.evaluator import Evaluator, to_json
+from .evaluation.figures import FlightPictures, frame_maps
+from .evaluation.metrics import ConfusionMatrix, DepthMetrics, EPS, EVAL_MAX_DEPTH
+from .evaluation.resources import machine_info, resolve_device
+from .evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
+from .io.atomic import atomic_path, atomic_write_text
+from .io.model_io import load_model, read_config_file
+from .io.outdir import Input, check_not_input, model_inputs
+from .io.staging import StagedDir
 
 #: Where the shipped weights live, relative to the repository root (or the current folder).
 DEFAULT_MODEL = Path("weights") / "synthair-cosemdepth"
@@ -114,8 +128,6 @@ def synth_available() -> bool:
 def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climate: str,
                     supersample: int = DEFAULT_SUPERSAMPLE, quiet: bool = True) -> Path:
     """Render one SynthAir trajectory of ``frames`` CSV rows with ``cosemdepth synth``; returns the dataset root."""
-    from .cli.main import main
-
     if not synth_available():
         raise ConfigError("this installation has no `cosemdepth synth` command to build the SynthAir flight; pass "
                           "--data-root ROOT to evaluate on an existing Mid-Air-format dataset (splits in ROOT/splits)")
@@ -124,16 +136,14 @@ def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climat
             "--no-progress"]
     sink = io.StringIO()
     with contextlib.redirect_stdout(sink) if quiet else contextlib.nullcontext():
-        rc = main(argv)
+        rc = cli.main(argv)
     if rc != 0:
         raise DatasetError(f"`cosemdepth {' '.join(argv)}` failed (exit status {rc}); see the message above")
     return data_dir
 
 
-def open_flight_split(root: Path, size: int, split_dir: Path | None = None, jpeg_idct: str = "fast"):
+def open_flight_split(root: Path, size: int, split_dir: Path | None = None, jpeg_idct: str = DEFAULT_JPEG_IDCT):
     """The first of the test, val and train splits of ``root`` (splits in ``root/splits``) that has trajectories."""
-    from .data import open_dataset
-
     split_dir = split_dir or root / "splits"
     errors = []
     for split in ("test", "val", "train"):
@@ -170,8 +180,6 @@ class DemoCollector:
         self.targets = sorted({int(round(x)) for x in np.linspace(0.1 * n, n - 1, k)}) if k else []
         if self.num_classes:
             self.label_hist = np.zeros(self.num_classes, dtype=np.int64)
-        from .evaluation.figures import FlightPictures
-
         self.pictures = FlightPictures(lambda _, image: self.video.write(image) if self.video is not None else None,
                                        class_names=self.class_names, palette=self.palette)
 
@@ -179,8 +187,6 @@ class DemoCollector:
         return self.palette is not None and gt.size > 0 and 0 <= int(gt.min()) and int(gt.max()) < len(self.palette)
 
     def __call__(self, batch, include: torch.Tensor) -> None:
-        from .evaluation.figures import frame_maps
-
         for b in range(len(batch)):
             pos = self.seen
             self.seen += 1
@@ -204,8 +210,6 @@ class DemoCollector:
 
     def constant_depth(self) -> dict[str, float] | None:
         """Metrics of the constant median-depth prediction over the evaluated frames (spec 10.1 protocol)."""
-        from .evaluation.metrics import EPS, EVAL_MAX_DEPTH, DepthMetrics
-
         if not self.gt_depths:
             return None
         g = torch.stack(self.gt_depths).to(torch.float64).clamp(0.0, EVAL_MAX_DEPTH)
@@ -222,8 +226,6 @@ class DemoCollector:
 
     def majority_class(self) -> dict[str, Any] | None:
         """mIoU (Keras MeanIoU semantics) of predicting the most frequent GT class everywhere."""
-        from .evaluation.metrics import ConfusionMatrix
-
         if self.label_hist is None or self.label_hist.sum() == 0:
             return None
         c = int(np.argmax(self.label_hist))
@@ -237,12 +239,10 @@ class DemoCollector:
 
 def plot_iou(path: Path, class_names, model_iou, baseline_iou, model_miou, baseline_miou) -> None:
     """Per-class IoU bar chart (model vs majority-class baseline), written atomically."""
-    import matplotlib
+    import matplotlib  # deferred: heavy (about 0.5 s), and only this figure needs it
 
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
-
-    from .io.atomic import atomic_path
 
     n = len(class_names)
     x = np.arange(n)
@@ -269,8 +269,6 @@ def plot_iou(path: Path, class_names, model_iou, baseline_iou, model_miou, basel
 def plot_qualitative(path: Path, figure, picks) -> None:
     """The strip: one row per picked frame (:class:`~cosemdepth.evaluation.figures.FrameMaps`), drawn by the flight's
     ``figure`` (the captions, panel order, colour bar and legend of the video), written atomically."""
-    from .evaluation.visualize import save_png
-
     save_png(path, figure.rows(picks))
 
 
@@ -344,7 +342,7 @@ def report_markdown(m: dict[str, Any]) -> str:
     if m.get("files", {}).get("video"):
         lines.append(f"The whole flight: [{m['files']['video']}]({m['files']['video']}) "
                      f"(the same panels{': ' + panels if panels else ''}).")
-    lines += ["", "## Timings", "", "| step | seconds |", "|---|---|"]
+    lines += ["", "## Timings", "", "| stage | seconds |", "|---|---|"]
     for k, v in tm.items():
         lines.append(f"| {k.replace('_', ' ')} | {v:.1f} |")
     lines += ["", f"Model speed: {_num(ev['speed']['ms_per_frame'], '.1f')} ms/frame at {fl['size']}x{fl['size']} "
@@ -374,11 +372,11 @@ def run_demo(
     data_root: str | os.PathLike | None = None,
     data_dir: str | os.PathLike | None = None,
     device: str = "cpu",
-    video: str | None = "mp4",
+    video: str | None = DEFAULT_VIDEO,
     overwrite: bool = False,
     progress: bool = True,
     fast: bool = True,
-    jpeg_idct: str = "fast",
+    jpeg_idct: str = DEFAULT_JPEG_IDCT,
     log=print,
 ) -> dict[str, Any]:
     """Run the demo and write the report folder ``out``; returns the content of ``metrics.json``.
@@ -398,27 +396,16 @@ def run_demo(
         jpeg_idct: JPEG decoding of the flight, ``"fast"`` (default, the original's) or ``"accurate"``.
         log: where to print progress lines.
     """
-    from . import __version__
-    from .evaluation.classes import class_info
-    from .evaluation.evaluator import Evaluator, to_json
-    from .evaluation.resources import machine_info, resolve_device
-    from .evaluation.visualize import VideoWriter
-    from .io.atomic import atomic_write_text
-    from .io.model_io import load_model, read_config_file
-    from .io.staging import StagedDir
-
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     if not isinstance(frames, int) or frames < 2:
         raise ConfigError(f"--frames must be an integer >= 2 (the first frame is a reset), got {frames!r}")
     if size is not None and (not isinstance(size, int) or size < 32):
         raise ConfigError(f"--size must be an integer >= 32, got {size!r}")
-    if video not in (None, "mp4", "gif"):
-        raise ConfigError(f"--video must be mp4, gif or none, got {video!r}")
-    if jpeg_idct not in ("fast", "accurate"):
-        raise ConfigError(f"--jpeg-idct must be fast or accurate, got {jpeg_idct!r}")
-    from .io.outdir import Input, check_not_input, model_inputs
-
+    if video is not None and video not in VIDEO_FORMATS:
+        raise ConfigError(f"--video must be {', '.join(VIDEO_FORMATS)} or none, got {video!r}")
+    if jpeg_idct not in JPEG_IDCTS:
+        raise ConfigError(f"--jpeg-idct must be {' or '.join(JPEG_IDCTS)}, got {jpeg_idct!r}")
     model_path = resolve_model_path(model)
     inputs = [*model_inputs(model_path), Input("--data-root", data_root) if data_root is not None else None,
               Input("--data-dir", data_dir) if data_dir is not None else None]
@@ -465,7 +452,7 @@ def run_demo(
 
         with staged as tmp:
             names, palette = class_info(cfg.num_classes, "synthair") if cfg.has_semantic else ((), None)
-            writer = VideoWriter(tmp / "flight", fps=8.0, fmt=video) if video else None
+            writer = VideoWriter(tmp / "flight", fps=DEFAULT_FPS, fmt=video) if video else None
             try:
                 collector = DemoCollector(total_frames=dataset.num_frames if hasattr(dataset, "num_frames")
                                           else len(dataset), num_classes=cfg.num_classes if cfg.has_semantic

@@ -20,9 +20,11 @@ from typing import Callable, Optional
 
 import torch
 
-from ..config import ModelConfig
+from ..config import MIDAIR_IMAGE_SIZE, ModelConfig
 from ..evaluation.resources import cpu_model
 from ..export.check import synthetic_sequence
+from ..inference.graphs import make_streamer
+from ..models import build_model
 from .memory import PeakMemory, exact_rss
 from .noise import compare_times, spread
 
@@ -31,19 +33,24 @@ PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float
 QUIET_OTHERS = 0.1
 
 
+_MODEL = ModelConfig()
+
+
 @dataclass
 class BenchCase:
-    arch: str
+    """One measurement; the defaults are the model config's and the paper's image size."""
+
+    arch: str = _MODEL.arch
     batch: int = 1
-    height: int = 384
-    width: int = 384
+    height: int = MIDAIR_IMAGE_SIZE
+    width: int = MIDAIR_IMAGE_SIZE
     device: str = "cpu"
     precision: str = "fp32"
     path: str = "fast"  # "fast", "reference", or "graph" (static buffers; a CUDA graph on GPU)
     warmup: int = 2
     iters: int = 10
-    levels: int = 5
-    num_classes: int = 7
+    levels: int = _MODEL.levels
+    num_classes: int = _MODEL.num_classes
 
 
 @dataclass
@@ -116,8 +123,6 @@ def _sync(device: torch.device) -> None:
 
 def build(case: BenchCase, model=None):
     """The model of ``case`` on its device with its inference path selected (``model``: use these weights)."""
-    from ..models import build_model
-
     if model is None:
         torch.manual_seed(0)
         model = build_model(ModelConfig(arch=case.arch, levels=case.levels, num_classes=case.num_classes))
@@ -139,8 +144,6 @@ class _GraphStepper:
     """``step`` over a :class:`StaticStreamer` (a CUDA graph on GPU; the same static program eagerly on CPU)."""
 
     def __init__(self, model, case: BenchCase):
-        from ..inference.graphs import make_streamer
-
         self.model = model
         self.streamer = make_streamer(
             model, case.batch, case.height, case.width, dtype=PRECISIONS[case.precision], device=case.device

@@ -6,7 +6,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..data.bag_flight import DEFAULT_MAX_POSE_GAP, open_bag_flight
 from ..errors import ConfigError
+from ..evaluation.classes import class_info
+from ..evaluation.evaluator import _model_config
+from ..io.bag_writer import BagWriter, DEFAULT_NAMESPACE, check_namespace
+from ..io.rerun_writer import RerunWriter, require_rerun
 
 
 def add_robotics_args(parser: argparse.ArgumentParser) -> None:
@@ -18,22 +23,21 @@ def add_robotics_args(parser: argparse.ArgumentParser) -> None:
                      "poses of the body (axes: --convention, default flu = REP 103) or of the camera")
     bag.add_argument("--camera-info-topic", metavar="T", help="sensor_msgs/CameraInfo topic for the intrinsics "
                      "(instead of --intrinsics / --hfov)")
-    bag.add_argument("--max-pose-gap", type=float, default=0.05, metavar="S",
-                     help="interpolate an image's pose only between poses at most S seconds apart (default 0.05)")
+    bag.add_argument("--max-pose-gap", type=float, default=DEFAULT_MAX_POSE_GAP, metavar="S",
+                     help="interpolate an image's pose only between poses at most S seconds apart (default "
+                     f"{DEFAULT_MAX_POSE_GAP:g})")
     bag.add_argument("--skip-unposed", action="store_true",
                      help="skip images without poses around them (counted in the report) instead of failing")
     bag.add_argument("--ignore-distortion", action="store_true",
                      help="use camera_info's K even when it has a non-zero distortion")
-    bag.add_argument("--out-namespace", default="/cosemdepth", metavar="NS",
-                     help="topic prefix of the output bag DIR/bag/ (default /cosemdepth)")
+    bag.add_argument("--out-namespace", default=DEFAULT_NAMESPACE, metavar="NS",
+                     help=f"topic prefix of the output bag DIR/bag/ (default {DEFAULT_NAMESPACE})")
     parser.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd",
                         help="also write a rerun recording (open it with: rerun FILE.rrd; needs cosemdepth[viz])")
 
 
 def check_args(args: argparse.Namespace) -> None:
     """Argument checks that need no file (called before anything is read)."""
-    from ..io.bag_writer import check_namespace
-
     if getattr(args, "bag", None) is not None:
         if getattr(args, "flight", False) or getattr(args, "dataset", None) or getattr(args, "root", None):
             raise ConfigError("give one of --bag, --flight and --dataset/--root")
@@ -51,16 +55,12 @@ def check_args(args: argparse.Namespace) -> None:
             raise ConfigError(f"--max-pose-gap must be >= 0 seconds, got {args.max_pose_gap}")
         check_namespace(args.out_namespace)
     if getattr(args, "rerun", None) is not None:
-        from ..io.rerun_writer import require_rerun
-
         require_rerun()  # the file itself is checked with the command's inputs (cli.predict.inputs)
 
 
 def open_bag(args: argparse.Namespace):
     """The stream-mode dataset of ``--bag``; the :class:`~cosemdepth.data.bag_flight.BagFlight` is attached to it
     as ``dataset.bag_flight`` (stamps, frame_ids, absolute poses for the output bag and the recording)."""
-    from ..data.bag_flight import open_bag_flight
-
     check_args(args)
     flight = open_bag_flight(
         args.bag, args.image_topic, args.pose_topic, camera_info_topic=args.camera_info_topic,
@@ -75,24 +75,17 @@ def open_bag(args: argparse.Namespace):
 
 def make_sinks(args: argparse.Namespace, dataset, model, *, bag_output: bool = True) -> tuple:
     """The extra outputs of ``predict``: the output bag (``--bag``) and the rerun recording (``--rerun``)."""
-    from ..evaluation.classes import class_info
-    from ..evaluation.evaluator import _model_config
-
     cfg = _model_config(model)
     names, palette = class_info(cfg.num_classes, "flight") if cfg.has_semantic else ((), None)
     flight = getattr(dataset, "bag_flight", None)
     sinks = []
     if flight is not None and bag_output:
-        from ..io.bag_writer import BagWriter
-
         def header(index: int) -> tuple[int, str]:
             row = flight.row(index)
             return int(flight.index.stamps[row]), flight.index.frame_ids[row]
 
         sinks.append(BagWriter(header, flight.intrinsics.tolist(), palette, args.out_namespace))
     if getattr(args, "rerun", None) is not None:
-        from ..io.rerun_writer import RerunWriter
-
         to_world = (lambda i: flight.camera_to_world(flight.row(i))) if flight is not None else None
         sinks.append(RerunWriter(args.rerun, dataset, class_names=names, palette=palette, camera_to_world=to_world))
     return tuple(sinks)

@@ -5,8 +5,21 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..config import ARCHITECTURES, ModelConfig
+import torch
+
+from ..config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
+from ..data import open_dataset
+from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
+from ..data.registry import DATASETS, split_datasets
 from ..errors import ConfigError
+from ..devices import resolve_device
+from ..io.model_io import load_model
+from ..models import build_model
+
+#: The model config's defaults (``--arch/--levels/--classes`` read them: one home for defaults).
+MODEL_DEFAULTS = ModelConfig()
+#: ``--size H W`` when not given.
+DEFAULT_SIZE_PAIR = (MIDAIR_IMAGE_SIZE, MIDAIR_IMAGE_SIZE)
 
 
 def parse_size(text: str) -> int | tuple[int, int]:
@@ -70,24 +83,24 @@ def add_model_or_arch_args(parser: argparse.ArgumentParser) -> None:
         help="model folder (config.json + model.safetensors) or official TensorFlow checkpoint; "
         "default: a freshly initialised model of --arch (random weights: fine for speed, not for outputs)",
     )
-    parser.add_argument("--arch", choices=ARCHITECTURES, default="cosemdepth", help="architecture without --model")
-    parser.add_argument("--levels", type=int, default=5, help="pyramid levels without --model (default 5)")
-    parser.add_argument("--classes", type=int, default=7, help="semantic classes without --model (default 7)")
+    d = MODEL_DEFAULTS
+    parser.add_argument("--arch", choices=ARCHITECTURES, default=d.arch,
+                        help=f"architecture without --model (default {d.arch})")
+    parser.add_argument("--levels", type=int, default=d.levels,
+                        help=f"pyramid levels without --model (default {d.levels})")
+    parser.add_argument("--classes", type=int, default=d.num_classes,
+                        help=f"semantic classes without --model (default {d.num_classes})")
 
 
 def load_or_build(args: argparse.Namespace, device: str = "cpu"):
     """The model named by ``--model``, or a freshly initialised one from ``--arch/--levels/--classes``; eval mode."""
     if getattr(args, "model", None):
-        from ..io.model_io import load_model
-
         return load_model(args.model, device=device)
-    from ..models import build_model
-
     cfg = ModelConfig(arch=args.arch, levels=args.levels, num_classes=args.classes)
     return build_model(cfg).to(device).eval()
 
 
-def parse_size_pair(values: list[int] | None, default: tuple[int, int] = (384, 384)) -> tuple[int, int]:
+def parse_size_pair(values: list[int] | None, default: tuple[int, int] = DEFAULT_SIZE_PAIR) -> tuple[int, int]:
     """``--size H W`` (nargs=2) -> ``(H, W)``."""
     if values is None:
         return default
@@ -106,8 +119,6 @@ def add_device_args(parser: argparse.ArgumentParser) -> None:
 def apply_threads(args: argparse.Namespace) -> None:
     """``torch.set_num_threads(args.threads)`` when given."""
     if getattr(args, "threads", None):
-        import torch
-
         torch.set_num_threads(args.threads)
 
 
@@ -115,18 +126,27 @@ def add_split_args(parser: argparse.ArgumentParser, required: bool = True) -> No
     """``--dataset/--root/--split-dir/--split``; the dataset choices are the registered datasets with split files
     (:func:`cosemdepth.data.registry.split_datasets`, read when the parser is built; flights are opened by
     ``predict --flight``)."""
-    # deferred: the dataset table imports the readers (and torch), which the other commands' --help do not need
-    from ..data.registry import DATASETS, split_datasets
-
     names = split_datasets()
     parser.add_argument("--dataset", choices=names, required=required, metavar="NAME",
                         help=f"dataset: {', '.join(names)}")
     parser.add_argument("--root", type=Path, required=required, metavar="ROOT", help="dataset root folder")
+    required_for = [n for n in names if DATASETS[n].needs_split_dir]
+    folders = [f"ROOT/{DATASETS[n].split_dir} for {n}" for n in names if DATASETS[n].split_dir is not None]
     parser.add_argument("--split-dir", type=Path, default=None, metavar="D",
-                        help="folder of the split CSVs (required for midair; default ROOT/splits for synthair and "
-                        "topair, ROOT/ImageSets for aeroscapes)")
+                        help="folder of the split files ("
+                        + "; ".join([*(["required for " + ", ".join(required_for)] if required_for else []),
+                                     *(["default " + ", ".join(folders)] if folders else [])]) + ")")
     defaults = ", ".join(f"{name} {DATASETS[name].split}" for name in names)
     parser.add_argument("--split", default=None, help=f"split to use (default: {defaults})")
+
+
+def size_help(what: str = "network input size, S or HxW") -> str:
+    """``--size`` help naming each split dataset's default size (from the dataset table)."""
+    sizes: dict[str, list[str]] = {}
+    for name in split_datasets():
+        size = DATASETS[name].size
+        sizes.setdefault("native" if size is None else str(size), []).append(name)
+    return f"{what} (default: " + "; ".join(f"{v} for {', '.join(n)}" for v, n in sizes.items()) + ")"
 
 
 def add_run_args(parser: argparse.ArgumentParser) -> None:
@@ -142,9 +162,10 @@ def add_run_args(parser: argparse.ArgumentParser) -> None:
 
 
 def add_jpeg_idct_arg(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--jpeg-idct", choices=("fast", "accurate"), default="fast",
-                        help="JPEG decoding: fast (default; libjpeg-turbo's fast integer IDCT, bit-exact with the "
-                             "original's tf.io.decode_jpeg) or accurate (the accurate integer IDCT, as Pillow)")
+    parser.add_argument("--jpeg-idct", choices=JPEG_IDCTS, default=DEFAULT_JPEG_IDCT,
+                        help=f"JPEG decoding (default {DEFAULT_JPEG_IDCT}): fast (libjpeg-turbo's fast integer IDCT, "
+                        "bit-exact with the original's tf.io.decode_jpeg) or accurate (the accurate integer IDCT, as "
+                        "Pillow)")
 
 
 def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32"):
@@ -154,9 +175,6 @@ def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32
         raise ConfigError(f"--precision must be one of {list(PRECISION_DTYPES)}, got {precision!r}")
     if not fast and precision != "fp32":
         raise ConfigError(f"--precision {precision} is a setting of the fast path: drop --reference (which runs fp32)")
-    from ..io.model_io import load_model
-    from ..evaluation.resources import resolve_device
-
     device = resolve_device(device_name)
     model = load_model(model_path, device=device)
     if not fast:
@@ -169,8 +187,6 @@ def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32
 
 def open_split(args: argparse.Namespace, size):
     """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1)."""
-    from ..data import open_dataset
-
     if args.workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {args.workers}")
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size,

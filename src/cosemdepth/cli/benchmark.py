@@ -10,6 +10,7 @@ persistent buffers, one graph replay per step). Writes JSON and Markdown.
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 import shlex
 import sys
@@ -17,17 +18,35 @@ from dataclasses import asdict
 
 import torch
 
+from ..bench.noise import format_busy, format_spread, spread
+from ..bench.report import markdown, write_report
+from ..bench.runner import (
+    BenchCase,
+    _loadavg,
+    cpu_busy_fraction,
+    hardware_info,
+    joint_vs_separate,
+    run_case,
+    run_separate,
+    wait_for_idle,
+)
 from ..config import ARCHITECTURES
 from ..devices import resolve_device
 from ..errors import ConfigError
-from ._shared import parse_size_pair
+from ..io.outdir import check_output_file, model_inputs
+from ._shared import DEFAULT_SIZE_PAIR, load_or_build, parse_size_pair
+
+#: The defaults of one measurement (size, levels, classes, warm-up and timed frames at batch 1).
+CASE = BenchCase()
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", nargs="+", choices=ARCHITECTURES, default=list(ARCHITECTURES))
     parser.add_argument("--model", metavar="DIR", help="time these weights (its architecture) instead of --models")
-    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), help="input size (default 384 384)")
-    parser.add_argument("--levels", type=int, default=5, help="pyramid levels of the --models (default 5)")
+    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"),
+                        help="input size (default {} {})".format(*DEFAULT_SIZE_PAIR))
+    parser.add_argument("--levels", type=int, default=CASE.levels,
+                        help=f"pyramid levels of the --models (default {CASE.levels})")
     parser.add_argument("--batch", nargs="+", type=int, default=[1, 8, 32], help="batch sizes (default 1 8 32)")
     parser.add_argument(
         "--precision",
@@ -35,12 +54,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         choices=["fp32", "bf16", "fp16"],
         help="fast-path precisions (default: fp32 bf16 on CPU, fp32 fp16 bf16 on CUDA)",
     )
-    parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default: CUDA when present)")
+    parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default auto: CUDA when present)")
     parser.add_argument("--no-reference", action="store_true", help="skip the reference-path (fp32, batch 1) rows")
     parser.add_argument("--no-joint", action="store_true", help="skip the joint-vs-separate comparison")
     parser.add_argument("--no-graph", action="store_true", help="on CUDA, skip the CUDA-graph rows")
-    parser.add_argument("--warmup", type=int, default=2, help="warm-up frames at batch 1 (default 2)")
-    parser.add_argument("--iters", type=int, default=10, help="timed frames at batch 1 (default 10)")
+    parser.add_argument("--warmup", type=int, default=CASE.warmup,
+                        help=f"warm-up frames at batch 1 (default {CASE.warmup})")
+    parser.add_argument("--iters", type=int, default=CASE.iters, help=f"timed frames at batch 1 (default {CASE.iters})")
     parser.add_argument("--batched-warmup", type=int, default=1, help="warm-up steps at batch > 1 (default 1)")
     parser.add_argument("--batched-iters", type=int, default=2, help="timed steps at batch > 1 (default 2)")
     parser.add_argument("--threads", type=int, help="torch CPU threads (default: PyTorch's choice)")
@@ -57,8 +77,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def _is_our_json(path) -> bool:
     """A benchmark report written by ``cosemdepth benchmark`` (replaced by a new run; anything else is kept)."""
-    import json
-
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError):
@@ -77,19 +95,6 @@ def _is_our_md(path) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..bench.noise import format_busy, format_spread, spread
-    from ..bench.report import markdown, write_report
-    from ..bench.runner import (
-        BenchCase,
-        _loadavg,
-        cpu_busy_fraction,
-        hardware_info,
-        joint_vs_separate,
-        run_case,
-        run_separate,
-        wait_for_idle,
-    )
-
     h, w = parse_size_pair(args.size)
     device = str(resolve_device(args.device))
     cuda = device.startswith("cuda")
@@ -100,8 +105,6 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f"{name} must be at least 1, got {v}")
     if any(b < 1 for b in args.batch):
         raise ConfigError(f"--batch values must be at least 1, got {args.batch}")
-    from ..io.outdir import check_output_file, model_inputs
-
     for flag, path, ours in (("--json", args.json, _is_our_json), ("--md", args.md, _is_our_md)):
         if path:
             check_output_file(path, what=f"{flag} file", inputs=model_inputs(args.model), recognize=ours)
@@ -112,8 +115,6 @@ def run(args: argparse.Namespace) -> int:
     weights = None
     models = args.models
     if args.model:
-        from ._shared import load_or_build
-
         weights = load_or_build(argparse.Namespace(model=args.model))
         models = [weights.config.arch]
 
@@ -131,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
             warmup=args.batched_warmup if big else args.warmup,
             iters=args.batched_iters if big else args.iters,
             levels=cfg.levels if cfg else args.levels,
-            num_classes=cfg.num_classes if cfg else 7,
+            num_classes=cfg.num_classes if cfg else CASE.num_classes,
         )
 
     report = {"meta": hardware_info(device), "results": [], "joint_vs_separate": []}

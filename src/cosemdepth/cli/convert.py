@@ -6,6 +6,11 @@ import argparse
 from pathlib import Path
 
 from ..config import ARCHITECTURES
+from ..model_config import ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
+from ..errors import CheckpointError
+from ..io.convert import import_checkpoint
+from ..io.model_io import CONFIG_FILE, WEIGHTS_FILE, save_weights
+from ..io.outdir import check_output_dir, model_inputs, write_marker
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -33,20 +38,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--pscv-dtype",
-        choices=("float16", "float32"),
-        default="float16",
+        choices=PSCV_DTYPES,
+        default=ORIGINAL_PSCV_DTYPE,
         help="precision of the parallax cost-volume products in the converted model: float16 as the original "
         "computes them, so that the original's numbers are reproduced (default), or float32",
     )
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import CheckpointError
-    from ..io.convert import import_checkpoint
-    from ..io.model_io import CONFIG_FILE, WEIGHTS_FILE, save_weights
-
-    from ..io.outdir import check_output_dir, model_inputs, write_marker
-
     out = Path(args.out_dir)
     if out.exists() and not out.is_dir():
         raise CheckpointError(f"{out}: OUT_DIR exists and is not a folder")

@@ -10,12 +10,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..data.synthair.writer import SUPERSAMPLES
+from ..demo import DEFAULT_CLIMATE, DEFAULT_FRAMES, DEFAULT_MODEL, DEFAULT_SEED, DEFAULT_SIZE, DEFAULT_SUPERSAMPLE, run_demo
+from ..errors import ConfigError
+from ..evaluation.visualize import DEFAULT_VIDEO, VIDEO_FORMATS
 from ._shared import add_device_args, add_jpeg_idct_arg, add_reference_arg, apply_threads, positive_int
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from ..demo import DEFAULT_CLIMATE, DEFAULT_FRAMES, DEFAULT_MODEL, DEFAULT_SEED, DEFAULT_SIZE, DEFAULT_SUPERSAMPLE
-
     parser.add_argument("--out", required=True, type=Path, metavar="DIR",
                         help="report folder (new, empty, or a previous demo report, which is replaced)")
     parser.add_argument("--model", default=None, metavar="DIR",
@@ -28,7 +30,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="K",
                         help=f"world seed of the held-out flight (default {DEFAULT_SEED})")
     parser.add_argument("--climate", default=DEFAULT_CLIMATE, help=f"SynthAir climate (default {DEFAULT_CLIMATE})")
-    parser.add_argument("--supersample", type=int, default=DEFAULT_SUPERSAMPLE, choices=(1, 3, 5),
+    parser.add_argument("--supersample", type=int, default=DEFAULT_SUPERSAMPLE, choices=SUPERSAMPLES,
                         help=f"colour rays per pixel of the generated flight (default {DEFAULT_SUPERSAMPLE}, as the "
                         "shipped weights' training data)")
     parser.add_argument("--data-dir", type=Path, default=None, metavar="DIR",
@@ -38,8 +40,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="evaluate on this existing Mid-Air-format dataset (split CSVs in ROOT/splits) instead "
                         "of generating a flight")
     add_device_args(parser)
-    parser.add_argument("--video", default="mp4", choices=("mp4", "gif", "none"),
-                        help="flight video format (default mp4; GIF when no ffmpeg)")
+    parser.add_argument("--video", default=DEFAULT_VIDEO, choices=(*VIDEO_FORMATS, "none"),
+                        help=f"flight video format (default {DEFAULT_VIDEO}; GIF when no ffmpeg)")
     parser.add_argument("--overwrite", action="store_true", help="also replace the output of another cosemdepth "
                         "command (a folder cosemdepth did not write is never replaced)")
     add_reference_arg(parser)
@@ -49,9 +51,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
-    from ..demo import run_demo
-    from ..errors import ConfigError
-
     if args.data_root is not None and args.data_dir is not None:
         raise ConfigError("give at most one of --data-root (use an existing dataset) and --data-dir (generate here)")
     run_demo(args.out, model=args.model, size=args.size, frames=args.frames, seed=args.seed, climate=args.climate,

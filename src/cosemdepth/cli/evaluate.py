@@ -10,16 +10,23 @@ into place together at the end; nothing is written if the run fails).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from pathlib import Path
 
-from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, open_split, parse_size
+from ..data.registry import dataset_spec
+from ..evaluation.evaluator import evaluate
+from ..io.outdir import Input, model_inputs
+from ..io.staging import OutputFiles
+from ._shared import (add_model_args, add_run_args, add_split_args, apply_threads, load, open_split, parse_size,
+                      size_help)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     add_model_args(parser)
     add_split_args(parser)
     parser.add_argument("--size", type=parse_size, default=None, metavar="S",
-                        help="network input size, S or HxW (default 384; native for aeroscapes)")
+                        help=size_help())
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="write metrics.json and metrics.md into DIR (created if needed; other files in DIR are "
                         "left alone, and files cosemdepth did not write are never replaced)")
@@ -28,14 +35,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
-    import contextlib
-    from pathlib import Path
-
-    from ..data.registry import dataset_spec
-    from ..evaluation.evaluator import evaluate
-    from ..io.outdir import Input, model_inputs
-    from ..io.staging import OutputFiles
-
     inputs = [*model_inputs(args.model), Input("--root", args.root),
               Input("--split-dir", args.split_dir) if args.split_dir is not None else None]
     files_ctx = (OutputFiles(args.out, "--out folder", command="evaluate", names=("metrics.json", "metrics.md"),

@@ -5,17 +5,22 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ConfigError
-from ._shared import add_model_or_arch_args, load_or_build, parse_size_pair
+from ..export.check import compare_onnx
+from ..export.onnx import DEFAULT_OPSET, MIN_OPSET, export_onnx, is_our_onnx
+from ..io.outdir import check_output_file, model_inputs
+from ._shared import DEFAULT_SIZE_PAIR, add_model_or_arch_args, load_or_build, parse_size_pair
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--onnx", metavar="OUT", required=True, help="output .onnx file (its folder must exist; an existing file is "
                         "replaced only if cosemdepth export wrote it)")
     add_model_or_arch_args(parser)
-    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), help="input size (default 384 384)")
+    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"),
+                        help="input size (default {} {})".format(*DEFAULT_SIZE_PAIR))
     parser.add_argument("--batch", type=int, default=1, help="batch size (default 1)")
     parser.add_argument("--dynamic-batch", action="store_true", help="make the batch axis dynamic")
-    parser.add_argument("--opset", type=int, default=17, help="ONNX opset, >= 16 (default 17)")
+    parser.add_argument("--opset", type=int, default=DEFAULT_OPSET,
+                        help=f"ONNX opset, >= {MIN_OPSET} (default {DEFAULT_OPSET})")
     parser.add_argument(
         "--reset-float", action="store_true", help="take the reset mask as float32 (1 = reset) instead of bool"
     )
@@ -23,11 +28,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..export.onnx import export_onnx
-
-    from ..export.onnx import is_our_onnx
-    from ..io.outdir import check_output_file, model_inputs
-
     h, w = parse_size_pair(args.size)
     if args.batch < 1:
         raise ConfigError(f"--batch must be at least 1, got {args.batch}")
@@ -48,8 +48,6 @@ def run(args: argparse.Namespace) -> int:
     if not args.model:
         print("note: no --model given, the graph holds freshly initialised weights")
     if args.check:
-        from ..export.check import compare_onnx
-
         report = compare_onnx(model, path, frames=6)
         print(report.summary())
         if not report.ok:

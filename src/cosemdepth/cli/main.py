@@ -46,6 +46,7 @@ def _available() -> dict[str, tuple[str, str]]:
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The ``cosemdepth`` parser; ``only``: configure just this command's arguments ("": none; None: all)."""
     parser = argparse.ArgumentParser(
         prog="cosemdepth",
         description="Joint monocular depth and semantic segmentation for aerial image sequences.",
@@ -64,7 +65,8 @@ def main(argv: list[str] | None = None) -> int:
     first = next((a for a in argv if not a.startswith("-")), None)
     if first in PASSIVE_WAIT_COMMANDS and "torch" not in sys.modules:
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    parser = build_parser(only=first if first in COMMANDS else None)
+    # only the command being run gets its arguments (without one, `cosemdepth --help` lists the commands)
+    parser = build_parser(only=first if first in COMMANDS else "")
     args = parser.parse_args(argv)
     module = importlib.import_module(COMMANDS[args.command][0])
     try:

@@ -14,10 +14,16 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..data import open_dataset
+from ..data.poses import CONVENTIONS
 from ..errors import ConfigError
+from ..evaluation.predict import predict
+from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
+from ..io.outdir import Input, model_inputs
 from ..io.rerun_writer import check_rrd_path
+from ..io.staging import StagedDir
 from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
-from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, parse_size
+from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, parse_size, size_help
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -33,17 +39,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="pinhole intrinsics in pixels of the original images")
     flight.add_argument("--hfov", type=float, metavar="DEG", help="horizontal field of view in degrees (instead of "
                         "--intrinsics; square pixels, centred principal point)")
-    flight.add_argument("--convention", default=None, choices=("opencv", "ned", "flu", "opengl"),
+    flight.add_argument("--convention", default=None, choices=tuple(CONVENTIONS),
                         help="axes of the posed frame (default opencv: x right, y down, z forward; flu for --bag)")
     flight.add_argument("--frame-skip", type=int, default=1, metavar="K", help="keep every K-th image (default 1)")
     parser.add_argument("--size", type=parse_size, default=None, metavar="S",
-                        help="network input size, S or HxW (default 384 for datasets; the image size for flights)")
+                        help=size_help()[:-1] + "; the image size for flights)")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (new, empty, or the "
                         "output of a previous predict, which is replaced; never an input, a folder holding one or a "
                         "folder inside one)")
-    parser.add_argument("--video", default="mp4", choices=("mp4", "gif", "none"),
-                        help="video of each trajectory: mp4 (default; GIF when no ffmpeg), gif or none")
-    parser.add_argument("--fps", type=float, default=8.0, help="video frame rate (default 8)")
+    parser.add_argument("--video", default=DEFAULT_VIDEO, choices=(*VIDEO_FORMATS, "none"),
+                        help=f"video of each trajectory (default {DEFAULT_VIDEO}; GIF when no ffmpeg), or none")
+    parser.add_argument("--fps", type=float, default=DEFAULT_FPS, help=f"video frame rate (default {DEFAULT_FPS:g})")
     parser.add_argument("--overwrite", action="store_true", help="also replace the output of another cosemdepth "
                         "command (a folder cosemdepth did not write is never replaced)")
     add_run_args(parser)
@@ -73,8 +79,6 @@ def _validate(args: argparse.Namespace) -> None:
 
 
 def _open(args: argparse.Namespace):
-    from ..data import open_dataset
-
     if args.bag is not None:
         return open_bag(args)
     if args.flight:
@@ -87,8 +91,6 @@ def _open(args: argparse.Namespace):
 
 def command_inputs(args: argparse.Namespace) -> list:
     """The input paths of predict / view (for the output policy of :mod:`cosemdepth.io.outdir`)."""
-    from ..io.outdir import Input, model_inputs
-
     return [*model_inputs(args.model), *(Input(label, p) for label, p in (
         ("--root", args.root), ("--split-dir", args.split_dir), ("--images", args.images), ("--poses", args.poses),
         ("--bag", args.bag)) if p is not None)]
@@ -96,10 +98,6 @@ def command_inputs(args: argparse.Namespace) -> list:
 
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
-    from ..evaluation.predict import predict
-    from ..io.outdir import Input
-    from ..io.staging import StagedDir
-
     _validate(args)
     inputs = command_inputs(args)
     StagedDir(args.out, "predict", overwrite=args.overwrite, what="--out folder", inputs=inputs).check()  # first

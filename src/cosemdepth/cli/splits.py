@@ -15,13 +15,12 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..data.registry import DATASETS, dataset_spec
 from ..errors import ConfigError
+from ..io.outdir import Input, check_output_dir
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    # deferred: the dataset table imports the readers (and torch), which the other commands' --help do not need
-    from ..data.registry import DATASETS
-
     names = tuple(n for n, spec in DATASETS.items() if spec.split_generator is not None)
     parser.add_argument("dataset", choices=names, help="dataset format")
     parser.add_argument("root", type=Path, help="dataset root")
@@ -37,9 +36,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..data.registry import dataset_spec
-    from ..io.outdir import Input, check_output_dir
-
     spec = dataset_spec(args.dataset)
     out_dir = args.out_dir
     if out_dir is None:

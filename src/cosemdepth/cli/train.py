@@ -14,6 +14,13 @@ from __future__ import annotations
 import argparse
 import json
 
+from ..config import ARCHITECTURES, RunConfig, known_datasets
+from ..training.run_config import dump_config, resolve_config
+from ..training.trainer import Trainer
+
+#: The defaults the shortcuts show (the paper's recipe; a --config file may change them).
+DEFAULTS = RunConfig()
+
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -25,18 +32,21 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="run folder: created if new, resumed if it holds a run")
     p.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                    help="override a config key, e.g. train.lr=3e-4 or data.train.1.weight=0.5 (repeatable)")
-    g = p.add_argument_group("shortcuts for common keys")
-    g.add_argument("--model", choices=("cosemdepth", "m4depth", "m4semantic"), help="model.arch")
-    g.add_argument("--dataset", metavar="NAME", help="data.train.0.name (midair, synthair, topair, aeroscapes, toy...)")
+    g = p.add_argument_group("shortcuts for common keys (defaults: the paper's recipe, unless --config sets them)")
+    m, d, t = DEFAULTS.model, DEFAULTS.data, DEFAULTS.train
+    g.add_argument("--model", choices=tuple(ARCHITECTURES), help=f"model.arch (default {m.arch})")
+    g.add_argument("--dataset", metavar="NAME",
+                   help=f"data.train.0.name: {', '.join(known_datasets())} (default {d.train[0].name})")
     g.add_argument("--data-root", metavar="DIR", help="data.train.0.root")
     g.add_argument("--split-dir", metavar="DIR", help="data.train.0.split_dir")
-    g.add_argument("--epochs", type=int, help="train.epochs")
-    g.add_argument("--max-steps", type=int, metavar="N", help="train.max_steps")
-    g.add_argument("--batch-size", type=int, metavar="B", help="train.batch_size")
-    g.add_argument("--lr", type=float, help="train.lr")
-    g.add_argument("--seed", type=int, help="train.seed")
-    g.add_argument("--device", help="train.device (auto, cpu, cuda, cuda:N)")
-    g.add_argument("--bf16", action="store_true", default=None, help="train.bf16: bfloat16 autocast of the forward (CPU and CUDA); fp32 weights and loss")
+    g.add_argument("--epochs", type=int, help=f"train.epochs (default {t.epochs})")
+    g.add_argument("--max-steps", type=int, metavar="N", help=f"train.max_steps (default {t.max_steps}: no limit)")
+    g.add_argument("--batch-size", type=int, metavar="B", help=f"train.batch_size (default {t.batch_size})")
+    g.add_argument("--lr", type=float, help=f"train.lr (default {t.lr:g})")
+    g.add_argument("--seed", type=int, help=f"train.seed (default {t.seed})")
+    g.add_argument("--device", help=f"train.device: auto, cpu, cuda, cuda:N (default {t.device})")
+    g.add_argument("--bf16", action="store_true", default=None,
+                   help="train.bf16: bfloat16 autocast of the forward (CPU and CUDA); fp32 weights and loss")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
 
@@ -50,8 +60,6 @@ _FLAGS = {
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..training.run_config import dump_config, resolve_config
-
     values = {key: getattr(args, attr) for attr, key in _FLAGS.items() if getattr(args, attr) is not None}
     if args.no_progress:
         values["train.progress"] = False
@@ -59,8 +67,6 @@ def run(args: argparse.Namespace) -> int:
     if args.print_config:
         print(dump_config(cfg), end="")
         return 0
-
-    from ..training.trainer import Trainer
 
     trainer = Trainer(cfg, args.out)
     summary = trainer.fit()

@@ -16,13 +16,20 @@ import argparse
 import sys
 from pathlib import Path
 
+from tqdm.auto import tqdm
+
+from ..evaluation.streaming import make_schedule, stream, trajectory_rows
+from ..io.rerun_writer import check_rrd_path, require_rerun
+from ._robotics import make_sinks
+from ._shared import apply_threads, load
+from .predict import _open, _validate, command_inputs
+from .predict import configure as configure_predict
+
 #: predict's arguments that do not apply to view (hidden from its help, ignored).
 _PREDICT_ONLY = ("out", "video", "fps", "rerun", "out_namespace")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from .predict import configure as configure_predict
-
     configure_predict(parser)
     for action in parser._actions:  # the inputs are predict's; its output options are not view's
         if action.dest in _PREDICT_ONLY:
@@ -33,14 +40,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm.auto import tqdm
-
-    from ..evaluation.streaming import make_schedule, stream, trajectory_rows
-    from ..io.rerun_writer import check_rrd_path, require_rerun
-    from ._robotics import make_sinks
-    from ._shared import apply_threads, load
-    from .predict import _open, _validate, command_inputs
-
     apply_threads(args)
     args.rerun = None  # view writes --rrd only
     require_rerun()

@@ -46,6 +46,9 @@ from .rosbag import (
 from .decode import DEFAULT_JPEG_IDCT, check_jpeg_idct
 from .sequence import SequenceDataset, Trajectory
 
+#: Interpolate an image's pose only between poses at most this many seconds apart (``--max-pose-gap``).
+DEFAULT_MAX_POSE_GAP = 0.05
+
 
 @dataclass
 class BagIndex:
@@ -82,7 +85,7 @@ def _pose_stream(bag: Bag, topic: str, seen: dict) -> Any:
         yield t, p, check_quaternion(q, where)
 
 
-def index_bag(path: str | Path, image_topic: str, pose_topic: str, *, max_pose_gap: float = 0.05,
+def index_bag(path: str | Path, image_topic: str, pose_topic: str, *, max_pose_gap: float = DEFAULT_MAX_POSE_GAP,
               skip_unposed: bool = False) -> BagIndex:
     """The index pass of :func:`open_bag_flight` (see the module docstring)."""
     path = Path(path)
@@ -211,7 +214,7 @@ def open_bag_flight(
     fov: float | None = None,
     convention="flu",
     frame_skip: int = 1,
-    max_pose_gap: float = 0.05,
+    max_pose_gap: float = DEFAULT_MAX_POSE_GAP,
     skip_unposed: bool = False,
     ignore_distortion: bool = False,
     size: int | tuple[int, int] | None = None,

@@ -23,9 +23,11 @@ from __future__ import annotations
 import io
 import os
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 
 from ..errors import ConfigError, DatasetError
 
@@ -50,6 +52,16 @@ def check_jpeg_idct(jpeg_idct: str) -> str:
     return jpeg_idct
 
 
+def check_nonnegative(path: str | os.PathLike, values: np.ndarray, what: str, note: str = "", hint: str = "") -> None:
+    """Raise a DatasetError naming ``path`` and the first bad pixel if any of the ``[H, W]`` ``values`` (``what``:
+    "depth", "disparity") is negative, NaN or infinite; ``note`` follows the problem, ``hint`` ends the message."""
+    bad = ~np.isfinite(values) | (values < 0)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        raise DatasetError(f"{path}: {int(bad.sum())} {what} value(s) are negative, NaN or infinite{note} (first at "
+                           f"row {i}, column {j}: {values[i, j]}){hint}")
+
+
 def check_image_size(path: str | os.PathLike, width: int, height: int) -> None:
     """Raise a DatasetError naming ``path`` unless ``width x height`` (from a header) is a decodable image size."""
     if width < 1 or height < 1 or width * height > MAX_PIXELS:
@@ -62,7 +74,7 @@ def check_image_size(path: str | os.PathLike, width: int, height: int) -> None:
 def decode_jpeg(data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.ndarray:
     """JPEG bytes -> ``[H, W, 3]`` uint8 RGB (gray replicated), decoded by libjpeg-turbo with the IDCT ``jpeg_idct``
     (see the module docstring). Any decoding problem is a DatasetError naming ``path``."""
-    import simplejpeg
+    import simplejpeg  # deferred: a compiled extension only the JPEG readers need
 
     check_jpeg_idct(jpeg_idct)
     if not data.startswith(_JPEG_SOI):
@@ -105,10 +117,6 @@ def _read_bytes(path: Path) -> bytes:
 def _open_header(path, where=None):
     """Open an image with Pillow (header only; ``path``: a file or a binary stream whose errors name ``where``),
     checking its declared size before anything is decoded."""
-    import warnings
-
-    from PIL import Image
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # MAX_PIXELS is checked below
         img = Image.open(path)
@@ -119,8 +127,6 @@ def _open_header(path, where=None):
 def _open(path, where=None):
     """Open and fully decode an image with Pillow (``path``: a file, or a binary stream whose errors name
     ``where``); any failure becomes a DatasetError naming it."""
-    from PIL import Image, UnidentifiedImageError
-
     where = path if where is None else where
     try:
         img = _open_header(path, where)
@@ -247,8 +253,6 @@ def read_label_ids(path: str | os.PathLike, num_ids: int) -> np.ndarray:
 
 def image_size(path: str | os.PathLike) -> tuple[int, int]:
     """``(H, W)`` of an image file, from its header (no full decoding)."""
-    from PIL import Image, UnidentifiedImageError
-
     path = Path(path)
     try:
         with _open_header(path) as img:

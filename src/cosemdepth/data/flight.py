@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import re
+import tokenize
 from pathlib import Path
 from typing import Sequence
 
@@ -45,8 +46,10 @@ import numpy as np
 import torch
 
 from ..errors import ConfigError, DatasetError
+from ..model_config import ModelConfig
 from .augment import resolve_augment
-from .decode import DEFAULT_JPEG_IDCT, check_image_size, check_jpeg_idct, image_size, read_label_ids, read_rgb, read_uint16_png
+from .decode import (DEFAULT_JPEG_IDCT, check_image_size, check_jpeg_idct, check_nonnegative, image_size, read_label_ids,
+                     read_rgb, read_uint16_png)
 from .frames import Size, as_size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
 from .poses import poses_at, read_poses, relative_camera_motions
 from .sequence import FrameRecord, SequenceDataset, Trajectory
@@ -150,8 +153,6 @@ def read_depth_npy(path: str | Path) -> np.ndarray:
     are dropped, at most :data:`~cosemdepth.data.decode.MAX_PIXELS` values, and as many bytes as it declares.
     The values must be finite and non-negative in float32 (write 0 where the depth is unknown).
     """
-    import tokenize
-
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -179,13 +180,7 @@ def read_depth_npy(path: str | Path) -> np.ndarray:
     d = np.frombuffer(data, dtype=dtype).reshape(squeezed, order="F" if fortran else "C")
     with np.errstate(over="ignore"):
         d = d.astype(np.float32)
-    bad = ~np.isfinite(d) | (d < 0)
-    if bad.any():
-        i, j = np.argwhere(bad)[0]
-        raise DatasetError(
-            f"{path}: {int(bad.sum())} depth value(s) are negative, NaN or infinite in float32 (first at row {i}, "
-            f"column {j}: {d[i, j]}); write 0 where the depth is unknown"
-        )
+    check_nonnegative(path, d, "depth", note=" in float32", hint="; write 0 where the depth is unknown")
     return d
 
 
@@ -217,7 +212,7 @@ def open_flight(
     depth_dir: str | Path | None = None,
     depth_scale: float = 0.001,
     semantic_dir: str | Path | None = None,
-    num_classes: int = 7,
+    num_classes: int = ModelConfig.num_classes,
     mode: str = "stream",
     db_seq_len: int | None = None,
     seed: int = 0,

@@ -15,6 +15,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from ..model_config import MIDAIR_IMAGE_SIZE
 from ..errors import ConfigError
 from . import aeroscapes, flight, topair
 from .midair import format as midair_format
@@ -53,7 +54,7 @@ class DatasetSpec:
     name: str
     opener: Opener
     split: str | None = "test"
-    size: int | tuple[int, int] | None = 384
+    size: int | tuple[int, int] | None = MIDAIR_IMAGE_SIZE
     split_dir: str | None = None
     needs_split_dir: bool = False
     classes: tuple[str, ...] = ()
@@ -126,7 +127,7 @@ register_dataset("synthair", open_midair, split_dir="splits", options={"name": "
                  split_generator=_midair_format_splits("generic"), splits_into_root=True, **_MIDAIR_CLASSES)
 register_dataset("topair", topair.open_topair, split_dir="splits", classes=topair.CLASSES, palette=topair.PALETTE,
                  split_generator=_topair_splits)
-register_dataset("aeroscapes", aeroscapes.open_aeroscapes, split="val", size=None, classes=aeroscapes.CLASSES,
+register_dataset("aeroscapes", aeroscapes.open_aeroscapes, split="val", size=None, split_dir="ImageSets", classes=aeroscapes.CLASSES,
                  palette=aeroscapes.PALETTE, has_depth=False, windows=False)
 register_dataset("flight", flight.open_flight, split=None, size=None, has_depth=False, has_splits=False)
 

@@ -62,7 +62,7 @@ class Bag:
 
     def __init__(self, path: str | Path) -> None:
         require_rosbags()
-        from rosbags.highlevel import AnyReader
+        from rosbags.highlevel import AnyReader  # deferred: an optional dependency (cosemdepth[ros])
 
         self.path = Path(path)
         if not self.path.exists():
@@ -136,13 +136,13 @@ def image_to_rgb(msgtype: str, msg: Any, where: str, jpeg_idct: str = DEFAULT_JP
     if enc not in IMAGE_ENCODINGS:
         raise DatasetError(f"{where}: image encoding {msg.encoding!r} is not supported; use one of "
                            f"{', '.join(IMAGE_ENCODINGS)} (or a CompressedImage topic)")
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    h, w, row_bytes = int(msg.height), int(msg.width), int(msg.step)  # Image.step: bytes per row
     channels = 1 if enc.startswith("mono") else (4 if enc.endswith("a8") else 3)
     itemsize = 2 if enc.endswith("16") else 1
     data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
-    if h < 1 or w < 1 or step < w * channels * itemsize or data.size < step * h:
-        raise DatasetError(f"{where}: image {h}x{w} {enc} with step {step} does not fit its {data.size} bytes")
-    rows = data[: step * h].reshape(h, step)[:, : w * channels * itemsize]
+    if h < 1 or w < 1 or row_bytes < w * channels * itemsize or data.size < row_bytes * h:
+        raise DatasetError(f"{where}: image {h}x{w} {enc} with step {row_bytes} does not fit its {data.size} bytes")
+    rows = data[: row_bytes * h].reshape(h, row_bytes)[:, : w * channels * itemsize]
     if itemsize == 2:
         dt = np.dtype(">u2" if msg.is_bigendian else "<u2")
         px = np.frombuffer(np.ascontiguousarray(rows).tobytes(), dtype=dt).reshape(h, w, channels)

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from ..errors import DatasetError
+from ..model_config import MIDAIR_IMAGE_SIZE
 from .csvsplits import open_csv_split
 from .decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, read_channel0, read_label_ids, read_rgb
 from .frames import Size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
@@ -77,7 +78,7 @@ def open_topair(
     split_dir: str | Path | None = None,
     split: str = "test",
     seq_len: int = 1,
-    size: int | tuple[int, int] | None = 384,
+    size: int | tuple[int, int] | None = MIDAIR_IMAGE_SIZE,
     augment=False,
     *,
     mode: str | None = None,

@@ -34,14 +34,16 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
 import torch
+from tqdm.auto import tqdm
 
+from .. import __version__
 from ..errors import ConfigError
 from .classes import class_info, dataset_classes
 from .metrics import ALL_DEPTH_METRICS, EvaluationMetrics, format_markdown_table
 from .resources import PeakMemory, machine_info
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
 
-#: Callback run on every step: ``(batch, include [B] bool) -> None``.
+#: Callback run after every streaming step: ``(batch, include [B] bool) -> None``.
 FrameCallback = Callable[[StreamBatch, torch.Tensor], None]
 
 
@@ -236,8 +238,6 @@ class Evaluator:
         return sum(len(s.indices) for s in self.schedule)
 
     def run(self) -> EvaluationResult:
-        from tqdm.auto import tqdm
-
         metrics = EvaluationMetrics(self.cfg.num_classes if self.eval_semantic else None, depth=self.eval_depth)
         device = next((p.device for p in self.model.parameters()), torch.device("cpu"))
         timed_seconds = 0.0
@@ -295,8 +295,6 @@ class Evaluator:
             "machine": machine_info(device),
             "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
         }
-        from .. import __version__
-
         info["cosemdepth_version"] = __version__
         return EvaluationResult(
             metrics=values,
@@ -330,9 +328,9 @@ def evaluate(model, dataset, **options: Any) -> EvaluationResult:
         max_frames: evaluate only the first N rows of the split (in order).
         num_workers: DataLoader workers reading frames.
         exclude_resets: leave reset frames out of the metrics (default: yes, unless every frame is a reset).
-        warmup: steps left out of the timing.
+        warmup: streaming steps left out of the timing.
         progress: show a progress bar (tqdm, on stderr).
-        callbacks: ``f(batch, include)`` run after every step (e.g. writers, baselines).
+        callbacks: ``f(batch, include)`` run after every streaming step (e.g. writers, baselines).
         dataset_name: dataset name for class names/palette and class-count checks (default ``dataset.name``).
     Returns:
         :class:`EvaluationResult`.

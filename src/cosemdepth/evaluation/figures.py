@@ -31,8 +31,9 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
 
-from .visualize import depth_positions, positions_to_rgb
+from .visualize import depth_positions, positions_to_rgb, rgb_to_uint8
 
 #: Panel keys and captions, in the order they are drawn (both in pictures and videos).
 PANELS: tuple[tuple[str, str], ...] = (
@@ -67,10 +68,8 @@ GAP = 4
 @functools.lru_cache(maxsize=16)
 def font(size: int):
     """DejaVu Sans (matplotlib's copy) at ``size`` pixels; Pillow's default font when it is missing."""
-    from PIL import ImageFont
-
     try:
-        import matplotlib
+        import matplotlib  # deferred: heavy, only for the font file; Pillow's font when it is missing
 
         return ImageFont.truetype(os.path.join(matplotlib.get_data_path(), "fonts", "ttf", "DejaVuSans.ttf"), size)
     except Exception:  # noqa: BLE001 - no matplotlib or no font file: Pillow's own font
@@ -162,8 +161,6 @@ def upscale_nearest(a: np.ndarray, k: int) -> np.ndarray:
 def upscale_bilinear(a: np.ndarray, k: int) -> np.ndarray:
     """Bilinear upscaling by ``k`` (pixel centres aligned, edges clamped) of a ``[H, W]`` float or ``[H, W, 3]``
     uint8 array."""
-    from PIL import Image
-
     if k == 1:
         return a
     h, w = a.shape[:2]
@@ -294,8 +291,6 @@ class FlightFigure:
     # ------------------------------------------------------------------------------------------ static parts
 
     def _draw_captions(self) -> np.ndarray:
-        from PIL import Image, ImageDraw
-
         img = Image.new("RGB", (self.width, self.caption_height), BACKGROUND)
         draw = ImageDraw.Draw(img)
         pw = self.panel_size[1]
@@ -344,8 +339,6 @@ class FlightFigure:
                 "height": top + title_h + bar_h + round(s * 0.5) + round(s * 1.5)}
 
     def _draw_footer(self) -> np.ndarray:
-        from PIL import Image, ImageDraw
-
         parts = []
         depth_span = self._span(DEPTH_KEYS) if self.has_depth else None
         label_span = self._span(LABEL_KEYS) if self.has_labels and self.class_names else None
@@ -429,16 +422,12 @@ class FlightFigure:
             self._title(canvas, y, maps.title)
 
     def _na(self, canvas: np.ndarray, y: int, key: str) -> None:
-        from PIL import Image, ImageDraw
-
         ph, pw = self.panel_size
         img = Image.new("RGB", (pw, ph), (48, 48, 48))
         _draw_text(ImageDraw.Draw(img), (pw / 2, ph / 2), "not available", self.small_size, anchor="mm")
         canvas[y:y + ph, self.x[key]:self.x[key] + pw] = np.asarray(img)
 
     def _title(self, canvas: np.ndarray, y: int, title: str) -> None:
-        from PIL import Image, ImageDraw
-
         s = self.small_size
         w, _ = text_size(title, s)
         pad = round(s * 0.35)
@@ -516,8 +505,6 @@ class FlightPictures:
 
 def frame_maps(batch, b: int, *, title: str = "", labels_ok: Callable[[np.ndarray], bool] | None = None) -> FrameMaps:
     """The :class:`FrameMaps` of sample ``b`` of a :class:`~cosemdepth.evaluation.streaming.StreamBatch`."""
-    from .visualize import rgb_to_uint8
-
     def arr(t, idx):
         return None if t is None else t[idx].detach().cpu().numpy()
 

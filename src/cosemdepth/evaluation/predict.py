@@ -33,7 +33,9 @@ from typing import Any, Sequence
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
+from ..errors import ConfigError
 from ..io.atomic import atomic_write_text
 from ..io.outdir import Input
 from ..io.staging import StagedDir
@@ -42,7 +44,10 @@ from .evaluator import _model_config, to_json
 from .figures import FlightPictures, frame_maps
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
 from .visualize import (
+    DEFAULT_FPS,
+    DEFAULT_VIDEO,
     DEPTH_PNG_SCALE,
+    VIDEO_FORMATS,
     VideoWriter,
     colorize_labels,
     depth_to_png16,
@@ -51,7 +56,6 @@ from .visualize import (
 )
 
 MANIFEST = "predictions.json"
-VIDEO_FORMATS = ("mp4", "gif", "none")
 
 
 def safe_relpath(name: str) -> str:
@@ -73,7 +77,7 @@ class PredictionWriter:
     """
 
     def __init__(self, folder: Path, *, num_classes: int | None, dataset_name: str | None = None,
-                 video: str | None = "mp4", fps: float = 8.0, depth_range: tuple[float, float] | None = None,
+                 video: str | None = DEFAULT_VIDEO, fps: float = DEFAULT_FPS, depth_range: tuple[float, float] | None = None,
                  sources: dict[int, str] | None = None) -> None:
         self.folder = Path(folder)
         self.video = video
@@ -191,8 +195,8 @@ def predict(
     dataset,
     out: str | Path,
     *,
-    video: str | None = "mp4",
-    fps: float = 8.0,
+    video: str | None = DEFAULT_VIDEO,
+    fps: float = DEFAULT_FPS,
     max_frames: int | None = None,
     lanes: int = 1,
     num_workers: int = 0,
@@ -222,14 +226,10 @@ def predict(
     Returns:
         the manifest (also written to ``out/predictions.json``).
     """
-    from tqdm.auto import tqdm
-
-    from ..errors import ConfigError
-
     if video == "none":
         video = None
-    if video not in (None, "mp4", "gif"):
-        raise ConfigError(f"--video must be one of {VIDEO_FORMATS}, got {video!r}")
+    if video is not None and video not in VIDEO_FORMATS:
+        raise ConfigError(f"--video must be one of {(*VIDEO_FORMATS, 'none')}, got {video!r}")
     if not fps > 0:
         raise ConfigError(f"--fps must be positive, got {fps}")
     cfg = _model_config(model)

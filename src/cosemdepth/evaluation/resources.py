@@ -43,7 +43,7 @@ def _reset_hwm() -> bool:
 
 def _rusage_max_mb() -> float | None:
     try:
-        import resource
+        import resource  # deferred: a Unix-only module
     except ImportError:  # pragma: no cover - Windows
         return None
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

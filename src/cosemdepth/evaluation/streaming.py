@@ -19,13 +19,16 @@ from dataclasses import dataclass
 from typing import Iterator, Sequence
 
 import torch
+from torch.utils.data import DataLoader
 
+from ..data.loader import collate
 from ..errors import ConfigError, NonFiniteOutputError
 
+
 @dataclass(frozen=True)
-class Step:
-    """One model step: dataset ``indices`` (one per lane), the ``lanes`` they run in, and which start a trajectory in
-    their lane (``starts``)."""
+class StepPlan:
+    """The inputs of one streaming step (one ``model.step`` call): dataset ``indices`` (one per lane), the ``lanes``
+    they run in, and which start a trajectory in their lane (``starts``)."""
 
     indices: tuple[int, ...]
     lanes: tuple[int, ...]
@@ -60,7 +63,7 @@ def trajectory_rows(dataset, max_frames: int | None = None) -> list[list[int]]:
     return groups
 
 
-def make_schedule(groups: Sequence[Sequence[int]], lanes: int = 1) -> list[Step]:
+def make_schedule(groups: Sequence[Sequence[int]], lanes: int = 1) -> list[StepPlan]:
     """Schedule trajectories (lists of dataset indices) on ``lanes`` parallel lanes; see the module docstring."""
     if not isinstance(lanes, int) or lanes < 1:
         raise ConfigError(f"the number of trajectories streamed at once must be a positive integer, got {lanes!r}")
@@ -70,10 +73,10 @@ def make_schedule(groups: Sequence[Sequence[int]], lanes: int = 1) -> list[Step]
         if queue:
             active[lane] = deque(queue.popleft())
     fresh = set(active)
-    steps: list[Step] = []
+    steps: list[StepPlan] = []
     while active:
         order = sorted(active)
-        steps.append(Step(tuple(active[k].popleft() for k in order), tuple(order), tuple(k in fresh for k in order)))
+        steps.append(StepPlan(tuple(active[k].popleft() for k in order), tuple(order), tuple(k in fresh for k in order)))
         fresh = set()
         for k in order:
             if not active[k]:
@@ -179,7 +182,7 @@ def stream(
     lanes: int = 1,
     max_frames: int | None = None,
     num_workers: int = 0,
-    schedule: Sequence[Step] | None = None,
+    schedule: Sequence[StepPlan] | None = None,
 ) -> Iterator[StreamBatch]:
     """Run ``model.step`` over ``dataset`` (see the module docstring) and yield one :class:`StreamBatch` per step.
 
@@ -191,10 +194,6 @@ def stream(
         num_workers: DataLoader worker processes reading the frames (0: in this process).
         schedule: a precomputed :func:`make_schedule` result (default: computed from the dataset).
     """
-    from torch.utils.data import DataLoader
-
-    from ..data.loader import collate
-
     if schedule is None:
         schedule = make_schedule(trajectory_rows(dataset, max_frames), lanes)
     device = _model_device(model)
@@ -239,4 +238,4 @@ def stream(
             )
 
 
-__all__ = ["Step", "StreamBatch", "check_finite_outputs", "frame_source", "make_schedule", "stream", "trajectory_rows"]
+__all__ = ["StepPlan", "StreamBatch", "check_finite_outputs", "frame_source", "make_schedule", "stream", "trajectory_rows"]

@@ -19,6 +19,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from ..io.atomic import atomic_open, atomic_path
 
@@ -40,7 +41,7 @@ def png16_to_depth(png: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def _lut(name: str) -> np.ndarray:
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # deferred: matplotlib is heavy (~0.5 s) and only the colour maps need it
 
     return (colormaps[name](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0 + 0.5).astype(np.uint8)
 
@@ -78,8 +79,6 @@ def rgb_to_uint8(rgb: np.ndarray) -> np.ndarray:
 
 def save_png(path: str | os.PathLike, array: np.ndarray) -> None:
     """Write ``array`` (``[H, W]`` uint8/uint16 or ``[H, W, 3]`` uint8) as a PNG, atomically."""
-    from PIL import Image
-
     with atomic_path(path) as tmp:
         Image.fromarray(np.ascontiguousarray(array)).save(tmp, format="PNG")
 
@@ -93,11 +92,17 @@ def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
 def ffmpeg_exe() -> str | None:
     """Path of the ffmpeg binary of imageio-ffmpeg (or on PATH), or None."""
     try:
-        import imageio_ffmpeg
+        import imageio_ffmpeg  # deferred: only videos need it (and it may be missing: GIF fallback)
 
         return imageio_ffmpeg.get_ffmpeg_exe()
     except Exception:  # noqa: BLE001 - any failure means "no ffmpeg"
         return shutil.which("ffmpeg")
+
+
+#: Video formats of :class:`VideoWriter` (``--video``; the commands add ``"none"``), the default one and frame rate.
+VIDEO_FORMATS = ("mp4", "gif")
+DEFAULT_VIDEO = "mp4"
+DEFAULT_FPS = 8.0
 
 
 class VideoWriter:
@@ -109,8 +114,8 @@ class VideoWriter:
     Odd frame sizes are padded by one black row/column for H.264.
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float = 8.0, fmt: str = "mp4") -> None:
-        if fmt not in ("mp4", "gif"):
+    def __init__(self, path: str | os.PathLike, fps: float = DEFAULT_FPS, fmt: str = DEFAULT_VIDEO) -> None:
+        if fmt not in VIDEO_FORMATS:
             raise ValueError(f"video format must be 'mp4' or 'gif', got {fmt!r}")
         self.fps = float(fps)
         self.exe = ffmpeg_exe() if fmt == "mp4" else None
@@ -127,7 +132,7 @@ class VideoWriter:
         self.frames = 0
 
     def _start_ffmpeg(self, w: int, h: int) -> None:
-        import imageio_ffmpeg
+        import imageio_ffmpeg  # deferred: only MP4 videos need it
 
         self._proc = imageio_ffmpeg.write_frames(
             str(self._tmp), (w, h), fps=self.fps, codec="libx264", quality=None, macro_block_size=2,
@@ -151,8 +156,6 @@ class VideoWriter:
             assert self._proc is not None
             self._proc.send(np.ascontiguousarray(frame))
         else:
-            from PIL import Image
-
             self._gif.append(Image.fromarray(frame).quantize(colors=255, method=Image.Quantize.MEDIANCUT))
         self.frames += 1
 

@@ -20,12 +20,18 @@ What ``cosemdepth export --check`` runs (the derivation is in ``docs/deploy.md``
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from ..data.midair.splits import GT_PER_ROW, relative_motions
+from ..data.synthair.climate import get_climate
+from ..data.synthair.render import render_frames
+from ..data.synthair.world import get_world
+from ..data.synthair.writer import SynthConfig, plan_flights
 from ..errors import ConfigError
 from ..models.outputs import StreamState
 
@@ -58,21 +64,15 @@ def flight_sequence(batch: int, frames: int, height: int, width: int, seed: int 
     Returns ``(rgb [B,T,3,H,W], rot [B,T,4], trans [B,T,3], intrinsics [B,4])`` float32; frame 0's motion is the
     identity (it is a reset).
     """
-    from ..data.midair.splits import relative_motions
-    from ..data.synthair.climate import get_climate
-    from ..data.synthair.render import render_frames
-    from ..data.synthair.world import get_world
-    from ..data.synthair.writer import SynthConfig, plan_flights
-
     world = get_world(seed)
     cfg = SynthConfig(out=Path("unused"), trajectories=1, frames=4 * frames + 8, size=max(height, width, 16),
                       seed=seed, climates=("sunny",))
     planned = plan_flights(cfg, world)["sunny"][0]
     att, pos = planned.flight.attitude, planned.flight.position
-    step = 16  # ground-truth samples between two CSV rows (100 Hz, every 4th 25 Hz frame)
+    stride = GT_PER_ROW  # ground-truth samples between two CSV rows (100 Hz, every 4th 25 Hz frame)
     shots = render_frames(world, get_climate("sunny").with_sun_azimuth(planned.sun_azimuth),
-                          att[0 : step * frames : step], pos[0 : step * frames : step], height, width)
-    q, t = relative_motions(att[: step * frames + step], pos[: step * frames + step])
+                          att[0 : stride * frames : stride], pos[0 : stride * frames : stride], height, width)
+    q, t = relative_motions(att[: stride * frames + stride], pos[: stride * frames + stride])
     rgb = torch.from_numpy(np.stack([f.rgb for f in shots])).permute(0, 3, 1, 2).float().div(255)
     rot = torch.from_numpy(np.concatenate([[[1.0, 0.0, 0.0, 0.0]], q[: frames - 1]])).float()
     trans = torch.from_numpy(np.concatenate([[[0.0, 0.0, 0.0]], t[: frames - 1]])).float()
@@ -196,10 +196,8 @@ def compare_onnx(model, path: str | Path, frames: int = 6, reset_at: int | None 
     (:func:`flight_sequence`, or ``inputs = (rgb, rot, trans, intrinsics)``) through ONNX Runtime and, step by step on
     the same inputs and incoming state, through ``model.step`` (reference path) in float32 and in float64; returns
     an :class:`OnnxComparison` (see the module docstring)."""
-    import copy
-
     try:
-        import onnxruntime as ort
+        import onnxruntime as ort  # deferred: an optional dependency (cosemdepth[export])
     except ImportError as e:  # pragma: no cover - optional dependency
         raise ConfigError("the ONNX check needs onnxruntime (pip install 'cosemdepth[export]')") from e
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])

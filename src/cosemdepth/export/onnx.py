@@ -22,12 +22,15 @@ from pathlib import Path
 import torch
 import torch.nn as nn
 
+from .. import __version__
 from ..errors import ConfigError
 from ..io.atomic import atomic_path
+from ..model_config import MIDAIR_IMAGE_SIZE
 from ..models.outputs import StreamState
 
-#: ONNX opset: GridSample needs 16.
+#: ONNX opset (``--opset``): GridSample needs at least ``MIN_OPSET``.
 DEFAULT_OPSET = 17
+MIN_OPSET = 16
 
 
 def state_names(levels: int, prefix: str = "state", components: tuple[str, ...] = ("feat", "depth")) -> list[str]:
@@ -84,8 +87,8 @@ class StreamingStep(nn.Module):
 def export_onnx(
     model,
     path: str | Path,
-    height: int = 384,
-    width: int = 384,
+    height: int = MIDAIR_IMAGE_SIZE,
+    width: int = MIDAIR_IMAGE_SIZE,
     batch: int = 1,
     opset: int = DEFAULT_OPSET,
     dynamic_batch: bool = False,
@@ -98,14 +101,14 @@ def export_onnx(
         path: output ``.onnx`` file.
         height, width: input resolution (fixed in the graph; the state shapes depend on it).
         batch: batch size of the example (fixed unless ``dynamic_batch``).
-        opset: ONNX opset, at least 16 (GridSample).
+        opset: ONNX opset, at least :data:`MIN_OPSET` (GridSample).
         dynamic_batch: mark the batch axis dynamic.
         reset_float: take ``reset`` as float32 (1 = reset) instead of bool, for runtimes without bool inputs.
     Returns:
         the path written.
     """
-    if opset < 16:
-        raise ConfigError(f"--opset must be at least 16 (GridSample), got {opset}")
+    if opset < MIN_OPSET:
+        raise ConfigError(f"--opset must be at least {MIN_OPSET} (GridSample), got {opset}")
     if height < 1 or width < 1 or batch < 1:
         raise ConfigError(f"--size and --batch must be positive, got size {height}x{width}, batch {batch}")
     path = Path(path)
@@ -128,9 +131,7 @@ ONNX_MARK = "cosemdepth_export"
 
 def mark_onnx(path: str | Path) -> None:
     """Record in the ONNX file's metadata that cosemdepth wrote it."""
-    import onnx
-
-    from .. import __version__
+    import onnx  # deferred: heavy, and only present with torch.onnx's export requirements
 
     m = onnx.load(str(path), load_external_data=False)
     onnx.helper.set_model_props(m, {**{p.key: p.value for p in m.metadata_props}, ONNX_MARK: __version__})
@@ -140,7 +141,7 @@ def mark_onnx(path: str | Path) -> None:
 def is_our_onnx(path: str | Path) -> bool:
     """True if ``path`` is an ONNX file that ``cosemdepth export`` wrote (see :func:`mark_onnx`)."""
     try:
-        import onnx
+        import onnx  # deferred: heavy; without it no file can be ours
 
         m = onnx.load(str(path), load_external_data=False)
     except Exception:  # noqa: BLE001 - anything unreadable is not ours

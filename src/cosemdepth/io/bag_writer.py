@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..data.rosbag import require_rosbags
 from ..errors import ConfigError
 
 DEFAULT_NAMESPACE = "/cosemdepth"
@@ -49,8 +50,6 @@ class BagWriter:
 
     def __init__(self, header: Callable[[int], tuple[int, str]], intrinsics, palette=None,
                  namespace: str = DEFAULT_NAMESPACE) -> None:
-        from ..data.rosbag import require_rosbags
-
         require_rosbags()
         self.header = header
         self.k = [float(v) for v in intrinsics]
@@ -62,6 +61,7 @@ class BagWriter:
         self.path: Path | None = None
 
     def open(self, folder: Path) -> None:
+        # deferred: an optional dependency (cosemdepth[ros]), checked by require_rosbags
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.typesys import Stores, get_typestore
 

@@ -23,6 +23,7 @@ so is the cost-volume precision (default float16, as the original computes it).
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import os
 import re
@@ -32,10 +33,13 @@ from typing import Any, Mapping
 import numpy as np
 import torch
 
+from .. import __version__
 from ..config import ARCHITECTURES, ENCODER_CHANNELS, ModelConfig
+from ..model_config import ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
 from ..errors import CheckpointError, ConfigError
 from ..models.depth_decoder import refiner_in_channels
 from ..models.model import build_model
+from .tf_checkpoint import CheckpointReader
 
 #: Convs of the refiner's ``prep_conv_layers`` stack; the ``est_*_conv_layers`` stack holds the other four.
 PREP_CONVS = 3
@@ -190,14 +194,14 @@ def infer_config(
     *,
     arch: str | None = None,
     feature_normalization: bool = True,
-    pscv_dtype: str = "float16",
+    pscv_dtype: str = ORIGINAL_PSCV_DTYPE,
     origin: str = "checkpoint",
 ) -> tuple[ModelConfig, list[str]]:
     """Infer the :class:`ModelConfig` from our parameter names and their **TF** shapes (see :func:`convert_tensors`).
 
     Returns the config and the names of its fields that were read from the shapes (the others keep defaults).
     """
-    if pscv_dtype not in ("float16", "float32"):
+    if pscv_dtype not in PSCV_DTYPES:
         raise ConfigError(f"pscv_dtype must be 'float16' or 'float32', got {pscv_dtype!r}")
     names = set(shapes)
     levels = _level_count(names, r"encoder\.conv_s1\.(\d+)\.", "encoder level", origin)
@@ -277,7 +281,7 @@ def convert_tensors(
     *,
     arch: str | None = None,
     feature_normalization: bool = True,
-    pscv_dtype: str = "float16",
+    pscv_dtype: str = ORIGINAL_PSCV_DTYPE,
     origin: str = "checkpoint",
 ) -> Conversion:
     """Map TF checkpoint tensors ``{key: array}`` to our state dict and infer the config.
@@ -377,17 +381,12 @@ def import_checkpoint(
     *,
     arch: str | None = None,
     feature_normalization: bool = True,
-    pscv_dtype: str = "float16",
+    pscv_dtype: str = ORIGINAL_PSCV_DTYPE,
 ) -> Conversion:
     """Read the TF checkpoint at ``path`` (prefix, ``.index`` file or folder) and convert it.
 
     The returned :class:`Conversion` carries a ``source`` dict recording where the weights came from.
     """
-    import hashlib
-
-    from .. import __version__
-    from .tf_checkpoint import CheckpointReader
-
     reader = CheckpointReader(path)
     origin = str(reader.prefix)
     conv = convert_tensors(
@@ -417,7 +416,7 @@ def convert_checkpoint(
     *,
     arch: str | None = None,
     feature_normalization: bool = True,
-    pscv_dtype: str = "float16",
+    pscv_dtype: str = ORIGINAL_PSCV_DTYPE,
 ) -> tuple[dict[str, torch.Tensor], ModelConfig]:
     """``(state_dict, config)`` of the TF checkpoint at ``path``; see :func:`import_checkpoint`."""
     conv = import_checkpoint(path, arch=arch, feature_normalization=feature_normalization, pscv_dtype=pscv_dtype)

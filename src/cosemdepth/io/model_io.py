@@ -19,14 +19,19 @@ import os
 from pathlib import Path
 from typing import Any, Mapping
 
+import safetensors.torch
 import torch
+from safetensors import SafetensorError
 
+from .. import __version__
 from ..config import ModelConfig
 from ..errors import CheckpointError, ConfigError
+from ..models import build_model
 from .atomic import atomic_open, atomic_path
-from .convert import expected_param_shapes
+from .convert import convert_checkpoint, expected_param_shapes
 from .manifest import MANIFEST_FILE, sha256_file, validate_manifest
 from .staging import missing_ancestors, remove_empty
+from .tf_checkpoint import is_tf_checkpoint
 
 FORMAT = "cosemdepth"
 FORMAT_VERSION = 1
@@ -95,10 +100,6 @@ def save_weights(
     The state dict is checked against ``config`` first; nothing is written if it does not match. ``OUT_DIR`` is
     created if needed (and removed again if writing fails); existing files of ours in it are replaced atomically.
     """
-    from safetensors.torch import save_file
-
-    from .. import __version__
-
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise CheckpointError(f"{out}: exists and is not a folder; the output must be a folder (it gets {CONFIG_FILE} "
@@ -116,7 +117,9 @@ def save_weights(
     created = missing_ancestors(out)
     try:
         with atomic_path(out / WEIGHTS_FILE) as tmp_weights, atomic_open(out / CONFIG_FILE, "w") as f:
-            save_file(tensors, str(tmp_weights), metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
+            # looked up at call time (module attribute): tests replace it to simulate a full disk
+            safetensors.torch.save_file(tensors, str(tmp_weights),
+                                        metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
             meta[WEIGHTS_CHECKSUM] = sha256_file(Path(tmp_weights))  # verified on every load
             f.write(json.dumps(meta, indent=2) + "\n")
     except BaseException:
@@ -181,9 +184,6 @@ def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], 
     :func:`save_weights` wrote); the weights are checked against the config (names, shapes, floating point) and must
     be finite. Any problem is a :class:`CheckpointError` naming the file.
     """
-    from safetensors import SafetensorError
-    from safetensors.torch import load_file
-
     folder = _model_dir(path)
     cfg, meta = read_config_file(folder)
     weights = folder / WEIGHTS_FILE
@@ -192,7 +192,7 @@ def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], 
     if (folder / MANIFEST_FILE).exists():  # a training checkpoint: its checksums first (the same check as resume)
         validate_manifest(folder, (CONFIG_FILE, WEIGHTS_FILE))
     try:
-        state_dict = load_file(str(weights))
+        state_dict = safetensors.torch.load_file(str(weights))
     except (SafetensorError, OSError, ValueError, RuntimeError, OverflowError, MemoryError) as e:
         raise CheckpointError(f"{weights}: corrupt or truncated safetensors file ({type(e).__name__}: {e})") from e
     check_state_dict(state_dict, cfg, str(weights))
@@ -211,13 +211,9 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
     ``path`` is one of our model folders, or an official TensorFlow checkpoint (a prefix such as
     ``.../cp-0059.ckpt``, its ``.index`` file, or a folder with a ``checkpoint`` file), converted on the fly.
     """
-    from .tf_checkpoint import is_tf_checkpoint
-
     p = Path(path)
     ours = p.is_dir() and ((p / CONFIG_FILE).exists() or (p / WEIGHTS_FILE).exists())
     if not ours and p.name not in (CONFIG_FILE, WEIGHTS_FILE) and is_tf_checkpoint(p):
-        from .convert import convert_checkpoint
-
         state_dict, cfg = convert_checkpoint(p)
         origin = str(p)
         check_finite(state_dict, origin)
@@ -229,8 +225,6 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
             )
         state_dict, cfg, _ = read_model_files(p)
         origin = str(_model_dir(p))
-    from ..models import build_model  # imported late: the checks above do not need the model code
-
     # Build on the meta device (no random initialisation to throw away) and adopt the loaded tensors, in float32
     # whatever precision they were stored in.
     with torch.device("meta"):

@@ -30,7 +30,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
+from .. import __version__
 from ..errors import ConfigError
+from .atomic import atomic_write_text
 
 MARKER = ".cosemdepth-output.json"
 MARKER_FORMAT = "cosemdepth-output"
@@ -154,9 +156,6 @@ def list_files(folder: Path) -> list[str]:
 def write_marker(folder: str | os.PathLike, command: str, files: Iterable[str], merge: bool = True) -> Path:
     """Write ``folder/.cosemdepth-output.json`` naming ``command`` and the ``files`` it wrote (relative paths); with
     ``merge``, the files of an existing marker are kept in the list."""
-    from .. import __version__
-    from .atomic import atomic_write_text
-
     folder = Path(folder)
     names = set(files)
     old = read_marker(folder) if merge else None

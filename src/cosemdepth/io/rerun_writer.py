@@ -34,7 +34,10 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..data.quaternion import qmatrix
 from ..errors import ConfigError
+from ..evaluation.metrics import depth_metrics
+from .outdir import check_output_file
 
 APPLICATION_ID = "cosemdepth"
 
@@ -50,7 +53,7 @@ def require_rerun():
 
 def _written_by_us(path: Path) -> bool:
     """Whether ``path`` is a rerun recording this package wrote (its application id)."""
-    from rerun.chunk import RrdReader
+    from rerun.chunk import RrdReader  # deferred: an optional dependency (cosemdepth[viz])
 
     try:
         return any(e.application_id.startswith(APPLICATION_ID) for e in RrdReader(str(path)).recordings())
@@ -62,8 +65,6 @@ def check_rrd_path(path: str | Path, option: str = "--rerun", inputs=()) -> Path
     """``path`` as the recording's file, under the output policy of :mod:`cosemdepth.io.outdir`: a ConfigError when
     it lacks the ``.rrd`` suffix, is a folder or an input, its folder does not exist or is not writable, or it exists
     and is not a recording that cosemdepth wrote (those are replaced)."""
-    from .outdir import check_output_file
-
     path = Path(path)
     if path.suffix != ".rrd":
         raise ConfigError(f"{option} {path}: a rerun recording's name must end with .rrd")
@@ -73,8 +74,6 @@ def check_rrd_path(path: str | Path, option: str = "--rerun", inputs=()) -> Path
 
 def _chain(r_prev: np.ndarray, p_prev: np.ndarray, q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera-to-world of frame i from frame i-1's and the relative motion ``X_{i-1} = R(q) X_i + t``."""
-    from ..data.quaternion import qmatrix
-
     r = qmatrix(np.asarray(q, dtype=np.float64))
     return r_prev @ r, r_prev @ np.asarray(t, dtype=np.float64) + p_prev
 
@@ -127,8 +126,6 @@ class RerunWriter:
         return _chain(*self._pose, t.rot[row], t.trans[row])
 
     def __call__(self, batch) -> None:
-        from ..evaluation.metrics import depth_metrics
-
         rr, rec = self.rr, self._rec
         for b in range(len(batch)):
             index = batch.indices[b]

@@ -24,9 +24,11 @@ from typing import Iterable
 import numpy as np
 import torch
 
-from ...errors import ConfigError, DatasetError
+from ...errors import ConfigError
+from ...model_config import MIDAIR_IMAGE_SIZE
 from ..csvsplits import open_csv_split
-from ..decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, read_label_ids, read_rgb, read_uint16_png
+from ..decode import (DEFAULT_JPEG_IDCT, check_jpeg_idct, check_nonnegative, read_label_ids, read_rgb,
+                      read_uint16_png)
 from ..frames import Size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
 from ..sequence import FrameRecord, SequenceDataset
 from . import format as fmt
@@ -46,13 +48,7 @@ def read_depth(path: str | Path) -> np.ndarray:
     """Mid-Air disparity PNG -> ``[H, W]`` float32 z-depth in metres at the file's native size."""
     path = Path(path)
     disp = read_disparity(path)
-    bad = ~np.isfinite(disp) | (disp < 0)
-    if bad.any():
-        i, j = np.argwhere(bad)[0]
-        raise DatasetError(
-            f"{path}: {int(bad.sum())} disparity value(s) are negative, NaN or infinite "
-            f"(first at row {i}, column {j}: {disp[i, j]})"
-        )
+    check_nonnegative(path, disp, "disparity")
     disp = np.maximum(disp, np.float32(MIN_DISPARITY))
     return fmt.disparity_to_depth(disp).astype(np.float32, copy=False)
 
@@ -102,7 +98,7 @@ def open_midair(
     split_dir: str | Path,
     split: str = "test",
     seq_len: int = 1,
-    size: int | tuple[int, int] | None = 384,
+    size: int | tuple[int, int] | None = MIDAIR_IMAGE_SIZE,
     augment=False,
     *,
     mode: str | None = None,

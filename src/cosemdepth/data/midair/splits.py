@@ -13,10 +13,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, Sequence
 
+import h5py
 import numpy as np
 
 from ...errors import DatasetError
 from ...io.atomic import atomic_write_text
+from ...io.outdir import check_files_replaceable, write_marker
 from ..files import dataset_root, read_text
 from ..quaternion import qconj, qmul, qrotate
 from . import format as fmt
@@ -239,8 +241,6 @@ def generate_splits(
         split name -> written CSV paths. A trajectory too short for one row (fewer than 32 ground-truth samples)
         gets no CSV; the others keep their index in the sorted listing.
     """
-    import h5py
-
     root, out_dir = Path(root), Path(out_dir)
     climates = find_climates(root)
     trajs = [t for env, cl in climates for t in list_trajectories(root, env, cl)]
@@ -284,8 +284,6 @@ def write_split_files(out_dir: Path, planned: list, written: dict[str, list[Path
     """Write the planned ``(split, relative path, rows)`` CSVs into ``out_dir`` under the output policy
     (:mod:`cosemdepth.io.outdir`: an existing CSV is only replaced if cosemdepth wrote it) and record them in the
     folder's marker; returns ``written`` with the paths appended."""
-    from ...io.outdir import check_files_replaceable, write_marker
-
     rels = [rel.as_posix() for _, rel, _ in planned]
     if out_dir.is_dir():
         check_files_replaceable(out_dir, rels)
@@ -306,8 +304,6 @@ MAX_GROUNDTRUTH_SAMPLES = 10_000_000
 def _read_groundtruth(h5, h5_path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
     """``(attitude [N, 4], position [N, 3])`` of trajectory ``name``, float64, after checking that both are numeric
     datasets of that shape and a plausible size (nothing is read before)."""
-    import h5py
-
     where = f"{h5_path}: {name}/groundtruth"
     try:
         traj = h5.get(name)

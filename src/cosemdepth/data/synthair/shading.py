@@ -18,7 +18,7 @@ import torch
 from .climate import Climate
 from .objects import TILE
 from .raymarch import Lod, bilinear_corners, sample_surface
-from .terrain import CELL, GRID, ROAD_HALF_WIDTH
+from .terrain import CELL, GRID, PERIOD, ROAD_HALF_WIDTH
 from .world import World
 
 #: Mid-Air label IDs used by SynthAir (spec 9.5).
@@ -385,8 +385,6 @@ def _road_along(world: World, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     """Along-road coordinate of the nearest road (for the dashes), metres."""
     best = torch.full_like(x, float("inf"))
     along = torch.zeros_like(x)
-    from .terrain import PERIOD
-
     for k, axis in enumerate(world.road_axis):
         s, lat = (x, y) if axis == 0 else (y, x)
         g = s / CELL

@@ -14,8 +14,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from ..quaternion import qconj, qmul
+from .raymarch import surface_height
 from .terrain import CELL, GRID, PERIOD
 from .world import World
 
@@ -82,10 +84,6 @@ def _max_filter(signal: np.ndarray, radius: int) -> np.ndarray:
 def surface_max_near(world: World, xy: np.ndarray, radius: float) -> np.ndarray:
     """Highest point of the height field (terrain, water, trees, boulders; full detail) at ``xy [N, 2]`` and on
     two rings around it (radius/2 and radius, 8 points each)."""
-    import torch
-
-    from .raymarch import surface_height
-
     ang = np.arange(8) * (np.pi / 4)
     ring = np.concatenate([[[0.0, 0.0]], *[r * np.stack([np.cos(ang), np.sin(ang)], 1) for r in (radius / 2, radius)]])
     pts = xy[:, None, :] + ring[None]  # [N, 17, 2]

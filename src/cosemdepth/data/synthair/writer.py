@@ -23,14 +23,22 @@ import multiprocessing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import h5py
 import numpy as np
+import torch
+from PIL import Image
+from tqdm import tqdm
 
 from ...errors import ConfigError
 from ...io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from ...io.outdir import check_output_dir
+from ...model_config import MIDAIR_IMAGE_SIZE
 from ..midair import format as fmt
 from ..midair.splits import GT_PER_ROW, generate_splits
 from .climate import CLIMATES, get_climate
-from .trajectory import Flight
+from .render import render_frames
+from .trajectory import Flight, MODES, make_flight
+from .world import get_world
 
 #: How the disparity PNGs encode depth (recorded in synthair.json; a tree in another encoding is refused).
 DEPTH_ENCODING = "stereo_disparity PNG: uint16 = float16 bits of 512 / z_depth (Mid-Air convention, any size)"
@@ -43,6 +51,8 @@ SPLITS_DIR = "splits"
 #: Mid-Air's climate numbering (trajectory numbers climate * 1000 + i).
 CLIMATE_NUMBER = {"sunny": 0, "sunset": 1, "foggy": 2, "cloudy": 3}
 MAX_SIZE = 4096
+#: Colour rays per pixel per axis that the renderer supports (``--supersample``).
+SUPERSAMPLES = (1, 3, 5)
 MIN_SIZE = 16
 
 
@@ -54,7 +64,7 @@ class SynthConfig:
     out: Path
     trajectories: int = 4
     frames: int = 200
-    size: int = 384
+    size: int = MIDAIR_IMAGE_SIZE
     seed: int = 0
     climates: tuple[str, ...] = CLIMATES
     all_frames: bool = False
@@ -82,8 +92,9 @@ class SynthConfig:
             raise ConfigError(f"--climates: unknown climate(s) {unknown}; choose from {', '.join(CLIMATES)}")
         if len(set(self.climates)) != len(self.climates):
             raise ConfigError(f"--climates lists a climate twice: {list(self.climates)}")
-        if self.supersample not in (1, 3, 5):
-            raise ConfigError(f"--supersample must be 1, 3 or 5, got {self.supersample!r}")
+        if self.supersample not in SUPERSAMPLES:
+            raise ConfigError(f"--supersample must be one of {', '.join(map(str, SUPERSAMPLES))}, got "
+                              f"{self.supersample!r}")
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError(f"--jpeg-quality must be in [1, 100], got {self.jpeg_quality!r}")
         if not isinstance(self.workers, int) or self.workers < 1:
@@ -128,8 +139,6 @@ def rendered_frames(cfg: SynthConfig) -> list[int]:
 
 def check_output_folder(cfg: SynthConfig) -> bool:
     """Raise a ConfigError if ``cfg.out`` cannot receive this dataset. Returns True when resuming."""
-    from ...io.outdir import check_output_dir
-
     out = Path(cfg.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a folder")
@@ -163,8 +172,6 @@ def check_output_folder(cfg: SynthConfig) -> bool:
 
 
 def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
-    from PIL import Image
-
     buf = io.BytesIO()
     img = Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8))
     img.save(buf, format="JPEG", quality=quality, subsampling=0, optimize=False)
@@ -173,8 +180,6 @@ def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
 
 def encode_png(array: np.ndarray) -> bytes:
     """8-bit or 16-bit single-channel PNG."""
-    from PIL import Image
-
     buf = io.BytesIO()
     if array.dtype not in (np.uint8, np.uint16) or array.ndim != 2:
         raise TypeError(f"PNG arrays must be 2-D uint8 or uint16, got {array.dtype} {array.shape}")
@@ -222,17 +227,11 @@ def _frame_paths(root: Path, climate: str, number: int, frame: int) -> tuple[Pat
 
 
 def _init_worker(cfg: SynthConfig) -> None:
-    from .world import get_world
-
     if "world" not in _WORKER_STATE:
         _WORKER_STATE.update(cfg=cfg, world=get_world(cfg.seed))
 
 
 def _render_task(task: _Task) -> int:
-    import torch
-
-    from .render import render_frames
-
     cfg: SynthConfig = _WORKER_STATE["cfg"]
     world = _WORKER_STATE["world"]
     torch.set_num_threads(1)
@@ -255,8 +254,6 @@ def _render_task(task: _Task) -> int:
 
 
 def _write_sensor_records(path: Path, flights: dict[int, PlannedFlight], frames: list[int]) -> None:
-    import h5py
-
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w", track_order=False) as h5:
             for number, planned in sorted(flights.items()):
@@ -285,8 +282,6 @@ def plan_flights(cfg: SynthConfig, world) -> dict[str, dict[int, PlannedFlight]]
     Trajectory ``i`` of climate number ``c`` flies mode ``MODES[(i + c) % 4]`` (road, village, lake, free), so
     that small sets still see roads, buildings and water.
     """
-    from .trajectory import MODES, make_flight
-
     out: dict[str, dict[int, PlannedFlight]] = {}
     for climate in cfg.climates:
         ci = CLIMATE_NUMBER[climate]
@@ -303,10 +298,6 @@ def plan_flights(cfg: SynthConfig, world) -> dict[str, dict[int, PlannedFlight]]
 
 def generate(cfg: SynthConfig, progress: bool = True) -> dict:
     """Generate the dataset described by ``cfg``; returns a summary (counts and paths)."""
-    from tqdm import tqdm
-
-    from .world import get_world
-
     cfg.validate()
     resuming = check_output_folder(cfg)
     out = Path(cfg.out)
@@ -329,8 +320,6 @@ def generate(cfg: SynthConfig, progress: bool = True) -> dict:
                 ks = tuple(frames[c : c + bs])
                 tasks.append(_Task(climate, number, ks, tuple(tuple(f.attitude[4 * k]) for k in ks),
                                    tuple(tuple(f.position[4 * k]) for k in ks), planned.sun_azimuth))
-
-    import torch
 
     _WORKER_STATE.update(cfg=cfg, world=world)
     written = 0
