@@ -32,8 +32,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--precision",
         nargs="+",
-        choices=["fp32", "bf16", "fp16"],
-        help="fast-path precisions (default: fp32 bf16 on CPU, fp32 fp16 bf16 on CUDA)",
+        choices=["fp32", "bf16", "fp16", "int8"],
+        help="fast-path precisions (default: fp32 bf16 int8 on CPU, fp32 fp16 bf16 on CUDA); int8 is CPU only "
+        "(calibrated on synthetic frames before timing)",
     )
     parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default: CUDA when present)")
     parser.add_argument("--no-reference", action="store_true", help="skip the reference-path (fp32, batch 1) rows")
@@ -105,9 +106,11 @@ def run(args: argparse.Namespace) -> int:
     for flag, path, ours in (("--json", args.json, _is_our_json), ("--md", args.md, _is_our_md)):
         if path:
             check_output_file(path, what=f"{flag} file", inputs=model_inputs(args.model), recognize=ours)
-    precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16"])
+    precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16", "int8"])
     if "fp16" in precisions and not cuda:
         raise ConfigError("--precision fp16 is for CUDA; on CPU use bf16")
+    if "int8" in precisions and cuda:
+        raise ConfigError(f"--precision int8 is for the CPU (oneDNN int8 convolutions), not {device}: use fp16 or bf16")
 
     weights = None
     models = args.models

@@ -30,6 +30,7 @@ import torch
 
 from ..models.layers import NEGATIVE_SLOPE
 from ..ops.padding import Conv2dSame
+from .convs import PackedConv
 
 _CL = torch.channels_last
 
@@ -156,12 +157,26 @@ class RangeRecorder:
 
 
 class QuantRefiner:
-    """int8 refiner: the hidden convolutions as :class:`QuantConv` (uint8 between them), the last one float32."""
+    """int8 refiner: the hidden convolutions as :class:`QuantConv` (uint8 between them), the last one float32.
 
-    def __init__(self, source_refiner, recorder: RangeRecorder, keep_float: tuple[int, ...] = ()):
+    ``keep_float`` hidden convolutions run as packed float convolutions in ``float_dtype`` (float32, or bfloat16 on
+    a CPU with native bf16). Consecutive int8 convolutions share their quantisation parameters: the input of one is
+    the requantised output of the previous one (no dequantise / quantise pass between them)."""
+
+    def __init__(self, source_refiner, recorder: RangeRecorder, keep_float: tuple[int, ...] = (),
+                 float_dtype: torch.dtype = torch.float32):
         convs = list(source_refiner.convs)
-        self.hidden = [recorder.refiner.hidden[k] if k in keep_float else QuantConv(c, rx, ry)
-                       for k, (c, rx, ry) in enumerate(zip(convs[:-1], recorder.x_ranges, recorder.y_ranges))]
+        packed = recorder.refiner.hidden
+        self.hidden = [
+            (packed[k] if float_dtype == packed[k].dtype else
+             PackedConv(c, float_dtype, packed[k].device, act=True, use_mkldnn=packed[k].use_mkldnn))
+            if k in keep_float else QuantConv(c, rx, ry)
+            for k, (c, rx, ry) in enumerate(zip(convs[:-1], recorder.x_ranges, recorder.y_ranges))
+        ]
+        for a, b in zip(self.hidden, self.hidden[1:]):
+            if isinstance(a, QuantConv) and isinstance(b, QuantConv):
+                # calibrated on the same tensor up to rounding: adopt the producer's exactly
+                b.x_scale, b.x_zp = a.out_scale, a.out_zp
         self.last = recorder.refiner.last
         self.dtype = torch.float32
 
