@@ -1,9 +1,9 @@
 """``cosemdepth benchmark``: streaming speed and peak memory of Co-SemDepth, M4Depth and M4Semantic.
 
-Default run (a few minutes on a 2-core CPU): the three models at 384x384 on the fast path in fp32 and bf16 (fp16
-instead of bf16 on CUDA), batch 1 streaming (10 timed frames after 2 warm-up frames) and batched 8 and 32 (fewer
-timed steps: ``--batched-iters``), the fp32 reference path at batch 1 for comparison, and the joint-vs-separate
-comparison at batch 1. On CUDA every fast row also gets a CUDA-graph row (``path = graph``: static shapes, state in
+Default run (a few minutes on a 2-core CPU): the three models at 384x384 on the fast path in fp32, bf16 and int8
+(int8: CPU only, calibrated on synthetic frames before timing; fp32, fp16 and bf16 on CUDA), batch 1 streaming
+(10 timed frames after 2 warm-up frames) and batched 8 and 32 (fewer timed steps: ``--batched-iters``), the fp32
+reference path at batch 1 for comparison, and the joint-vs-separate comparison at batch 1. On CUDA every fast row also gets a CUDA-graph row (``path = graph``: static shapes, state in
 persistent buffers, one graph replay per step). Writes JSON and Markdown.
 """
 
