@@ -17,6 +17,7 @@ line through the later samples grows by less than that tolerance over the whole 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import subprocess
 import sys
@@ -43,7 +44,7 @@ def run_modes(a, argv) -> int:
     """Every mode of ``--modes`` in its own process (``--jobs`` at a time); one JSON with all of them."""
     passthrough = [x for x in argv if x not in a.modes]
     results, procs = {}, []
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() if a.work_dir is None else contextlib.nullcontext(a.work_dir) as tmp:
         pending = list(a.modes)
         while pending or procs:
             while pending and len(procs) < a.jobs:
@@ -75,7 +76,7 @@ def _strip(argv: list[str]) -> list[str]:
     """``argv`` without ``--modes``, ``--jobs`` and ``--out`` (and their values)."""
     out, skip = [], False
     for x in argv:
-        if x in ("--modes", "--jobs", "--out"):
+        if x in ("--modes", "--jobs", "--out", "--work-dir"):
             skip = True
             continue
         if skip and not x.startswith("--"):
@@ -91,6 +92,8 @@ def main(argv=None) -> int:
     p.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES))
     p.add_argument("--jobs", type=int, default=2, help="modes run at once, one process (and thread) each")
     p.add_argument("--single", action="store_true", help="run one mode (--path, --precision) in this process")
+    p.add_argument("--work-dir", help="keep each mode's JSON here (written every --write-every frames while it runs)")
+    p.add_argument("--write-every", type=int, default=1000, help="write the partial result every N frames")
     p.add_argument("--frames", type=int, default=10_000)
     p.add_argument("--size", nargs=2, type=int, default=[64, 64], metavar=("H", "W"))
     p.add_argument("--arch", default="cosemdepth")
@@ -138,7 +141,14 @@ def main(argv=None) -> int:
                 if not cuda:
                     trim()
                 samples.append((k + 1, mem()))
-    elapsed = time.perf_counter() - t0
+            if (k + 1) % a.write_every == 0 and k + 1 < a.frames and k + 1 > a.warmup + a.every:
+                report(a, samples, start, k + 1, time.perf_counter() - t0, cuda, final=False)
+    return report(a, samples, start, a.frames, time.perf_counter() - t0, cuda, final=True)
+
+
+def report(a, samples, start, done, elapsed, cuda, final) -> int:
+    """Write the result over the frames ``done`` so far (``final``: the whole run) and return the exit status."""
+    h, w = a.size
     after = [(f, b) for f, b in samples if f > a.warmup]
     base = after[0][1]
     growth_max = max(b for _, b in after) - base
@@ -151,8 +161,9 @@ def main(argv=None) -> int:
     tol = a.tolerance_mb * 2**20
     ok = growth_max <= tol and abs(trend) <= tol
     result = {
-        "ok": ok,
+        "ok": ok if final else None,
         "frames": a.frames,
+        "frames_done": done,
         "size": [h, w],
         "arch": a.arch,
         "path": a.path,
@@ -168,12 +179,14 @@ def main(argv=None) -> int:
         "trend_over_run_mb": round(trend / 2**20, 3),
         "tolerance_mb": a.tolerance_mb,
         "seconds": round(elapsed, 1),
-        "ms_per_frame": round(elapsed / a.frames * 1e3, 2),
+        "ms_per_frame": round(elapsed / done * 1e3, 2),
         "method": "torch.cuda.memory_allocated" if cuda else "VmRSS (/proc/self/status) after malloc_trim",
         "samples_mb": [[f, round(b / 2**20, 2)] for f, b in samples],
         "machine": {**hardware_info(a.device), "cpu": _cpu_name()},
     }
     atomic_write_text(a.out, json.dumps(result, indent=1) + "\n")
+    if not final:
+        return 0
     print(
         f"{'FLAT' if ok else 'GROWING'}: {a.frames} frames at {h}x{w}, baseline {result['baseline_mb']} MB after "
         f"{a.warmup} frames, max growth {result['max_growth_after_warmup_mb']} MB, trend "
