@@ -113,7 +113,7 @@ def main(argv=None) -> int:
     results = {}
     for name in ["reference", *a.modes]:
         path, dtype = MODES[name]
-        model = load_model(a.model, device=device).eval()
+        model = load_model(a.model, device=device, mode="reference").eval()
         extra = {"calibration": calibration} if dtype == "int8" else {}
         model.optimize(path, **({"dtype": dtype} if dtype else {}), **extra)
         results[name] = evaluate(model, dataset, device, a.max_frames)

@@ -43,7 +43,7 @@ def main(argv=None) -> int:
     modes = {"reference": None, "fast-fp32": "float32", "fast-bf16": "bfloat16"}
     report = {"fixture": str(fx), "size": [int(h), int(w)], "frames": int(t), "modes": {}}
     for name, dtype in modes.items():
-        model = load_model(fx / "ckpt").eval()
+        model = load_model(fx / "ckpt", mode="reference").eval()
         if dtype:
             model.optimize("fast", dtype=dtype)
         state, rows = None, []

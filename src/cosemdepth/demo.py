@@ -416,9 +416,7 @@ def run_demo(
     dev = resolve_device(device)
 
     t = time.perf_counter()
-    net = load_model(model_path, device=dev)
-    if fast:
-        net.optimize("fast")
+    net = load_model(model_path, device=dev, mode="fast" if fast else "reference")
     try:
         _, meta = read_config_file(model_path)
     except CheckpointError:

@@ -105,3 +105,13 @@ def test_joint_vs_separate_verdict_uses_the_spread():
     md = markdown({"meta": {"date": "d", "cpu": "c", "cpu_count": 2, "torch_threads": 2, "torch": "t"},
                    "results": [], "joint_vs_separate": [close, {**apart, "joint_faster": True}]})
     assert "| 12.0 (11.0-13.0) | 13.5 (12.5-15.0) |" in md and "| within noise |" in md and "| yes |" in md
+
+
+def test_int8_case_is_calibrated_before_timing_and_cpu_only():
+    from cosemdepth.bench.runner import build
+
+    case = BenchCase(arch="m4semantic", height=16, width=16, levels=2, precision="int8")
+    engine = build(case)._streamer()
+    assert engine.int8 and engine.calibrated  # no timed frame runs the float32 calibration pass
+    with pytest.raises(ValueError, match="CPU only"):
+        build(BenchCase(**{**case.__dict__, "device": "cuda"}))

@@ -20,7 +20,7 @@ def fidelity(monkeypatch, tmp_path):
             self.half = pscv_half
 
     frame = {"depth": {"median": 1e-4, "p99": 2e-3, "max": 3e-2}, "semantic_l1": {"max_abs": 5e-6}}
-    monkeypatch.setattr(mod, "load_model", lambda path: FakeModel())
+    monkeypatch.setattr(mod, "load_model", lambda path, mode="fast": FakeModel())
     monkeypatch.setattr(mod, "compare_with_reference", lambda model, fixture: {"streaming": [frame, frame]})
     monkeypatch.setattr(mod, "TRACKED", tmp_path / "tracked" / "fidelity.json")
     (tmp_path / "tracked").mkdir()

@@ -32,7 +32,7 @@ def test_benchmark_command_writes_json_and_markdown(tmp_path, capsys):
     rep = json.loads(j.read_text())
     rows = {(r["path"], r["precision"], r["batch"]) for r in rep["results"]}
     assert rows == {("reference", "fp32", 1), ("fast", "fp32", 1), ("fast", "fp32", 2), ("fast", "bf16", 1),
-                    ("fast", "bf16", 2)}
+                    ("fast", "bf16", 2), ("fast", "int8", 1), ("fast", "int8", 2)}
     from cosemdepth.models import build_model
 
     params = build_model(arch="m4semantic", levels=2).num_parameters()
@@ -42,7 +42,7 @@ def test_benchmark_command_writes_json_and_markdown(tmp_path, capsys):
     import re
 
     rows = [line for line in capsys.readouterr().out.splitlines() if "ms/frame" in line]
-    assert len(rows) == 5
+    assert len(rows) == 7
     assert all(re.search(r"\(min [\d.]+, IQR [\d.]+-[\d.]+, max [\d.]+\)", r) for r in rows), rows
     assert all(re.search(r"\(machine busy: (\d{1,3} %|unknown)\)$", r) for r in rows), rows
 
@@ -50,3 +50,14 @@ def test_benchmark_command_writes_json_and_markdown(tmp_path, capsys):
 def test_benchmark_command_rejects_fp16_on_cpu(capsys):
     assert main(["benchmark", "--device", "cpu", "--precision", "fp16", "--json", "", "--md", ""]) == 2
     assert "fp16" in capsys.readouterr().err
+
+
+def test_benchmark_command_rejects_int8_on_cuda(monkeypatch, capsys):
+    import torch
+
+    import cosemdepth.cli.benchmark as bench
+
+    monkeypatch.setattr(bench, "resolve_device", lambda name: torch.device("cuda"))  # no GPU needed for the check
+    assert main(["benchmark", "--device", "cuda", "--precision", "int8", "--json", "", "--md", ""]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--precision int8" in err and "CPU" in err and "Traceback" not in err and len(err.splitlines()) == 1

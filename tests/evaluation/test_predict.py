@@ -53,7 +53,7 @@ def test_predict_writes_every_artefact_and_they_read_back(model_dir, data, tmp_p
 
     from cosemdepth import load_model
 
-    model = load_model(model_dir)
+    model = load_model(model_dir, mode="reference")  # predict ran --reference
     ds = open_dataset("midair", data, split_dir=data / "splits", seq_len=1, size=SIZE)
     items = [ds[i] for i in range(len(ds))]
     for t, traj in enumerate(man["trajectories"]):

@@ -199,3 +199,47 @@ def test_static_engine_needs_a_state_and_gives_zero_state_shapes(models):
     assert torch.all(out.depth == 1000.0) and torch.all(state.depths[1] == 1000.0)
     with pytest.raises(ValueError, match="dtype"):
         FastEngine(models["cosemdepth"], dtype=torch.int32)  # torch.int8 selects the int8 path (test_int8.py)
+
+
+def test_load_model_gives_the_fast_fp32_engine_by_default_and_the_modules_on_request(tmp_path):
+    from cosemdepth import load_model, save_model
+
+    torch.manual_seed(11)
+    save_model(tame(build_model(arch="cosemdepth", levels=3)), tmp_path / "m")
+    fast = load_model(tmp_path / "m")
+    ref = load_model(tmp_path / "m", mode="reference")
+    assert fast.inference_mode == "fast" and isinstance(fast._streamer(), FastEngine)
+    assert fast._streamer().dtype == torch.float32 and not fast._streamer().int8
+    assert ref.inference_mode == "reference" and ref._streamer() is None
+    assert not fast.training and not ref.training
+    rgb, q, tr, K = sequence(b=1, t=3)
+    rs = resets(1, 3, extra=())
+    with torch.no_grad():
+        a, b = fast.infer(rgb, (q, tr), K, rs), ref.infer(rgb, (q, tr), K, rs)
+    # the tolerance of test_fp32_fast_step_equals_reference_step_from_the_same_state
+    torch.testing.assert_close(a.depth, b.depth, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(a.semantic, b.semantic, rtol=0, atol=1e-5)
+    assert not torch.equal(a.depth[:, 1:], torch.full_like(a.depth[:, 1:], 1000.0))  # frames after the reset moved on
+    with pytest.raises(ValueError, match="fast path"):
+        load_model(tmp_path / "m", mode="reference", dtype="bfloat16")
+
+
+def test_the_fast_engine_follows_in_place_weight_changes():
+    """An optimiser step (or any in-place edit) on a model whose fast engine holds weight copies: the next eval-mode
+    step rebuilds the engine instead of running the old weights."""
+    torch.manual_seed(12)
+    m = build_model(arch="m4semantic", levels=2).eval().optimize("fast")
+    rgb, q, tr, K = sequence(b=1, t=1)
+    args = (rgb[:, 0], q[:, 0], tr[:, 0], K, None, None)
+    with torch.no_grad():
+        before = m.step(*args)[0].semantic
+        m.train()
+        opt = torch.optim.SGD(m.parameters(), lr=1.0)
+        w = m.semantic_decoder.levels[0].refiner.convs[0].weight  # the engine holds a re-laid-out copy of it
+        w.grad = torch.randn(w.shape, generator=torch.Generator().manual_seed(0))
+        opt.step()
+        m.eval()
+        after = m.step(*args)[0].semantic
+        ref = m.optimize("reference").step(*args)[0].semantic
+    assert not torch.allclose(after, before, atol=1e-3)
+    torch.testing.assert_close(after, ref, rtol=0, atol=1e-5)

@@ -148,3 +148,27 @@ def test_optimize_int8_through_the_model():
     assert m.inference_mode == "fast" and m._fast.int8 and m._fast.calibrated
     out, state = m.step(*frames(t=1, extra=())[0])
     assert out.depth.dtype == torch.float32
+
+
+def test_int8_chains_quantised_convolutions_and_runs_kept_refiners_in_the_chosen_float_dtype(monkeypatch):
+    import cosemdepth.inference.int8 as int8
+
+    torch.manual_seed(6)
+    m = tame(build_model(levels=3).eval())
+    eng = FastEngine(m, dtype="int8", calibration=frames(t=3, seed=1), int8_float_dtype="bf16")
+    for ref in (o.refiner for o in eng.ops["semantic"]):
+        q = [c for c in ref.hidden if isinstance(c, QuantConv)]
+        assert len(q) == 6
+        assert all((b.x_scale, b.x_zp) == (a.out_scale, a.out_zp) for a, b in zip(q, q[1:]))
+    assert all(c.dtype == torch.bfloat16 for o in eng.ops["depth"] for c in o.refiner.hidden)
+    # one quantisation per semantic refiner (its input), none between its convolutions
+    calls = []
+    real = int8.quantize
+    monkeypatch.setattr(int8, "quantize", lambda *a: calls.append(1) or real(*a))
+    f = frames(t=2, seed=2, extra=())
+    _, s = eng.step(*f[0])
+    calls.clear()
+    eng.step(*f[1], state=s)
+    assert len(calls) == len(eng.ops["semantic"])
+    f32 = FastEngine(m, dtype="int8", calibration=frames(t=3, seed=1), int8_float_dtype="fp32")
+    assert all(c.dtype == torch.float32 for o in f32.ops["depth"] for c in o.refiner.hidden)

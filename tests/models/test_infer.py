@@ -80,8 +80,8 @@ def test_infer_with_a_reset_in_the_middle(model):
 def test_the_five_lines_on_a_saved_model(model, tmp_path):
     save_model(model, tmp_path / "m")
     rgb, q, tr, K = inputs(b=1, t=3)
-    loaded = load_model(tmp_path / "m")
-    state = None
+    loaded = load_model(tmp_path / "m", mode="reference")  # bit-identical to `model`; the default fast path:
+    state = None                                            # tests/inference/test_fast_engine.py
     for k in range(3):
         out, state = loaded.step(rgb[:, k], q[:, k], tr[:, k], K, torch.tensor([k == 0]), state)
     ref = model.infer(rgb, (q, tr), K)

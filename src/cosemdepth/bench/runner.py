@@ -28,7 +28,9 @@ from ..models import build_model
 from .memory import PeakMemory, exact_rss
 from .noise import compare_times, spread
 
-PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
+PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16, "int8": "int8"}
+#: int8 (CPU): synthetic frames that calibrate the activation ranges before timing (speed does not depend on them)
+INT8_CALIBRATION_FRAMES = 4
 #: A timed step is "quiet" when all other processes together used at most this many cores during it.
 QUIET_OTHERS = 0.1
 
@@ -123,13 +125,19 @@ def _sync(device: torch.device) -> None:
 
 def build(case: BenchCase, model=None):
     """The model of ``case`` on its device with its inference path selected (``model``: use these weights)."""
+    if case.precision == "int8" and torch.device(case.device).type != "cpu":
+        raise ValueError(f"precision int8 runs on the CPU only, not on {case.device}")
     if model is None:
         torch.manual_seed(0)
         model = build_model(ModelConfig(arch=case.arch, levels=case.levels, num_classes=case.num_classes))
     model = model.to(case.device).eval()
     if case.path == "graph":
         return _GraphStepper(model, case)
-    if case.path == "fast":
+    if case.path == "fast" and case.precision == "int8":
+        rgb, rot, trans, intr = make_frames(case, INT8_CALIBRATION_FRAMES)
+        frames = [(rgb[:, k], rot[:, k], trans[:, k], intr, torch.full((case.batch,), k == 0)) for k in range(rgb.shape[1])]
+        model.optimize("fast", dtype="int8", calibration=frames)
+    elif case.path == "fast":
         model.optimize("fast", dtype=PRECISIONS[case.precision])
     elif case.path == "reference":
         if case.precision != "fp32":

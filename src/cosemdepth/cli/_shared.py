@@ -93,9 +93,10 @@ def add_model_or_arch_args(parser: argparse.ArgumentParser) -> None:
 
 
 def load_or_build(args: argparse.Namespace, device: str = "cpu"):
-    """The model named by ``--model``, or a freshly initialised one from ``--arch/--levels/--classes``; eval mode."""
+    """The model named by ``--model``, or a freshly initialised one from ``--arch/--levels/--classes``; eval mode, on
+    the reference modules (export traces them; the benchmark selects its paths itself)."""
     if getattr(args, "model", None):
-        return load_model(args.model, device=device)
+        return load_model(args.model, device=device, mode="reference")
     cfg = ModelConfig(arch=args.arch, levels=args.levels, num_classes=args.classes)
     return build_model(cfg).to(device).eval()
 
@@ -176,7 +177,7 @@ def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32
     if not fast and precision != "fp32":
         raise ConfigError(f"--precision {precision} is a setting of the fast path: drop --reference (which runs fp32)")
     device = resolve_device(device_name)
-    model = load_model(model_path, device=device)
+    model = load_model(model_path, device=device, mode="reference")
     if not fast:
         return model, device
     try:

@@ -1,9 +1,9 @@
 """``cosemdepth benchmark``: streaming speed and peak memory of Co-SemDepth, M4Depth and M4Semantic.
 
-Default run (a few minutes on a 2-core CPU): the three models at 384x384 on the fast path in fp32 and bf16 (fp16
-instead of bf16 on CUDA), batch 1 streaming (10 timed frames after 2 warm-up frames) and batched 8 and 32 (fewer
-timed steps: ``--batched-iters``), the fp32 reference path at batch 1 for comparison, and the joint-vs-separate
-comparison at batch 1. On CUDA every fast row also gets a CUDA-graph row (``path = graph``: static shapes, state in
+Default run (a few minutes on a 2-core CPU): the three models at 384x384 on the fast path in fp32, bf16 and int8
+(int8: CPU only, calibrated on synthetic frames before timing; fp32, fp16 and bf16 on CUDA), batch 1 streaming
+(10 timed frames after 2 warm-up frames) and batched 8 and 32 (fewer timed steps: ``--batched-iters``), the fp32
+reference path at batch 1 for comparison, and the joint-vs-separate comparison at batch 1. On CUDA every fast row also gets a CUDA-graph row (``path = graph``: static shapes, state in
 persistent buffers, one graph replay per step). Writes JSON and Markdown.
 """
 
@@ -51,8 +51,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--precision",
         nargs="+",
-        choices=["fp32", "bf16", "fp16"],
-        help="fast-path precisions (default: fp32 bf16 on CPU, fp32 fp16 bf16 on CUDA)",
+        choices=["fp32", "bf16", "fp16", "int8"],
+        help="fast-path precisions (default: fp32 bf16 int8 on CPU, fp32 fp16 bf16 on CUDA); int8 is CPU only "
+        "(calibrated on synthetic frames before timing)",
     )
     parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default auto: CUDA when present)")
     parser.add_argument("--no-reference", action="store_true", help="skip the reference-path (fp32, batch 1) rows")
@@ -108,9 +109,11 @@ def run(args: argparse.Namespace) -> int:
     for flag, path, ours in (("--json", args.json, _is_our_json), ("--md", args.md, _is_our_md)):
         if path:
             check_output_file(path, what=f"{flag} file", inputs=model_inputs(args.model), recognize=ours)
-    precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16"])
+    precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16", "int8"])
     if "fp16" in precisions and not cuda:
         raise ConfigError("--precision fp16 is for CUDA; on CPU use bf16")
+    if "int8" in precisions and cuda:
+        raise ConfigError(f"--precision int8 is for the CPU (oneDNN int8 convolutions), not {device}: use fp16 or bf16")
 
     weights = None
     models = args.models

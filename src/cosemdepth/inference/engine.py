@@ -4,9 +4,9 @@ What changes with respect to the reference path (and what does not):
 
 * convolutions run on channels-last tensors with pre-packed weights and the LeakyReLU fused into the kernel
   (:class:`PackedConv`); the 3x3 "same" padding, the TF asymmetric stride-2 padding and the weights are unchanged;
-* on the fine levels (up to 32 channels) the spatial cost volume is computed by :func:`spatial_cost_volume_fast`
-  (channel loop over all window offsets at once, half the offsets mirrored) instead of one Python iteration per
-  offset, and the parallax-sweep correlation accumulates per channel instead of materialising the product;
+* the spatial cost volume is computed by :func:`spatial_cost_volume_fast` (channel loop over all window offsets at
+  once, half the offsets mirrored) and, on the fine levels (up to 32 channels), the parallax-sweep correlation
+  accumulates per channel instead of materialising the product;
 * nearest upsampling by an integer factor uses ``F.interpolate`` (pixel replication, identical values);
 * concatenations write straight into one channels-last buffer in the compute dtype;
 * optional reduced precision (``dtype=torch.bfloat16`` / ``torch.float16``): only the six hidden convolutions of
@@ -34,7 +34,6 @@ from ..models.pyramid import LevelOps, PyramidLevel, decode_step
 from ..ops.cost_volume import (
     parallax_sweep_cost_volume,
     parallax_sweep_cost_volume_fast,
-    spatial_cost_volume,
     spatial_cost_volume_fast,
 )
 from ..ops.resample import resize_nn1, resize_nn2
@@ -42,9 +41,11 @@ from .convs import PackedConv
 from .int8 import QuantRefiner, RangeRecorder, has_int8
 
 _CL = torch.channels_last
-#: The channel-loop cost volumes pay off on the large, thin maps of the fine levels (16 and 32 channels); the coarse
-#: levels have many channels on small maps, where the reference's per-offset loop is cheaper.
+#: The channel-loop PSCV pays off on the large, thin maps of the fine levels (16 and 32 channels); the coarse levels
+#: have many channels on small maps, where the reference's product is cheaper.
 _CHANNEL_LOOP_MAX = 32
+# The channel-loop SNCV is faster than the reference's window-row loop on every level (measured interleaved, 2
+# threads, 384 px, loaded machine: 3-13x on levels 2-4, 1.2x on level 5), so every level uses it.
 
 
 _DTYPES = {"float32": torch.float32, "fp32": torch.float32, "bfloat16": torch.bfloat16, "bf16": torch.bfloat16,
@@ -52,8 +53,16 @@ _DTYPES = {"float32": torch.float32, "fp32": torch.float32, "bfloat16": torch.bf
 
 
 INT8_NAMES = ("int8", "qint8")
-#: int8 path: per decoder, the hidden refiner convolutions (0-5) that stay float32 (measured, see the docstring)
+#: int8 path: per decoder, the hidden refiner convolutions (0-5) that stay float (measured, see the int8 docstring)
 INT8_KEEP_FLOAT: dict[str, tuple[int, ...]] = {"depth": (0, 1, 2, 3, 4, 5)}
+
+
+def native_bf16() -> bool:
+    """Whether oneDNN runs bfloat16 convolutions natively on this CPU (AVX512-BF16 / AMX)."""
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # pragma: no cover - exotic builds
+        return False
 
 
 def is_int8(dtype) -> bool:
@@ -123,7 +132,7 @@ def _nearest_nn1(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 def _fast_ops(level: PyramidLevel, refiner: _Refiner) -> LevelOps:
     """The fast operations of one level: packed refiner, channels-last concatenation, nearest resize by pixel
     replication; for a depth level NCHW features (one layout change here instead of one per cost volume and per
-    frame) and the channel-loop cost volumes on the thin fine levels only."""
+    frame), the channel-loop SNCV, and the channel-loop PSCV on the thin fine levels only."""
     ops = LevelOps(
         concat=functools.partial(_concat_channels_last, dtype=refiner.dtype), refiner=refiner, nearest=_nearest_nn1
     )
@@ -134,7 +143,7 @@ def _fast_ops(level: PyramidLevel, refiner: _Refiner) -> LevelOps:
         ops,
         layout=torch.Tensor.contiguous,
         pscv=_pscv_channel_loop if thin else parallax_sweep_cost_volume,
-        sncv=spatial_cost_volume_fast if thin else spatial_cost_volume,
+        sncv=spatial_cost_volume_fast,
         hypot=True,
     )
 
@@ -155,6 +164,10 @@ class FastEngine:
             Without it, the first ``calibration_frames`` frames given to :meth:`step` calibrate (they run in float32)
             and the int8 refiners take over from the next frame.
         calibration_frames: frames of :meth:`step` used to calibrate when no ``calibration`` is given.
+        int8_keep_float: with int8, per decoder the hidden refiner convolutions that stay float (default
+            :data:`INT8_KEEP_FLOAT`: the depth refiners).
+        int8_float_dtype: with int8, the dtype of those float convolutions (default bfloat16 on a CPU with native
+            bf16, else float32; measured within the accuracy bounds, ``benchmarks/fast_accuracy.py``).
     """
 
     def __init__(
@@ -167,8 +180,12 @@ class FastEngine:
         calibration=None,
         calibration_frames: int = 8,
         int8_keep_float: dict[str, tuple[int, ...]] | None = None,
+        int8_float_dtype: torch.dtype | str | None = None,
     ):
         self.int8_keep_float = dict(INT8_KEEP_FLOAT if int8_keep_float is None else int8_keep_float)
+        if int8_float_dtype is None:
+            int8_float_dtype = torch.bfloat16 if native_bf16() else torch.float32
+        self.int8_float_dtype = parse_dtype(int8_float_dtype)
         self.int8 = is_int8(dtype)
         dtype = torch.float32 if self.int8 else parse_dtype(dtype)
         p = next(model.parameters())
@@ -220,7 +237,8 @@ class FastEngine:
 
     def _finish_calibration(self) -> None:
         self.ops = {
-            name: [dataclasses.replace(o, refiner=QuantRefiner(lvl.refiner, o.refiner, self.int8_keep_float.get(name, ())))
+            name: [dataclasses.replace(o, refiner=QuantRefiner(lvl.refiner, o.refiner, self.int8_keep_float.get(name, ()),
+                                                               self.int8_float_dtype))
                    for lvl, o in zip(self.decoders[name].levels, ops)]
             for name, ops in self.ops.items()
         }

@@ -1,11 +1,11 @@
 """int8 refiners for the fast CPU path (``SceneModel.optimize("fast", "int8")``): oneDNN quantized convolutions.
 
 What is quantised: the six hidden 3x3 convolutions of the semantic decoder's refiners by default (see
-``engine.INT8_KEEP_FLOAT``; any refiner's hidden convolutions can be),  (about 97% of the multiply-accumulates of a
-frame), with per-output-channel symmetric int8 weights and per-tensor asymmetric uint8 activations whose ranges are
-calibrated statically (min / max of each convolution's input and pre-activation output over calibration frames).
-The activations stay uint8 from the first hidden convolution to the last one; each convolution runs as one oneDNN
-primitive (``torch.ops.onednn.qconv2d_pointwise``, VNNI / AMX where the CPU has them) and the LeakyReLU(0.1), which
+``engine.INT8_KEEP_FLOAT``; any refiner's hidden convolutions can be), with per-output-channel symmetric int8
+weights and per-tensor asymmetric uint8 activations whose ranges are calibrated statically (min / max of each
+convolution's input and pre-activation output over calibration frames). The activations stay uint8 from the first
+hidden convolution to the last one (consecutive convolutions share the quantisation parameters: no requantisation
+between them); each convolution runs as one oneDNN primitive (``torch.ops.onednn.qconv2d_pointwise``, VNNI / AMX where the CPU has them) and the LeakyReLU(0.1), which
 oneDNN's quantized convolution cannot fuse, runs on the quantized tensor (``quantized::leaky_relu``), requantising
 to the next convolution's input range.
 
@@ -13,9 +13,10 @@ Measured on the shipped SynthAir weights (62 frames of a 128x128 SynthAir flight
 of another flight): with every refiner int8, mIoU +0.12 points but AbsRel +9.1 % relative to fast fp32; keeping
 the depth refiners' first convolution float32 +2.7 %, their first and last +1.7 %, all of them float32 +0.0 %. Per-tensor
 activation ranges are too coarse for the depth refiners (their output is a log-parallax), so the depth decoder's
-refiners stay float32 by default.
+refiners stay float by default: in bfloat16 on a CPU with native bf16 (AVX512-BF16 / AMX), else float32
+(``FastEngine(int8_float_dtype=...)``).
 
-What stays float32: the depth decoder's refiners (by default), the encoder and its DINL normalisation, the grouped L2 feature normalisation, the cost volumes of
+What stays float32: the encoder and its DINL normalisation, the grouped L2 feature normalisation, the cost volumes of
 the normalised features (SNCV, PSCV), the warps and the geometry, the last convolution of each refiner (it produces
 the log-parallax and the logits), the softmax and the state. The refiner's input (the concatenation of features,
 cost volumes and coarse estimates) is quantised once, per tensor, on entry.
@@ -30,6 +31,7 @@ import torch
 
 from ..models.layers import NEGATIVE_SLOPE
 from ..ops.padding import Conv2dSame
+from .convs import PackedConv
 
 _CL = torch.channels_last
 
@@ -156,12 +158,26 @@ class RangeRecorder:
 
 
 class QuantRefiner:
-    """int8 refiner: the hidden convolutions as :class:`QuantConv` (uint8 between them), the last one float32."""
+    """int8 refiner: the hidden convolutions as :class:`QuantConv` (uint8 between them), the last one float32.
 
-    def __init__(self, source_refiner, recorder: RangeRecorder, keep_float: tuple[int, ...] = ()):
+    ``keep_float`` hidden convolutions run as packed float convolutions in ``float_dtype`` (float32, or bfloat16 on
+    a CPU with native bf16). Consecutive int8 convolutions share their quantisation parameters: the input of one is
+    the requantised output of the previous one (no dequantise / quantise pass between them)."""
+
+    def __init__(self, source_refiner, recorder: RangeRecorder, keep_float: tuple[int, ...] = (),
+                 float_dtype: torch.dtype = torch.float32):
         convs = list(source_refiner.convs)
-        self.hidden = [recorder.refiner.hidden[k] if k in keep_float else QuantConv(c, rx, ry)
-                       for k, (c, rx, ry) in enumerate(zip(convs[:-1], recorder.x_ranges, recorder.y_ranges))]
+        packed = recorder.refiner.hidden
+        self.hidden = [
+            (packed[k] if float_dtype == packed[k].dtype else
+             PackedConv(c, float_dtype, packed[k].device, act=True, use_mkldnn=packed[k].use_mkldnn))
+            if k in keep_float else QuantConv(c, rx, ry)
+            for k, (c, rx, ry) in enumerate(zip(convs[:-1], recorder.x_ranges, recorder.y_ranges))
+        ]
+        for a, b in zip(self.hidden, self.hidden[1:]):
+            if isinstance(a, QuantConv) and isinstance(b, QuantConv):
+                # calibrated on the same tensor up to rounding: adopt the producer's exactly
+                b.x_scale, b.x_zp = a.out_scale, a.out_zp
         self.last = recorder.refiner.last
         self.dtype = torch.float32
 

@@ -205,11 +205,21 @@ def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], 
     return state_dict, cfg, meta
 
 
-def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> torch.nn.Module:
+def load_model(
+    path: str | os.PathLike,
+    device: str | torch.device = "cpu",
+    mode: str = "fast",
+    dtype: torch.dtype | str = torch.float32,
+) -> torch.nn.Module:
     """Build the model stored at ``path`` and load its weights, in eval mode on ``device``.
 
     ``path`` is one of our model folders, or an official TensorFlow checkpoint (a prefix such as
     ``.../cp-0059.ckpt``, its ``.index`` file, or a folder with a ``checkpoint`` file), converted on the fly.
+
+    ``mode`` selects the inference path of ``step`` / ``infer`` (:meth:`~cosemdepth.models.SceneModel.optimize`):
+    ``"fast"`` (default) the fast engine in ``dtype`` (float32 by default: the reference results up to float
+    rounding; ``"bfloat16"`` / ``"int8"`` are faster and less exact, opt in after measuring), ``"reference"`` the
+    plain PyTorch modules. Training (``forward_sequence``, train mode) and ONNX export always use the modules.
     """
     p = Path(path)
     ours = p.is_dir() and ((p / CONFIG_FILE).exists() or (p / WEIGHTS_FILE).exists())
@@ -225,6 +235,9 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
             )
         state_dict, cfg, _ = read_model_files(p)
         origin = str(_model_dir(p))
+    if mode == "reference" and dtype not in (torch.float32, "float32", "fp32"):
+        raise ValueError(f"dtype {dtype!r} is a setting of the fast path; mode='reference' runs float32")
+
     # Build on the meta device (no random initialisation to throw away) and adopt the loaded tensors, in float32
     # whatever precision they were stored in.
     with torch.device("meta"):
@@ -234,7 +247,7 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
         model.load_state_dict(state_dict, strict=True, assign=True)
     except RuntimeError as e:
         raise CheckpointError(f"{origin}: weights do not fit the {cfg.arch} model: {e}") from e
-    return model.eval().to(device)
+    return model.eval().to(device).optimize(mode, dtype)
 
 
 __all__ = [

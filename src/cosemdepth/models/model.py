@@ -51,6 +51,7 @@ class SceneModel(nn.Module):
         self._fast = None  # the streaming implementation of optimize(), None: the reference modules
         self._fast_mode: str | None = None
         self._fast_options: dict | None = None
+        self._fast_weights: tuple[int, ...] = ()  # _weights_version() when the engine copied the weights
         self.register_load_state_dict_post_hook(_rebuild_streamer)
 
     default_arch = "cosemdepth"
@@ -79,10 +80,12 @@ class SceneModel(nn.Module):
           int8 convolutions with statically calibrated activations (:mod:`cosemdepth.inference.int8`): pass
           ``calibration=`` (an iterable of ``(rgb, rot, trans, intrinsics, reset)`` frames), or the first
           ``calibration_frames`` (default 8) streamed frames calibrate, in float32.
-        * ``mode="reference"``: the plain PyTorch modules (the default of a freshly built model).
+        * ``mode="reference"``: the plain PyTorch modules (the default of a freshly built model;
+          :func:`~cosemdepth.io.model_io.load_model` returns the fast float32 path unless asked for this one).
 
         The fast path is used only in eval mode and never records gradients; ``forward_sequence`` (training) always
-        runs the reference modules. Loading a state dict rebuilds the engine; so does a change of device.
+        runs the reference modules. Loading a state dict rebuilds the engine; so do a change of device and any in-place
+        change of the weights (an optimiser step) before the next eval-mode ``step``.
         """
         if mode == "reference":
             self._fast = self._fast_mode = self._fast_options = None
@@ -95,6 +98,7 @@ class SceneModel(nn.Module):
         options = {"dtype": dtype, "device": device, **options}
         self._fast = STREAMERS[mode](self, **options)
         self._fast_mode, self._fast_options = mode, options
+        self._fast_weights = self._weights_version()
         return self
 
     @property
@@ -107,12 +111,17 @@ class SceneModel(nn.Module):
         """The ``optimize`` options (dtype, device) of the current mode; None for the reference path."""
         return None if self._fast_options is None else dict(self._fast_options)
 
+    def _weights_version(self) -> tuple[int, ...]:
+        """Changes whenever a parameter is modified in place (an optimiser step) or replaced."""
+        return tuple(v for p in self.parameters() for v in (p.data_ptr(), p._version))
+
     def _streamer(self):
         if self._fast is None or self.training:
             return None
         p = next(self.parameters())
-        if self._fast_options.get("device") is None and self._fast.device != p.device:
-            _rebuild_streamer(self, None)
+        if (self._fast_options.get("device") is None and self._fast.device != p.device) or \
+                self._fast_weights != self._weights_version():
+            _rebuild_streamer(self, None)  # the engine holds copies of the weights: refresh them
         return self._fast
 
     # ------------------------------------------------------------------ numerics switches
@@ -283,6 +292,7 @@ def _rebuild_streamer(module: SceneModel, incompatible_keys) -> None:
     """``load_state_dict`` post-hook (and device change): the streamer holds copies of the weights, refresh them."""
     if module._fast is not None:
         module._fast = STREAMERS[module._fast_mode](module, **module._fast_options)
+        module._fast_weights = module._weights_version()
 
 
 # ---------------------------------------------------------------------- input checks
