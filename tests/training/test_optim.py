@@ -118,8 +118,9 @@ def test_multi_tensor_update_equals_the_formula_per_parameter():
     """The default (foreach) update over several parameters of different shapes, one of them without a gradient
     at some steps (so the parameters' step counts differ), with weight decay: each element as the formula."""
     lr, b1, b2, eps, wd = 1e-2, 0.8, 0.99, 1e-3, 0.05
-    start = [torch.tensor([[1.0, -2.0], [0.5, 3.0]], dtype=torch.float64), torch.tensor([0.25, -1.5], dtype=torch.float64),
-             torch.tensor([4.0], dtype=torch.float64)]
+    f64 = torch.float64
+    start = [torch.tensor([[1.0, -2.0], [0.5, 3.0]], dtype=f64), torch.tensor([0.25, -1.5], dtype=f64),
+             torch.tensor([4.0], dtype=f64)]
     params = [torch.nn.Parameter(s.clone()) for s in start]
     grads = [  # step -> per-parameter gradient (None: no gradient this step)
         [torch.tensor([[0.5, -0.1], [2.0, 0.0]]), torch.tensor([1e-4, -3.0]), torch.tensor([0.7])],
