@@ -40,6 +40,10 @@ class KerasAdam(torch.optim.Optimizer):
             raise ValueError(f"bad Adam settings lr={lr} betas={betas} eps={eps} weight_decay={weight_decay}")
         super().__init__(params, dict(lr=lr, betas=tuple(betas), eps=eps, weight_decay=weight_decay,
                                       foreach=bool(foreach)))
+        #: Per-parameter buffers of the foreach update's denominator, kept between steps (not in the state dict):
+        #: allocating all the denominators afresh every step (the model's size in float32 at once) costs page
+        #: faults that made the update slower than the loop, whose per-parameter temporaries the allocator recycles.
+        self._denom: dict[torch.Tensor, torch.Tensor] = {}
 
     @torch.no_grad()
     def step(self, closure=None):
@@ -66,9 +70,16 @@ class KerasAdam(torch.optim.Optimizer):
                 steps.append(state["step"])
             if params:
                 # (a group loaded from an older or a torch.optim.Adam state dict may lack "foreach" or hold None)
-                update = _keras_adam_single if group.get("foreach") is False else _keras_adam_foreach
-                update(params, grads, ms, vs, steps, lr=group["lr"], betas=group["betas"], eps=group["eps"],
-                       weight_decay=group["weight_decay"])
+                hyper = dict(lr=group["lr"], betas=group["betas"], eps=group["eps"],
+                             weight_decay=group["weight_decay"])
+                if group.get("foreach") is False:
+                    _keras_adam_single(params, grads, ms, vs, steps, **hyper)
+                else:
+                    denom = [self._denom.get(p) for p in params]
+                    for i, (p, d) in enumerate(zip(params, denom)):
+                        if d is None or d.shape != p.shape or d.dtype != p.dtype or d.device != p.device:
+                            denom[i] = self._denom[p] = torch.empty_like(p, memory_format=torch.preserve_format)
+                    _keras_adam_foreach(params, grads, ms, vs, steps, denom, **hyper)
         return loss
 
 
@@ -90,8 +101,9 @@ def _keras_adam_single(params, grads, ms, vs, steps, *, lr, betas, eps, weight_d
         p.addcdiv_(m, v.sqrt().add_(eps), value=-alpha)
 
 
-def _keras_adam_foreach(params, grads, ms, vs, steps, *, lr, betas, eps, weight_decay) -> None:
-    """The same update as multi-tensor ops over all the parameters at once."""
+def _keras_adam_foreach(params, grads, ms, vs, steps, denom, *, lr, betas, eps, weight_decay) -> None:
+    """The same update as multi-tensor ops over all the parameters at once; ``denom``: scratch tensors like
+    ``params`` (overwritten)."""
     b1, b2 = betas
     if weight_decay:
         grads = torch._foreach_add(grads, params, alpha=weight_decay)
@@ -99,7 +111,8 @@ def _keras_adam_foreach(params, grads, ms, vs, steps, *, lr, betas, eps, weight_
     torch._foreach_lerp_(ms, grads, 1 - b1)
     torch._foreach_mul_(vs, b2)
     torch._foreach_addcmul_(vs, grads, grads, value=1 - b2)
-    denom = torch._foreach_sqrt(vs)
+    torch._foreach_copy_(denom, vs)
+    torch._foreach_sqrt_(denom)
     torch._foreach_add_(denom, eps)
     torch._foreach_addcdiv_(params, ms, denom, [-a for a in _alphas(steps, lr, b1, b2)])
 
