@@ -35,7 +35,8 @@ from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
 from cosemdepth.models import build_model  # noqa: E402
 from cosemdepth.training.data import collate, to_device  # noqa: E402
 from cosemdepth.training.toy import ToyDataset  # noqa: E402
-from cosemdepth.training.trainer import bf16_autocast, compute_loss  # noqa: E402
+from cosemdepth.training.optim import make_optimizer  # noqa: E402
+from cosemdepth.training.trainer import bf16_autocast, compute_loss, prepare_for_training  # noqa: E402
 
 #: Functions the decoders call, wrapped in a profiler range of this name (module, attribute, part).
 WRAPPED = [
@@ -193,9 +194,8 @@ def main(argv=None) -> int:
                                "train": {"bf16": a.bf16}})
     device = torch.device("cpu")
     model = build_model(cfg.model).train()
-    if a.channels_last:
-        model = model.to(memory_format=torch.channels_last)
-    opt = torch.optim.Adam(model.parameters(), lr=1e-4, eps=1e-7)
+    model = prepare_for_training(model, device, a.channels_last)
+    opt = make_optimizer("adam_keras", model.parameters(), lr=1e-4, betas=(0.9, 0.999), eps=1e-7)  # the trainer's
 
     if a.data:
         from cosemdepth.training.data import build_train_dataset, make_loader
@@ -234,8 +234,8 @@ def main(argv=None) -> int:
         with record_function("backward"):
             loss.backward()
         with record_function("grad norm + finite check"):
-            norm = torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(q.grad) for q in model.parameters()
-                                                         if q.grad is not None]))
+            norm = torch.linalg.vector_norm(torch.stack(torch._foreach_norm([q.grad for q in model.parameters()
+                                                                            if q.grad is not None])))
             ok = bool(torch.isfinite(loss)) and bool(torch.isfinite(norm))
         with record_function("optimizer (Adam)"):
             if ok:

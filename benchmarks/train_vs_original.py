@@ -13,10 +13,11 @@
    its throughput is the wall time between the ends of steps ``warmup`` and ``warmup + steps``. Without them it
    says so and measures ours alone, on the tree's own split CSVs.
 3. Ours: ``cosemdepth train --config midair`` on the same split CSVs, the same size, batch, sequence length, step
-   count and thread count, once per ``--precision`` (``bf16``: ``--bf16``). Steps/s from the ``train`` events
+   count and thread count, once per ``--precision`` (``bf16``: ``--bf16``), with the trainer's defaults otherwise
+   (channels-last convolutions, the multi-tensor Keras Adam). Steps/s from the ``train`` events
    (logged every step) after the warm-up: the intervals in which the trainer wrote a checkpoint (every epoch end
    of this small tree; the original saves only at the end) are left out and their count reported; the rate with
-   them is reported too.
+   them is reported too, and the mean time a step waited for the data loader (``data_wait_s``).
 4. The machine's convolution floor (``benchmarks/conv_peak.py``, 3x3 128->128 at 192x192, fp32 and bf16, at
    ``--threads``): a training step is ``3 x`` the forward's convolution work (forward, input and weight gradients)
    over ``batch x seq_len`` frames; the fraction of that floor each trainer reaches is reported.
@@ -137,8 +138,10 @@ def run_ours(a, tree: Path, splits: Path, work: Path, precision: str) -> dict:
         else:
             kept.append(t_cur - t_prev)
     kept_sorted = sorted(kept)
+    waits = [e["data_wait_s"] for e in events if e["kind"] == "train" and e["step"] > a.warmup and "data_wait_s" in e]
     return {"steps_per_s": len(kept) / sum(kept), "steps_per_s_incl_checkpoints": len(all_dt) / sum(all_dt),
             "s_per_step_median": kept_sorted[len(kept_sorted) // 2], "steps_timed": len(kept),
+            "data_wait_s_mean": sum(waits) / len(waits) if waits else None,
             "intervals_with_checkpoint_left_out": dropped, "loadavg_before": load, "wall_s": time.time() - t0,
             "num_workers": a.workers if a.workers is not None else "config default (midair: 4)",
             "run_dir": str(run_dir)}
@@ -246,7 +249,10 @@ def main(argv=None) -> int:
            + ", ".join(f"{k} {v:.2f} steps/s" for k, v in floor["floor_steps_per_s"].items()) + ".",
            "Ours: intervals with a checkpoint left out (" + ", ".join(
                f"{k}: {r['intervals_with_checkpoint_left_out']}, with them {r['steps_per_s_incl_checkpoints']:.3f} "
-               "steps/s" for k, r in ours.items()) + ")."]
+               "steps/s" for k, r in ours.items()) + ").",
+           "Ours: mean time a step waited for the data loader: " + ", ".join(
+               f"{k}: {r['data_wait_s_mean']:.3f} s" if r.get("data_wait_s_mean") is not None else f"{k}: -"
+               for k, r in ours.items()) + "."]
     atomic_write_text(out.with_suffix(".md"), "\n".join(md) + "\n")
     print("\n".join(md))
     return 0

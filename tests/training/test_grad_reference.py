@@ -21,7 +21,7 @@ import torch
 from cosemdepth.evaluation.fidelity import inputs_from_reference
 from cosemdepth.io.convert import convert_tensors
 from cosemdepth.models import build_model
-from cosemdepth.training.trainer import compute_loss
+from cosemdepth.training.trainer import compute_loss, prepare_for_training
 
 FIXTURE = Path(__file__).parent / "fixtures" / "grad-s64"
 
@@ -47,14 +47,15 @@ def regenerate_weight(key: str, shape: tuple[int, ...], seed: int, bias_std: flo
     raise AssertionError(f"no rule for {key}")
 
 
-@pytest.fixture(scope="module")
-def step():
-    return our_step()
+@pytest.fixture(scope="module", params=[False, True], ids=["nchw", "channels_last"])
+def step(request):
+    return our_step(channels_last=request.param)
 
 
-def our_step():
+def our_step(channels_last: bool = False):
     """Our training step on the fixture's batch: (loss terms, {name: flat float64 gradient}, the TF batch arrays,
-    the TF gradient samples, the TF run's meta)."""
+    the TF gradient samples, the TF run's meta). ``channels_last``: the model as the trainer prepares it with
+    ``train.channels_last`` (other convolution kernels, the same bounds)."""
     info = json.loads((FIXTURE / "weights.json").read_text())
     tensors = {}
     for key, d in info["keys"].items():
@@ -64,6 +65,9 @@ def our_step():
     conv = convert_tensors(tensors)
     model = build_model(conv.config)
     model.load_state_dict(conv.state_dict)
+    model = prepare_for_training(model, torch.device("cpu"), channels_last)
+    if channels_last:
+        assert model.encoder.conv_s1[0].weight.is_contiguous(memory_format=torch.channels_last)
     model.train()
     ref = np.load(FIXTURE / "batch.npz")
     inp = inputs_from_reference(ref)

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import json
 import math
+import time
 
 import pytest
 import torch
 
 from cosemdepth.training.checkpoint import load_checkpoint, read_model_state, validate_checkpoint
 from cosemdepth.training.events import read_events
+from cosemdepth.training.toy import ToyDataset
 from cosemdepth.training.trainer import NonFiniteGuard, Trainer, TrainingDiverged, learning_rate
 
 
@@ -290,3 +292,17 @@ def test_trainer_bf16_on_cpu_runs_and_keeps_float32_weights(tmp_path, tiny_confi
     assert len(losses) == 2 and all(math.isfinite(v) for v in losses)
     ck = load_checkpoint(summary["checkpoint"])
     assert ck.model and all(v.dtype == torch.float32 for v in ck.model.values() if v.is_floating_point())
+
+
+def test_train_events_log_the_wait_for_data(tmp_path, tiny_config):
+    """A loader that takes at least 0.05 s per item (batch 2, no workers): every step waited at least 0.1 s."""
+    class Slow(ToyDataset):
+        def __getitem__(self, i):
+            time.sleep(0.05)
+            return super().__getitem__(i)
+
+    cfg = tiny_config(train__max_steps=3, train__epochs=1)
+    slow = Slow(length=8, seq_len=cfg.data.seq_len, size=cfg.data.size, num_classes=cfg.model.num_classes, seed=0)
+    Trainer(cfg, tmp_path / "run", train_dataset=slow, console=False).fit()
+    waits = [e["data_wait_s"] for e in read_events(tmp_path / "run" / "events.jsonl") if e["kind"] == "train"]
+    assert len(waits) == 3 and all(w >= 0.1 for w in waits)

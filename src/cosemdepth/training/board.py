@@ -20,6 +20,7 @@ class Board:
     """
 
     def __init__(self, log_dir: str | os.PathLike, purge_step: int | None = None) -> None:
+        # deferred: TensorBoard is optional (no board without it, see trainer._make_board) and slow to import
         from torch.utils.tensorboard import SummaryWriter
 
         Path(log_dir).mkdir(parents=True, exist_ok=True)

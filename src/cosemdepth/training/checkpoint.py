@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import random
 import re
 import shutil
 import time
@@ -32,12 +33,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+import numpy as np
 import torch
 
 from ..config import ModelConfig
 from ..errors import CheckpointError
 from ..io.atomic import _fsync_dir, atomic_open, atomic_write_text
 from ..io.manifest import MANIFEST_FILE, MANIFEST_FORMAT, MANIFEST_VERSION, sha256_file, validate_manifest
+from ..io.model_io import read_model_files, save_weights
 
 STATE_FILE = "trainer_state.json"
 OPTIMIZER_FILE = "optimizer.pt"
@@ -68,15 +71,11 @@ def _debug_delay() -> None:
 def save_model_files(state_dict: Mapping[str, torch.Tensor], config: ModelConfig, folder: Path,
                      source: Mapping[str, Any]) -> None:
     """Write ``model.safetensors`` + ``config.json`` into ``folder`` (our model format)."""
-    from ..io.model_io import save_weights
-
     save_weights(state_dict, config, folder, source=source)
 
 
 def read_model_state(folder: Path) -> dict[str, torch.Tensor]:
     """The weights of the model folder ``folder``, checked against its config."""
-    from ..io.model_io import read_model_files
-
     state, _, _ = read_model_files(folder)
     return state
 
@@ -89,10 +88,6 @@ def read_model_state(folder: Path) -> dict[str, torch.Tensor]:
 def get_rng_state() -> dict[str, Any]:
     """The states of python's, numpy's and torch's global generators, in types ``torch.load(weights_only=True)``
     accepts."""
-    import random
-
-    import numpy as np
-
     kind, keys, pos, has_gauss, cached = np.random.get_state()
     state = {
         "python": random.getstate(),
@@ -106,10 +101,6 @@ def get_rng_state() -> dict[str, Any]:
 
 
 def set_rng_state(state: Mapping[str, Any]) -> None:
-    import random
-
-    import numpy as np
-
     random.setstate(state["python"])
     n = state["numpy"]
     np.random.set_state((n["kind"], n["keys"].numpy().astype("uint32"), n["pos"], n["has_gauss"],

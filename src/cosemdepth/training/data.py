@@ -18,7 +18,9 @@ import torch
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
 
 from ..config import DataConfig, DatasetSource, ModelConfig, key_path
+from ..data import MixedDataset, dataset_spec, open_dataset
 from ..errors import ConfigError, DatasetError
+from .toy import ToyDataset
 
 #: Seed stride between the sample orders of successive rollbacks (a rollback re-shuffles the rest of the epoch).
 SALT_STRIDE = 1_000_003
@@ -41,11 +43,9 @@ def open_source(
 
     Raises:
         DatasetError: the dataset folder (or split folder) is missing.
-        ConfigError: the dataset readers are not installed, or an option is invalid.
+        ConfigError: an option is invalid.
     """
     if src.name == "toy":
-        from .toy import ToyDataset
-
         opts = dict(src.options)
         unknown = sorted(set(opts) - {"length", "shift", "altitude"})
         if unknown:
@@ -63,11 +63,6 @@ def open_source(
         raise DatasetError(f"{key}.root: {root} is not a folder")
     if src.split_dir is not None and not Path(src.split_dir).is_dir():
         raise DatasetError(f"{key}.split_dir: split folder {src.split_dir} not found")
-    try:
-        from ..data import dataset_spec, open_dataset
-    except ImportError as e:
-        raise ConfigError(f"{key}: the dataset readers (cosemdepth.data.open_dataset) are not available in this "
-                          f"installation ({e}); only the 'toy' dataset can be used") from e
     kwargs: dict[str, Any] = {"seed": seed}
     if dataset_spec(src.name).windows:  # (not for single images)
         kwargs.update(mode=mode, db_seq_len=db_seq_len)
@@ -93,8 +88,6 @@ def build_train_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Data
                                f"training sequence of {data.seq_len} frames")
     if len(sets) == 1:
         return sets[0]
-    from ..data import MixedDataset
-
     weights = [src.weight for src in data.train]
     return MixedDataset(sets, weights, length=data.mix_length, seed=seed)
 

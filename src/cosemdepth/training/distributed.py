@@ -14,6 +14,7 @@ from typing import Any, Callable, TypeVar
 import torch
 import torch.distributed as dist
 
+from .. import errors
 from ..errors import ConfigError, CosemdepthError
 
 T = TypeVar("T")
@@ -118,8 +119,6 @@ def on_main(fn: Callable[[], T], info: DistInfo) -> T:
     if info.enabled:
         result, error = broadcast((result, error), info)
     if error is not None:
-        from .. import errors
-
         raise getattr(errors, error[0], CosemdepthError)(error[1])
     return result
 

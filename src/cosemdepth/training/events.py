@@ -19,6 +19,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from tqdm import tqdm
+
 #: Kinds shown on the console (the others only go to the file).
 CONSOLE_KINDS = {
     "start", "resume", "config_changed", "nonfinite_step", "rollback", "checkpoint", "checkpoint_deferred",
@@ -79,12 +81,7 @@ class EventLog:
 
 
 def _echo(msg: str) -> None:
-    try:
-        from tqdm import tqdm
-
-        tqdm.write(msg, file=sys.stderr)
-    except ImportError:  # pragma: no cover
-        print(msg, file=sys.stderr)
+    tqdm.write(msg, file=sys.stderr)
 
 
 def _fmt(v: Any) -> str:

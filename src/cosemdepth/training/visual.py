@@ -15,7 +15,7 @@ def depth_to_rgb(depth: torch.Tensor | np.ndarray, lo: float = DEPTH_VIS_RANGE[0
                  hi: float = DEPTH_VIS_RANGE[1]) -> np.ndarray:
     """``[H, W]`` metres -> ``[H, W, 3]`` uint8, log scale from ``lo`` (bright) to ``hi`` (dark), "magma" colours.
     Non-finite values are black."""
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # deferred: matplotlib is heavy to import and only needed for TensorBoard images
 
     d = np.asarray(depth.detach().float().cpu() if isinstance(depth, torch.Tensor) else depth, dtype=np.float64)
     finite = np.isfinite(d)
@@ -29,7 +29,7 @@ def palette(num_classes: int) -> np.ndarray:
     """``[N, 3]`` uint8 colours: the Mid-Air palette (spec 9.5) for up to 7 classes, "tab20" beyond."""
     if num_classes <= len(PALETTE_7):
         return PALETTE_7[:num_classes]
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # deferred (see depth_to_rgb)
 
     cols = colormaps["tab20"](np.arange(num_classes) % 20)[:, :3]
     return (cols * 255.0 + 0.5).astype(np.uint8)
