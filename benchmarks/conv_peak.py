@@ -31,6 +31,23 @@ from cosemdepth.ops.padding import Conv2dSame  # noqa: E402
 FRAME_GFLOP = 81.0
 
 
+
+def timed_row(run, dtype: str, threads: int, iters: int, gflop: float) -> dict:
+    """Time ``run()`` (one warm-up call, then ``iters`` calls) on ``threads`` threads: one row of the table."""
+    torch.set_num_threads(threads)
+    run()
+    ts = []
+    for _ in range(iters):
+        t0 = time.perf_counter()
+        run()
+        ts.append((time.perf_counter() - t0) * 1e3)
+    best = min(ts)
+    row = {"dtype": dtype, "threads": threads, "min_ms": round(best, 2), "median_ms": round(statistics.median(ts), 2),
+           "gflops_at_min": round(gflop / best * 1e3, 1),
+           "frame_conv_floor_ms": round(FRAME_GFLOP / (gflop / best * 1e3) * 1e3, 1)}
+    print(row)
+    return row
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--threads", nargs="+", type=int, default=[1, 2])
@@ -46,24 +63,7 @@ def main(argv=None) -> int:
             packed = PackedConv(conv, dtype, torch.device("cpu"), act=True)
             xin = x.to(dtype).contiguous(memory_format=torch.channels_last)
             for th in a.threads:
-                torch.set_num_threads(th)
-                packed(xin)
-                ts = []
-                for _ in range(a.iters):
-                    t0 = time.perf_counter()
-                    packed(xin)
-                    ts.append((time.perf_counter() - t0) * 1e3)
-                best = min(ts)
-                row = {
-                    "dtype": str(dtype).replace("torch.", ""),
-                    "threads": th,
-                    "min_ms": round(best, 2),
-                    "median_ms": round(statistics.median(ts), 2),
-                    "gflops_at_min": round(gflop / best * 1e3, 1),
-                    "frame_conv_floor_ms": round(FRAME_GFLOP / (gflop / best * 1e3) * 1e3, 1),
-                }
-                rows.append(row)
-                print(row)
+                rows.append(timed_row(lambda: packed(xin), str(dtype).replace("torch.", ""), th, a.iters, gflop))
     if has_int8():
         with torch.inference_mode():
             xr, yr = Range(), Range()
@@ -72,19 +72,7 @@ def main(argv=None) -> int:
             q = QuantConv(conv, xr, yr)
             qx = quantize(x.clone(), q.x_scale, q.x_zp)
             for th in a.threads:
-                torch.set_num_threads(th)
-                q(qx)
-                ts = []
-                for _ in range(a.iters):
-                    t0 = time.perf_counter()
-                    q(qx)
-                    ts.append((time.perf_counter() - t0) * 1e3)
-                best = min(ts)
-                row = {"dtype": "int8", "threads": th, "min_ms": round(best, 2), "median_ms": round(statistics.median(ts), 2),
-                       "gflops_at_min": round(gflop / best * 1e3, 1),
-                       "frame_conv_floor_ms": round(FRAME_GFLOP / (gflop / best * 1e3) * 1e3, 1)}
-                rows.append(row)
-                print(row)
+                rows.append(timed_row(lambda: q(qx), "int8", th, a.iters, gflop))
     nnpack = {"available": torch.backends.nnpack.is_available(), "shapes": {}}
     for cin, cout, hw, bias in [(64, 64, 32, False), (64, 128, 192, False), (64, 128, 192, True), (128, 128, 192, True)]:
         key = f"{cin}->{cout} at {hw}x{hw}{' +bias' if bias else ''}"
