@@ -172,3 +172,53 @@ def test_int8_chains_quantised_convolutions_and_runs_kept_refiners_in_the_chosen
     assert len(calls) == len(eng.ops["semantic"])
     f32 = FastEngine(m, dtype="int8", calibration=frames(t=3, seed=1), int8_float_dtype="fp32")
     assert all(c.dtype == torch.float32 for o in f32.ops["depth"] for c in o.refiner.hidden)
+
+
+def test_equalization_scales_hand_computed():
+    from cosemdepth.inference.int8 import equalization_scales
+
+    w = torch.zeros(2, 3, 3, 3)
+    w[0, 0, 1, 1], w[1, 1, 0, 0], w[0, 2, 2, 2] = -1.0, 4.0, 2.0  # max |w[:, c]| = 1, 4, 2
+    s = equalization_scales(torch.tensor([4.0, 1.0, 0.0]), w, alpha=0.5)
+    assert torch.allclose(s, torch.tensor([2.0, 0.5, 1.0]))  # sqrt(4 / 1), sqrt(1 / 4), dead channel -> 1
+    s = equalization_scales(torch.tensor([4.0, 1.0, 3.0]), w, alpha=1.0)
+    assert torch.allclose(s, torch.tensor([4.0, 1.0, 3.0]))  # alpha 1: every channel's range becomes 1
+
+
+def test_equalized_chain_computes_the_same_function_with_even_channel_ranges():
+    from cosemdepth.inference.int8 import ChannelRange, equalize_chain
+
+    torch.manual_seed(3)
+    convs = [Conv2dSame(5, 8, 3), Conv2dSame(8, 6, 3), Conv2dSame(6, 2, 3)]
+    # channels of very different scales, as the refiners' concatenated input
+    x = torch.randn(2, 5, 10, 12) * torch.tensor([100.0, 1.0, 0.01, 10.0, 0.1]).view(1, -1, 1, 1)
+
+    def chain(cs, x):
+        for c in cs[:-1]:
+            x = F.leaky_relu(c(x), 0.1)
+        return cs[-1](x)
+
+    xr, yr = [ChannelRange(), ChannelRange()], [ChannelRange(), ChannelRange()]
+    h = x
+    with torch.no_grad():
+        for k, c in enumerate(convs[:-1]):
+            xr[k].update(h)
+            y = c(h)
+            yr[k].update(y)
+            h = F.leaky_relu(y, 0.1)
+        expect = chain(convs, x)
+        w0, hi0 = convs[0].weight.clone(), xr[0].hi.clone()
+        eq, xr2, yr2, in_mult = equalize_chain(convs, xr, yr, [True, True], alpha=0.5)
+        got = chain(eq, x * in_mult)
+    assert torch.allclose(got, expect, rtol=1e-4, atol=1e-4 * expect.abs().max())
+    assert torch.equal(convs[0].weight, w0) and torch.equal(xr[0].hi, hi0)  # the inputs are left untouched
+    # the predicted ranges are those of the equalised activations
+    x2 = x * in_mult
+    assert torch.allclose(xr2[0].hi, x2.amax(dim=(0, 2, 3)), rtol=1e-5)
+    assert torch.allclose(yr2[0].lo, eq[0](x2).amin(dim=(0, 2, 3)).detach(), rtol=1e-4, atol=1e-5)
+    # alpha 0.5: the input channels' ranges become sqrt(|x_c| max|w[:, c]|): their spread about the square root of
+    # the 1e4 before (the weights' per-channel maxima of a fresh layer are within a factor ~2 of each other)
+    spread = lambda r: (r.absmax().max() / r.absmax().min()).item()
+    w_spread = (lambda m: (m.max() / m.min()).item())(convs[0].weight.abs().amax(dim=(0, 2, 3)))
+    assert spread(xr[0]) > 1e3
+    assert spread(xr2[0]) <= (spread(xr[0]) * w_spread) ** 0.5 * 1.001

@@ -10,12 +10,22 @@ oneDNN's quantized convolution cannot fuse, runs in place on its uint8 output (a
 requantising to the next convolution's input range. Quantising on entry and dequantising on exit are one pass each
 (PyTorch's quantized copy / dequantize kernels on such views).
 
-Measured on the shipped SynthAir weights (62 frames of a 128x128 SynthAir flight, seed 77, calibration on 14 frames
-of another flight): with every refiner int8, mIoU +0.12 points but AbsRel +9.1 % relative to fast fp32; keeping
-the depth refiners' first convolution float32 +2.7 %, their first and last +1.7 %, all of them float32 +0.0 %. Per-tensor
-activation ranges are too coarse for the depth refiners (their output is a log-parallax), so the depth decoder's
-refiners stay float by default: in bfloat16 on a CPU with native bf16 (AVX512-BF16 / AMX), else float32
-(``FastEngine(int8_float_dtype=...)``).
+Before quantising, every activation that an int8 convolution reads or writes is equalised channel by channel
+(:func:`equalize_chain`, SmoothQuant's rule with ``alpha = 0.5``): the refiner's input concatenates features, cost
+volumes and coarse estimates whose ranges differ by orders of magnitude, and one per-tensor range loses the small
+ones. Between convolutions the scales fold into the weights (free); on the refiner's input they cost one
+multiplication.
+
+Measured on the shipped SynthAir weights (78 frames of a 128x128 SynthAir flight, seed 77, calibration on 14 frames
+of another flight, relative to fast fp32: mIoU 22.26 %, AbsRel 0.2838): the default (semantic refiners int8, depth
+refiners bfloat16) mIoU +0.17 points, AbsRel +0.94 % (the bfloat16 depth refiners' share; +0.12 points without
+equalisation); every refiner int8: AbsRel +7.5 % without equalisation, +1.4 % with it (+0.4 % keeping the depth
+refiners' first convolution float). The depth metrics of this recurrent model move by a few percent either way for
+small changes (alpha 0.3 to 1.0 gives -0.6 % to +7 %), so the depth decoder's refiners stay float by default: in
+bfloat16 on a CPU with native bf16 (AVX512-BF16 / AMX), else float32 (``FastEngine(int8_float_dtype=...)``). On a
+CPU with AMX (measured here) the int8 convolution plus its separate LeakyReLU takes about the time of the fused bf16
+convolution, so int8 is not faster than bf16 there; it can only pay where int8 convolutions are much faster than bf16
+ones (not measured).
 
 What stays float32: the encoder and its DINL normalisation, the grouped L2 feature normalisation, the cost volumes of
 the normalised features (SNCV, PSCV), the warps and the geometry, the last convolution of each refiner (it produces
@@ -25,6 +35,7 @@ cost volumes and coarse estimates) is quantised once, per tensor, on entry.
 
 from __future__ import annotations
 
+import copy
 import warnings
 from dataclasses import dataclass
 
@@ -65,6 +76,32 @@ class Range:
         return scale, int(min(255, max(0, round(-lo / scale))))
 
 
+class ChannelRange:
+    """Running per-channel min / max of ``[B, C, H, W]`` tensors over the calibration frames."""
+
+    def __init__(self, lo: torch.Tensor | None = None, hi: torch.Tensor | None = None):
+        self.lo, self.hi = lo, hi
+
+    def update(self, x: torch.Tensor) -> None:
+        x = x.detach().float()
+        lo, hi = x.amin(dim=(0, 2, 3)), x.amax(dim=(0, 2, 3))
+        self.lo = lo if self.lo is None else torch.minimum(self.lo, lo)
+        self.hi = hi if self.hi is None else torch.maximum(self.hi, hi)
+
+    def scaled(self, s: torch.Tensor) -> "ChannelRange":
+        """The range of ``x / s`` (``s [C]`` positive)."""
+        return ChannelRange(self.lo / s, self.hi / s)
+
+    def absmax(self) -> torch.Tensor:
+        return torch.maximum(self.lo.abs(), self.hi.abs())
+
+    def tensor(self) -> Range:
+        """The per-tensor range."""
+        if self.lo is None:
+            return Range()
+        return Range(float(self.lo.min()), float(self.hi.max()))
+
+
 @dataclass
 class QTensor:
     """A uint8 channels-last tensor with its per-tensor affine parameters (real = scale * (q - zero_point))."""
@@ -89,7 +126,7 @@ def quantized_view(u: torch.Tensor, scale: float, zero_point: int) -> torch.Tens
 def quantize(x: torch.Tensor, scale: float, zero_point: int) -> QTensor:
     """Float ``x`` -> channels-last uint8 ``round(x / scale) + zero_point`` clamped to [0, 255], in one pass."""
     q = torch.empty(x.shape, dtype=torch.uint8, device=x.device, memory_format=_CL)
-    quantized_view(q, scale, zero_point).copy_(x.contiguous(memory_format=_CL))
+    quantized_view(q, scale, zero_point).copy_(x.float().contiguous(memory_format=_CL))
     return QTensor(q, scale, zero_point)
 
 
@@ -148,23 +185,89 @@ class QuantConv:
 
 
 class RangeRecorder:
-    """Calibration twin of a float32 packed refiner: runs it convolution by convolution and records the range of
-    every hidden convolution's input and pre-activation output."""
+    """Calibration twin of a float32 packed refiner: runs it convolution by convolution and records the per-channel
+    range of every hidden convolution's input and pre-activation output."""
 
     def __init__(self, refiner):
         self.refiner = refiner
         self.dtype = refiner.dtype
-        self.x_ranges = [Range() for _ in refiner.hidden]
-        self.y_ranges = [Range() for _ in refiner.hidden]
+        self.x_ranges = [ChannelRange() for _ in refiner.hidden]
+        self.y_ranges = [ChannelRange() for _ in refiner.hidden]
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
         for conv, rx, ry in zip(self.refiner.hidden, self.x_ranges, self.y_ranges):
             rx.update(x)
             x = conv(x)
-            lo, hi = torch.aminmax(x)  # fused LeakyReLU(0.1) is invertible: pre-activation = y / 0.1 where y < 0
-            lo = float(lo)
-            ry.update(torch.tensor([lo / NEGATIVE_SLOPE if lo < 0 else lo, float(hi)]))
+            # the fused LeakyReLU(0.1) is invertible: pre-activation = y / 0.1 where y < 0
+            ry.update(torch.where(x < 0, x / NEGATIVE_SLOPE, x))
         return self.refiner.last(x)
+
+
+def equalization_scales(x_absmax: torch.Tensor, w: torch.Tensor, alpha: float) -> torch.Tensor:
+    """Per-input-channel scales ``s`` that move activation range into the weights (SmoothQuant's rule):
+    ``s_c = max|x_c|^alpha / max|w[:, c]|^(1 - alpha)``, 1 for a channel that is zero in either.
+
+    Dividing channel ``c`` of the activation by ``s_c`` and multiplying the weights' input channel ``c`` by it leaves
+    the convolution unchanged in exact arithmetic and evens out the channels' ranges before per-tensor quantisation.
+
+    Args:
+        x_absmax: ``[C]`` calibrated ``max |x_c|``; w: ``[O, C, kh, kw]`` the consuming convolution's weights.
+    Returns:
+        ``[C]`` positive scales.
+    """
+    w_absmax = w.detach().abs().amax(dim=(0, 2, 3)).float()
+    live = (x_absmax > 0) & (w_absmax > 0)
+    s = x_absmax.clamp_min(1e-12).pow(alpha) / w_absmax.clamp_min(1e-12).pow(1.0 - alpha)
+    return torch.where(live, s, torch.ones_like(s))
+
+
+def _scaled_conv(conv: Conv2dSame, out_div: torch.Tensor | None = None, in_mul: torch.Tensor | None = None):
+    """A copy of ``conv`` computing ``conv(x * in_mul) / out_div`` per channel (weights and bias rescaled)."""
+    c = copy.deepcopy(conv)
+    with torch.no_grad():
+        if in_mul is not None:
+            c.weight.mul_(in_mul.to(c.weight).view(1, -1, 1, 1))
+        if out_div is not None:
+            c.weight.div_(out_div.to(c.weight).view(-1, 1, 1, 1))
+            if c.bias is not None:
+                c.bias.div_(out_div.to(c.bias))
+    return c
+
+
+def equalize_chain(convs: list, x_ranges: list, y_ranges: list, quantised: list[bool], alpha: float):
+    """Equalise, channel by channel, every activation of a refiner that an int8 convolution reads or writes.
+
+    ``convs`` are the refiner's convolutions (hidden ones with LeakyReLU, then the last one), ``x_ranges[k]`` /
+    ``y_ranges[k]`` the calibrated :class:`ChannelRange` of hidden convolution ``k``'s input / pre-activation output,
+    ``quantised[k]`` whether hidden convolution ``k`` runs in int8. At the boundary ``k`` (the input of ``convs[k]``,
+    the output of ``convs[k - 1]``) the activation is divided by :func:`equalization_scales` ``s``: folded into the
+    producer's weights and bias (LeakyReLU commutes with a positive scale) and the consumer's input channels, or,
+    on the refiner's input, returned as the multiplier ``1 / s`` to apply before the first convolution.
+
+    Returns:
+        ``(convs, x_ranges, y_ranges, in_mult)``: new lists (inputs untouched), ``in_mult [1, C, 1, 1]`` or None.
+        In exact arithmetic the chain computes the same function as before.
+    """
+    convs, xr, yr = list(convs), list(x_ranges), list(y_ranges)
+    n = len(convs) - 1
+    in_mult = None
+    for k in range(n + 1):
+        if not ((k < n and quantised[k]) or (k > 0 and quantised[k - 1])):
+            continue  # neither side of this boundary is quantised
+        if k < n:
+            x_abs = xr[k].absmax()
+        else:  # the last convolution's input: the last hidden one's output after LeakyReLU
+            x_abs = torch.maximum(yr[k - 1].lo.abs() * NEGATIVE_SLOPE, yr[k - 1].hi.abs())
+        s = equalization_scales(x_abs, convs[k].weight, alpha)
+        convs[k] = _scaled_conv(convs[k], in_mul=s)
+        if k < n:
+            xr[k] = xr[k].scaled(s)
+        if k == 0:
+            in_mult = (1.0 / s).view(1, -1, 1, 1)
+        else:
+            convs[k - 1] = _scaled_conv(convs[k - 1], out_div=s)
+            yr[k - 1] = yr[k - 1].scaled(s)
+    return convs, xr, yr, in_mult
 
 
 class QuantRefiner:
@@ -172,26 +275,48 @@ class QuantRefiner:
 
     ``keep_float`` hidden convolutions run as packed float convolutions in ``float_dtype`` (float32, or bfloat16 on
     a CPU with native bf16). Consecutive int8 convolutions share their quantisation parameters: the input of one is
-    the requantised output of the previous one (no dequantise / quantise pass between them)."""
+    the requantised output of the previous one (no dequantise / quantise pass between them).
+
+    With ``alpha`` (default 0.5), the activations that int8 convolutions read or write are equalised channel by
+    channel first (:func:`equalize_chain`): free between convolutions, one multiplication on the refiner's input (a
+    concatenation of features, cost volumes and estimates with very different ranges). ``alpha=None`` quantises the
+    calibrated activations as they are."""
 
     def __init__(self, source_refiner, recorder: RangeRecorder, keep_float: tuple[int, ...] = (),
-                 float_dtype: torch.dtype = torch.float32):
+                 float_dtype: torch.dtype = torch.float32, alpha: float | None = 0.5):
         convs = list(source_refiner.convs)
+        n = len(convs) - 1
         packed = recorder.refiner.hidden
+        xr, yr = recorder.x_ranges, recorder.y_ranges
+        quantised = [k not in keep_float for k in range(n)]
+        self.in_mult = None
+        if alpha is not None:
+            convs, xr, yr, self.in_mult = equalize_chain(convs, xr, yr, quantised, alpha)
+        changed = [a is not b for a, b in zip(convs, source_refiner.convs)]
+        dev = packed[0].device
+
+        def float_conv(k: int, dtype: torch.dtype, act: bool, like):
+            if not changed[k] and like.dtype == dtype:
+                return like
+            return PackedConv(convs[k], dtype, dev, act=act, use_mkldnn=like.use_mkldnn)
+
         self.hidden = [
-            (packed[k] if float_dtype == packed[k].dtype else
-             PackedConv(c, float_dtype, packed[k].device, act=True, use_mkldnn=packed[k].use_mkldnn))
-            if k in keep_float else QuantConv(c, rx, ry)
-            for k, (c, rx, ry) in enumerate(zip(convs[:-1], recorder.x_ranges, recorder.y_ranges))
+            QuantConv(convs[k], xr[k].tensor(), yr[k].tensor()) if quantised[k]
+            else float_conv(k, float_dtype, True, packed[k])
+            for k in range(n)
         ]
         for a, b in zip(self.hidden, self.hidden[1:]):
             if isinstance(a, QuantConv) and isinstance(b, QuantConv):
                 # calibrated on the same tensor up to rounding: adopt the producer's exactly
                 b.x_scale, b.x_zp = a.out_scale, a.out_zp
-        self.last = recorder.refiner.last
+        self.last = float_conv(n, torch.float32, False, recorder.refiner.last)
+        if self.in_mult is not None:
+            self.in_mult = self.in_mult.to(dev)
         self.dtype = torch.float32
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        if self.in_mult is not None:
+            x = x * self.in_mult
         for conv in self.hidden:
             if isinstance(x, QTensor) and not isinstance(conv, QuantConv):
                 x = x.dequantize().contiguous(memory_format=_CL)
