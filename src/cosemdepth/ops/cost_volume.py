@@ -66,9 +66,10 @@ def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negati
     """SNCV: self-correlation of the features over a ``(2r+1)^2`` window with zero padding, then LeakyReLU.
 
     ``corr[o, g](p) = (1 / n_g) sum_{c in g} f_c(p) f_c(p + d_o)`` for the window offsets ``d_o``, zero where
-    ``p + d_o`` leaves the image. Computed for all offsets at once from the ``(2r+1)^2`` window columns of the
-    features (one window row at a time), with a backward that recomputes them instead of keeping them (memory: the
-    output only).
+    ``p + d_o`` leaves the image. Runs the channel loop of :func:`spatial_cost_volume_fast`, with gradients through
+    a backward that loops over the window offsets (memory: the output only); the ONNX export traces the same sums as
+    plain ops instead. Low-precision inputs (bfloat16 / float16 under autocast) are correlated in float32 and the
+    result rounded once to their dtype.
 
     Args:
         feat: ``[B, C, H, W]`` normalised features.
@@ -80,93 +81,78 @@ def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negati
     b, c, h, w = feat.shape
     if c % groups:
         raise ValueError(f"{c} channels cannot be split into {groups} groups")
-    if torch.is_grad_enabled() and feat.requires_grad:
-        vol = _SpatialCorrelation.apply(feat, groups, radius)  # [B, K, (2r+1)^2, H*W]
-    else:  # the same arithmetic as plain ops (traceable for export, no autograd bookkeeping)
-        vol = _spatial_correlation(feat, groups, radius)
-    vol = vol.transpose(1, 2).reshape(b, (2 * radius + 1) ** 2 * groups, h, w)
+    if torch.onnx.is_in_onnx_export():  # plain ops the exporter traces (no strided views, no writes into slices)
+        vol = _spatial_correlation_traceable(feat, groups, radius)
+    elif torch.is_grad_enabled() and feat.requires_grad:
+        vol = _SpatialCorrelation.apply(feat, groups, radius)
+    else:  # the same loop without autograd bookkeeping
+        vol = _sncv_channel_loop(feat.to(_compute_dtype(feat.dtype)).contiguous(), groups, radius).to(feat.dtype)
     return F.leaky_relu(vol, negative_slope)
 
 
-def _window_columns(f: torch.Tensor, radius: int) -> torch.Tensor:
-    """``[B, C, (2r+1)^2, H*W]``: ``out[b, c, o, p] = f[b, c, p + d_o]`` (zero outside)."""
-    b, c = f.shape[:2]
-    k = 2 * radius + 1
-    return F.unfold(f, k, padding=radius).view(b, c, k * k, -1)
-
-
-def _spatial_correlation(feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
-    """``[B, C, H, W] -> [B, K, (2r+1)^2, H*W]`` group-mean correlation with the window offsets (no activation)."""
+def _spatial_correlation_traceable(feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
+    """``[B, C, H, W] -> [B, (2r+1)^2 * K, H, W]`` group-mean correlation, offset-major, before the activation, as
+    plain traceable ops (one stacked window row at a time): the form the ONNX export records."""
     b, c, h, w = feat.shape
     n = c // groups
     k = 2 * radius + 1
     f = feat.contiguous()
     padded = F.pad(f, (radius, radius, radius, radius))
     fv = f.view(b, groups, n, 1, h, w)
-    if torch.onnx.is_in_onnx_export():  # the exporter traces neither the strided view nor writes into slices
-        rows = [torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], 2) for i in range(k)]
-        out = torch.stack([(r.view(b, groups, n, k, h, w) * fv).sum(dim=2) for r in rows], 2)
-    else:  # one window row (2r + 1 offsets) at a time from a zero-copy strided view: (2r + 1) maps of memory
-        s_b, s_c, s_h, s_w = padded.stride()  # window[b, c, i, j, y, x] = padded[b, c, y + i, x + j]
-        window = padded.as_strided((b, c, k, k, h, w), (s_b, s_c, s_h, s_w, s_h, s_w), padded.storage_offset())
-        out = f.new_empty(b, groups, k, k, h, w)
-        for i in range(k):
-            torch.sum(window[:, :, i].reshape(b, groups, n, k, h, w) * fv, dim=2, out=out[:, :, i])
-    out = out.view(b, groups, k * k, h * w).mul(1.0 / n)
-    return out
+    rows = [torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], 2) for i in range(k)]
+    out = torch.stack([(r.view(b, groups, n, k, h, w) * fv).sum(dim=2) for r in rows], 2)  # [B, K, k, k, H, W]
+    return out.permute(0, 2, 3, 1, 4, 5).reshape(b, k * k * groups, h, w) * (1.0 / n)
+
+
+def _compute_dtype(dtype: torch.dtype) -> torch.dtype:
+    """float32 for bfloat16 / float16 inputs, the input's dtype otherwise (float32, float64)."""
+    return torch.promote_types(dtype, torch.float32)
 
 
 class _SpatialCorrelation(torch.autograd.Function):
-    """``[B, C, H, W] -> [B, K, (2r+1)^2, H*W]`` group-mean correlation with the window offsets (no activation).
+    """``[B, C, H, W] -> [B, (2r+1)^2 * K, H, W]`` group-mean correlation with the window offsets (no activation),
+    offset-major; forward by the channel loop of :func:`spatial_cost_volume_fast`.
 
-    Backward: ``dL/df_c(q) = (1/n) [ sum_o G[g,o](q) f_c(q + d_o) + sum_o G[g,o](q - d_o) f_c(q - d_o) ]``; the first
-    sum reads the window columns of ``f`` again, the second scatters ``G f_c`` back along the offsets (``fold``).
+    Backward: ``dL/df_c(q) = (1/n) [ sum_o G[o,g](q) f_c(q + d_o) + sum_o G[o,g](q - d_o) f_c(q - d_o) ]``: per offset
+    one multiply-add reading the padded features shifted by ``d_o``, and one writing ``G f_c`` into a padded
+    accumulator shifted by ``d_o`` (the same slice of both).
     """
 
     @staticmethod
     def forward(ctx, feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
-        f = feat.contiguous()
-        out = _spatial_correlation(f, groups, radius)
-        ctx.save_for_backward(f)
+        f = feat.to(_compute_dtype(feat.dtype)).contiguous()
+        out = _sncv_channel_loop(f, groups, radius)
+        ctx.save_for_backward(feat)
         ctx.groups, ctx.radius = groups, radius
-        return out
+        return out.to(feat.dtype)
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor):
-        (f,) = ctx.saved_tensors
+        (feat,) = ctx.saved_tensors
         groups, radius = ctx.groups, ctx.radius
-        b, c, h, w = f.shape
+        b, c, h, w = feat.shape
         n = c // groups
         k = 2 * radius + 1
-        g = grad.to(f.dtype).contiguous().view(b, groups, 1, k * k, h * w)
-        fv = f.view(b, groups, n, 1, h * w)
-        direct = (_window_columns(f, radius).view(b, groups, n, k * k, h * w) * g).sum(dim=3)  # [B,K,n,HW]
-        scattered = F.fold((g * fv).reshape(b, c * k * k, h * w), (h, w), k, padding=radius)
-        return (direct.view(b, c, h, w) + scattered).mul_(1.0 / n), None, None
+        f = feat.to(_compute_dtype(feat.dtype)).contiguous()
+        g = grad.to(f.dtype).reshape(b, k, k, groups, 1, h, w)
+        fv = f.view(b, groups, n, h, w)
+        fpad = F.pad(f, (radius, radius, radius, radius)).view(b, groups, n, h + 2 * radius, w + 2 * radius)
+        acc = torch.zeros_like(fpad)
+        inner = acc[..., radius : radius + h, radius : radius + w]
+        for i in range(k):
+            for j in range(k):
+                go = g[:, i, j]  # [B, K, 1, H, W]: the gradient of offset d = (i - r, j - r)
+                inner.addcmul_(go, fpad[..., i : i + h, j : j + w])  # G_d(q) f(q + d)
+                acc[..., i : i + h, j : j + w].addcmul_(go, fv)  # G_d(q - d) f(q - d), scattered to q + d
+        return inner.reshape(b, c, h, w).mul(1.0 / n).to(feat.dtype), None, None
 
 
-def spatial_cost_volume_fast(
-    feat: torch.Tensor, groups: int, radius: int = 3, negative_slope: float = 0.1
-) -> torch.Tensor:
-    """The SNCV of :func:`spatial_cost_volume` (same values up to float rounding, same channel order), faster.
-
-    Instead of one multiply and one group mean per window offset (``(2r+1)^2`` Python iterations over the whole
-    map), it loops over the channels: every channel adds its products for all offsets at once, read from a
-    zero-copy strided window view of the padded features. It computes only the offsets with ``dy >= 0`` and mirrors
-    the others, using ``corr_{-d}(p) = corr_d(p - d)`` (zero where ``p - d`` leaves the image, as the zero padding
-    gives).
-
-    Args:
-        feat: ``[B, C, H, W]`` normalised features (any memory format).
-        groups: number of channel groups ``K``.
-        radius: search range ``r``.
-    Returns:
-        ``[B, (2r+1)^2 * K, H, W]``, channel ``((dy + r)(2r + 1) + (dx + r)) * K + g``, contiguous (NCHW).
-    """
-    b, c, h, w = feat.shape
+def _sncv_channel_loop(f: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
+    """``[B, C, H, W]`` (contiguous) ``-> [B, (2r+1)^2 * K, H, W]`` group-mean correlation, offset-major, before the
+    activation: the loop of :func:`spatial_cost_volume_fast`."""
+    b, c, h, w = f.shape
     n = c // groups
     k = 2 * radius + 1
-    f = feat.contiguous()
     padded = F.pad(f, (radius, radius, radius, radius))
     s_b, s_c, s_h, s_w = padded.stride()
     # window[b, c, i, j, y, x] = padded[b, c, y + radius + i, x + j]: offsets dy = i >= 0, dx = j - radius.
@@ -186,8 +172,31 @@ def spatial_cost_volume_fast(
                 continue
             # out[-dy, -dx][y, x] = out[dy, dx][y - dy, x - dx]
             out[:, radius - dy, radius - dx, :, dy:, x0:x1] = out[:, radius + dy, radius + dx, :, : h - dy, x0 - dx : x1 - dx]
-    vol = out.reshape(b, k * k * groups, h, w).mul_(1.0 / n)
-    return F.leaky_relu_(vol, negative_slope)
+    return out.reshape(b, k * k * groups, h, w).mul_(1.0 / n)
+
+
+def spatial_cost_volume_fast(
+    feat: torch.Tensor, groups: int, radius: int = 3, negative_slope: float = 0.1
+) -> torch.Tensor:
+    """The SNCV of :func:`spatial_cost_volume` (same values up to float rounding, same channel order), faster.
+
+    Instead of one multiply and one group mean per window offset (``(2r+1)^2`` Python iterations over the whole
+    map), it loops over the channels: every channel adds its products for all offsets at once, read from a
+    zero-copy strided window view of the padded features. It computes only the offsets with ``dy >= 0`` and mirrors
+    the others, using ``corr_{-d}(p) = corr_d(p - d)`` (zero where ``p - d`` leaves the image, as the zero padding
+    gives). The training forward (:func:`spatial_cost_volume` with gradients) runs the same loop.
+
+    Args:
+        feat: ``[B, C, H, W]`` normalised features (any memory format).
+        groups: number of channel groups ``K``.
+        radius: search range ``r``.
+    Returns:
+        ``[B, (2r+1)^2 * K, H, W]``, channel ``((dy + r)(2r + 1) + (dx + r)) * K + g``, contiguous (NCHW).
+    """
+    c = feat.shape[1]
+    if c % groups:
+        raise ValueError(f"{c} channels cannot be split into {groups} groups")
+    return F.leaky_relu_(_sncv_channel_loop(feat.contiguous(), groups, radius), negative_slope)
 
 
 def parallax_sweep_cost_volume_fast(
