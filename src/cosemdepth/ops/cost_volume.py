@@ -57,9 +57,66 @@ def parallax_sweep_cost_volume(
     b, c, h, w = feat.shape
     s = points.shape[1]
     pts = points.permute(0, 2, 1, 3, 4).reshape(b, 2, s * h, w)
-    warped = sample_bilinear(prev, pts).view(b, c + 1, s, h, w)
-    corr = group_correlation(feat.unsqueeze(2), warped[:, :c], groups, half=half)  # [B,K,S,H,W]
-    return corr.reshape(b, groups * s, h, w), warped[:, c]
+    # channels-last input: the CPU sampler reads each tap's C + 1 values contiguously (several times faster here)
+    warped = sample_bilinear(prev.contiguous(memory_format=torch.channels_last), pts).contiguous()
+    warped = warped.view(b, c + 1, s, h, w)
+    if half or torch.onnx.is_in_onnx_export():  # float16 products like the original / plain traceable ops
+        corr = group_correlation(feat.unsqueeze(2), warped[:, :c], groups, half=half)  # [B,K,S,H,W]
+        return corr.reshape(b, groups * s, h, w), warped[:, c]
+    if torch.is_grad_enabled() and (feat.requires_grad or warped.requires_grad):
+        return _SweepCorrelation.apply(feat, warped, groups)
+    return _sweep_correlation_loop(feat, warped, groups), warped[:, c]
+
+
+def _sweep_correlation_loop(feat: torch.Tensor, warped: torch.Tensor, groups: int) -> torch.Tensor:
+    """``feat [B, C, H, W]``, ``warped [B, C + 1, S, H, W]`` -> ``[B, K*S, H, W]`` group means of ``feat * warped``
+    (group-major), one channel at a time (``out[g] += warped[c] * feat[c]``), in the promoted dtype."""
+    b, c, h, w = feat.shape
+    s = warped.shape[2]
+    n = c // groups
+    dtype = torch.promote_types(torch.promote_types(feat.dtype, warped.dtype), torch.float32)
+    f = feat.to(dtype).contiguous()
+    wp = warped.to(dtype)
+    corr = f.new_zeros(b, groups, s, h, w)
+    for ch in range(c):
+        corr[:, ch // n].addcmul_(wp[:, ch], f[:, ch, None])
+    return corr.mul_(1.0 / n).view(b, groups * s, h, w)
+
+
+class _SweepCorrelation(torch.autograd.Function):
+    """``(feat [B, C, H, W], warped [B, C + 1, S, H, W]) -> (pscv [B, K*S, H, W], warped[:, C])`` by
+    :func:`_sweep_correlation_loop`. Backward: ``d feat_c = (1/n) sum_s G[g, s] warped_{c, s}``,
+    ``d warped_{c, s} = (1/n) G[g, s] feat_c``, written with the parallax channel's gradient into one buffer."""
+
+    @staticmethod
+    def forward(ctx, feat, warped, groups):
+        c = feat.shape[1]
+        ctx.save_for_backward(feat, warped)
+        ctx.groups = groups
+        return _sweep_correlation_loop(feat, warped, groups), warped[:, c].clone()
+
+    @staticmethod
+    def backward(ctx, g_corr, g_para):
+        feat, warped = ctx.saved_tensors
+        groups = ctx.groups
+        b, c, h, w = feat.shape
+        s = warped.shape[2]
+        n = c // groups
+        dtype = torch.promote_types(torch.promote_types(feat.dtype, warped.dtype), torch.float32)
+        f = feat.to(dtype).contiguous().view(b, groups, n, 1, h, w)
+        g = g_corr.to(dtype).reshape(b, groups, 1, s, h, w) * (1.0 / n)
+        g_feat = g_warped = None
+        if ctx.needs_input_grad[1]:
+            g_warped = torch.empty(b, c + 1, s, h, w, dtype=warped.dtype)
+            torch.mul(g, f, out=g_warped[:, :c].view(b, groups, n, s, h, w))
+            if g_para is None:
+                g_warped[:, c].zero_()
+            else:
+                g_warped[:, c].copy_(g_para)
+        if ctx.needs_input_grad[0]:
+            wv = warped[:, :c].to(dtype).view(b, groups, n, s, h, w)
+            g_feat = (wv * g).sum(dim=3).view(b, c, h, w).to(feat.dtype)
+        return g_feat, g_warped, None
 
 
 def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negative_slope: float = 0.1) -> torch.Tensor:
@@ -205,22 +262,9 @@ def parallax_sweep_cost_volume_fast(
     points: torch.Tensor,
     groups: int,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The float32 PSCV of :func:`parallax_sweep_cost_volume` (same values up to float rounding), faster.
-
-    The same single bilinear sampling call warps all hypotheses; the group correlation then accumulates one channel
-    at a time (``out[g] += warped[c] * feat[c]``) instead of materialising the ``[B, C, S, H, W]`` product.
+    """The float32 PSCV of the fast inference path: :func:`parallax_sweep_cost_volume` itself (one sampling call,
+    the channel-loop correlation), without the float16 option.
 
     Args and returns as :func:`parallax_sweep_cost_volume` (``pscv`` is ``[B, K*S, H, W]``, group-major).
     """
-    b, c, h, w = feat.shape
-    s = points.shape[1]
-    n = c // groups
-    pts = points.permute(0, 2, 1, 3, 4).reshape(b, 2, s * h, w)
-    # channels-last input: the CPU sampler reads each tap's C + 1 values contiguously (about 1.5x faster here)
-    warped = sample_bilinear(prev.contiguous(memory_format=torch.channels_last), pts).contiguous()
-    warped = warped.view(b, c + 1, s, h, w)
-    f = feat.contiguous()
-    corr = f.new_zeros(b, groups, s, h, w)
-    for ch in range(c):
-        corr[:, ch // n].addcmul_(warped[:, ch], f[:, ch, None])
-    return corr.mul_(1.0 / n).view(b, groups * s, h, w), warped[:, c]
+    return parallax_sweep_cost_volume(feat, prev, points, groups)
