@@ -170,9 +170,11 @@ class _SpatialCorrelation(torch.autograd.Function):
     """``[B, C, H, W] -> [B, (2r+1)^2 * K, H, W]`` group-mean correlation with the window offsets (no activation),
     offset-major; forward by the channel loop of :func:`spatial_cost_volume_fast`.
 
-    Backward: ``dL/df_c(q) = (1/n) [ sum_o G[o,g](q) f_c(q + d_o) + sum_o G[o,g](q - d_o) f_c(q - d_o) ]``: per offset
-    one multiply-add reading the padded features shifted by ``d_o``, and one writing ``G f_c`` into a padded
-    accumulator shifted by ``d_o`` (the same slice of both).
+    Backward: ``dL/df_c(q) = (1/n) [ sum_o G[o,g](q) f_c(q + d_o) + sum_o G[o,g](q - d_o) f_c(q - d_o) ]``; renaming
+    ``o -> -o`` in the second sum gives ``(1/n) sum_o H[o,g](q) f_c(q + d_o)`` with ``H[o](q) = G[o](q) + G[-o](q +
+    d_o)`` (zero where ``q + d_o`` leaves the image): ``H`` is one addition of ``G`` and a strided view of the
+    offset-mirrored, zero-padded ``G``; then one in-place multiply-add per offset, reading the padded features
+    shifted by ``d_o``.
     """
 
     @staticmethod
@@ -186,22 +188,23 @@ class _SpatialCorrelation(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad: torch.Tensor):
         (feat,) = ctx.saved_tensors
-        groups, radius = ctx.groups, ctx.radius
+        groups, r = ctx.groups, ctx.radius
         b, c, h, w = feat.shape
         n = c // groups
-        k = 2 * radius + 1
+        k = 2 * r + 1
         f = feat.to(_compute_dtype(feat.dtype)).contiguous()
-        g = grad.to(f.dtype).reshape(b, k, k, groups, 1, h, w)
-        fv = f.view(b, groups, n, h, w)
-        fpad = F.pad(f, (radius, radius, radius, radius)).view(b, groups, n, h + 2 * radius, w + 2 * radius)
-        acc = torch.zeros_like(fpad)
-        inner = acc[..., radius : radius + h, radius : radius + w]
+        g = grad.to(f.dtype).reshape(b, k, k, groups, h, w)
+        # mirror[b, i, j, g, y, x] = G[-o](q + d_o) for o = (i, j), d_o = (i - r, j - r), q = (y, x)
+        gp = F.pad(g.flip(1, 2), (r, r, r, r))
+        s0, s1, s2, s3, s4, s5 = gp.stride()
+        mirror = gp.as_strided((b, k, k, groups, h, w), (s0, s1 + s4, s2 + s5, s3, s4, s5), gp.storage_offset())
+        hh = (g + mirror).unsqueeze(4)  # H: [B, k, k, K, 1, H, W]
+        fpad = F.pad(f, (r, r, r, r)).view(b, groups, n, h + 2 * r, w + 2 * r)
+        out = f.new_zeros(b, groups, n, h, w)
         for i in range(k):
             for j in range(k):
-                go = g[:, i, j]  # [B, K, 1, H, W]: the gradient of offset d = (i - r, j - r)
-                inner.addcmul_(go, fpad[..., i : i + h, j : j + w])  # G_d(q) f(q + d)
-                acc[..., i : i + h, j : j + w].addcmul_(go, fv)  # G_d(q - d) f(q - d), scattered to q + d
-        return inner.reshape(b, c, h, w).mul(1.0 / n).to(feat.dtype), None, None
+                out.addcmul_(hh[:, i, j], fpad[..., i : i + h, j : j + w])  # H_o(q) f(q + d_o)
+        return out.view(b, c, h, w).mul_(1.0 / n).to(feat.dtype), None, None
 
 
 def _sncv_channel_loop(f: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
