@@ -44,6 +44,10 @@ WRAPPED = [
     ("cosemdepth.models.semantic_decoder", "grouped_l2_normalize", "normalisation: grouped L2"),
     ("cosemdepth.models.depth_decoder", "resize_bl1", "resize"),
     ("cosemdepth.models.semantic_decoder", "resize_nn1", "resize"),
+    ("cosemdepth.models.depth_decoder", "epipolar_geometry", "geometry (epipolar, parallax)"),
+    ("cosemdepth.models.depth_decoder", "candidate_sample_points", "geometry (epipolar, parallax)"),
+    ("cosemdepth.models.depth_decoder", "prev_depth_to_parallax", "geometry (epipolar, parallax)"),
+    ("cosemdepth.models.depth_decoder", "parallax_to_depth", "geometry (epipolar, parallax)"),
 ]
 PART_PREFIX = "part: "
 EVAL = "autograd::engine::evaluate_function"
@@ -68,15 +72,15 @@ def marked(model):
             saved.append((mod, attr, getattr(mod, attr)))
             setattr(mod, attr, _wrap(getattr(mod, attr), part))
 
-    dd = importlib.import_module("cosemdepth.models.depth_decoder")
-    if hasattr(dd, "_REFERENCE_OPS"):  # the depth levels' cost volumes (the reference ops of the training forward)
+    pyr = importlib.import_module("cosemdepth.models.pyramid")
+    if hasattr(pyr, "REFERENCE_OPS"):  # the levels' cost volumes and concatenations (the training forward's ops)
         import dataclasses
 
-        ref = dd._REFERENCE_OPS
-        saved.append((dd, "_REFERENCE_OPS", ref))
-        dd._REFERENCE_OPS = dataclasses.replace(
+        ref = pyr.REFERENCE_OPS
+        saved.append((pyr, "REFERENCE_OPS", ref))
+        pyr.REFERENCE_OPS = dataclasses.replace(
             ref, pscv=_wrap(ref.pscv, "cost volume: parallax sweep (incl. warp)"),
-            sncv=_wrap(ref.sncv, "cost volume: spatial (SNCV)"))
+            sncv=_wrap(ref.sncv, "cost volume: spatial (SNCV)"), concat=_wrap(ref.concat, "concatenation"))
 
     def hook_pair(part):
         state = {}

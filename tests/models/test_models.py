@@ -214,3 +214,29 @@ def test_training_gradients_reach_the_encoder_and_stop_at_previous_depth():
     seq = m.forward_sequence(rgb, q, tr, K)
     seq.depth[0][:, 1].sum().backward()
     assert rgb.grad[:, 0].abs().sum() > 0  # through the previous features (PSCV)
+
+
+def test_dinl_backward_matches_finite_differences_and_plain_ops():
+    """DINL's hand-written backward against torch's numerical gradient (float64), and its float32 values and
+    gradients against the plain ops of the spec (the path ``export --check`` takes)."""
+    g = torch.Generator().manual_seed(3)
+    layer = DINL(4).double()
+    with torch.no_grad():
+        layer.weight.copy_(torch.tensor([1.0, -2.0, 0.5, 3.0]))
+        layer.bias.copy_(torch.tensor([0.1, 0.0, -1.0, 2.0]))
+    x = torch.randn(2, 4, 3, 5, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(layer, (x,))
+    fused, plain = DINL(4), DINL(4)
+    plain.spatial_mean = lambda t: t.mean(dim=(2, 3), keepdim=True)  # not the default: the plain ops run
+    with torch.no_grad():
+        for m in (fused, plain):
+            m.weight.copy_(torch.tensor([1.0, -2.0, 0.5, 3.0]))
+            m.bias.copy_(torch.tensor([0.1, 0.0, -1.0, 2.0]))
+    x = torch.randn(2, 4, 16, 16, generator=g, requires_grad=True)
+    wt = torch.randn(2, 4, 16, 16, generator=g)
+    outs = []
+    for m in (fused, plain):
+        y = m(x)
+        outs.append((y, *torch.autograd.grad((y * wt).sum(), (x, m.weight, m.bias))))
+    for a, r in zip(*outs):
+        torch.testing.assert_close(a, r, rtol=1e-4, atol=1e-5)

@@ -87,3 +87,38 @@ def test_sncv_backward_matches_finite_differences(shape, groups, radius):
     """The hand-written backward (window columns + fold) against torch's numerical gradient, in float64."""
     x = torch.randn(shape, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda t: spatial_cost_volume(t, groups, radius), (x,))
+
+
+@pytest.mark.parametrize("groups", [1, 2])
+def test_pscv_backward_matches_finite_differences(groups):
+    """The hand-written backward of the correlation (and the sampler's through it) against torch's numerical
+    gradient in float64, for the features, the previous block (parallax channel included) and the points."""
+    g = torch.Generator().manual_seed(1)
+    b, c, h, w, s = 1, 4, 4, 5, 3
+    f = torch.randn(b, c, h, w, generator=g, dtype=torch.float64, requires_grad=True)
+    prev = torch.randn(b, c + 1, h, w, generator=g, dtype=torch.float64, requires_grad=True)
+    pts = (_grid_points(b, s, h, w).double() + 0.37 + 0.2 * torch.rand(b, s, 2, h, w, generator=g, dtype=torch.float64))
+    pts.requires_grad_()
+    assert torch.autograd.gradcheck(lambda *t: parallax_sweep_cost_volume(*t, groups), (f, prev, pts))
+
+
+def test_pscv_equals_the_product_and_group_mean():
+    """The channel loop against the plain product + group mean (the float16 option's and the export's form), on
+    fractional points, values and gradients."""
+    g = torch.Generator().manual_seed(2)
+    b, c, h, w, s, k = 2, 8, 6, 7, 9, 2
+    f = torch.randn(b, c, h, w, generator=g, requires_grad=True)
+    prev = torch.randn(b, c + 1, h, w, generator=g, requires_grad=True)
+    pts = _grid_points(b, s, h, w) + 2 * torch.randn(b, s, 2, h, w, generator=g)
+    pscv, para = parallax_sweep_cost_volume(f, prev, pts, k)
+    warped = torch.nn.functional.grid_sample(  # the sampler by hand: positions in pixels -> [-1, 1], border clamp
+        prev, torch.stack([pts[:, :, 0] * 2 / (w - 1) - 1, pts[:, :, 1] * 2 / (h - 1) - 1], -1).flatten(1, 2),
+        mode="bilinear", padding_mode="border", align_corners=True).view(b, c + 1, s, h, w)
+    want = (f.unsqueeze(2) * warped[:, :c]).view(b, k, c // k, s, h, w).mean(2).reshape(b, k * s, h, w)
+    torch.testing.assert_close(pscv, want, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(para, warped[:, c])
+    wt = torch.randn(b, k * s, h, w, generator=g)
+    got = torch.autograd.grad((pscv * wt).sum() + para.sum(), (f, prev))
+    ref = torch.autograd.grad((want * wt).sum() + warped[:, c].sum(), (f, prev))
+    for a, r in zip(got, ref):
+        torch.testing.assert_close(a, r, rtol=1e-5, atol=1e-5)

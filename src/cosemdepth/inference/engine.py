@@ -36,6 +36,7 @@ from ..ops.cost_volume import (
     parallax_sweep_cost_volume_fast,
     spatial_cost_volume_fast,
 )
+from ..ops.normalize import dinl
 from ..ops.resample import resize_nn1, resize_nn2
 from .convs import PackedConv
 from .int8 import QuantRefiner, RangeRecorder, has_int8
@@ -202,8 +203,8 @@ class FastEngine:
         self.dinl = None
         if enc.dinl is not None:
             self.dinl = (
-                enc.dinl.weight.detach().to(self.device, f32).view(1, -1, 1, 1),
-                enc.dinl.bias.detach().to(self.device, f32).view(1, -1, 1, 1),
+                enc.dinl.weight.detach().to(self.device, f32),
+                enc.dinl.bias.detach().to(self.device, f32),
             )
         # the decoders' level modules give the structure and numerics switches; their weights are packed here
         self.decoders = model.decoders
@@ -263,14 +264,8 @@ class FastEngine:
         return feats
 
     def _dinl(self, x: torch.Tensor) -> torch.Tensor:
-        """DINL (spec 2.2) in few passes: ``z = (x - mean) / (var + 1e-12)``, ``z / max(|z|, 1e-6)`` over channels
-        (= the reference's ``sqrt(max(sum z^2, 1e-12))``), then ``gamma * n + beta``."""
-        gamma, beta = self.dinl
-        z = x - x.mean(dim=(2, 3), keepdim=True)
-        var = (z * z).mean(dim=(2, 3), keepdim=True)  # (torch.var_mean is not vectorised: 40x slower here)
-        z.mul_((var + 1e-12).reciprocal_())
-        rnorm = torch.linalg.vector_norm(z, dim=1, keepdim=True).clamp_min_(1e-6).reciprocal_()
-        return torch.addcmul(beta, z.mul_(rnorm), gamma)
+        """DINL (spec 2.2) in few passes (:func:`cosemdepth.ops.normalize.dinl`, the training's too)."""
+        return dinl(x, *self.dinl)
 
     # ------------------------------------------------------------------ step
     @torch.inference_mode()

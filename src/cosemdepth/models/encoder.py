@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 
+from ..ops.normalize import dinl
 from .layers import conv3x3, lrelu
 
 
@@ -19,8 +20,9 @@ class DINL(nn.Module):
     normalisation across channels per pixel (``max(sum z^2, 1e-12)``), then an affine ``gamma * n + beta``.
 
     ``spatial_mean`` computes the per-image, per-channel means (``[B,C,H,W] -> [B,C,1,1]``); the default is PyTorch's
-    ``mean`` (pairwise summation). ``export --check`` swaps in a sequential float32 summation to measure how much the
-    summation order of these long reductions (H x W terms) moves the outputs.
+    ``mean`` (pairwise summation), computed by :func:`cosemdepth.ops.normalize.dinl` (few passes, hand-written
+    backward). ``export --check`` swaps in a sequential float32 summation to measure how much the summation order of
+    these long reductions (H x W terms) moves the outputs; then the plain ops below run.
     """
 
     def __init__(self, channels: int):
@@ -30,6 +32,8 @@ class DINL(nn.Module):
         self.spatial_mean = _spatial_mean
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.spatial_mean is _spatial_mean:  # the same sums in few passes, with a hand-written backward
+            return dinl(x, self.weight, self.bias)
         mean = self.spatial_mean(x)
         centred = x - mean
         var = self.spatial_mean(centred * centred)

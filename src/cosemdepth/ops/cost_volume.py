@@ -57,18 +57,76 @@ def parallax_sweep_cost_volume(
     b, c, h, w = feat.shape
     s = points.shape[1]
     pts = points.permute(0, 2, 1, 3, 4).reshape(b, 2, s * h, w)
-    warped = sample_bilinear(prev, pts).view(b, c + 1, s, h, w)
-    corr = group_correlation(feat.unsqueeze(2), warped[:, :c], groups, half=half)  # [B,K,S,H,W]
-    return corr.reshape(b, groups * s, h, w), warped[:, c]
+    # channels-last input: the CPU sampler reads each tap's C + 1 values contiguously (several times faster here)
+    warped = sample_bilinear(prev.contiguous(memory_format=torch.channels_last), pts).contiguous()
+    warped = warped.view(b, c + 1, s, h, w)
+    if half or torch.onnx.is_in_onnx_export():  # float16 products like the original / plain traceable ops
+        corr = group_correlation(feat.unsqueeze(2), warped[:, :c], groups, half=half)  # [B,K,S,H,W]
+        return corr.reshape(b, groups * s, h, w), warped[:, c]
+    if torch.is_grad_enabled() and (feat.requires_grad or warped.requires_grad):
+        return _SweepCorrelation.apply(feat, warped, groups)
+    return _sweep_correlation_loop(feat, warped, groups), warped[:, c]
+
+
+def _sweep_correlation_loop(feat: torch.Tensor, warped: torch.Tensor, groups: int) -> torch.Tensor:
+    """``feat [B, C, H, W]``, ``warped [B, C + 1, S, H, W]`` -> ``[B, K*S, H, W]`` group means of ``feat * warped``
+    (group-major), one channel at a time (``out[g] += warped[c] * feat[c]``), in the promoted dtype."""
+    b, c, h, w = feat.shape
+    s = warped.shape[2]
+    n = c // groups
+    dtype = torch.promote_types(torch.promote_types(feat.dtype, warped.dtype), torch.float32)
+    f = feat.to(dtype).contiguous()
+    wp = warped.to(dtype)
+    corr = f.new_zeros(b, groups, s, h, w)
+    for ch in range(c):
+        corr[:, ch // n].addcmul_(wp[:, ch], f[:, ch, None])
+    return corr.mul_(1.0 / n).view(b, groups * s, h, w)
+
+
+class _SweepCorrelation(torch.autograd.Function):
+    """``(feat [B, C, H, W], warped [B, C + 1, S, H, W]) -> (pscv [B, K*S, H, W], warped[:, C])`` by
+    :func:`_sweep_correlation_loop`. Backward: ``d feat_c = (1/n) sum_s G[g, s] warped_{c, s}``,
+    ``d warped_{c, s} = (1/n) G[g, s] feat_c``, written with the parallax channel's gradient into one buffer."""
+
+    @staticmethod
+    def forward(ctx, feat, warped, groups):
+        c = feat.shape[1]
+        ctx.save_for_backward(feat, warped)
+        ctx.groups = groups
+        return _sweep_correlation_loop(feat, warped, groups), warped[:, c].clone()
+
+    @staticmethod
+    def backward(ctx, g_corr, g_para):
+        feat, warped = ctx.saved_tensors
+        groups = ctx.groups
+        b, c, h, w = feat.shape
+        s = warped.shape[2]
+        n = c // groups
+        dtype = torch.promote_types(torch.promote_types(feat.dtype, warped.dtype), torch.float32)
+        f = feat.to(dtype).contiguous().view(b, groups, n, 1, h, w)
+        g = g_corr.to(dtype).reshape(b, groups, 1, s, h, w) * (1.0 / n)
+        g_feat = g_warped = None
+        if ctx.needs_input_grad[1]:
+            g_warped = torch.empty(b, c + 1, s, h, w, dtype=warped.dtype)
+            torch.mul(g, f, out=g_warped[:, :c].view(b, groups, n, s, h, w))
+            if g_para is None:
+                g_warped[:, c].zero_()
+            else:
+                g_warped[:, c].copy_(g_para)
+        if ctx.needs_input_grad[0]:
+            wv = warped[:, :c].to(dtype).view(b, groups, n, s, h, w)
+            g_feat = (wv * g).sum(dim=3).view(b, c, h, w).to(feat.dtype)
+        return g_feat, g_warped, None
 
 
 def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negative_slope: float = 0.1) -> torch.Tensor:
     """SNCV: self-correlation of the features over a ``(2r+1)^2`` window with zero padding, then LeakyReLU.
 
     ``corr[o, g](p) = (1 / n_g) sum_{c in g} f_c(p) f_c(p + d_o)`` for the window offsets ``d_o``, zero where
-    ``p + d_o`` leaves the image. Computed for all offsets at once from the ``(2r+1)^2`` window columns of the
-    features (one window row at a time), with a backward that recomputes them instead of keeping them (memory: the
-    output only).
+    ``p + d_o`` leaves the image. Runs the channel loop of :func:`spatial_cost_volume_fast`, with gradients through
+    a backward that loops over the window offsets (memory: the output only); the ONNX export traces the same sums as
+    plain ops instead. Low-precision inputs (bfloat16 / float16 under autocast) are correlated in float32 and the
+    result rounded once to their dtype.
 
     Args:
         feat: ``[B, C, H, W]`` normalised features.
@@ -80,93 +138,81 @@ def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negati
     b, c, h, w = feat.shape
     if c % groups:
         raise ValueError(f"{c} channels cannot be split into {groups} groups")
-    if torch.is_grad_enabled() and feat.requires_grad:
-        vol = _SpatialCorrelation.apply(feat, groups, radius)  # [B, K, (2r+1)^2, H*W]
-    else:  # the same arithmetic as plain ops (traceable for export, no autograd bookkeeping)
-        vol = _spatial_correlation(feat, groups, radius)
-    vol = vol.transpose(1, 2).reshape(b, (2 * radius + 1) ** 2 * groups, h, w)
+    if torch.onnx.is_in_onnx_export():  # plain ops the exporter traces (no strided views, no writes into slices)
+        vol = _spatial_correlation_traceable(feat, groups, radius)
+    elif torch.is_grad_enabled() and feat.requires_grad:
+        vol = _SpatialCorrelation.apply(feat, groups, radius)
+    else:  # the same loop without autograd bookkeeping
+        vol = _sncv_channel_loop(feat.to(_compute_dtype(feat.dtype)).contiguous(), groups, radius).to(feat.dtype)
     return F.leaky_relu(vol, negative_slope)
 
 
-def _window_columns(f: torch.Tensor, radius: int) -> torch.Tensor:
-    """``[B, C, (2r+1)^2, H*W]``: ``out[b, c, o, p] = f[b, c, p + d_o]`` (zero outside)."""
-    b, c = f.shape[:2]
-    k = 2 * radius + 1
-    return F.unfold(f, k, padding=radius).view(b, c, k * k, -1)
-
-
-def _spatial_correlation(feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
-    """``[B, C, H, W] -> [B, K, (2r+1)^2, H*W]`` group-mean correlation with the window offsets (no activation)."""
+def _spatial_correlation_traceable(feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
+    """``[B, C, H, W] -> [B, (2r+1)^2 * K, H, W]`` group-mean correlation, offset-major, before the activation, as
+    plain traceable ops (one stacked window row at a time): the form the ONNX export records."""
     b, c, h, w = feat.shape
     n = c // groups
     k = 2 * radius + 1
     f = feat.contiguous()
     padded = F.pad(f, (radius, radius, radius, radius))
     fv = f.view(b, groups, n, 1, h, w)
-    if torch.onnx.is_in_onnx_export():  # the exporter traces neither the strided view nor writes into slices
-        rows = [torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], 2) for i in range(k)]
-        out = torch.stack([(r.view(b, groups, n, k, h, w) * fv).sum(dim=2) for r in rows], 2)
-    else:  # one window row (2r + 1 offsets) at a time from a zero-copy strided view: (2r + 1) maps of memory
-        s_b, s_c, s_h, s_w = padded.stride()  # window[b, c, i, j, y, x] = padded[b, c, y + i, x + j]
-        window = padded.as_strided((b, c, k, k, h, w), (s_b, s_c, s_h, s_w, s_h, s_w), padded.storage_offset())
-        out = f.new_empty(b, groups, k, k, h, w)
-        for i in range(k):
-            torch.sum(window[:, :, i].reshape(b, groups, n, k, h, w) * fv, dim=2, out=out[:, :, i])
-    out = out.view(b, groups, k * k, h * w).mul(1.0 / n)
-    return out
+    rows = [torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], 2) for i in range(k)]
+    out = torch.stack([(r.view(b, groups, n, k, h, w) * fv).sum(dim=2) for r in rows], 2)  # [B, K, k, k, H, W]
+    return out.permute(0, 2, 3, 1, 4, 5).reshape(b, k * k * groups, h, w) * (1.0 / n)
+
+
+def _compute_dtype(dtype: torch.dtype) -> torch.dtype:
+    """float32 for bfloat16 / float16 inputs, the input's dtype otherwise (float32, float64)."""
+    return torch.promote_types(dtype, torch.float32)
 
 
 class _SpatialCorrelation(torch.autograd.Function):
-    """``[B, C, H, W] -> [B, K, (2r+1)^2, H*W]`` group-mean correlation with the window offsets (no activation).
+    """``[B, C, H, W] -> [B, (2r+1)^2 * K, H, W]`` group-mean correlation with the window offsets (no activation),
+    offset-major; forward by the channel loop of :func:`spatial_cost_volume_fast`.
 
-    Backward: ``dL/df_c(q) = (1/n) [ sum_o G[g,o](q) f_c(q + d_o) + sum_o G[g,o](q - d_o) f_c(q - d_o) ]``; the first
-    sum reads the window columns of ``f`` again, the second scatters ``G f_c`` back along the offsets (``fold``).
+    Backward: ``dL/df_c(q) = (1/n) [ sum_o G[o,g](q) f_c(q + d_o) + sum_o G[o,g](q - d_o) f_c(q - d_o) ]``; renaming
+    ``o -> -o`` in the second sum gives ``(1/n) sum_o H[o,g](q) f_c(q + d_o)`` with ``H[o](q) = G[o](q) + G[-o](q +
+    d_o)`` (zero where ``q + d_o`` leaves the image): ``H`` is one addition of ``G`` and a strided view of the
+    offset-mirrored, zero-padded ``G``; then one in-place multiply-add per offset, reading the padded features
+    shifted by ``d_o``.
     """
 
     @staticmethod
     def forward(ctx, feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
-        f = feat.contiguous()
-        out = _spatial_correlation(f, groups, radius)
-        ctx.save_for_backward(f)
+        f = feat.to(_compute_dtype(feat.dtype)).contiguous()
+        out = _sncv_channel_loop(f, groups, radius)
+        ctx.save_for_backward(feat)
         ctx.groups, ctx.radius = groups, radius
-        return out
+        return out.to(feat.dtype)
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor):
-        (f,) = ctx.saved_tensors
-        groups, radius = ctx.groups, ctx.radius
-        b, c, h, w = f.shape
+        (feat,) = ctx.saved_tensors
+        groups, r = ctx.groups, ctx.radius
+        b, c, h, w = feat.shape
         n = c // groups
-        k = 2 * radius + 1
-        g = grad.to(f.dtype).contiguous().view(b, groups, 1, k * k, h * w)
-        fv = f.view(b, groups, n, 1, h * w)
-        direct = (_window_columns(f, radius).view(b, groups, n, k * k, h * w) * g).sum(dim=3)  # [B,K,n,HW]
-        scattered = F.fold((g * fv).reshape(b, c * k * k, h * w), (h, w), k, padding=radius)
-        return (direct.view(b, c, h, w) + scattered).mul_(1.0 / n), None, None
+        k = 2 * r + 1
+        f = feat.to(_compute_dtype(feat.dtype)).contiguous()
+        g = grad.to(f.dtype).reshape(b, k, k, groups, h, w)
+        # mirror[b, i, j, g, y, x] = G[-o](q + d_o) for o = (i, j), d_o = (i - r, j - r), q = (y, x)
+        gp = F.pad(g.flip(1, 2), (r, r, r, r))
+        s0, s1, s2, s3, s4, s5 = gp.stride()
+        mirror = gp.as_strided((b, k, k, groups, h, w), (s0, s1 + s4, s2 + s5, s3, s4, s5), gp.storage_offset())
+        hh = (g + mirror).unsqueeze(4)  # H: [B, k, k, K, 1, H, W]
+        fpad = F.pad(f, (r, r, r, r)).view(b, groups, n, h + 2 * r, w + 2 * r)
+        out = f.new_zeros(b, groups, n, h, w)
+        for i in range(k):
+            for j in range(k):
+                out.addcmul_(hh[:, i, j], fpad[..., i : i + h, j : j + w])  # H_o(q) f(q + d_o)
+        return out.view(b, c, h, w).mul_(1.0 / n).to(feat.dtype), None, None
 
 
-def spatial_cost_volume_fast(
-    feat: torch.Tensor, groups: int, radius: int = 3, negative_slope: float = 0.1
-) -> torch.Tensor:
-    """The SNCV of :func:`spatial_cost_volume` (same values up to float rounding, same channel order), faster.
-
-    Instead of one multiply and one group mean per window offset (``(2r+1)^2`` Python iterations over the whole
-    map), it loops over the channels: every channel adds its products for all offsets at once, read from a
-    zero-copy strided window view of the padded features. It computes only the offsets with ``dy >= 0`` and mirrors
-    the others, using ``corr_{-d}(p) = corr_d(p - d)`` (zero where ``p - d`` leaves the image, as the zero padding
-    gives).
-
-    Args:
-        feat: ``[B, C, H, W]`` normalised features (any memory format).
-        groups: number of channel groups ``K``.
-        radius: search range ``r``.
-    Returns:
-        ``[B, (2r+1)^2 * K, H, W]``, channel ``((dy + r)(2r + 1) + (dx + r)) * K + g``, contiguous (NCHW).
-    """
-    b, c, h, w = feat.shape
+def _sncv_channel_loop(f: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
+    """``[B, C, H, W]`` (contiguous) ``-> [B, (2r+1)^2 * K, H, W]`` group-mean correlation, offset-major, before the
+    activation: the loop of :func:`spatial_cost_volume_fast`."""
+    b, c, h, w = f.shape
     n = c // groups
     k = 2 * radius + 1
-    f = feat.contiguous()
     padded = F.pad(f, (radius, radius, radius, radius))
     s_b, s_c, s_h, s_w = padded.stride()
     # window[b, c, i, j, y, x] = padded[b, c, y + radius + i, x + j]: offsets dy = i >= 0, dx = j - radius.
@@ -186,8 +232,31 @@ def spatial_cost_volume_fast(
                 continue
             # out[-dy, -dx][y, x] = out[dy, dx][y - dy, x - dx]
             out[:, radius - dy, radius - dx, :, dy:, x0:x1] = out[:, radius + dy, radius + dx, :, : h - dy, x0 - dx : x1 - dx]
-    vol = out.reshape(b, k * k * groups, h, w).mul_(1.0 / n)
-    return F.leaky_relu_(vol, negative_slope)
+    return out.reshape(b, k * k * groups, h, w).mul_(1.0 / n)
+
+
+def spatial_cost_volume_fast(
+    feat: torch.Tensor, groups: int, radius: int = 3, negative_slope: float = 0.1
+) -> torch.Tensor:
+    """The SNCV of :func:`spatial_cost_volume` (same values up to float rounding, same channel order), faster.
+
+    Instead of one multiply and one group mean per window offset (``(2r+1)^2`` Python iterations over the whole
+    map), it loops over the channels: every channel adds its products for all offsets at once, read from a
+    zero-copy strided window view of the padded features. It computes only the offsets with ``dy >= 0`` and mirrors
+    the others, using ``corr_{-d}(p) = corr_d(p - d)`` (zero where ``p - d`` leaves the image, as the zero padding
+    gives). The training forward (:func:`spatial_cost_volume` with gradients) runs the same loop.
+
+    Args:
+        feat: ``[B, C, H, W]`` normalised features (any memory format).
+        groups: number of channel groups ``K``.
+        radius: search range ``r``.
+    Returns:
+        ``[B, (2r+1)^2 * K, H, W]``, channel ``((dy + r)(2r + 1) + (dx + r)) * K + g``, contiguous (NCHW).
+    """
+    c = feat.shape[1]
+    if c % groups:
+        raise ValueError(f"{c} channels cannot be split into {groups} groups")
+    return F.leaky_relu_(_sncv_channel_loop(feat.contiguous(), groups, radius), negative_slope)
 
 
 def parallax_sweep_cost_volume_fast(
@@ -196,22 +265,9 @@ def parallax_sweep_cost_volume_fast(
     points: torch.Tensor,
     groups: int,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The float32 PSCV of :func:`parallax_sweep_cost_volume` (same values up to float rounding), faster.
-
-    The same single bilinear sampling call warps all hypotheses; the group correlation then accumulates one channel
-    at a time (``out[g] += warped[c] * feat[c]``) instead of materialising the ``[B, C, S, H, W]`` product.
+    """The float32 PSCV of the fast inference path: :func:`parallax_sweep_cost_volume` itself (one sampling call,
+    the channel-loop correlation), without the float16 option.
 
     Args and returns as :func:`parallax_sweep_cost_volume` (``pscv`` is ``[B, K*S, H, W]``, group-major).
     """
-    b, c, h, w = feat.shape
-    s = points.shape[1]
-    n = c // groups
-    pts = points.permute(0, 2, 1, 3, 4).reshape(b, 2, s * h, w)
-    # channels-last input: the CPU sampler reads each tap's C + 1 values contiguously (about 1.5x faster here)
-    warped = sample_bilinear(prev.contiguous(memory_format=torch.channels_last), pts).contiguous()
-    warped = warped.view(b, c + 1, s, h, w)
-    f = feat.contiguous()
-    corr = f.new_zeros(b, groups, s, h, w)
-    for ch in range(c):
-        corr[:, ch // n].addcmul_(warped[:, ch], f[:, ch, None])
-    return corr.mul_(1.0 / n).view(b, groups * s, h, w), warped[:, c]
+    return parallax_sweep_cost_volume(feat, prev, points, groups)

@@ -27,3 +27,73 @@ def grouped_l2_normalize(x: torch.Tensor, groups: int, guard: bool = True) -> to
     if guard:
         sq = sq.clamp_min(NORM_SQ_EPS)
     return (g / torch.sqrt(sq)).reshape(b, c, h, w)
+
+
+#: DINL's guards (spec 2.2): added to the per-channel variance; the lower bound of the per-pixel norm over channels
+#: (the original's ``max(sum z^2, 1e-12)`` under the square root).
+DINL_VAR_EPS = 1e-12
+DINL_NORM_MIN = 1e-6
+
+
+def dinl(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """Domain-invariant normalisation (spec 2.2) in few passes over the map, with a hand-written backward.
+
+    Per image and channel ``z = (x - mean) / (var + 1e-12)`` (the variance, not the std), then ``n = z / max(|z|,
+    1e-6)`` with ``|z|`` the L2 norm over the channels per pixel, then ``weight * n + bias``. Computed in float32 for
+    bfloat16 / float16 inputs (the parameters' dtype decides the output's, as ``n * weight + bias`` would).
+
+    Args:
+        x: ``[B, C, H, W]`` (any memory format); weight, bias: ``[C]``.
+    Returns:
+        ``[B, C, H, W]`` in ``promote_types(x.dtype, weight.dtype)``.
+    """
+    if torch.is_grad_enabled() and (x.requires_grad or weight.requires_grad or bias.requires_grad):
+        return _DINL.apply(x, weight, bias)
+    return _dinl_forward(x, weight, bias)[0]
+
+
+def _dinl_forward(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor):
+    dtype = torch.promote_types(torch.promote_types(x.dtype, torch.float32), weight.dtype)
+    z = x.to(dtype)
+    z = z - z.mean(dim=(2, 3), keepdim=True)
+    a = (z * z).mean(dim=(2, 3), keepdim=True).add_(DINL_VAR_EPS).reciprocal_()  # 1 / (var + eps), [B, C, 1, 1]
+    z.mul_(a)
+    norm = torch.linalg.vector_norm(z, dim=1, keepdim=True)  # [B, 1, H, W]
+    r = norm.clamp_min(DINL_NORM_MIN).reciprocal_()
+    n = z.mul_(r)
+    c = x.shape[1]
+    y = torch.addcmul(bias.to(dtype).view(1, c, 1, 1), n, weight.to(dtype).view(1, c, 1, 1))
+    return y, n, a, r, norm
+
+
+class _DINL(torch.autograd.Function):
+    """Backward of :func:`dinl`, with ``n = z r`` (``r = 1 / max(|z|, 1e-6)``), ``z = (x - mean) a``
+    (``a = 1 / (var + eps)``), ``N = H W``:
+
+    * ``dn = dy weight``; ``dz = r (dn - n sum_c(dn n))`` (the second term only where ``|z| > 1e-6``);
+    * ``d(x - mean) = a dz - (2 / N) z sum_p(dz z)`` (through ``a`` and the variance);
+    * ``dx = d(x - mean) - mean_p(d(x - mean))``.
+    """
+
+    @staticmethod
+    def forward(ctx, x, weight, bias):
+        y, n, a, r, norm = _dinl_forward(x, weight, bias)
+        ctx.save_for_backward(n, a, r, norm > DINL_NORM_MIN, weight)
+        ctx.x_dtype = x.dtype
+        return y
+
+    @staticmethod
+    def backward(ctx, gy):
+        n, a, r, active, weight = ctx.saved_tensors
+        c = n.shape[1]
+        gy = gy.to(n.dtype)
+        gw = (gy * n).sum(dim=(0, 2, 3)).to(weight.dtype)
+        gb = gy.sum(dim=(0, 2, 3)).to(weight.dtype)
+        dn = gy * weight.to(n.dtype).view(1, c, 1, 1)
+        proj = (dn * n).sum(dim=1, keepdim=True).mul_(active)
+        dz = dn.sub_(n * proj).mul_(r)
+        z = n / r
+        dzz = (dz * z).sum(dim=(2, 3), keepdim=True).mul_(2.0 / (n.shape[2] * n.shape[3]))
+        dc = dz.mul_(a).sub_(z.mul_(dzz))
+        dx = dc.sub_(dc.mean(dim=(2, 3), keepdim=True))
+        return dx.to(ctx.x_dtype), gw, gb
