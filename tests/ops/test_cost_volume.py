@@ -1,9 +1,9 @@
 import pytest
 import torch
 
+from cosemdepth.geometry.warp import sample_bilinear
 from cosemdepth.ops.cost_volume import (
     parallax_sweep_cost_volume,
-    parallax_sweep_cost_volume_fast,
     spatial_cost_volume,
     spatial_cost_volume_fast,
 )
@@ -45,24 +45,31 @@ def _grid_points(b, s, h, w, shift=(0.0, 0.0)):
     return pts.expand(b, s, 2, h, w).clone()
 
 
-def test_pscv_fast_identity_warp_is_group_mean_of_products():
-    b, c, h, w, k = 1, 8, 5, 6, 2
+@pytest.mark.parametrize("h, w", [(5, 6), (40, 30)])  # below / above PSCV_LOOP_MIN_PIXELS: product form / loop
+def test_pscv_identity_warp_is_group_mean_of_products(h, w):
+    b, c, k = 1, 8, 2
     f, prev = torch.randn(b, c, h, w), torch.randn(b, c + 1, h, w)
-    pscv, warped_para = parallax_sweep_cost_volume_fast(f, prev, _grid_points(b, 3, h, w), k)
+    with torch.no_grad():
+        pscv, warped_para = parallax_sweep_cost_volume(f, prev, _grid_points(b, 3, h, w), k)
     expected = (f * prev[:, :c]).view(b, k, c // k, h, w).mean(2)  # [B,K,H,W], same for all 3 hypotheses
     torch.testing.assert_close(pscv.view(b, k, 3, h, w), expected.unsqueeze(2).expand(b, k, 3, h, w))
     torch.testing.assert_close(warped_para, prev[:, c:].expand(b, 3, h, w))
 
 
-def test_pscv_fast_equals_reference_on_fractional_points():
-    b, c, h, w, s = 2, 16, 7, 9, 9
+@pytest.mark.parametrize("h, w", [(7, 9), (36, 30)])  # product form / channel loop
+@pytest.mark.parametrize("layout", [torch.contiguous_format, torch.channels_last])
+def test_pscv_equals_per_hypothesis_warps_on_fractional_points(h, w, layout):
+    b, c, s, k = 2, 16, 9, 2
     g = torch.Generator().manual_seed(3)
     f, prev = torch.randn(b, c, h, w, generator=g), torch.randn(b, c + 1, h, w, generator=g)
     pts = _grid_points(b, s, h, w) + 3 * torch.randn(b, s, 2, h, w, generator=g)  # some fall outside: border clamp
-    ref = parallax_sweep_cost_volume(f, prev, pts, 2)
-    fast = parallax_sweep_cost_volume_fast(f.contiguous(memory_format=torch.channels_last), prev, pts, 2)
-    torch.testing.assert_close(fast[0], ref[0], rtol=1e-5, atol=1e-6)
-    torch.testing.assert_close(fast[1], ref[1])
+    with torch.no_grad():
+        pscv, para = parallax_sweep_cost_volume(f.contiguous(memory_format=layout), prev, pts, k)
+    for i in range(s):  # one hypothesis at a time, each warped on its own
+        warped = sample_bilinear(prev, pts[:, i])
+        expect = (f * warped[:, :c]).view(b, k, c // k, h, w).mean(2)
+        torch.testing.assert_close(pscv.view(b, k, s, h, w)[:, :, i], expect, rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(para[:, i], warped[:, c])
 
 
 def test_sncv_reference_hand_computed_with_groups():

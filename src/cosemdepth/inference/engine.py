@@ -31,20 +31,13 @@ from ..models.depth_decoder import DepthLevel
 from ..models.model import STREAMERS
 from ..models.outputs import StepOutput, StreamState
 from ..models.pyramid import LevelOps, PyramidLevel, decode_step
-from ..ops.cost_volume import (
-    parallax_sweep_cost_volume,
-    parallax_sweep_cost_volume_fast,
-    spatial_cost_volume_fast,
-)
+from ..ops.cost_volume import spatial_cost_volume_fast
 from ..ops.normalize import dinl
 from ..ops.resample import resize_nn1, resize_nn2
 from .convs import PackedConv
 from .int8 import QuantRefiner, RangeRecorder, has_int8
 
 _CL = torch.channels_last
-#: The channel-loop PSCV pays off on the large, thin maps of the fine levels (16 and 32 channels); the coarse levels
-#: have many channels on small maps, where the reference's product is cheaper.
-_CHANNEL_LOOP_MAX = 32
 # The channel-loop SNCV is faster than the reference's window-row loop on every level (measured interleaved, 2
 # threads, 384 px, loaded machine: 3-13x on levels 2-4, 1.2x on level 5), so every level uses it.
 
@@ -120,12 +113,6 @@ def _concat_channels_last(blocks: list[torch.Tensor], dtype: torch.dtype) -> tor
     return out
 
 
-def _pscv_channel_loop(feat, prev, points, groups, half):
-    if half:  # float16 products like the original: the reference kernel
-        return parallax_sweep_cost_volume(feat, prev, points, groups, half)
-    return parallax_sweep_cost_volume_fast(feat, prev, points, groups)
-
-
 def _nearest_nn1(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     return upsample_nearest(x, size, half_pixel=False)
 
@@ -133,17 +120,15 @@ def _nearest_nn1(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 def _fast_ops(level: PyramidLevel, refiner: _Refiner) -> LevelOps:
     """The fast operations of one level: packed refiner, channels-last concatenation, nearest resize by pixel
     replication; for a depth level NCHW features (one layout change here instead of one per cost volume and per
-    frame), the channel-loop SNCV, and the channel-loop PSCV on the thin fine levels only."""
+    frame) and the channel-loop SNCV (the PSCV is the reference's own function)."""
     ops = LevelOps(
         concat=functools.partial(_concat_channels_last, dtype=refiner.dtype), refiner=refiner, nearest=_nearest_nn1
     )
     if not isinstance(level, DepthLevel):
         return ops
-    thin = level.channels <= _CHANNEL_LOOP_MAX
     return dataclasses.replace(
         ops,
         layout=torch.Tensor.contiguous,
-        pscv=_pscv_channel_loop if thin else parallax_sweep_cost_volume,
         sncv=spatial_cost_volume_fast,
         hypot=True,
     )
