@@ -6,7 +6,8 @@
 Switches besides ``train_ab.py``'s: ``oldsncv`` / ``oldpscv``: the spatial / parallax-sweep cost volume of
 ``ops/cost_volume.py`` at ``--before`` (default 3ed54b1, before issue 11's third round), loaded from git into a
 temporary module and swapped into the training forward's level operations (``models.pyramid.REFERENCE_OPS``) for
-that variant's steps only; ``olddinl``: DINL through its plain ops (the path ``export --check`` takes), as before.
+that variant's steps only; ``olddinl``: DINL through its plain ops (the path ``export --check`` takes), as before;
+``unfused``: every convolution + LeakyReLU as two plain ops (``ops.conv`` without its fused oneDNN form), as before.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ sys.path.insert(0, str(ROOT / "src"))
 import train_ab  # noqa: E402
 
 import cosemdepth.models.pyramid as pyramid  # noqa: E402
+import cosemdepth.ops.conv as conv_ops  # noqa: E402
 
 
 def load_old_cost_volume(commit: str):
@@ -50,7 +52,7 @@ def main(argv=None) -> int:
     old = load_old_cost_volume(commit)
     new_ops = pyramid.REFERENCE_OPS
     patches = {"oldsncv": {"sncv": old.spatial_cost_volume}, "oldpscv": {"pscv": old.parallax_sweep_cost_volume}}
-    train_ab.SWITCHES |= set(patches) | {"olddinl"}
+    train_ab.SWITCHES |= set(patches) | {"olddinl", "unfused"}
     make_variant, step = train_ab.make_variant, train_ab.step
 
     def make(spec, base, cfg):
@@ -62,10 +64,13 @@ def main(argv=None) -> int:
     def patched_step(v, batch, cfg):
         kw = {k: f for s in v["spec"].split(",") for k, f in patches.get(s, {}).items()}
         pyramid.REFERENCE_OPS = dataclasses.replace(new_ops, **kw)
+        fused = conv_ops._FUSED
+        conv_ops._FUSED = fused and "unfused" not in v["spec"].split(",")
         try:
             return step(v, batch, cfg)
         finally:
             pyramid.REFERENCE_OPS = new_ops
+            conv_ops._FUSED = fused
 
     train_ab.make_variant, train_ab.step = make, patched_step
     return train_ab.main(argv)
