@@ -8,12 +8,14 @@ Switches besides ``train_ab.py``'s: ``oldsncv`` / ``oldpscv``: the spatial / par
 temporary module and swapped into the training forward's level operations (``models.pyramid.REFERENCE_OPS``) for
 that variant's steps only; ``olddinl``: DINL through its plain ops (the path ``export --check`` takes), as before;
 ``unfused``: every convolution + LeakyReLU as two plain ops (``ops.conv`` without its fused oneDNN form), as before;
-``oldl2``: the decoders' grouped L2 normalisation through autograd of its plain ops, as before.
+``oldl2``: the decoders' grouped L2 normalisation through autograd of its plain ops, as before; ``oldcat``: the
+refiner inputs by ``torch.cat`` (then cast and re-laid out by the convolution), as before.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib.util
 import subprocess
 import sys
@@ -65,7 +67,8 @@ def main(argv=None) -> int:
         del argv[i : i + 2]
     old = load_old_cost_volume(commit)
     new_ops = pyramid.REFERENCE_OPS
-    patches = {"oldsncv": {"sncv": old.spatial_cost_volume}, "oldpscv": {"pscv": old.parallax_sweep_cost_volume}}
+    patches = {"oldsncv": {"sncv": old.spatial_cost_volume}, "oldpscv": {"pscv": old.parallax_sweep_cost_volume},
+               "oldcat": {"concat": functools.partial(torch.cat, dim=1)}}
     train_ab.SWITCHES |= set(patches) | {"olddinl", "unfused", "oldl2"}
     make_variant, step = train_ab.make_variant, train_ab.step
 

@@ -36,6 +36,7 @@ from ..ops.cost_volume import (
     parallax_sweep_cost_volume_fast,
     spatial_cost_volume_fast,
 )
+from ..ops.concat import write_blocks
 from ..ops.normalize import dinl
 from ..ops.resample import resize_nn1, resize_nn2
 from .convs import PackedConv
@@ -110,14 +111,7 @@ class _Refiner:
 
 def _concat_channels_last(blocks: list[torch.Tensor], dtype: torch.dtype) -> torch.Tensor:
     """``torch.cat(blocks, 1)`` written once into a channels-last buffer of ``dtype``."""
-    b, _, h, w = blocks[0].shape
-    c = sum(t.shape[1] for t in blocks)
-    out = torch.empty((b, c, h, w), dtype=dtype, device=blocks[0].device, memory_format=_CL)
-    k = 0
-    for t in blocks:
-        out[:, k : k + t.shape[1]].copy_(t)
-        k += t.shape[1]
-    return out
+    return write_blocks(blocks, dtype, _CL)
 
 
 def _pscv_channel_loop(feat, prev, points, groups, half):
