@@ -31,6 +31,7 @@ from ..models.depth_decoder import DepthLevel
 from ..models.model import STREAMERS
 from ..models.outputs import StepOutput, StreamState
 from ..models.pyramid import LevelOps, PyramidLevel, decode_step
+from ..ops.concat import write_blocks
 from ..ops.cost_volume import spatial_cost_volume_fast
 from ..ops.normalize import dinl
 from ..ops.resample import resize_nn1, resize_nn2
@@ -103,14 +104,7 @@ class _Refiner:
 
 def _concat_channels_last(blocks: list[torch.Tensor], dtype: torch.dtype) -> torch.Tensor:
     """``torch.cat(blocks, 1)`` written once into a channels-last buffer of ``dtype``."""
-    b, _, h, w = blocks[0].shape
-    c = sum(t.shape[1] for t in blocks)
-    out = torch.empty((b, c, h, w), dtype=dtype, device=blocks[0].device, memory_format=_CL)
-    k = 0
-    for t in blocks:
-        out[:, k : k + t.shape[1]].copy_(t)
-        k += t.shape[1]
-    return out
+    return write_blocks(blocks, dtype, _CL)
 
 
 def _nearest_nn1(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:

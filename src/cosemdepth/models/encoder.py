@@ -6,7 +6,8 @@ import torch
 import torch.nn as nn
 
 from ..ops.normalize import dinl
-from .layers import conv3x3, lrelu
+from ..ops.conv import conv_lrelu
+from .layers import NEGATIVE_SLOPE, conv3x3, lrelu
 
 
 def _spatial_mean(x: torch.Tensor) -> torch.Tensor:
@@ -61,9 +62,10 @@ class Encoder(nn.Module):
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         feats = []
         for k, (c1, c2) in enumerate(zip(self.conv_s1, self.conv_s2)):
-            x = c1(x)
             if k == 0 and self.dinl is not None:
-                x = self.dinl(x)
-            x = lrelu(c2(lrelu(x)))
+                x = lrelu(self.dinl(c1(x)))
+            else:
+                x = conv_lrelu(x, c1, NEGATIVE_SLOPE)
+            x = conv_lrelu(x, c2, NEGATIVE_SLOPE)
             feats.append(x)
         return feats

@@ -8,6 +8,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..ops.conv import conv_lrelu
 from ..ops.padding import Conv2dSame
 
 #: LeakyReLU slope used everywhere in the original (encoder, refiners, SNCV).
@@ -53,7 +54,5 @@ class Refiner(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         last = len(self.convs) - 1
         for k, conv in enumerate(self.convs):
-            x = conv(x)
-            if k < last:
-                x = lrelu(x)
+            x = conv_lrelu(x, conv, NEGATIVE_SLOPE) if k < last else conv(x)
         return x

@@ -10,7 +10,6 @@ How the heavy parts of a level run (cost volumes, concatenation, refiner, neares
 from __future__ import annotations
 
 import dataclasses
-import functools
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Optional, Sequence
 
@@ -18,6 +17,7 @@ import torch
 import torch.nn as nn
 
 from ..ops.cost_volume import parallax_sweep_cost_volume, spatial_cost_volume
+from ..ops.concat import concat_into
 from ..ops.normalize import grouped_l2_normalize
 from ..ops.resample import resize_nn1
 from .outputs import StepOutput, StreamState
@@ -35,7 +35,7 @@ class LevelOps:
 
     Attributes:
         layout: applied to the encoder features before ``prepare`` (e.g. to NCHW for the cost volumes).
-        concat: ``blocks -> refiner input`` (channel concatenation).
+        concat: ``blocks -> refiner input`` (channel concatenation, written once in the convolution's dtype and layout).
         refiner: ``x -> y``, or None for the level's own :class:`~cosemdepth.models.layers.Refiner`.
         nearest: ``(x, size) -> x`` TF nearest resize without half-pixel centres (NN1).
         pscv: ``(feat, prev, points, groups, half) -> (pscv, warped_parallax)`` (see ``parallax_sweep_cost_volume``).
@@ -44,7 +44,7 @@ class LevelOps:
     """
 
     layout: Callable = _identity
-    concat: Callable = functools.partial(torch.cat, dim=1)
+    concat: Callable = concat_into
     refiner: Optional[Callable] = None
     nearest: Callable = resize_nn1
     pscv: Callable = parallax_sweep_cost_volume

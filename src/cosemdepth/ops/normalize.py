@@ -12,6 +12,9 @@ NORM_SQ_EPS = 1e-30
 def grouped_l2_normalize(x: torch.Tensor, groups: int, guard: bool = True) -> torch.Tensor:
     """Split the channels into ``groups`` contiguous groups and divide each group by its per-pixel L2 norm.
 
+    With autograd the backward is hand-written (:class:`_GroupedL2`: two passes over the map instead of autograd's
+    chain through the square, sum, clamp, square root and division); the forward is the same ops either way.
+
     Args:
         x: ``[B, C, H, W]`` with ``C`` divisible by ``groups``.
         groups: number of groups ``K`` (1 = normalise over all channels).
@@ -22,11 +25,47 @@ def grouped_l2_normalize(x: torch.Tensor, groups: int, guard: bool = True) -> to
     b, c, h, w = x.shape
     if c % groups:
         raise ValueError(f"{c} channels cannot be split into {groups} groups")
+    if (torch.is_grad_enabled() and x.requires_grad and not torch.jit.is_tracing()
+            and not torch.onnx.is_in_onnx_export()):
+        return _GroupedL2.apply(x, groups, guard)
+    return _grouped_l2_forward(x, groups, guard)[0]
+
+
+def _grouped_l2_forward(x: torch.Tensor, groups: int, guard: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(y, norm, kept)``: the normalised map, the per-pixel group norms ``[B, K, 1, H, W]`` and where the squared
+    norm is above the guard (where it depends on ``x``)."""
+    b, c, h, w = x.shape
     g = x.reshape(b, groups, c // groups, h, w)
     sq = (g * g).sum(dim=2, keepdim=True)
+    kept = sq > NORM_SQ_EPS if guard else None
     if guard:
         sq = sq.clamp_min(NORM_SQ_EPS)
-    return (g / torch.sqrt(sq)).reshape(b, c, h, w)
+    norm = torch.sqrt(sq)
+    return (g / norm).reshape(b, c, h, w), norm, kept
+
+
+class _GroupedL2(torch.autograd.Function):
+    """``y = x / r``, ``r = sqrt(max(sum_group x^2, eps))``; backward
+    ``dx = (dy - y * sum_group(dy * y)) / r`` (the second term only where the guard is inactive)."""
+
+    @staticmethod
+    def forward(ctx, x, groups, guard):
+        y, norm, kept = _grouped_l2_forward(x, groups, guard)
+        ctx.save_for_backward(y, norm, kept)
+        ctx.groups = groups
+        return y
+
+    @staticmethod
+    def backward(ctx, gy):
+        y, norm, kept = ctx.saved_tensors
+        b, c, h, w = y.shape
+        yg = y.reshape(b, ctx.groups, c // ctx.groups, h, w)
+        gg = gy.reshape(yg.shape)
+        dot = (gg * yg).sum(dim=2, keepdim=True)
+        if kept is not None:
+            dot = dot * kept
+        gx = torch.addcmul(gg, yg, dot, value=-1.0).div_(norm)
+        return gx.reshape(b, c, h, w), None, None
 
 
 #: DINL's guards (spec 2.2): added to the per-channel variance; the lower bound of the per-pixel norm over channels

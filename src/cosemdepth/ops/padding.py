@@ -39,10 +39,14 @@ class Conv2dSame(nn.Conv2d):
             bias=bias,
         )
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def prepad(self, x: torch.Tensor) -> torch.Tensor:
+        """``x`` padded as TF pads it where the convolution's own (symmetric) padding cannot."""
         if not self.symmetric:
             k, s = self.kernel_size[0], self.stride[0]
             top, bottom = same_padding(x.shape[-2], k, s)
             left, right = same_padding(x.shape[-1], k, s)
             x = F.pad(x, (left, right, top, bottom))
-        return super().forward(x)
+        return x
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return super().forward(self.prepad(x))
