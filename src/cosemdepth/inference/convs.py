@@ -11,19 +11,13 @@ import torch
 import torch.nn.functional as F
 
 from ..models.layers import NEGATIVE_SLOPE
+from ..ops.conv import has_mkldnn_pointwise
 from ..ops.padding import Conv2dSame, same_padding
 
 _CL = torch.channels_last
 
 
-def _has_mkldnn_pointwise() -> bool:
-    try:
-        return torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_convolution_pointwise")
-    except (AttributeError, RuntimeError):  # pragma: no cover - exotic builds
-        return False
-
-
-HAS_MKLDNN_POINTWISE = _has_mkldnn_pointwise()
+HAS_MKLDNN_POINTWISE = has_mkldnn_pointwise()
 
 
 class PackedConv:

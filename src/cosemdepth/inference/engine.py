@@ -102,11 +102,6 @@ class _Refiner:
         return self.last(x)
 
 
-def _concat_channels_last(blocks: list[torch.Tensor], dtype: torch.dtype) -> torch.Tensor:
-    """``torch.cat(blocks, 1)`` written once into a channels-last buffer of ``dtype``."""
-    return write_blocks(blocks, dtype, _CL)
-
-
 def _nearest_nn1(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     return upsample_nearest(x, size, half_pixel=False)
 
@@ -116,7 +111,9 @@ def _fast_ops(level: PyramidLevel, refiner: _Refiner) -> LevelOps:
     replication; for a depth level NCHW features (one layout change here instead of one per cost volume and per
     frame) and the channel-loop SNCV (the PSCV is the reference's own function)."""
     ops = LevelOps(
-        concat=functools.partial(_concat_channels_last, dtype=refiner.dtype), refiner=refiner, nearest=_nearest_nn1
+        concat=functools.partial(write_blocks, dtype=refiner.dtype, memory_format=_CL),
+        refiner=refiner,
+        nearest=_nearest_nn1,
     )
     if not isinstance(level, DepthLevel):
         return ops

@@ -21,11 +21,15 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 
-def _fused_available() -> bool:
-    return torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_convolution_pointwise")
+def has_mkldnn_pointwise() -> bool:
+    """Whether this PyTorch build has oneDNN's fused convolution + post-op kernel (``_convolution_pointwise``)."""
+    try:
+        return torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_convolution_pointwise")
+    except (AttributeError, RuntimeError):  # pragma: no cover - exotic builds
+        return False
 
 
-_FUSED = _fused_available()
+_FUSED = has_mkldnn_pointwise()
 
 
 class _ConvLReLU(torch.autograd.Function):
