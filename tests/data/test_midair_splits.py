@@ -103,6 +103,23 @@ def test_cli_synthair_defaults_to_root_splits_with_generic_rule(tmp_path):
     ]
 
 
+def test_cli_single_split_rule_puts_every_trajectory_in_that_split(tmp_path):
+    # a world used only for training: its rows are those the generic rule spreads over train/val/test
+    layout = {("Synth_world", "foggy"): [0, 1, 2, 3], ("Synth_world", "sunny"): [0, 1]}
+    write_midair(tmp_path / "root", layout, frames=20, images=False)
+    assert main(["splits", "synthair", str(tmp_path / "root"), str(tmp_path / "generic")]) == 0
+    assert main(["splits", "synthair", str(tmp_path / "root"), str(tmp_path / "all"), "--rule", "train"]) == 0
+    generic = sorted(p.name for p in (tmp_path / "generic").rglob("*.csv"))
+    every = sorted(p.relative_to(tmp_path / "all").as_posix() for p in (tmp_path / "all").rglob("*.csv"))
+    assert every == sorted(f"train_data/Synth_world/{c}/traj_{i:04d}.csv" for (_, c), ids in layout.items() for i in ids)
+    assert len(every) == len(generic) == 6
+    for p in (tmp_path / "generic").rglob("*.csv"):  # the same rows, only the split differs
+        clim, name = p.parent.name, p.name
+        assert read_split_rows(p) == read_split_rows(tmp_path / "all" / "train_data" / "Synth_world" / clim / name)
+    assert main(["splits", "synthair", str(tmp_path / "root"), str(tmp_path / "t"), "--rule", "test"]) == 0
+    assert {p.parent.parent.parent.name for p in (tmp_path / "t").rglob("*.csv")} == {"test_data"}
+
+
 def test_cli_midair_without_out_dir_is_a_user_error(tmp_path, capsys):
     write_midair(tmp_path / "root", {("Kite_training", "sunny"): [0]}, images=False)
     assert main(["splits", "midair", str(tmp_path / "root")]) == 2

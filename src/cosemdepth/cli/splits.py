@@ -15,6 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..data.midair.splits import SPLITS
 from ..data.registry import DATASETS, dataset_spec
 from ..errors import ConfigError
 from ..io.outdir import Input, check_output_dir
@@ -27,11 +28,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out_dir", type=Path, nargs="?", help="output folder (default for synthair: ROOT/splits)")
     parser.add_argument(
         "--rule",
-        choices=("auto", "midair", "generic"),
+        choices=("auto", "midair", "generic", *SPLITS),
         default=None,
         help="split rule for Mid-Air-format roots: midair = the paper's (index %% 3 == 0 test, 8 fixed "
         "validation trajectories), generic = index %% 3 == 0 test with the last test trajectory of each climate "
-        "(when it has two or more) as validation; default midair for midair, generic for synthair",
+        "(when it has two or more) as validation; train, val or test = every trajectory in that split (a world "
+        "used only for training, or only for testing); default midair for midair, generic for synthair",
     )
 
 

@@ -236,7 +236,9 @@ def generate_splits(
         root: dataset root holding ``<env>/<climate>/sensor_records.hdf5`` and the image folders.
         out_dir: where the split folders go (nothing is written into ``root``).
         rule: ``"midair"`` (the paper's), ``"generic"`` (see :func:`generic_split_rule`), ``"auto"`` (midair when
-            the root has Mid-Air's environment names) or a callable ``Trajectory -> split name``.
+            the root has Mid-Air's environment names), a split name (``"train"``, ``"val"``, ``"test"``: every
+            trajectory goes to that split, e.g. for a world used only for training or only for testing) or a
+            callable ``Trajectory -> split name``.
     Returns:
         split name -> written CSV paths. A trajectory too short for one row (fewer than 32 ground-truth samples)
         gets no CSV; the others keep their index in the sorted listing.
@@ -250,6 +252,9 @@ def generate_splits(
         rule_fn = midair_split_rule
     elif rule == "generic":
         rule_fn = generic_split_rule(trajs)
+    elif rule in SPLITS:
+        def rule_fn(traj: Trajectory, _split: str = rule) -> str:
+            return _split
     elif callable(rule):
         rule_fn = rule
     else:
