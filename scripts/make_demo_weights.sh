@@ -7,8 +7,9 @@
 # 2. cosemdepth train with src/cosemdepth/configs/synthair-demo.yaml (Co-SemDepth, 5 levels, 7 classes, bf16 autocast).
 # 3. The best checkpoint (spec 8.5 rule on the validation world) is written to weights/synthair-cosemdepth in
 #    float16, with its training curve (weights/synthair-cosemdepth/training_curve.csv and .png).
-# CPU-only, on a 2-core machine (2026-12-02, Intel Xeon with AVX512-BF16): about 20 minutes of data generation (2
-# render processes, 0.5 s per 384x384-ray frame each) and about 1.5 hours of training.
+# CPU-only, on a 2-core machine (2026-12-02, Intel Xeon with AVX512-BF16, shared with another 1-thread job most of
+# the time): 36 minutes of data generation (2 render processes, about 0.5 s per frame of 384x384 rays each) and 1 h
+# 42 min of training (5,184 steps; about 1 h 20 min estimated alone, at 1.14 steps/s with 2 threads).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
