@@ -28,7 +28,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve()
 sys.path.insert(0, str(HERE.parent))
-from convergence_vs_original import HIGHER_IS_BETTER, METRICS, blocks  # noqa: E402
+from convergence_vs_original import METRICS, blocks, metrics_panel, save_figure  # noqa: E402
 
 MODES = ("fp32", "bf16")
 
@@ -108,25 +108,10 @@ def plot(res: dict, path: Path, title: str) -> None:
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    names = list(METRICS)
-    for k, mode in enumerate(MODES):
-        for j, m in enumerate(names):
-            vals = res[mode]["metrics"][m]
-            xs = np.full(len(vals), j + (k - 0.5) * 0.3)
-            bx.scatter(xs, vals, color=colours[mode], s=25, label=mode if j == 0 else None)
-            bx.plot([xs[0] - 0.1, xs[0] + 0.1], [np.mean(vals)] * 2, color=colours[mode], lw=2)
-    bx.set_xticks(range(len(names)))
-    bx.set_xticklabels([f"{METRICS[m]} ({'higher' if HIGHER_IS_BETTER[m] else 'lower'} better)" for m in names],
-                       fontsize=8)
+    metrics_panel(bx, {mode: res[mode]["metrics"] for mode in MODES}, colours)
     bx.set_yscale("log")
     bx.set_title("test split, every seed (bar: mean; log scale)", fontsize=10)
-    bx.grid(alpha=0.3)
-    bx.legend(fontsize=8)
-    fig.tight_layout()
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    os.replace(tmp, path)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv=None) -> int:

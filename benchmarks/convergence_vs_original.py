@@ -229,19 +229,34 @@ def plot(per_seed: dict, summary: dict, every: int, path: Path, title: str) -> N
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
+    impls = [i for i in summary if i != "acceptance"]
+    metrics_panel(bx, {impl: {m: [per_seed[s][impl]["metrics"][m] for s in sorted(per_seed)] for m in METRICS}
+                       for impl in impls}, colours)
+    bx.set_title("test split, every seed (bar: mean)", fontsize=10)
+    save_figure(fig, path)
+
+
+def metrics_panel(bx, values: dict, colours: dict) -> None:
+    """Scatter of the test metrics of every run, side by side per series, with a bar at each mean.
+    ``values``: series name -> {metric: [value per seed]}."""
     names = list(METRICS)
-    for k, impl in enumerate(i for i in summary if i != "acceptance"):
+    for k, (series, mets) in enumerate(values.items()):
         for j, m in enumerate(names):
-            vals = [per_seed[s][impl]["metrics"][m] for s in sorted(per_seed)]
+            vals = mets[m]
             xs = np.full(len(vals), j + (k - 0.5) * 0.3)
-            bx.scatter(xs, vals, color=colours[impl], s=25, label=impl if j == 0 else None)
-            bx.plot([xs[0] - 0.1, xs[0] + 0.1], [np.mean(vals)] * 2, color=colours[impl], lw=2)
+            bx.scatter(xs, vals, color=colours[series], s=25, label=series if j == 0 else None)
+            bx.plot([xs[0] - 0.1, xs[0] + 0.1], [np.mean(vals)] * 2, color=colours[series], lw=2)
     bx.set_xticks(range(len(names)))
     bx.set_xticklabels([f"{METRICS[m]} ({'higher' if HIGHER_IS_BETTER[m] else 'lower'} better)" for m in names],
                        fontsize=8)
-    bx.set_title("test split, every seed (bar: mean)", fontsize=10)
     bx.grid(alpha=0.3)
     bx.legend(fontsize=8)
+
+
+def save_figure(fig, path: Path) -> None:
+    """Write ``fig`` to ``path`` through a temporary file (no half-written picture) and close it."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     tmp = path.with_name(path.name + ".tmp.png")
     fig.savefig(tmp, dpi=110)
