@@ -573,10 +573,10 @@ class Trainer:
         batches = None
         try:
             while self.state.step < self.total_steps:
+                t_wait = time.perf_counter()  # (the time the step waits for the data loader is logged)
                 if batches is None:
-                    batches = self._stream()
-                t_wait = time.perf_counter()
-                batch = next(batches, None)  # (the time the step waits for the data loader is logged)
+                    batches = self._stream()  # (starting the workers counts as waiting)
+                batch = next(batches, None)
                 if batch is None:
                     raise RuntimeError(f"the training data ran out at step {self.state.step}, batch "
                                        f"{self.state.batch_in_epoch} of an epoch of {self.steps_per_epoch}")
