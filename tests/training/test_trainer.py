@@ -306,3 +306,25 @@ def test_train_events_log_the_wait_for_data(tmp_path, tiny_config):
     Trainer(cfg, tmp_path / "run", train_dataset=slow, console=False).fit()
     waits = [e["data_wait_s"] for e in read_events(tmp_path / "run" / "events.jsonl") if e["kind"] == "train"]
     assert len(waits) == 3 and all(w >= 0.1 for w in waits)
+
+
+def test_worker_processes_and_resume_give_the_batches_of_the_main_process(tmp_path, tiny_config):
+    """Three epochs of a weighted mix (items drawn by epoch) in one continuous stream: with 2 long-lived worker
+    processes, stopped in the middle of epoch 1 and resumed, the losses and weights are bitwise those of a run that
+    loads in the main process."""
+    mix = dict(train__epochs=3, train__checkpoint_every=100, data__train__1__name="toy",
+               data__train__1__weight=2.0, data__train__1__options={"length": 4, "shift": 1}, data__mix_length=8)
+    ref = Trainer(tiny_config(**mix), tmp_path / "ref", console=False)
+    ref.fit()
+    Trainer(tiny_config(data__num_workers=2, train__max_steps=6, **mix), tmp_path / "w", console=False).fit()
+    resumed = Trainer(tiny_config(data__num_workers=2, **mix), tmp_path / "w", console=False)
+    resumed.fit()
+    assert _equal(_weights(resumed), _weights(ref))
+
+    def losses(run):
+        return {e["step"]: e["loss_total"] for e in read_events(tmp_path / run / "events.jsonl") if e["kind"] == "train"}
+
+    want = losses("ref")
+    assert sorted(want) == list(range(1, 13)) and losses("w") == want
+    ends = [e["step"] for e in read_events(tmp_path / "w" / "events.jsonl") if e["kind"] == "epoch_end"]
+    assert ends == [4, 8, 12]

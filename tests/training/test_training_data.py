@@ -5,16 +5,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from torch.utils.data import DistributedSampler
+from torch.utils.data import DataLoader, DistributedSampler
 
 from cosemdepth.config import DataConfig, DatasetSource, ModelConfig
+from cosemdepth.data import MixedDataset
 from cosemdepth.data.midair.format import PALETTE_7
 from cosemdepth.errors import ConfigError, DatasetError
 from cosemdepth.training.data import (
+    EpochBatchSampler,
+    EpochItems,
     ResumableSampler,
     build_train_dataset,
     check_modalities,
     collate,
+    make_train_stream,
     open_source,
     steps_per_epoch,
     total_steps,
@@ -128,3 +132,67 @@ def test_pictures():
     strip = example_strip(torch.rand(3, 8, 8), true_depth=torch.ones(1, 8, 8), pred_depth=torch.ones(1, 8, 8),
                           true_labels=torch.zeros(8, 8, dtype=torch.long), pred_labels=None)
     assert strip.shape == (8, 32, 3) and strip.dtype == np.uint8
+
+
+class _EpochItems(torch.utils.data.Dataset):
+    """Items that name the epoch selected by ``set_epoch`` and their index."""
+
+    def __init__(self, n: int, tag: int) -> None:
+        self.n, self.tag, self.epoch = n, tag, 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, i: int) -> dict:
+        return {"v": torch.tensor([self.tag, self.epoch, i])}
+
+
+def _old_batches(dataset, *, epoch, start_batch, salt, batch_size, epochs, num_replicas=1, rank=0):
+    """The batches of one DataLoader per epoch, as the trainer built them before the continuous stream."""
+    sampler = ResumableSampler(dataset, num_replicas=num_replicas, rank=rank, seed=9)
+    out = []
+    for e in range(epoch, epoch + epochs):
+        dataset.set_epoch(e)
+        sampler.set_position(e, (start_batch if e == epoch else 0) * batch_size, salt)
+        loader = DataLoader(dataset, batch_size=batch_size, sampler=sampler, drop_last=True, collate_fn=collate)
+        out += [b["v"] for b in loader]
+    return out
+
+
+@pytest.mark.parametrize("num_workers", [0, 2])
+@pytest.mark.parametrize("mixed", [False, True])
+def test_continuous_stream_gives_the_batches_of_one_loader_per_epoch(num_workers, mixed):
+    """From batch 1 of epoch 2 with a salted order, over the rest of epoch 2 and epochs 3 and 4: 11 items, batch 3
+    (3 full batches per epoch, 2 items dropped). The items follow the epochs also in long-lived workers."""
+    def data():
+        if mixed:
+            return MixedDataset([_EpochItems(7, 0), _EpochItems(5, 1)], [1.0, 2.0], length=11, seed=4)
+        return _EpochItems(11, 0)
+
+    expected = _old_batches(data(), epoch=2, start_batch=1, salt=1, batch_size=3, epochs=3)
+    assert len(expected) == 2 + 3 + 3
+    ds = data()
+    stream = make_train_stream(ds, ResumableSampler(ds, seed=9), 3, num_workers, epoch=2, start_batch=1, salt=1,
+                               num_batches=8, seed=0)
+    got = [b["v"] for b in stream]
+    assert len(got) == 8 and all(torch.equal(g, e) for g, e in zip(got, expected))
+    assert [int(b[0, 1]) for b in got] == [2, 2, 3, 3, 3, 4, 4, 4]  # (a mix passes its epoch on)
+
+
+def test_continuous_stream_of_one_rank_and_an_endless_stream():
+    ds = _EpochItems(13, 0)
+    expected = _old_batches(ds, epoch=0, start_batch=0, salt=0, batch_size=2, epochs=3, num_replicas=2, rank=1)
+    assert len(expected) == 3 * 3  # 6 items per rank and epoch
+    sampler = ResumableSampler(ds, num_replicas=2, rank=1, seed=9)
+    batches = EpochBatchSampler(sampler, 2, epoch=0, num_batches=None)
+    got = []
+    for b in batches:  # endless: the consumer stops
+        got.append(torch.stack([EpochItems(ds)[k]["v"] for k in b]))
+        if len(got) == len(expected):
+            break
+    assert all(torch.equal(g, e) for g, e in zip(got, expected))
+    with pytest.raises(ValueError, match="no full batch"):
+        next(iter(EpochBatchSampler(ResumableSampler(ds, seed=0), 14, epoch=0)))

@@ -7,6 +7,13 @@ mode (spec 6.3: non-overlapping windows of ``val_seq_len``, no augmentation). A 
 the configured weights. The order of the items of an epoch follows ``(seed, epoch)`` exactly as
 :class:`torch.utils.data.DistributedSampler`, so a run can resume in the middle of an epoch by skipping the batches
 it already consumed, without loading them.
+
+Training batches come from one continuous stream (:func:`make_train_stream`) that runs across epoch boundaries:
+its batch sampler (:class:`EpochBatchSampler`) yields the full batches of epoch after epoch as ``(epoch, index)``
+pairs, and :class:`EpochItems` selects the item's epoch in whichever process loads it (``set_epoch`` before the
+fetch). The worker processes therefore start once per stream (once per run, and again after a rollback) and load
+the next epoch's first batches while the current epoch ends, is validated and checkpointed; the batches are those
+of one loader per epoch (``ResumableSampler.set_position`` + the dataset's ``set_epoch`` + full batches only).
 """
 
 from __future__ import annotations
@@ -15,7 +22,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
 import torch
-from torch.utils.data import DataLoader, Dataset, DistributedSampler
+from torch.utils.data import DataLoader, Dataset, DistributedSampler, Sampler
 
 from ..config import DataConfig, DatasetSource, ModelConfig, key_path
 from ..data import MixedDataset, dataset_spec, open_dataset
@@ -161,6 +168,74 @@ def make_loader(dataset: Dataset, sampler: ResumableSampler | None, batch_size: 
                       collate_fn=collate, drop_last=sampler is not None, pin_memory=pin_memory, generator=gen)
 
 
+class EpochBatchSampler(Sampler[list[tuple[int, int]]]):
+    """The training batches of epoch after epoch, as lists of ``(epoch, index)``, for one continuous DataLoader.
+
+    Epoch ``epoch`` (the first) starts at this rank's item ``start``; every epoch's order is the one ``sampler``
+    gives after ``set_position(e, start, salt)``, cut into full batches of ``batch_size`` (the tail is dropped, as a
+    ``drop_last`` DataLoader of that epoch does). Stops after ``num_batches`` batches (None: never).
+    """
+
+    def __init__(self, sampler: ResumableSampler, batch_size: int, *, epoch: int, start: int = 0, salt: int = 0,
+                 num_batches: int | None = None) -> None:
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be positive, got {batch_size}")
+        self.sampler = sampler
+        self.batch_size = int(batch_size)
+        self.epoch, self.start, self.salt = int(epoch), int(start), int(salt)
+        self.num_batches = num_batches
+
+    def __iter__(self) -> Iterator[list[tuple[int, int]]]:
+        left = self.num_batches
+        epoch, start = self.epoch, self.start
+        b = self.batch_size
+        while left is None or left > 0:
+            self.sampler.set_position(epoch, start, self.salt)
+            order = list(self.sampler)
+            full = len(order) // b
+            if full == 0 and start == 0:
+                raise ValueError(f"epoch {epoch} has no full batch of {b} items ({len(order)} items for this rank)")
+            for k in range(full if left is None else min(full, left)):
+                yield [(epoch, i) for i in order[k * b:(k + 1) * b]]
+            if left is not None:
+                left -= min(full, left)
+            epoch, start = epoch + 1, 0
+
+    def __len__(self) -> int:
+        if self.num_batches is None:
+            raise TypeError("an endless EpochBatchSampler has no length")
+        return int(self.num_batches)
+
+
+class EpochItems(Dataset):
+    """``items[(epoch, index)]`` is ``dataset[index]`` of ``epoch``: calls ``dataset.set_epoch(epoch)`` (when it has
+    one) in the process that loads the item, so long-lived DataLoader workers follow the epochs of the stream."""
+
+    def __init__(self, dataset: Dataset) -> None:
+        self.dataset = dataset
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __getitem__(self, key: tuple[int, int]):
+        epoch, index = key
+        if hasattr(self.dataset, "set_epoch"):
+            self.dataset.set_epoch(epoch)
+        return self.dataset[index]
+
+
+def make_train_stream(dataset: Dataset, sampler: ResumableSampler, batch_size: int, num_workers: int, *,
+                      epoch: int, start_batch: int, salt: int, num_batches: int | None, seed: int,
+                      pin_memory: bool = False) -> DataLoader:
+    """The training batches from batch ``start_batch`` of ``epoch`` on, across epochs (see :class:`EpochBatchSampler`),
+    ``num_batches`` of them; one iterator of it keeps its ``num_workers`` worker processes for the whole stream."""
+    batches = EpochBatchSampler(sampler, batch_size, epoch=epoch, start=start_batch * batch_size, salt=salt,
+                                num_batches=num_batches)
+    gen = torch.Generator().manual_seed(seed)  # worker seeds, without touching the global RNG
+    return DataLoader(EpochItems(dataset), batch_sampler=batches, num_workers=num_workers, collate_fn=collate,
+                      pin_memory=pin_memory, generator=gen)
+
+
 def to_device(batch: Mapping[str, Any], device: torch.device) -> dict[str, Any]:
     """Move the tensors of a batch to ``device`` (non-blocking); leave other values."""
     return {k: v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
@@ -177,6 +252,7 @@ def total_steps(epochs: int, per_epoch: int, max_steps: int) -> int:
 
 
 __all__ = [
-    "SALT_STRIDE", "ResumableSampler", "build_train_dataset", "build_val_dataset", "check_modalities", "collate",
-    "make_loader", "open_source", "steps_per_epoch", "to_device", "total_steps",
+    "SALT_STRIDE", "EpochBatchSampler", "EpochItems", "ResumableSampler", "build_train_dataset", "build_val_dataset",
+    "check_modalities", "collate", "make_loader", "make_train_stream", "open_source", "steps_per_epoch", "to_device",
+    "total_steps",
 ]

@@ -12,6 +12,10 @@ One :class:`Trainer` runs one run folder (layout in :mod:`cosemdepth.training.ru
 * a non-finite guard: a step whose loss or gradient is not finite is skipped (no optimizer update) and logged; after
   ``train.nonfinite_patience`` such steps in a row the run rolls back to the last good checkpoint, re-shuffles the
   rest of that epoch, and continues; it gives up after ``train.max_rollbacks`` rollbacks without progress;
+* one continuous stream of training batches across epochs (:func:`.data.make_train_stream`): its DataLoader
+  workers start once per run (and again after a rollback) and prefetch the next epoch's first batches while an
+  epoch ends, validates and checkpoints; the batches are those of one loader per epoch, so the epoch
+  accounting, resume and rollback are unchanged;
 * DistributedDataParallel when started by ``torchrun`` (rank 0 writes everything);
 * TensorBoard, a JSON-lines event log, a tqdm progress bar.
 
@@ -53,6 +57,7 @@ from .data import (
     build_val_dataset,
     check_modalities,
     make_loader,
+    make_train_stream,
     steps_per_epoch,
     to_device,
     total_steps,
@@ -526,14 +531,15 @@ class Trainer:
             st.best = {"step": st.step, "metrics": metrics}
 
     # ------------------------------------------------------------------------------------------------ the loop
-    def _epoch_loader(self):
+    def _stream(self):
+        """An iterator over the training batches from the current position to the end of the run, across epochs:
+        its worker processes live until the run ends or rolls back (no restart, and prefetching, at epoch ends)."""
         st, tc = self.state, self.cfg.train
-        if hasattr(self.train_set, "set_epoch"):
-            self.train_set.set_epoch(st.epoch)
-        self.sampler.set_position(st.epoch, st.batch_in_epoch * tc.batch_size, st.data_salt)
         seed = (tc.seed * 1_000_003 + st.epoch) * 1_000_033 + st.data_salt
-        return make_loader(self.train_set, self.sampler, tc.batch_size, self.cfg.data.num_workers, seed=seed,
-                           pin_memory=self.device.type == "cuda")
+        return iter(make_train_stream(self.train_set, self.sampler, tc.batch_size, self.cfg.data.num_workers,
+                                      epoch=st.epoch, start_batch=st.batch_in_epoch, salt=st.data_salt,
+                                      num_batches=self.total_steps - st.step, seed=seed,
+                                      pin_memory=self.device.type == "cuda"))
 
     def fit(self) -> dict:
         """Train (or resume) until ``train.epochs`` epochs or ``train.max_steps`` steps; return a summary dict:
@@ -564,26 +570,26 @@ class Trainer:
         self._bar = tqdm(total=self.total_steps, initial=min(st.step, self.total_steps), desc="train", unit="step",
                          dynamic_ncols=True, disable=not self._progress_bar_shown(), smoothing=0.05)
         self._t_log, self._steps_at_log, self._data_wait_s = time.time(), st.step, 0.0
-        while self.state.step < self.total_steps:
-            st = self.state
-            rolled_back = False
-            ended = False
-            batches = iter(self._epoch_loader())
-            while True:
-                t_wait = time.perf_counter()
-                batch = next(batches, None)  # (the time the step waits for the data loader is logged)
+        batches = None
+        try:
+            while self.state.step < self.total_steps:
+                t_wait = time.perf_counter()  # (the time the step waits for the data loader is logged)
+                if batches is None:
+                    batches = self._stream()  # (starting the workers counts as waiting)
+                batch = next(batches, None)
                 if batch is None:
-                    break
+                    raise RuntimeError(f"the training data ran out at step {self.state.step}, batch "
+                                       f"{self.state.batch_in_epoch} of an epoch of {self.steps_per_epoch}")
                 self._data_wait_s += time.perf_counter() - t_wait
                 verdict = self._train_step(batch)
                 st = self.state
                 self._bar.update(1)
                 if verdict == "rollback":
+                    batches = None  # (its workers stop; the rolled-back position gets a new stream)
                     self._rollback(st.step)
                     self._bar.n = self.state.step
                     self._bar.refresh()
-                    rolled_back = True
-                    break
+                    continue
                 if st.step % tc.log_every == 0:
                     self._log_train()
                 epoch_done = st.batch_in_epoch >= self.steps_per_epoch
@@ -598,14 +604,8 @@ class Trainer:
                     self._validate()
                 if epoch_done or (tc.checkpoint_every and st.step % tc.checkpoint_every == 0):
                     self._request_checkpoint()
-                if st.step >= self.total_steps or epoch_done:
-                    ended = True
-                    break
-            if rolled_back:
-                continue
-            if not ended:
-                raise RuntimeError(f"the training data ran out at step {self.state.step}, batch "
-                                   f"{self.state.batch_in_epoch} of an epoch of {self.steps_per_epoch}")
+        finally:
+            batches = None  # stop the workers now, not when an exception's traceback is freed
         st = self.state
         if self.val_set is not None and st.last_validation_step != st.step and (
                 tc.validate_every_epochs or tc.validate_every_steps):
