@@ -132,6 +132,27 @@ def test_bf16_refiners_stay_close_and_outputs_are_float32(models):
     assert engine.ops["depth"][0].refiner.last.weight.dtype == torch.float32
 
 
+def test_bf16_keeps_the_coarse_depth_levels_in_float32_and_all_float32_levels_is_the_fp32_engine(models):
+    m = models["cosemdepth"]
+    default = FastEngine(m, dtype="bf16")
+    assert default.float32_levels == {"depth": (3, 4, 5)}
+    for name, dec in default.decoders.items():
+        for lvl, o in zip(dec.levels, default.ops[name]):
+            want = torch.float32 if name == "depth" and lvl.level >= 3 else torch.bfloat16
+            assert [c.weight.dtype for c in o.refiner.hidden] == [want] * 6, (name, lvl.level)
+    assert all(c.weight.dtype == torch.bfloat16 for o in FastEngine(m, dtype="bf16", float32_levels={}).ops["depth"]
+               for c in o.refiner.hidden)
+    # every level float32: the bf16 engine is the fp32 engine, bit for bit
+    every = {name: tuple(lvl.level for lvl in dec.levels) for name, dec in m.decoders.items()}
+    mixed, fp32 = FastEngine(m, dtype="bf16", float32_levels=every), FastEngine(m)
+    rgb, q, tr, K = sequence()
+    sa = sb = None
+    for k in range(3):
+        a, sa = mixed.step(rgb[:, k], q[:, k], tr[:, k], K, resets(2, 3)[:, k], sa)
+        b, sb = fp32.step(rgb[:, k], q[:, k], tr[:, k], K, resets(2, 3)[:, k], sb)
+        assert torch.equal(a.depth, b.depth) and torch.equal(a.semantic, b.semantic), k
+
+
 @pytest.mark.parametrize("use_mkldnn", [False, True] if HAS_MKLDNN_POINTWISE else [False])
 @pytest.mark.parametrize("stride, size, act", [(1, (7, 9), True), (2, (8, 10), True), (2, (7, 9), False)])
 def test_packed_conv_matches_the_module(use_mkldnn, stride, size, act):

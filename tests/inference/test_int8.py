@@ -160,7 +160,10 @@ def test_int8_chains_quantised_convolutions_and_runs_kept_refiners_in_the_chosen
         q = [c for c in ref.hidden if isinstance(c, QuantConv)]
         assert len(q) == 6
         assert all((b.x_scale, b.x_zp) == (a.out_scale, a.out_zp) for a, b in zip(q, q[1:]))
-    assert all(c.dtype == torch.bfloat16 for o in eng.ops["depth"] for c in o.refiner.hidden)
+    # the depth levels 1-2 in the chosen float dtype; 3 (1/8 resolution) and coarser in float32 (FLOAT32_FROM_LEVEL)
+    for lvl, o in zip(eng.decoders["depth"].levels, eng.ops["depth"]):
+        want = torch.float32 if lvl.level >= 3 else torch.bfloat16
+        assert [c.dtype for c in o.refiner.hidden] == [want] * 6, lvl.level
     # one quantisation per semantic refiner (its input), none between its convolutions
     calls = []
     real = int8.quantize
@@ -172,6 +175,8 @@ def test_int8_chains_quantised_convolutions_and_runs_kept_refiners_in_the_chosen
     assert len(calls) == len(eng.ops["semantic"])
     f32 = FastEngine(m, dtype="int8", calibration=frames(t=3, seed=1), int8_float_dtype="fp32")
     assert all(c.dtype == torch.float32 for o in f32.ops["depth"] for c in o.refiner.hidden)
+    every = FastEngine(m, dtype="int8", calibration=frames(t=3, seed=1), int8_float_dtype="bf16", float32_levels={})
+    assert all(c.dtype == torch.bfloat16 for o in every.ops["depth"] for c in o.refiner.hidden)
 
 
 def test_equalization_scales_hand_computed():

@@ -10,9 +10,10 @@ What changes with respect to the reference path (and what does not):
 * nearest upsampling by an integer factor uses ``F.interpolate`` (pixel replication, identical values);
 * concatenations write straight into one channels-last buffer in the compute dtype;
 * optional reduced precision (``dtype=torch.bfloat16`` / ``torch.float16``): only the six hidden convolutions of
-  each refiner (about 97% of the multiply-accumulates) run in it; the encoder, the feature normalisation, the
-  geometry, the cost volumes, the last convolution of each refiner (which produces the log-parallax and the
-  logits), the softmax and the state stay in float32.
+  each refiner (about 97% of the multiply-accumulates) run in it, except on the coarsest depth levels
+  (:data:`FLOAT32_FROM_LEVEL`); the encoder, the feature normalisation, the geometry, the cost volumes, the last
+  convolution of each refiner (which produces the log-parallax and the logits), the softmax and the state stay in
+  float32.
 
 With ``dtype=torch.float32`` the results equal the reference path up to float rounding (summation order inside the
 convolutions and the cost volume), which the tests check. Everything runs without autograd.
@@ -50,6 +51,11 @@ _DTYPES = {"float32": torch.float32, "fp32": torch.float32, "bfloat16": torch.bf
 INT8_NAMES = ("int8", "qint8")
 #: int8 path: per decoder, the hidden refiner convolutions (0-5) that stay float (measured, see the int8 docstring)
 INT8_KEEP_FLOAT: dict[str, tuple[int, ...]] = {"depth": (0, 1, 2, 3, 4, 5)}
+#: reduced precision (bf16, fp16, int8): per decoder, the first level (1 = half resolution) from which the coarser
+#: levels keep float32 refiners. The coarse depth estimates seed every finer level and, through the state, the next frames: in bfloat16 they moved
+#: AbsRel by -1.4 % to +2.6 % on three SynthAir flights, float32 there by -0.2 % to +0.1 % for 3.9 % of the
+#: refiners' multiply-accumulates (``benchmarks/fast_accuracy.py``, docs/benchmarks.md).
+FLOAT32_FROM_LEVEL: dict[str, int] = {"depth": 3}
 
 
 def native_bf16() -> bool:
@@ -145,6 +151,9 @@ class FastEngine:
             :data:`INT8_KEEP_FLOAT`: the depth refiners).
         int8_float_dtype: with int8, the dtype of those float convolutions (default bfloat16 on a CPU with native
             bf16, else float32; measured within the accuracy bounds, ``benchmarks/fast_accuracy.py``).
+        float32_levels: with a reduced precision (bf16, fp16, int8), per decoder the level numbers (1 = finest) whose
+            refiners run entirely in float32 (default: :data:`FLOAT32_FROM_LEVEL`, the depth levels at 1/8 of the
+            resolution and coarser: 3, 4 and 5 of the 5-level model); ``{}`` runs every level reduced.
     """
 
     def __init__(
@@ -158,6 +167,7 @@ class FastEngine:
         calibration_frames: int = 8,
         int8_keep_float: dict[str, tuple[int, ...]] | None = None,
         int8_float_dtype: torch.dtype | str | None = None,
+        float32_levels: dict[str, tuple[int, ...]] | None = None,
     ):
         self.int8_keep_float = dict(INT8_KEEP_FLOAT if int8_keep_float is None else int8_keep_float)
         if int8_float_dtype is None:
@@ -185,8 +195,14 @@ class FastEngine:
         # the decoders' level modules give the structure and numerics switches; their weights are packed here
         self.decoders = model.decoders
         self.state_shapes = model.state_shapes
+        if float32_levels is None:
+            float32_levels = {name: tuple(lvl.level for lvl in dec.levels if lvl.level >= FLOAT32_FROM_LEVEL[name])
+                              for name, dec in self.decoders.items() if name in FLOAT32_FROM_LEVEL}
+        self.float32_levels = {name: tuple(v) for name, v in float32_levels.items()}
         self.ops = {
-            name: [_fast_ops(lvl, _Refiner(lvl.refiner, dtype, self.device, use_mkldnn)) for lvl in dec.levels]
+            name: [_fast_ops(lvl, _Refiner(lvl.refiner, f32 if self._float32(name, lvl) else dtype, self.device,
+                                           use_mkldnn))
+                   for lvl in dec.levels]
             for name, dec in self.decoders.items()
         }
         self._calibrating = 0
@@ -214,12 +230,16 @@ class FastEngine:
 
     def _finish_calibration(self) -> None:
         self.ops = {
-            name: [dataclasses.replace(o, refiner=QuantRefiner(lvl.refiner, o.refiner, self.int8_keep_float.get(name, ()),
-                                                               self.int8_float_dtype))
+            name: [dataclasses.replace(o, refiner=o.refiner.refiner if self._float32(name, lvl) else QuantRefiner(
+                       lvl.refiner, o.refiner, self.int8_keep_float.get(name, ()), self.int8_float_dtype))
                    for lvl, o in zip(self.decoders[name].levels, ops)]
             for name, ops in self.ops.items()
         }
         self._calibrating = 0
+
+    def _float32(self, decoder: str, level: PyramidLevel) -> bool:
+        """Whether ``level`` of ``decoder`` keeps float32 refiners whatever the engine's precision."""
+        return level.level in self.float32_levels.get(decoder, ())
 
     @property
     def calibrated(self) -> bool:
