@@ -22,7 +22,8 @@ refiners bfloat16) mIoU +0.17 points, AbsRel +0.94 % (the bfloat16 depth refiner
 equalisation); every refiner int8: AbsRel +7.5 % without equalisation, +1.4 % with it (+0.4 % keeping the depth
 refiners' first convolution float). The depth metrics of this recurrent model move by a few percent either way for
 small changes (alpha 0.3 to 1.0 gives -0.6 % to +7 %), so the depth decoder's refiners stay float by default: in
-bfloat16 on a CPU with native bf16 (AVX512-BF16 / AMX), else float32 (``FastEngine(int8_float_dtype=...)``). On a
+bfloat16 on a CPU with native bf16 (AVX512-BF16 / AMX), else float32 (``FastEngine(int8_float_dtype=...)``), and
+float32 on the coarse levels whatever the precision (``engine.FLOAT32_FROM_LEVEL``). On a
 CPU with AMX (measured here) the int8 convolution plus its separate LeakyReLU takes about the time of the fused bf16
 convolution, so int8 is not faster than bf16 there; it can only pay where int8 convolutions are much faster than bf16
 ones (not measured).
