@@ -252,7 +252,7 @@ def test_bf16_cpu_training_step_is_close_to_float32(tiny_config):
     assert t16.total.dtype == torch.float32 and set(g16) == set(g32)
     levels = cfg.model.levels
     n = 2 * levels + 7 * levels
-    loss_rel = abs(float(t16.total) - float(t32.total)) / abs(float(t32.total))
+    loss_rel = abs(t16.total.item() - t32.total.item()) / abs(t32.total.item())
     diff = math.sqrt(sum(float((g16[k] - g32[k]).double().pow(2).sum()) for k in g32))
     norm = math.sqrt(sum(float(g.double().pow(2).sum()) for g in g32.values()))
     assert loss_rel <= BF16_U
