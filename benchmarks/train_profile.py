@@ -209,7 +209,7 @@ def main(argv=None) -> int:
                       "size": a.size, "seq_len": a.seq_len, "num_workers": a.workers}}
         dcfg = RunConfig.from_dict(d)
         dataset = build_train_dataset(dcfg.data, dcfg.model, 0)
-        loader_iter = iter(make_loader(dataset, None, a.batch, a.workers, seed=0))
+        loader_iter = iter(make_loader(dataset, a.batch, a.workers, seed=0))
     else:
         toy = ToyDataset(length=a.batch, size=(a.size, a.size), seq_len=a.seq_len)
         fixed_batch = collate([toy[i] for i in range(a.batch)])

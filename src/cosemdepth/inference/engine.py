@@ -52,9 +52,9 @@ INT8_NAMES = ("int8", "qint8")
 #: int8 path: per decoder, the hidden refiner convolutions (0-5) that stay float (measured, see the int8 docstring)
 INT8_KEEP_FLOAT: dict[str, tuple[int, ...]] = {"depth": (0, 1, 2, 3, 4, 5)}
 #: reduced precision (bf16, fp16, int8): per decoder, the first level (1 = half resolution) from which the coarser
-#: levels keep float32 refiners. The coarse depth estimates seed every finer level and, through the state, the next frames: in bfloat16 they moved
-#: AbsRel by -1.4 % to +2.6 % on three SynthAir flights, float32 there by -0.2 % to +0.1 % for 3.9 % of the
-#: refiners' multiply-accumulates (``benchmarks/fast_accuracy.py``, docs/benchmarks.md).
+#: levels keep float32 refiners. The coarse depth estimates seed every finer level and, through the state, the next
+#: frames: in bfloat16 they moved AbsRel by -1.4 % to +2.6 % on three SynthAir flights, float32 there by -0.2 % to
+#: +0.1 % for 3.9 % of the refiners' multiply-accumulates (``benchmarks/fast_accuracy.py``, docs/benchmarks.md).
 FLOAT32_FROM_LEVEL: dict[str, int] = {"depth": 3}
 
 

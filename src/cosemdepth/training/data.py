@@ -160,12 +160,15 @@ def collate(items: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def make_loader(dataset: Dataset, sampler: ResumableSampler | None, batch_size: int, num_workers: int,
-                seed: int, pin_memory: bool = False) -> DataLoader:
-    """A DataLoader over ``dataset`` with our collation; full batches only when a sampler is given (training)."""
-    gen = torch.Generator().manual_seed(seed)  # worker seeds, without touching the global RNG
-    return DataLoader(dataset, batch_size=batch_size, sampler=sampler, shuffle=False, num_workers=num_workers,
-                      collate_fn=collate, drop_last=sampler is not None, pin_memory=pin_memory, generator=gen)
+def _loader(dataset: Dataset, num_workers: int, seed: int, pin_memory: bool, **kwargs) -> DataLoader:
+    """A DataLoader with our collation and its worker seeds from ``seed`` (without touching the global RNG)."""
+    return DataLoader(dataset, num_workers=num_workers, collate_fn=collate, pin_memory=pin_memory,
+                      generator=torch.Generator().manual_seed(seed), **kwargs)
+
+
+def make_loader(dataset: Dataset, batch_size: int, num_workers: int, seed: int, pin_memory: bool = False) -> DataLoader:
+    """One pass over ``dataset`` in order, in batches of ``batch_size`` (the last may be short): validation."""
+    return _loader(dataset, num_workers, seed, pin_memory, batch_size=batch_size, shuffle=False)
 
 
 class EpochBatchSampler(Sampler[list[tuple[int, int]]]):
@@ -195,10 +198,11 @@ class EpochBatchSampler(Sampler[list[tuple[int, int]]]):
             full = len(order) // b
             if full == 0 and start == 0:
                 raise ValueError(f"epoch {epoch} has no full batch of {b} items ({len(order)} items for this rank)")
-            for k in range(full if left is None else min(full, left)):
+            take = full if left is None else min(full, left)
+            for k in range(take):
                 yield [(epoch, i) for i in order[k * b:(k + 1) * b]]
             if left is not None:
-                left -= min(full, left)
+                left -= take
             epoch, start = epoch + 1, 0
 
     def __len__(self) -> int:
@@ -231,9 +235,7 @@ def make_train_stream(dataset: Dataset, sampler: ResumableSampler, batch_size: i
     ``num_batches`` of them; one iterator of it keeps its ``num_workers`` worker processes for the whole stream."""
     batches = EpochBatchSampler(sampler, batch_size, epoch=epoch, start=start_batch * batch_size, salt=salt,
                                 num_batches=num_batches)
-    gen = torch.Generator().manual_seed(seed)  # worker seeds, without touching the global RNG
-    return DataLoader(EpochItems(dataset), batch_sampler=batches, num_workers=num_workers, collate_fn=collate,
-                      pin_memory=pin_memory, generator=gen)
+    return _loader(EpochItems(dataset), num_workers, seed, pin_memory, batch_sampler=batches)
 
 
 def to_device(batch: Mapping[str, Any], device: torch.device) -> dict[str, Any]:

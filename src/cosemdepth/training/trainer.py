@@ -500,7 +500,7 @@ class Trainer:
         st = self.state
 
         def run() -> dict:
-            loader = make_loader(self.val_set, None, self.cfg.train.val_batch_size, self.cfg.data.num_workers,
+            loader = make_loader(self.val_set, self.cfg.train.val_batch_size, self.cfg.data.num_workers,
                                  seed=self.cfg.train.seed)
             metrics, example = validate(self.model, loader, self.device, max_batches=self.cfg.train.val_max_batches,
                                         autocast=self._autocast())
