@@ -72,9 +72,14 @@ class BenchResult:
     def ms_per_frame(self) -> list[float]:
         return [t / self.case.batch for t in self.step_ms]
 
+    @property
+    def others_cores(self) -> list[float]:
+        """Cores used by other processes during each step, to 0.01 core: the values reported and judged quiet."""
+        return [round(x, 2) for x in self.others]
+
     def quiet_ms_per_frame(self) -> list[float]:
         """Per-frame times of the quiet steps (other processes used at most ``QUIET_OTHERS`` cores)."""
-        return [t for t, o in zip(self.ms_per_frame, self.others) if o <= QUIET_OTHERS]
+        return [t for t, o in zip(self.ms_per_frame, self.others_cores) if o <= QUIET_OTHERS]
 
     def summary(self) -> dict:
         per_frame = sorted(self.ms_per_frame)
@@ -100,7 +105,7 @@ class BenchResult:
             "mem_exact": self.mem_exact,
             "quiet_steps": len(quiet),
             "quiet_median_ms_per_frame": round(statistics.median(quiet), 3) if quiet else None,
-            "others_cores_per_step": [round(x, 2) for x in self.others],
+            "others_cores_per_step": self.others_cores,
             "loadavg_at_start": self.loadavg,
             "cpu_busy_before": self.busy_before,
             "step_ms": [round(t, 3) for t in self.step_ms],
