@@ -17,8 +17,9 @@ implementation the mean, standard deviation, min and max over the seeds at every
 of issue 12 (our mean curve inside the original's min-max band at every block, our mean test metrics inside the
 original's seed range). ``OUT/convergence.png``: the curves (thin: seeds, thick: means, band: the original's
 min-max) and the test metrics. Runs already finished in ``OUT`` are reused (``--overwrite`` to redo them), so an
-interrupted comparison can be resumed. ``--ours-set KEY=VALUE`` passes overrides to our side (e.g.
-``train.optimizer=adam_torch`` or ``model.pscv_dtype=float16``, to measure one candidate's effect on the curves).
+interrupted comparison can be resumed; ``--previous OLD/convergence.json`` reuses the seeds of an earlier
+comparison of the same protocol (to add seeds to it once its run folders are gone). ``--ours-set KEY=VALUE`` passes
+overrides to our side (e.g. ``train.optimizer=adam_torch`` or ``model.pscv_dtype=float16``, to measure one candidate's effect on the curves).
 
 Without ``TFREF_PY``/``COSEM_AUTHORS`` (../shared/tools/tfref/README.md) it says so and runs ours only.
 """
@@ -107,6 +108,27 @@ def read_ours(out: Path) -> dict | None:
             loss[int(e["step"])] = float(e["loss_total"])
     m = json.loads(met.read_text())["metrics"]
     return {"loss": [loss[k] for k in sorted(loss)], "metrics": {k: float(m[k]) for k in METRICS}}
+
+
+def load_previous(a, with_original: bool) -> dict:
+    """``{seed: {"original": ..., "ours": ...}}`` of ``--previous`` (empty without it); exits with a one-line error
+    when that file's protocol differs from this run's."""
+    if not a.previous:
+        return {}
+    try:
+        prev = json.loads(Path(a.previous).read_text())
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"--previous {a.previous}: cannot read it ({e})")
+    mine = {"data": a.data, "steps": a.steps, "every": a.every, "size": a.size, "batch": a.batch,
+            "seq_len": a.seq_len, "lr": a.lr, "threads_each": a.threads, "ours_overrides": a.ours_set}
+    differ = [k for k, v in mine.items() if prev.get(k) != v]
+    if differ:
+        raise SystemExit(f"--previous {a.previous}: another protocol ({', '.join(f'{k} {prev.get(k)!r} vs {mine[k]!r}' for k in differ)})")
+    out = {}
+    for seed, runs in prev.get("per_seed", {}).items():
+        if "ours" in runs and (not with_original or "original" in runs):
+            out[int(seed)] = runs if with_original else {"ours": runs["ours"]}
+    return out
 
 
 def last_checkpoint(run: Path) -> Path:
@@ -283,6 +305,9 @@ def main() -> int:
     ap.add_argument("--ours-set", action="append", default=[], metavar="KEY=VALUE",
                     help="config override for our side (repeatable)")
     ap.add_argument("--overwrite", action="store_true", help="redo runs already finished in OUT")
+    ap.add_argument("--previous", default=None, metavar="JSON",
+                    help="an earlier convergence.json of the same protocol (tree, steps, size, batch, sequence length, "
+                         "lr, threads): its seeds are reused where OUT has no finished run for them")
     a = ap.parse_args()
     a.split_dir = a.split_dir or os.path.join(a.data, "splits")
     a.data, a.split_dir = os.path.abspath(a.data), os.path.abspath(a.split_dir)
@@ -303,8 +328,13 @@ def main() -> int:
         prep = str(Path(a.prep).resolve()) if a.prep else str(out / "prep")
         prepare_for_original(tfpy, authors, a.data, a.split_dir, prep)
         orig = {"prep": prep, "authors": authors, "tfpy": tfpy}
+    previous = load_previous(a, orig is not None)
     per_seed = {}
     for seed in a.seeds:
+        if seed in previous and not a.overwrite and read_ours(out / "ours" / f"seed{seed}") is None:
+            log(f"seed {seed}: reusing the runs of {a.previous}")
+            per_seed[seed] = previous[seed]
+            continue
         per_seed[seed] = run_seed(a, seed, out, orig)
     summary = summarize(per_seed, a.every)
     res = {"benchmark": "convergence_vs_original", "data": a.data, "split_dir": a.split_dir, "steps": a.steps,

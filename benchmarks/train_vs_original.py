@@ -1,8 +1,8 @@
 """Training speed side by side: the authors' original TensorFlow trainer and ours, on one tree, one machine.
 
     PYTHONPATH=src python benchmarks/train_vs_original.py [--tree DIR] [--steps 30] [--warmup 5] [--size 128]
-        [--batch 3] [--seq-len 4] [--threads 2] [--precision fp32 bf16] [--workers N] [--no-original]
-        [--work DIR] [--out benchmarks/results/train_vs_original]
+        [--batch 3] [--seq-len 4] [--threads 2] [--precision fp32 bf16] [--workers N] [--rounds R]
+        [--no-original] [--work DIR] [--out benchmarks/results/train_vs_original]
 
 1. Builds a small SynthAir tree (``cosemdepth synth``: 2 climates x 3 flights, 80 frames, 256 px; not 384: the original's
    ``prepare`` takes 384 px label files for already mapped ones) unless ``--tree``
@@ -22,7 +22,10 @@
    ``--threads``): a training step is ``3 x`` the forward's convolution work (forward, input and weight gradients)
    over ``batch x seq_len`` frames; the fraction of that floor each trainer reaches is reported.
 
-The runs are sequential (never two at a time). Writes ``OUT.json`` and ``OUT.md``; the machine's load average
+The runs are sequential (never two at a time). With ``--rounds R`` the sequence (original, ours per precision) runs R
+times; every round's ratios are taken within the round and the report adds the median of the rounds' ratios: on a
+host whose speed drifts by tens of percent within minutes (measured: the same step from 1.09 to 1.68 s), one round
+can favour either side. Writes ``OUT.json`` and ``OUT.md``; the machine's load average
 before each run is recorded (the numbers are only as good as the machine was quiet).
 """
 
@@ -32,6 +35,7 @@ import argparse
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -76,12 +80,12 @@ def build_tree(work: Path) -> Path:
     return tree
 
 
-def run_original(a, tree: Path, work: Path, tfpy: str, authors: str) -> tuple[dict, Path]:
+def run_original(a, tree: Path, work: Path, tfpy: str, authors: str, tag: str = "") -> tuple[dict, Path]:
     prep = work / "tf_prep"
     if not (prep / "prepare.json").is_file():
         _run([tfpy, TFREF / "train_reference.py", authors, "--data", tree, "--prep", prep, "--stages", "prepare",
               "--sets", "SynthAir", "--val-trajectories"], work / "tf_prepare.log", env=dict(os.environ))
-    out = work / "tf_train"
+    out = work / f"tf_train{tag}"
     if a.reuse_original and (out / "results.json").is_file():
         res = json.loads((out / "results.json").read_text())
         thr = res["train"]["throughput"] if "train" in res else res["throughput"]
@@ -93,18 +97,18 @@ def run_original(a, tree: Path, work: Path, tfpy: str, authors: str) -> tuple[di
     _run([tfpy, TFREF / "train_reference.py", authors, "--prep", prep, "--out", out, "--stages", "train",
           "--steps", a.warmup + a.steps, "--warmup-steps", a.warmup, "--size", a.size, "--batch", a.batch,
           "--seq-len", a.seq_len, "--intra-threads", a.threads, "--inter-threads", a.threads, "--overwrite"],
-         work / "tf_train.log", env=dict(os.environ))
+         work / f"tf_train{tag}.log", env=dict(os.environ))
     res = json.loads((out / "results.json").read_text())
     thr = res["train"]["throughput"] if "train" in res else res["throughput"]
     return {"steps_per_s": thr["steps_per_s"], "s_per_step_median": thr.get("s_per_step_median"),
             "steps_timed": thr["steps_timed"], "loadavg_before": load, "wall_s": time.time() - t0,
-            "log": str(work / "tf_train.log")}, prep / "splits"
+            "log": str(work / f"tf_train{tag}.log")}, prep / "splits"
 
 
-def run_ours(a, tree: Path, splits: Path, work: Path, precision: str) -> dict:
+def run_ours(a, tree: Path, splits: Path, work: Path, precision: str, tag: str = "") -> dict:
     from cosemdepth.training.events import read_events
 
-    run_dir = work / f"ours_{precision}"
+    run_dir = work / f"ours_{precision}{tag}"
     if run_dir.exists():
         shutil.rmtree(run_dir)
     cmd = [sys.executable, "-m", "cosemdepth", "train", "--config", "midair", "--data-root", tree,
@@ -122,7 +126,7 @@ def run_ours(a, tree: Path, splits: Path, work: Path, precision: str) -> dict:
     t0 = time.time()
     env = _env()
     env["OMP_NUM_THREADS"] = str(a.threads)
-    _run(cmd, work / f"ours_{precision}.log", env=env)
+    _run(cmd, work / f"ours_{precision}{tag}.log", env=env)
     events = read_events(run_dir / "events.jsonl")
     train = {e["step"]: e["time"] for e in events if e["kind"] == "train"}
     others = [e["time"] for e in events if e["kind"] in ("checkpoint", "validation", "epoch_end")]
@@ -161,6 +165,58 @@ def conv_floor(a, work: Path) -> dict:
                     "frames at the size; peak GFLOP/s of the model's largest 3x3 convolution (best of 10)"}
 
 
+def finish_round(rnd: dict, floor: dict) -> None:
+    """Adds each trainer's ratio to the round's original and its fraction of the conv floor."""
+    original = rnd["original"]
+    for prec, r in rnd["ours"].items():
+        if original:
+            r["ratio_to_original"] = r["steps_per_s"] / original["steps_per_s"]
+        r["fraction_of_floor"] = r["steps_per_s"] / floor["floor_steps_per_s"]["bfloat16" if prec == "bf16"
+                                                                               else "float32"]
+    if original:
+        original["fraction_of_fp32_floor"] = original["steps_per_s"] / floor["floor_steps_per_s"]["float32"]
+
+
+def combine_rounds(rounds: list[dict]) -> tuple[dict | None, dict]:
+    """The rounds' medians: steps/s, s/step and fraction of the floor of each trainer, and the median of the
+    per-round ratios (not the ratio of the medians). One round: that round itself."""
+    if len(rounds) == 1:
+        return rounds[0]["original"], rounds[0]["ours"]
+
+    def med(xs):
+        return statistics.median(xs) if xs and None not in xs else None
+
+    keys = ("steps_per_s", "s_per_step_median", "fraction_of_floor", "fraction_of_fp32_floor", "ratio_to_original",
+            "steps_per_s_incl_checkpoints", "data_wait_s_mean")
+    original = None
+    if rounds[0]["original"]:
+        runs = [r["original"] for r in rounds]
+        original = {k: med([r.get(k) for r in runs]) for k in keys if k in runs[0]}
+        original["loadavg_before"] = "-"
+    ours = {}
+    for prec in rounds[0]["ours"]:
+        runs = [r["ours"][prec] for r in rounds]
+        ours[prec] = {k: med([r.get(k) for r in runs]) for k in keys if k in runs[0]}
+        ours[prec]["loadavg_before"] = "-"
+        ours[prec]["intervals_with_checkpoint_left_out"] = sum(r["intervals_with_checkpoint_left_out"] for r in runs)
+    return original, ours
+
+
+def table_rows(rnd: dict, why: str | None, prefix: str) -> list[str]:
+    original, rows = rnd["original"], []
+    if original:
+        rows.append(f"| {prefix}original (TensorFlow, fp32) | {original['steps_per_s']:.3f} | "
+                    f"{original['s_per_step_median'] or float('nan'):.2f} | 1.00x | "
+                    f"{100 * original['fraction_of_fp32_floor']:.0f}% | {original['loadavg_before']} |")
+    else:
+        rows.append(f"| {prefix}original | not run: {why} | | | | |")
+    for prec, r in rnd["ours"].items():
+        ratio = f"{r['ratio_to_original']:.2f}x" if original else "-"
+        rows.append(f"| {prefix}ours {prec} | {r['steps_per_s']:.3f} | {r['s_per_step_median']:.2f} | {ratio} | "
+                    f"{100 * r['fraction_of_floor']:.0f}% | {r['loadavg_before']} |")
+    return rows
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--tree", type=Path, help="a Mid-Air-format tree to train on (default: build a SynthAir one)")
@@ -172,6 +228,9 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--precision", nargs="+", choices=["fp32", "bf16"], default=["fp32", "bf16"])
     p.add_argument("--workers", type=int, default=None, help="our data.num_workers (default: the config's)")
+    p.add_argument("--rounds", type=int, default=1,
+                   help="repeat the sequence (original, ours per precision) this many times and report every round "
+                        "and the median of the rounds' ratios (a host whose speed drifts hits both sides alike)")
     p.add_argument("--no-original", action="store_true", help="do not run the original even if available")
     p.add_argument("--reuse-original", action="store_true",
                    help="reuse the original's results.json already in --work (its run is the slow part)")
@@ -198,61 +257,57 @@ def main(argv=None) -> int:
             why = None
         if why:
             print(f"the original is not run: {why}; measuring ours alone", flush=True)
-        else:
-            original, splits = run_original(a, tree, work, tfpy, authors)
-            print("original:", json.dumps(original), flush=True)
-        ours = {}
-        for prec in a.precision:
-            ours[prec] = run_ours(a, tree, splits, work, prec)
-            print(f"ours {prec}:", json.dumps(ours[prec]), flush=True)
+        rounds = []
+        for k in range(a.rounds):
+            tag = f"_r{k + 1}" if a.rounds > 1 else ""
+            rnd = {"original": None, "ours": {}}
+            if not why:
+                rnd["original"], splits = run_original(a, tree, work, tfpy, authors, tag)
+                print(f"round {k + 1} original:", json.dumps(rnd["original"]), flush=True)
+            for prec in a.precision:
+                rnd["ours"][prec] = run_ours(a, tree, splits, work, prec, tag)
+                print(f"round {k + 1} ours {prec}:", json.dumps(rnd["ours"][prec]), flush=True)
+            rounds.append(rnd)
         floor = conv_floor(a, work)
     finally:
         if tmp is not None:
             tmp.cleanup()
 
+    for rnd in rounds:
+        finish_round(rnd, floor)
+    original, ours = combine_rounds(rounds)
     report = {
         "config": {"size": a.size, "batch": a.batch, "seq_len": a.seq_len, "threads": a.threads, "steps": a.steps,
-                   "warmup": a.warmup, "tree": str(a.tree) if a.tree else "SynthAir, 2 climates x 3 flights, "
-                   "80 frames, 256 px (built by this script)", "splits": "the original's prepare" if original
-                   else "the tree's own"},
-        "original": original, "original_missing": why, "ours": ours, "conv_floor": floor,
+                   "warmup": a.warmup, "rounds": a.rounds, "tree": str(a.tree) if a.tree else "SynthAir, 2 climates "
+                   "x 3 flights, 80 frames, 256 px (built by this script)", "splits": "the original's prepare"
+                   if original else "the tree's own"},
+        "original": original, "original_missing": why, "ours": ours, "rounds": rounds, "conv_floor": floor,
         "machine": hardware_info("cpu"),
     }
-    for prec, r in ours.items():
-        if original:
-            r["ratio_to_original"] = r["steps_per_s"] / original["steps_per_s"]
-        r["fraction_of_floor"] = r["steps_per_s"] / floor["floor_steps_per_s"]["bfloat16" if prec == "bf16"
-                                                                               else "float32"]
-    if original:
-        original["fraction_of_fp32_floor"] = original["steps_per_s"] / floor["floor_steps_per_s"]["float32"]
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     m = report["machine"]
     md = [f"# Training speed, side by side ({a.size} px, batch {a.batch}, seq {a.seq_len}, {a.threads} threads)", "",
           f"{m['date']}, {m['cpu']} ({m['cpu_count']} CPUs, {m['cpu_capability']}), torch {m['torch']}; "
-          f"{a.steps} timed steps after {a.warmup} warm-up steps.", "",
+          f"{a.steps} timed steps after {a.warmup} warm-up steps"
+          + (f"; {a.rounds} rounds of (original, " + ", ".join(f"ours {p}" for p in a.precision) + ") one after "
+             "the other, each ratio taken within its round" if a.rounds > 1 else "") + ".", "",
           "| trainer | steps/s | s/step (median) | vs original | of its conv floor | load before |",
           "|---|---:|---:|---:|---:|---|"]
-    if original:
-        md.append(f"| original (TensorFlow, fp32) | {original['steps_per_s']:.3f} | "
-                  f"{original['s_per_step_median'] or float('nan'):.2f} | 1.00x | "
-                  f"{100 * original['fraction_of_fp32_floor']:.0f}% | {original['loadavg_before']} |")
-    else:
-        md.append(f"| original | not run: {why} | | | | |")
-    for prec, r in ours.items():
-        ratio = f"{r['ratio_to_original']:.2f}x" if original else "-"
-        md.append(f"| ours {prec} | {r['steps_per_s']:.3f} | {r['s_per_step_median']:.2f} | {ratio} | "
-                  f"{100 * r['fraction_of_floor']:.0f}% | {r['loadavg_before']} |")
+    for k, rnd in enumerate(rounds):
+        md += table_rows(rnd, why, f"round {k + 1}: " if a.rounds > 1 else "")
+    if a.rounds > 1:
+        md += table_rows({"original": original, "ours": ours}, why, "median of the rounds: ")
     md += ["", f"Conv floor: {floor['gflops']} GFLOP/s (3x3 128->128 at 192x192, {a.threads} threads); a step is "
            f"{floor['step_gflop']} GFLOP -> floor "
            + ", ".join(f"{k} {v:.2f} steps/s" for k, v in floor["floor_steps_per_s"].items()) + ".",
            "Ours: intervals with a checkpoint left out (" + ", ".join(
                f"{k}: {r['intervals_with_checkpoint_left_out']}, with them {r['steps_per_s_incl_checkpoints']:.3f} "
-               "steps/s" for k, r in ours.items()) + ").",
+               "steps/s" for rnd in rounds for k, r in rnd["ours"].items()) + ").",
            "Ours: mean time a step waited for the data loader: " + ", ".join(
                f"{k}: {r['data_wait_s_mean']:.3f} s" if r.get("data_wait_s_mean") is not None else f"{k}: -"
-               for k, r in ours.items()) + "."]
+               for rnd in rounds for k, r in rnd["ours"].items()) + "."]
     atomic_write_text(out.with_suffix(".md"), "\n".join(md) + "\n")
     print("\n".join(md))
     return 0
