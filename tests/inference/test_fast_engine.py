@@ -80,22 +80,28 @@ def test_fp32_fast_streams_like_the_reference_over_frames_with_a_reset():
     """Over a stream, the fast fp32 path is as accurate as the reference fp32 modules, both measured against the
     reference modules run in float64 (the tolerance is the reference's own rounding error, not a picked number).
 
-    A few pixels of an untrained model are ill-conditioned: on an Intel Xeon with AMX (2026-12-01) the reference fp32
-    itself is 7.3e-4 (max relative) away from float64 on frame 1, and the fast path, whose oneDNN convolutions sum in
-    another order, 2.4e-3 (1.7e-3 from the reference fp32; an earlier fixed 1e-3 bound held on AMD Zen 4/5 only).
-    Median and 99th percentile of the two paths' errors agree within 1.3x on every frame."""
+    A few pixels of an untrained model are ill-conditioned: on frame 1 the fast path, whose oneDNN convolutions sum in
+    another order, is 2.4e-3 (max relative) away from float64 on an Intel Xeon with AMX and on an AMD EPYC alike;
+    the reference fp32 is 7.3e-4 away on the Xeon, and on the EPYC 1.0e-4 with oneDNN convolutions but 7.3e-4 with
+    PyTorch's native ones (2026-12-02). So the reference's worst-pixel rounding error is taken as the larger of those
+    two summation orders. Median and 99th percentile of the two paths' errors agree within 1.3x on every frame."""
     torch.manual_seed(4)
     m = tame(build_model().eval())
     rgb, q, tr, K = sequence(t=6)
     rs = resets(2, 6, extra=((1, 3),))
     outs = {}
-    for mode in ("reference", "fast"):
+    for name, mode, onednn in (("reference", "reference", True), ("native", "reference", False), ("fast", "fast", True)):
         m.optimize(mode)
-        state, outs[mode] = None, []
-        with torch.no_grad():
-            for k in range(6):
-                out, state = m.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
-                outs[mode].append(out)
+        state, outs[name] = None, []
+        was = torch.backends.mkldnn.enabled
+        torch.backends.mkldnn.enabled = onednn  # (mkldnn.flags() would also touch the TF32 switch, with a warning)
+        try:
+            with torch.no_grad():
+                for k in range(6):
+                    out, state = m.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
+                    outs[name].append(out)
+        finally:
+            torch.backends.mkldnn.enabled = was
     m.optimize("reference")
     m64, state, exact = m.double(), None, []
     with torch.no_grad():
@@ -103,11 +109,12 @@ def test_fp32_fast_streams_like_the_reference_over_frames_with_a_reset():
             out, state = m64.step(rgb[:, k].double(), q[:, k].double(), tr[:, k].double(), K.double(), rs[:, k], state)
             exact.append(out.depth)
     m.float()
-    for k, (a, b, e) in enumerate(zip(outs["fast"], outs["reference"], exact)):
+    for k, (a, b, c, e) in enumerate(zip(outs["fast"], outs["reference"], outs["native"], exact)):
         err_fast, err_ref = rel_errors(a.depth.double(), e), rel_errors(b.depth.double(), e)
         for p in (0.5, 0.99):  # the bulk of the pixels: the same rounding error as the reference
             assert torch.quantile(err_fast, p) <= 2 * torch.quantile(err_ref, p) + 1e-7, (k, p)
-        assert err_fast.max() <= 5 * err_ref.max() + 1e-4, k  # worst pixel: the same order (+1e-4: a lucky worst pixel of the reference, 1.2e-5 vs 6.3e-5 seen once)
+        worst_ref = max(err_ref.max(), rel_errors(c.depth.double(), e).max())
+        assert err_fast.max() <= 5 * worst_ref + 1e-4, k  # worst pixel: the same order (+1e-4: a lucky worst pixel of the reference, 1.2e-5 vs 6.3e-5 seen once)
         assert rel(a.depth, b.depth) < 1e-2, k
         torch.testing.assert_close(a.semantic, b.semantic, rtol=0, atol=1e-5)
     assert torch.all(outs["fast"][3].depth[1] == 1000.0)  # the reset sample outputs the init depth
