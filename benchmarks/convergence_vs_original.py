@@ -19,7 +19,8 @@ original's seed range). ``OUT/convergence.png``: the curves (thin: seeds, thick:
 min-max) and the test metrics. Runs already finished in ``OUT`` are reused (``--overwrite`` to redo them), so an
 interrupted comparison can be resumed; ``--previous OLD/convergence.json`` reuses the seeds of an earlier
 comparison of the same protocol (to add seeds to it once its run folders are gone). ``--ours-set KEY=VALUE`` passes
-overrides to our side (e.g. ``train.optimizer=adam_torch`` or ``model.pscv_dtype=float16``, to measure one candidate's effect on the curves).
+overrides to our side (e.g. ``train.optimizer=adam_torch`` or ``model.pscv_dtype=float16``, to measure one
+candidate's effect on the curves).
 
 Without ``TFREF_PY``/``COSEM_AUTHORS`` (../shared/tools/tfref/README.md) it says so and runs ours only.
 """
@@ -112,18 +113,23 @@ def read_ours(out: Path) -> dict | None:
 
 def load_previous(a, with_original: bool) -> dict:
     """``{seed: {"original": ..., "ours": ...}}`` of ``--previous`` (empty without it); exits with a one-line error
-    when that file's protocol differs from this run's."""
+    (status 2) when that file cannot be read or its protocol differs from this run's."""
     if not a.previous:
         return {}
+
+    def bad(why: str):
+        print(f"--previous {a.previous}: {why}", file=sys.stderr)
+        raise SystemExit(2)
+
     try:
         prev = json.loads(Path(a.previous).read_text())
     except (OSError, ValueError) as e:
-        raise SystemExit(f"--previous {a.previous}: cannot read it ({e})")
+        bad(f"cannot read it ({e})")
     mine = {"data": a.data, "steps": a.steps, "every": a.every, "size": a.size, "batch": a.batch,
             "seq_len": a.seq_len, "lr": a.lr, "threads_each": a.threads, "ours_overrides": a.ours_set}
-    differ = [k for k, v in mine.items() if prev.get(k) != v]
+    differ = [f"{k} {prev.get(k)!r} vs {v!r}" for k, v in mine.items() if prev.get(k) != v]
     if differ:
-        raise SystemExit(f"--previous {a.previous}: another protocol ({', '.join(f'{k} {prev.get(k)!r} vs {mine[k]!r}' for k in differ)})")
+        bad(f"another protocol ({', '.join(differ)})")
     out = {}
     for seed, runs in prev.get("per_seed", {}).items():
         if "ours" in runs and (not with_original or "original" in runs):

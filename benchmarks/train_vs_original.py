@@ -91,7 +91,7 @@ def run_original(a, tree: Path, work: Path, tfpy: str, authors: str, tag: str = 
         thr = res["train"]["throughput"] if "train" in res else res["throughput"]
         return {"steps_per_s": thr["steps_per_s"], "s_per_step_median": thr.get("s_per_step_median"),
                 "steps_timed": thr["steps_timed"], "loadavg_before": None, "reused": str(out / "results.json"),
-                "log": str(work / "tf_train.log")}, prep / "splits"
+                "log": str(work / f"tf_train{tag}.log")}, prep / "splits"
     load = _load()
     t0 = time.time()
     _run([tfpy, TFREF / "train_reference.py", authors, "--prep", prep, "--out", out, "--stages", "train",
@@ -295,8 +295,11 @@ def main(argv=None) -> int:
              "the other, each ratio taken within its round" if a.rounds > 1 else "") + ".", "",
           "| trainer | steps/s | s/step (median) | vs original | of its conv floor | load before |",
           "|---|---:|---:|---:|---:|---|"]
+    runs = []  # (label, our run) of every round, for the notes below the table
     for k, rnd in enumerate(rounds):
-        md += table_rows(rnd, why, f"round {k + 1}: " if a.rounds > 1 else "")
+        prefix = f"round {k + 1}: " if a.rounds > 1 else ""
+        md += table_rows(rnd, why, prefix)
+        runs += [(prefix + prec, r) for prec, r in rnd["ours"].items()]
     if a.rounds > 1:
         md += table_rows({"original": original, "ours": ours}, why, "median of the rounds: ")
     md += ["", f"Conv floor: {floor['gflops']} GFLOP/s (3x3 128->128 at 192x192, {a.threads} threads); a step is "
@@ -304,10 +307,10 @@ def main(argv=None) -> int:
            + ", ".join(f"{k} {v:.2f} steps/s" for k, v in floor["floor_steps_per_s"].items()) + ".",
            "Ours: intervals with a checkpoint left out (" + ", ".join(
                f"{k}: {r['intervals_with_checkpoint_left_out']}, with them {r['steps_per_s_incl_checkpoints']:.3f} "
-               "steps/s" for rnd in rounds for k, r in rnd["ours"].items()) + ").",
+               "steps/s" for k, r in runs) + ").",
            "Ours: mean time a step waited for the data loader: " + ", ".join(
                f"{k}: {r['data_wait_s_mean']:.3f} s" if r.get("data_wait_s_mean") is not None else f"{k}: -"
-               for rnd in rounds for k, r in rnd["ours"].items()) + "."]
+               for k, r in runs) + "."]
     atomic_write_text(out.with_suffix(".md"), "\n".join(md) + "\n")
     print("\n".join(md))
     return 0
