@@ -143,6 +143,10 @@ class TrainConfig:
     grad_clip: float = 0.0
     #: Weight of the semantic loss in the total loss (spec 7.3).
     semantic_weight: float = 0.1
+    #: One weight per class for the semantic loss (a deviation from the paper; empty: every pixel alike, the
+    #: paper). Rare classes weighted up are learnt at all in short trainings; ``scripts/class_weights.py`` computes
+    #: median-frequency weights from a training set's labels.
+    semantic_class_weights: tuple[float, ...] = ()
     #: Semantic loss on log-softmax of logits instead of Keras' clipped probabilities (spec 15 item 21).
     semantic_from_logits: bool = False
     seed: int = 42
@@ -193,6 +197,10 @@ class TrainConfig:
         _positive_number("train.lr_decay", self.lr_decay)
         _positive_number("train.grad_clip", self.grad_clip, allow_zero=True)
         _positive_number("train.semantic_weight", self.semantic_weight, allow_zero=True)
+        for i, w in enumerate(self.semantic_class_weights):
+            _positive_number(f"train.semantic_class_weights[{i}]", w, allow_zero=True)
+        if self.semantic_class_weights and not any(self.semantic_class_weights):
+            raise ConfigError("train.semantic_class_weights: at least one weight must be > 0, got all zeros")
         if not self.device or not (self.device in ("auto", "cpu", "mps") or self.device.startswith("cuda")):
             raise ConfigError(f"train.device must be 'auto', 'cpu', 'cuda', 'cuda:N' or 'mps', got {self.device!r}")
         _positive_int("train.num_threads", self.num_threads, minimum=0)
@@ -235,6 +243,14 @@ class RunConfig:
     data: DataConfig = field(default_factory=DataConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     debug: DebugConfig = field(default_factory=DebugConfig)
+
+    def __post_init__(self) -> None:
+        n = len(self.train.semantic_class_weights)
+        if n and not self.model.has_semantic:
+            raise ConfigError(f"train.semantic_class_weights: the {self.model.arch} model has no semantic decoder")
+        if n and n != self.model.num_classes:
+            raise ConfigError(f"train.semantic_class_weights must hold one weight per class: {n} given for "
+                              f"model.num_classes = {self.model.num_classes}")
 
     def to_dict(self) -> dict[str, Any]:
         return to_dict(self)

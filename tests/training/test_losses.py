@@ -11,6 +11,7 @@ from cosemdepth.training.losses import (
     LossTerms,
     depth_level_weights,
     depth_loss,
+    median_frequency_weights,
     semantic_loss,
     total_loss,
 )
@@ -216,6 +217,38 @@ def test_semantic_loss_from_logits():
     assert loss.item() == pytest.approx(40.0, rel=1e-6)
     loss.backward()
     assert float(far.grad[0, 1, 1]) == pytest.approx(-1.0, rel=1e-6)
+
+
+def test_semantic_loss_class_weights_hand_computed():
+    # The hand-computed case above with class weights (2, 1, 0.5): pixels of frame 1 are classes 0, 2, 1, 1 with
+    # target probabilities 0.5, 0.5, 0.8, 0.3.
+    p = _probs([[0.5, 0.25, 0.25], [0.25, 0.25, 0.5], [0.1, 0.8, 0.1], [0.6, 0.3, 0.1]], 2, 2)
+    labels = torch.tensor([[[0, 0], [0, 0]], [[0, 2], [1, 1]]])[None]
+    loss = semantic_loss([_sem_seq(p)], labels, class_weights=[2.0, 1.0, 0.5])
+    expected = -(2 * math.log(0.5) + 0.5 * math.log(0.5) + math.log(0.8) + math.log(0.3)) / (2 + 0.5 + 1 + 1)
+    assert float(loss) == pytest.approx(expected, abs=1e-12)
+    # The same as torch's weighted cross-entropy on the log-probabilities (its weighted mean), and equal weights
+    # give the paper's plain mean.
+    log_p = torch.log(p)[None]
+    ref = torch.nn.functional.nll_loss(log_p, labels[:, 1], weight=torch.tensor([2.0, 1.0, 0.5], dtype=p.dtype))
+    assert float(loss) == pytest.approx(float(ref), abs=1e-12)
+    assert float(semantic_loss([_sem_seq(p)], labels, class_weights=[3.0] * 3)) == pytest.approx(
+        float(semantic_loss([_sem_seq(p)], labels)), abs=1e-12)
+    for bad in ([1.0, 1.0], [1.0, -1.0, 1.0], [1.0, math.nan, 1.0]):
+        with pytest.raises(ValueError, match="class_weights"):
+            semantic_loss([_sem_seq(p)], labels, class_weights=bad)
+
+
+def test_median_frequency_weights_hand_computed():
+    # Shares 1/8, 1/8, 1/4, 1/2: median 3/16.
+    assert median_frequency_weights([1, 1, 2, 4], power=1.0) == pytest.approx([1.5, 1.5, 0.75, 0.375])
+    assert median_frequency_weights([1, 1, 2, 4]) == pytest.approx([1.5 ** 0.5, 1.5 ** 0.5, 0.75 ** 0.5, 0.375 ** 0.5])
+    # An absent class gets 1 and does not move the median (of 1/4, 3/4: 1/2).
+    assert median_frequency_weights([1, 0, 3], power=1.0) == pytest.approx([2.0, 1.0, 2 / 3])
+    assert median_frequency_weights([5, 5, 5], power=0.0) == [1.0, 1.0, 1.0]
+    for bad in ([], [0, 0], [1, -1]):
+        with pytest.raises(ValueError, match="counts"):
+            median_frequency_weights(bad)
 
 
 def test_semantic_loss_rejects_out_of_range_labels():

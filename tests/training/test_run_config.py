@@ -84,6 +84,10 @@ def test_dump_loads_back_to_the_same_config():
         (["data.size=[32, 32, 3]"], "data.size"),
         (["debug.inject_nonfinite_steps=[0]"], "debug.inject_nonfinite_steps"),
         (["train.device=tpu"], "train.device"),
+        (["train.semantic_class_weights=[1, 2]"], "train.semantic_class_weights"),
+        (["train.semantic_class_weights=[1, 1, 1, 1, 1, 1, -1]"], "train.semantic_class_weights[6]"),
+        (["train.semantic_class_weights=[0, 0, 0, 0, 0, 0, 0]"], "train.semantic_class_weights"),
+        (["model.arch=m4depth", "train.semantic_class_weights=[1, 1, 1, 1, 1, 1, 1]"], "train.semantic_class_weights"),
     ],
 )
 def test_bad_values_raise_config_errors_naming_the_key(overrides, key):

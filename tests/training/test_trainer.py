@@ -207,6 +207,28 @@ def test_bf16_autocast_keeps_the_loss_in_float32(tiny_config):
     assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
 
 
+def test_compute_loss_applies_the_configured_class_weights(tiny_config):
+    """train.semantic_class_weights reaches the semantic loss: the trainer's loss is the weighted one."""
+    from cosemdepth.models import build_model
+    from cosemdepth.training.data import collate
+    from cosemdepth.training.losses import semantic_loss
+    from cosemdepth.training.toy import ToyDataset
+    from cosemdepth.training.trainer import compute_loss
+
+    cfg = tiny_config()
+    weights = tuple(float(c + 1) for c in range(cfg.model.num_classes))
+    weighted_cfg = tiny_config(train__semantic_class_weights=weights)
+    model = build_model(cfg.model)
+    batch = collate([ToyDataset(length=2, size=(32, 32))[i] for i in range(2)])
+    with torch.no_grad():
+        out = model(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch["reset"])
+    plain, weighted = compute_loss(out, batch, cfg), compute_loss(out, batch, weighted_cfg)
+    expected = semantic_loss(out.semantic, batch["semantic"], class_weights=weights)
+    assert float(weighted.semantic) == pytest.approx(float(expected), rel=1e-6)
+    assert float(weighted.semantic) != pytest.approx(float(plain.semantic), rel=1e-5)
+    assert float(weighted.depth) == float(plain.depth)
+
+
 #: bfloat16's unit roundoff: 8 significant bits.
 BF16_U = 2.0 ** -8
 

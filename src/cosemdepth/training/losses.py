@@ -33,6 +33,9 @@ loss. Predictions are left as they are, so a diverging model still shows up as a
 
 from __future__ import annotations
 
+import math
+import statistics
+
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -168,6 +171,7 @@ def semantic_loss(
     first_frame: int = FIRST_SUPERVISED_FRAME,
     level_weights: Sequence[float] | None = None,
     epsilon: float = SCCE_EPSILON,
+    class_weights: Sequence[float] | None = None,
 ) -> torch.Tensor:
     """Multi-level sparse categorical cross-entropy (spec 7.2).
 
@@ -179,10 +183,14 @@ def semantic_loss(
         first_frame: first supervised frame (default 1).
         level_weights: per-level weights, finest first; default 1 for every level.
         epsilon: the probability clip (Keras ``epsilon()``).
+        class_weights: ``N`` weights, one per class (a deviation from the paper, which weighs every pixel
+            alike): each level's loss is then ``sum(w[y] * nll) / sum(w[y])`` over its pixels, the weighted mean
+            of ``torch.nn.functional.cross_entropy(weight=...)``. ``None``: the paper's plain mean.
     Returns:
         Scalar loss.
     Raises:
-        ValueError: a label outside ``[0, N-1]`` (there is no ignore label).
+        ValueError: a label outside ``[0, N-1]`` (there is no ignore label), or ``class_weights`` not ``N``
+            finite numbers >= 0.
     """
     if gt_labels.dim() == 5 and gt_labels.shape[2] == 1:
         gt_labels = gt_labels[:, :, 0]
@@ -206,6 +214,12 @@ def semantic_loss(
                          f"found values in [{lo}, {hi}]")
 
     dtype = torch.promote_types(pred_semantic[0].dtype, torch.float32)
+    class_w = None
+    if class_weights is not None:
+        class_w = torch.as_tensor(class_weights, dtype=dtype, device=labels.device).flatten()
+        if class_w.numel() != n_classes or not bool(torch.isfinite(class_w).all()) or bool((class_w < 0).any()):
+            raise ValueError(f"semantic_loss: class_weights must be {n_classes} finite numbers >= 0, got "
+                             f"{class_w.tolist()}")
     total = labels.new_zeros((), dtype=dtype)
     for i, pred in enumerate(pred_semantic):
         size = tuple(pred.shape[-2:])
@@ -215,9 +229,38 @@ def semantic_loss(
         else:
             log_p = F.log_softmax(torch.log(scores.clamp(epsilon, 1.0 - epsilon)), dim=1)
         target = resize_nn2(labels, size)
-        level = -log_p.gather(1, target).mean()
+        nll = -log_p.gather(1, target)
+        if class_w is None:
+            level = nll.mean()
+        else:
+            pixel_w = class_w[target]
+            level = (pixel_w * nll).sum() / pixel_w.sum().clamp_min(torch.finfo(dtype).tiny)
         total = total + weights[i] * level
     return total
+
+
+def median_frequency_weights(counts: Sequence[int], power: float = 0.5) -> list[float]:
+    """Class weights for :func:`semantic_loss` from pixel counts: ``(median(f) / f_c) ** power``.
+
+    ``f_c`` is class ``c``'s share of the labelled pixels and the median is taken over the classes present;
+    ``power`` 1 is median-frequency balancing (Eigen & Fergus 2015), 0.5 its square root (milder: rare classes
+    weighted up, frequent ones barely down). A class absent from ``counts`` gets weight 1 (it is never a target).
+
+    Args:
+        counts: ``N`` pixel counts, one per class.
+        power: exponent of the frequency ratio, >= 0.
+    Returns:
+        ``N`` weights.
+    """
+    freq = torch.as_tensor(counts, dtype=torch.float64)
+    if freq.dim() != 1 or freq.numel() == 0 or bool((freq < 0).any()) or float(freq.sum()) <= 0:
+        raise ValueError(f"median_frequency_weights: counts must be N >= 1 non-negative numbers with a positive sum, "
+                         f"got {freq.tolist()}")
+    if not (math.isfinite(power) and power >= 0):
+        raise ValueError(f"median_frequency_weights: power must be a finite number >= 0, got {power}")
+    freq = freq / freq.sum()
+    median = statistics.median(f for f in freq.tolist() if f > 0)
+    return [float((median / f) ** power) if f > 0 else 1.0 for f in freq.tolist()]
 
 
 @dataclass(frozen=True)
@@ -252,6 +295,7 @@ def total_loss(
     first_frame: int = FIRST_SUPERVISED_FRAME,
     depth_mask: torch.Tensor | None = None,
     from_logits: bool = False,
+    class_weights: Sequence[float] | None = None,
 ) -> LossTerms:
     """``L_depth + semantic_weight * L_sem`` (spec 7.3) for any of the three architectures.
 
@@ -265,6 +309,7 @@ def total_loss(
         first_frame: first supervised frame (1).
         depth_mask: optional depth validity mask, see :func:`depth_loss`.
         from_logits: ``pred_semantic`` holds logits, see :func:`semantic_loss`.
+        class_weights: per-class weights of the semantic loss, see :func:`semantic_loss` (``None``: the paper).
     """
     has_depth = pred_depths is not None or gt_depth is not None
     has_sem = pred_semantic is not None or gt_labels is not None
@@ -278,7 +323,8 @@ def total_loss(
         depth_loss(pred_depths, gt_depth, mask=depth_mask, first_frame=first_frame) if has_depth else None
     )
     l_sem = (
-        semantic_loss(pred_semantic, gt_labels, from_logits=from_logits, first_frame=first_frame)
+        semantic_loss(pred_semantic, gt_labels, from_logits=from_logits, first_frame=first_frame,
+                      class_weights=class_weights)
         if has_sem else None
     )
     if l_depth is not None and l_sem is not None:
@@ -292,5 +338,6 @@ def total_loss(
 
 __all__ = [
     "FIRST_SUPERVISED_FRAME", "LOSS_MAX_DEPTH", "LOSS_MIN_DEPTH", "LossTerms", "SCCE_EPSILON", "SEMANTIC_WEIGHT",
-    "depth_level_weights", "depth_loss", "log_depth", "sanitize_gt_depth", "semantic_loss", "total_loss",
+    "depth_level_weights", "depth_loss", "log_depth", "median_frequency_weights", "sanitize_gt_depth", "semantic_loss",
+    "total_loss",
 ]

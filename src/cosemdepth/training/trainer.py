@@ -152,6 +152,7 @@ def compute_loss(out, batch: dict, cfg: RunConfig) -> LossTerms:
             batch["semantic"] if m.has_semantic else None,
             semantic_weight=cfg.train.semantic_weight,
             from_logits=from_logits,
+            class_weights=cfg.train.semantic_class_weights or None,
         )
 
 
