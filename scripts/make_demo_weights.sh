@@ -4,9 +4,7 @@
 #    training through `cosemdepth splits --rule train`) and a seventh (seed 17, one trajectory per climate) for
 #    validation; the demo evaluates on yet another world (seed 1001). 128x128, 3x supersampled colour, sunny and
 #    cloudy climates.
-# 2. cosemdepth train with src/cosemdepth/configs/synthair-demo.yaml (Co-SemDepth, 5 levels, 7 classes, bf16 autocast,
-#    median-frequency class weights in the semantic loss: the config's numbers are what
-#    `python scripts/class_weights.py --config synthair-demo --power 1` prints for these worlds).
+# 2. cosemdepth train with src/cosemdepth/configs/synthair-demo.yaml (Co-SemDepth, 5 levels, 7 classes, bf16 autocast).
 # 3. The best checkpoint (spec 8.5 rule on the validation world) is written to weights/synthair-cosemdepth in
 #    float16, with its training curve (weights/synthair-cosemdepth/training_curve.csv and .png).
 # CPU-only, on a 2-core machine (2026-12-02, Intel Xeon with AVX512-BF16, shared with another 1-thread job most of
