@@ -149,6 +149,11 @@ class TrainConfig:
     semantic_class_weights: tuple[float, ...] = ()
     #: Semantic loss on log-softmax of logits instead of Keras' clipped probabilities (spec 15 item 21).
     semantic_from_logits: bool = False
+    #: Start a new run from these weights instead of a random initialisation (fine-tuning, as the original's
+    #: ``finetune`` mode): one of our model folders, a run's checkpoint or ``best`` folder, or an official
+    #: TensorFlow checkpoint. They must fit ``model`` (same architecture, levels, classes). Only the weights are
+    #: taken (a fresh optimizer, step 0); a run that resumes from its own checkpoints ignores this key.
+    init_weights: str = ""
     seed: int = 42
     #: "auto" (CUDA when available), "cpu", "cuda", "cuda:1"...
     device: str = "auto"

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from cosemdepth.cli.main import main
 from cosemdepth.training.checkpoint import DELAY_ENV, load_checkpoint, validate_checkpoint
@@ -112,6 +113,7 @@ def _listing(folder: Path) -> list[str]:
         (["--set", "data.train.0.name=synthair", "--set", "data.train.0.root=MISSING"], "MISSING"),
         (["--set", "data.train.0.name=midair"], "data.train[0].root"),
         (["--config", "no_such_config"], "no_such_config: config file not found"),
+        (["--init-weights", "MISSING"], "train.init_weights: MISSING: model folder not found"),
     ],
 )
 def test_bad_config_values_fail_cleanly(tmp_path, capsys, tiny_cli, args, needle):
@@ -191,6 +193,12 @@ def test_bf16_flag_and_key_round_trip(capsys, tmp_path):
                  "--print-config"]) == 0
     assert yaml.safe_load(capsys.readouterr().out)["train"]["bf16"] is True
     assert not (tmp_path / "x").exists()
+
+
+def test_init_weights_flag_sets_the_key(capsys, tmp_path):
+    assert main(["train", "--out", str(tmp_path / "x"), "--dataset", "toy", "--init-weights", "w/best",
+                 "--print-config"]) == 0
+    assert yaml.safe_load(capsys.readouterr().out)["train"]["init_weights"] == "w/best"
 
 
 def test_the_module_runs_as_a_command(python, cli_env):

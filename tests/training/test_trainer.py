@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import time
 
 import pytest
 import torch
 
+from cosemdepth.errors import CheckpointError
+from cosemdepth.io.convert import convert_checkpoint
 from cosemdepth.training.checkpoint import load_checkpoint, read_model_state, validate_checkpoint
 from cosemdepth.training.events import read_events
 from cosemdepth.training.toy import ToyDataset
@@ -350,3 +353,51 @@ def test_worker_processes_and_resume_give_the_batches_of_the_main_process(tmp_pa
     assert sorted(want) == list(range(1, 13)) and losses("w") == want
     ends = [e["step"] for e in read_events(tmp_path / "w" / "events.jsonl") if e["kind"] == "epoch_end"]
     assert ends == [4, 8, 12]
+
+
+def test_init_weights_start_a_new_run_from_given_weights_and_a_resume_ignores_them(tmp_path, tiny_config):
+    """``train.init_weights``: the step-0 checkpoint of the new run holds exactly the given weights (here a
+    checkpoint folder of another run); a plain run of the same seed does not; resuming never reads them again."""
+    Trainer(tiny_config(train__max_steps=2, train__seed=5), tmp_path / "src", console=False).fit()
+    source_dir = tmp_path / "src" / "checkpoints" / "ckpt-00000002"
+    source = read_model_state(source_dir)
+
+    cfg = tiny_config(train__max_steps=2, train__init_weights=str(source_dir))
+    Trainer(cfg, tmp_path / "ft", console=False).fit()
+    assert _equal(read_model_state(tmp_path / "ft" / "checkpoints" / "ckpt-00000000"), source)
+    start = next(e for e in read_events(tmp_path / "ft" / "events.jsonl") if e["kind"] == "start")
+    assert start["init_weights"] == str(source_dir)
+    Trainer(tiny_config(train__max_steps=2), tmp_path / "plain", console=False).fit()
+    assert not _equal(read_model_state(tmp_path / "plain" / "checkpoints" / "ckpt-00000000"), source)
+
+    for p in source_dir.iterdir():  # the weights are gone: a resume must not need them
+        p.unlink()
+    resumed = Trainer(tiny_config(train__max_steps=4, train__init_weights=str(source_dir)), tmp_path / "ft",
+                      console=False)
+    assert resumed.resuming
+    assert resumed.fit()["step"] == 4
+
+
+def test_init_weights_of_another_model_or_missing_fail_before_writing(tmp_path, tiny_config):
+    Trainer(tiny_config(train__max_steps=1), tmp_path / "src", console=False).fit()
+    source_dir = tmp_path / "src" / "checkpoints" / "ckpt-00000001"
+    for overrides, expected in (({"model__arch": "m4depth"}, "arch 'cosemdepth' (run: 'm4depth')"),
+                                ({"model__levels": 2}, "levels 3 (run: 2)"),
+                                ({"model__num_classes": 5}, "num_classes 7 (run: 5)")):
+        with pytest.raises(CheckpointError, match=re.escape(expected)) as e:
+            Trainer(tiny_config(train__init_weights=str(source_dir), **overrides), tmp_path / "bad", console=False)
+        assert str(e.value).startswith("train.init_weights: ")
+    with pytest.raises(CheckpointError, match="train.init_weights: .*missing"):
+        Trainer(tiny_config(train__init_weights=str(tmp_path / "missing")), tmp_path / "bad", console=False)
+    assert not (tmp_path / "bad").exists()
+
+
+def test_init_weights_from_an_official_tensorflow_checkpoint(tmp_path, tiny_config, tfref_dir):
+    """The authors' checkpoint of the fixture, converted on the fly, is the new run's starting point."""
+    expected, _ = convert_checkpoint(tfref_dir / "ckpt")
+    cfg = tiny_config(model__levels=5, data__size=32, train__max_steps=1,
+                      train__init_weights=str(tfref_dir / "ckpt"))
+    Trainer(cfg, tmp_path / "ft", console=False).fit()
+    got = read_model_state(tmp_path / "ft" / "checkpoints" / "ckpt-00000000")
+    assert got.keys() == expected.keys()
+    assert all(torch.equal(got[k], expected[k].float()) for k in got)

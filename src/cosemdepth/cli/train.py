@@ -47,6 +47,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     g.add_argument("--device", help=f"train.device: auto, cpu, cuda, cuda:N (default {t.device})")
     g.add_argument("--bf16", action="store_true", default=None,
                    help="train.bf16: bfloat16 autocast of the forward (CPU and CUDA); fp32 weights and loss")
+    g.add_argument("--init-weights", metavar="PATH",
+                   help="train.init_weights: start from these weights (a model folder, a run's best/ or checkpoint "
+                        "folder, an official TF checkpoint) instead of a random initialisation: fine-tuning")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
 
@@ -55,7 +58,7 @@ _FLAGS = {
     "model": "model.arch", "dataset": "data.train.0.name", "data_root": "data.train.0.root",
     "split_dir": "data.train.0.split_dir", "epochs": "train.epochs", "max_steps": "train.max_steps",
     "batch_size": "train.batch_size", "lr": "train.lr", "seed": "train.seed", "device": "train.device",
-    "bf16": "train.bf16",
+    "bf16": "train.bf16", "init_weights": "train.init_weights",
 }
 
 

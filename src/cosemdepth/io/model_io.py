@@ -205,6 +205,28 @@ def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], 
     return state_dict, cfg, meta
 
 
+def read_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], ModelConfig, str]:
+    """``(state_dict, ModelConfig, origin)`` of one of our model folders or an official TensorFlow checkpoint.
+
+    ``path`` as :func:`load_model` takes it; a TensorFlow checkpoint is converted on the fly. ``origin`` names the
+    folder or checkpoint for messages. The tensors keep their stored precision; every problem is a
+    :class:`CheckpointError` naming the file.
+    """
+    p = Path(path)
+    ours = p.is_dir() and ((p / CONFIG_FILE).exists() or (p / WEIGHTS_FILE).exists())
+    if not ours and p.name not in (CONFIG_FILE, WEIGHTS_FILE) and is_tf_checkpoint(p):
+        state_dict, cfg = convert_checkpoint(p)
+        check_finite(state_dict, str(p))
+        return state_dict, cfg, str(p)
+    if p.is_dir() and not ours:
+        raise CheckpointError(
+            f"{p}: neither a cosemdepth model folder ({CONFIG_FILE} + {WEIGHTS_FILE}) nor a TensorFlow "
+            "checkpoint folder (a 'checkpoint' file naming cp-XXXX.ckpt)"
+        )
+    state_dict, cfg, _ = read_model_files(p)
+    return state_dict, cfg, str(_model_dir(p))
+
+
 def load_model(
     path: str | os.PathLike,
     device: str | torch.device = "cpu",
@@ -221,20 +243,7 @@ def load_model(
     rounding; ``"bfloat16"`` / ``"int8"`` are faster and less exact, opt in after measuring), ``"reference"`` the
     plain PyTorch modules. Training (``forward_sequence``, train mode) and ONNX export always use the modules.
     """
-    p = Path(path)
-    ours = p.is_dir() and ((p / CONFIG_FILE).exists() or (p / WEIGHTS_FILE).exists())
-    if not ours and p.name not in (CONFIG_FILE, WEIGHTS_FILE) and is_tf_checkpoint(p):
-        state_dict, cfg = convert_checkpoint(p)
-        origin = str(p)
-        check_finite(state_dict, origin)
-    else:
-        if p.is_dir() and not ours:
-            raise CheckpointError(
-                f"{p}: neither a cosemdepth model folder ({CONFIG_FILE} + {WEIGHTS_FILE}) nor a TensorFlow "
-                "checkpoint folder (a 'checkpoint' file naming cp-XXXX.ckpt)"
-            )
-        state_dict, cfg, _ = read_model_files(p)
-        origin = str(_model_dir(p))
+    state_dict, cfg, origin = read_weights(path)
     if mode == "reference" and dtype not in (torch.float32, "float32", "fp32"):
         raise ValueError(f"dtype {dtype!r} is a setting of the fast path; mode='reference' runs float32")
 
@@ -261,6 +270,7 @@ __all__ = [
     "load_model",
     "read_config_file",
     "read_model_files",
+    "read_weights",
     "save_model",
     "save_weights",
 ]

@@ -26,6 +26,7 @@ A training step counts one batch, whether its update was applied or skipped; "st
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import math
 import random
@@ -41,11 +42,12 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
-from ..config import RunConfig
+from ..config import ModelConfig, RunConfig
 from ..devices import resolve_device
-from ..errors import ConfigError, CosemdepthError, DatasetError
+from ..errors import CheckpointError, ConfigError, CosemdepthError, DatasetError
 from ..evaluation.metrics import selection_rule
 from ..io.atomic import atomic_write_text
+from ..io.model_io import read_weights
 from ..models import build_model
 from ..ops.resample import resize_nn2
 from . import distributed as D
@@ -188,6 +190,32 @@ def prepare_for_training(model: torch.nn.Module, device: torch.device, channels_
     return model.to(memory_format=torch.channels_last) if channels_last else model
 
 
+def read_init_weights(path: str, model_config: ModelConfig) -> dict[str, torch.Tensor]:
+    """The float32 state dict of ``path`` (``train.init_weights``), checked to fit a model of ``model_config``.
+
+    Raises :class:`CheckpointError` naming the path when the weights are unreadable or belong to another
+    architecture (arch, levels, classes or a switch that changes the parameters differ).
+    """
+    try:
+        state_dict, weights_config, origin = read_weights(path)
+    except CheckpointError as e:
+        raise CheckpointError(f"train.init_weights: {e}") from None
+    differ = [f"{f.name} {getattr(weights_config, f.name)!r} (run: {getattr(model_config, f.name)!r})"
+              for f in dataclasses.fields(ModelConfig)
+              if f.name != "pscv_dtype" and getattr(weights_config, f.name) != getattr(model_config, f.name)]
+    if differ:
+        raise CheckpointError(f"train.init_weights: {origin}: the weights are of another model: {', '.join(differ)}")
+    state_dict = {k: v.float() if v.is_floating_point() else v for k, v in state_dict.items()}
+    with torch.device("meta"):
+        model = build_model(model_config)
+    try:
+        model.load_state_dict(state_dict, strict=True, assign=True)
+    except RuntimeError as e:
+        raise CheckpointError(f"train.init_weights: {origin}: the weights do not fit the run's model "
+                              f"({str(e).splitlines()[0]})") from None
+    return state_dict
+
+
 def learning_rate(cfg: RunConfig, epoch: int) -> float:
     """The learning rate of ``epoch``: ``lr * lr_decay ** (number of lr_decay_epochs <= epoch)``."""
     t = cfg.train
@@ -233,6 +261,9 @@ class Trainer:
         self.resuming = D.on_main(lambda: check_output_dir(self.run_dir, config), self.dist)
         if tc.num_threads:
             torch.set_num_threads(tc.num_threads)
+        # the weights a new run starts from, read now so that a bad path fails before anything is written
+        self._init_state = read_init_weights(tc.init_weights, config.model) if tc.init_weights and not \
+            self.resuming else None
 
         self.train_set = train_dataset if train_dataset is not None else build_train_dataset(
             config.data, config.model, tc.seed)
@@ -320,7 +351,13 @@ class Trainer:
             self.events("resume", checkpoint=path, step=self.state.step, epoch=self.state.epoch,
                         batch_in_epoch=self.state.batch_in_epoch, total_steps=self.total_steps)
         else:
+            if cfg.train.init_weights:
+                if self._init_state is None:  # a resumed folder without a valid checkpoint starts over
+                    self._init_state = read_init_weights(cfg.train.init_weights, cfg.model)
+                self.model.load_state_dict(self._init_state)  # copies into the parameters, keeping their layout
+                self._init_state = None
             self.events("start", run_dir=str(self.run_dir), total_steps=self.total_steps,
+                        init_weights=cfg.train.init_weights or None,
                         steps_per_epoch=self.steps_per_epoch, world_size=dist.world_size, device=str(self.device),
                         bf16_autocast=bf16_supported(self.device) and bool(cfg.train.bf16),
                         num_parameters=self.model.num_parameters(), train_items=len(self.train_set),
