@@ -43,7 +43,7 @@ from torch.utils.data import Dataset
 from tqdm import tqdm
 
 from ..config import ModelConfig, RunConfig
-from ..devices import resolve_device
+from ..devices import resolve_device, retain_freed_host_memory
 from ..errors import CheckpointError, ConfigError, CosemdepthError, DatasetError
 from ..evaluation.metrics import selection_rule
 from ..io.atomic import atomic_write_text
@@ -261,6 +261,9 @@ class Trainer:
         self.resuming = D.on_main(lambda: check_output_dir(self.run_dir, config), self.dist)
         if tc.num_threads:
             torch.set_num_threads(tc.num_threads)
+        if device.type == "cpu":
+            # a step's activations reused from the heap, not faulted in afresh each step (1.1-1.2x on bf16 steps)
+            retain_freed_host_memory()
         # the weights a new run starts from, read now so that a bad path fails before anything is written
         self._init_state = read_init_weights(tc.init_weights, config.model) if tc.init_weights and not \
             self.resuming else None
