@@ -105,7 +105,10 @@ def run_original(a, tree: Path, work: Path, tfpy: str, authors: str, tag: str = 
             "log": str(work / f"tf_train{tag}.log")}, prep / "splits"
 
 
-def run_ours(a, tree: Path, splits: Path, work: Path, precision: str, tag: str = "") -> dict:
+def run_ours(a, tree: Path, splits: Path, work: Path, precision: str, tag: str = "", *, extra_args: tuple = (),
+             extra_env: dict | None = None) -> dict:
+    """Our trainer on the tree (the command below plus ``extra_args``, the environment plus ``extra_env``); steps/s
+    after the warm-up from its ``train`` events."""
     from cosemdepth.training.events import read_events
 
     run_dir = work / f"ours_{precision}{tag}"
@@ -122,10 +125,12 @@ def run_ours(a, tree: Path, splits: Path, work: Path, precision: str, tag: str =
         cmd += ["--set", f"data.num_workers={a.workers}"]
     if precision == "bf16":
         cmd.append("--bf16")
+    cmd += list(extra_args)
     load = _load()
     t0 = time.time()
     env = _env()
     env["OMP_NUM_THREADS"] = str(a.threads)
+    env.update(extra_env or {})
     _run(cmd, work / f"ours_{precision}{tag}.log", env=env)
     events = read_events(run_dir / "events.jsonl")
     train = {e["step"]: e["time"] for e in events if e["kind"] == "train"}

@@ -22,12 +22,14 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-export OMP_WAIT_POLICY=PASSIVE
+# The renders run several processes at once: their OpenMP threads sleep rather than spin while waiting. Training does
+# not: with sleeping threads our trainer made 0.74-0.80 steps/s instead of 0.88-0.89 (0.86x; 2026-12-03, 2-core AMD EPYC,
+# 128 px, batch 3, seq 4, bf16, benchmarks/results/train_env_ab-amd.md); this script used to set it for all.
 CLI=.venv/bin/cosemdepth
 RUN=${RUN:-runs/synthair-demo}
 for seed in 11 12 13 14 15 16 17; do
   traj=3; [ "$seed" = 17 ] && traj=1
-  $CLI synth --out "data/synthair-demo-s$seed" --trajectories "$traj" --frames 400 --size 128 --seed "$seed" \
+  OMP_WAIT_POLICY=PASSIVE $CLI synth --out "data/synthair-demo-s$seed" --trajectories "$traj" --frames 400 --size 128 --seed "$seed" \
     --climates sunny cloudy --supersample 3 --workers 2 --no-progress
   [ "$seed" = 17 ] || $CLI splits synthair "data/synthair-demo-s$seed" "data/splits-all/synthair-demo-s$seed" --rule train
 done

@@ -164,6 +164,9 @@ class TrainConfig:
     channels_last: bool = True
     #: torch CPU threads (0: torch's default).
     num_threads: int = 0
+    #: On the CPU, keep freed host memory in the process for reuse (glibc's allocator; see
+    #: :func:`cosemdepth.devices.retain_freed_host_memory`): the step's activations are not faulted in afresh each step.
+    retain_host_memory: bool = True
     #: Write a checkpoint every this many steps (0: only at epoch ends); one is always written at each epoch end.
     checkpoint_every: int = 1000
     #: Keep the newest K checkpoints (the original keeps 5).

@@ -401,3 +401,11 @@ def test_init_weights_from_an_official_tensorflow_checkpoint(tmp_path, tiny_conf
     got = read_model_state(tmp_path / "ft" / "checkpoints" / "ckpt-00000000")
     assert got.keys() == expected.keys()
     assert all(torch.equal(got[k], expected[k].float()) for k in got)
+
+
+@pytest.mark.parametrize("retain", [True, False])
+def test_cpu_trainer_retains_host_memory_unless_told_not_to(tmp_path, tiny_config, monkeypatch, retain):
+    calls = []
+    monkeypatch.setattr("cosemdepth.training.trainer.retain_freed_host_memory", lambda: calls.append(1) or True)
+    Trainer(tiny_config(train__device="cpu", train__retain_host_memory=retain), tmp_path / "run", console=False)
+    assert calls == ([1] if retain else [])

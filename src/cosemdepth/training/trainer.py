@@ -261,8 +261,8 @@ class Trainer:
         self.resuming = D.on_main(lambda: check_output_dir(self.run_dir, config), self.dist)
         if tc.num_threads:
             torch.set_num_threads(tc.num_threads)
-        if device.type == "cpu":
-            # a step's activations reused from the heap, not faulted in afresh each step (1.1-1.2x on bf16 steps)
+        if device.type == "cpu" and tc.retain_host_memory:
+            # a step's activations reused from the heap, not faulted in afresh each step (docs/training.md)
             retain_freed_host_memory()
         # the weights a new run starts from, read now so that a bad path fails before anything is written
         self._init_state = read_init_weights(tc.init_weights, config.model) if tc.init_weights and not \
