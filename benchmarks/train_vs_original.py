@@ -2,7 +2,7 @@
 
     PYTHONPATH=src python benchmarks/train_vs_original.py [--tree DIR] [--steps 30] [--warmup 5] [--size 128]
         [--batch 3] [--seq-len 4] [--threads 2] [--precision fp32 bf16] [--workers N] [--rounds R]
-        [--no-original] [--work DIR] [--out benchmarks/results/train_vs_original]
+        [--order rotate|fixed] [--no-original] [--work DIR] [--out benchmarks/results/train_vs_original]
 
 1. Builds a small SynthAir tree (``cosemdepth synth``: 2 climates x 3 flights, 80 frames, 256 px; not 384: the original's
    ``prepare`` takes 384 px label files for already mapped ones) unless ``--tree``
@@ -23,7 +23,9 @@
    over ``batch x seq_len`` frames; the fraction of that floor each trainer reaches is reported.
 
 The runs are sequential (never two at a time). With ``--rounds R`` the sequence (original, ours per precision) runs R
-times; every round's ratios are taken within the round and the report adds the median of the rounds' ratios: on a
+times, its order rotated from round to round (``--order rotate``, the default: round k starts with the k-th run, so
+on a host that slows under sustained load no trainer always runs first, on the rested host; ``--order fixed`` keeps
+the order); every round's ratios are taken within the round and the report adds the median of the rounds' ratios: on a
 host whose speed drifts by tens of percent within minutes (measured: the same step from 1.09 to 1.68 s), one round
 can favour either side. Writes ``OUT.json`` and ``OUT.md``; the machine's load average
 before each run is recorded (the numbers are only as good as the machine was quiet).
@@ -236,6 +238,9 @@ def main(argv=None) -> int:
     p.add_argument("--rounds", type=int, default=1,
                    help="repeat the sequence (original, ours per precision) this many times and report every round "
                         "and the median of the rounds' ratios (a host whose speed drifts hits both sides alike)")
+    p.add_argument("--order", choices=["rotate", "fixed"], default="rotate",
+                   help="with --rounds: rotate the order of the runs from round to round (round k starts with the "
+                        "k-th of original, ours per precision), or keep that order in every round")
     p.add_argument("--no-original", action="store_true", help="do not run the original even if available")
     p.add_argument("--reuse-original", action="store_true",
                    help="reuse the original's results.json already in --work (its run is the slow part)")
@@ -265,13 +270,18 @@ def main(argv=None) -> int:
         rounds = []
         for k in range(a.rounds):
             tag = f"_r{k + 1}" if a.rounds > 1 else ""
-            rnd = {"original": None, "ours": {}}
-            if not why:
-                rnd["original"], splits = run_original(a, tree, work, tfpy, authors, tag)
-                print(f"round {k + 1} original:", json.dumps(rnd["original"]), flush=True)
-            for prec in a.precision:
-                rnd["ours"][prec] = run_ours(a, tree, splits, work, prec, tag)
-                print(f"round {k + 1} ours {prec}:", json.dumps(rnd["ours"][prec]), flush=True)
+            jobs = ([] if why else ["original"]) + list(a.precision)
+            if a.order == "rotate":  # round k starts with job k: every trainer runs once in every position
+                jobs = jobs[k % len(jobs):] + jobs[: k % len(jobs)]
+            rnd = {"original": None, "ours": {}, "order": jobs}
+            for job in jobs:
+                if job == "original":
+                    rnd["original"], splits = run_original(a, tree, work, tfpy, authors, tag)
+                    print(f"round {k + 1} original:", json.dumps(rnd["original"]), flush=True)
+                else:
+                    rnd["ours"][job] = run_ours(a, tree, splits, work, job, tag)
+                    print(f"round {k + 1} ours {job}:", json.dumps(rnd["ours"][job]), flush=True)
+            rnd["ours"] = {prec: rnd["ours"][prec] for prec in a.precision}
             rounds.append(rnd)
         floor = conv_floor(a, work)
     finally:
@@ -296,8 +306,12 @@ def main(argv=None) -> int:
     md = [f"# Training speed, side by side ({a.size} px, batch {a.batch}, seq {a.seq_len}, {a.threads} threads)", "",
           f"{m['date']}, {m['cpu']} ({m['cpu_count']} CPUs, {m['cpu_capability']}), torch {m['torch']}; "
           f"{a.steps} timed steps after {a.warmup} warm-up steps"
-          + (f"; {a.rounds} rounds of (original, " + ", ".join(f"ours {p}" for p in a.precision) + ") one after "
-             "the other, each ratio taken within its round" if a.rounds > 1 else "") + ".", "",
+          + (f"; {a.rounds} rounds of (" + ", ".join(([] if why else ["original"]) + [f"ours {p}" for p in a.precision])
+             + ") one after "
+             "the other" + (", the order rotated from round to round (" + "; ".join(
+                 f"round {k + 1}: " + ", ".join(rnd["order"]) for k, rnd in enumerate(rounds)) + ")"
+                            if a.order == "rotate" else "")
+             + ", each ratio taken within its round" if a.rounds > 1 else "") + ".", "",
           "| trainer | steps/s | s/step (median) | vs original | of its conv floor | load before |",
           "|---|---:|---:|---:|---:|---|"]
     runs = []  # (label, our run) of every round, for the notes below the table
