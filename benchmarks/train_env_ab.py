@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from cosemdepth.bench.runner import hardware_info  # noqa: E402
 from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
-from train_vs_original import run_ours  # noqa: E402
+from train_vs_original import add_run_args, run_ours  # noqa: E402
 
 
 def parse_variant(text: str) -> tuple[str, dict, list[str]]:
@@ -56,13 +56,7 @@ def main(argv=None) -> int:
     p.add_argument("--variant", action="append", required=True, help="NAME=SPEC (see above); the first is the base")
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--precision", choices=["fp32", "bf16"], default="bf16")
-    p.add_argument("--steps", type=int, default=20)
-    p.add_argument("--warmup", type=int, default=3)
-    p.add_argument("--size", type=int, default=128)
-    p.add_argument("--batch", type=int, default=3)
-    p.add_argument("--seq-len", type=int, default=4)
-    p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--workers", type=int, default=None, help="our data.num_workers (default: the config's)")
+    add_run_args(p, steps=20, warmup=3)
     p.add_argument("--work", type=Path, help="working folder for the runs (default: a temporary one)")
     p.add_argument("--out", default="benchmarks/results/train_env_ab")
     a = p.parse_args(argv)

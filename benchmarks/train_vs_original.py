@@ -224,17 +224,22 @@ def table_rows(rnd: dict, why: str | None, prefix: str) -> list[str]:
     return rows
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--tree", type=Path, help="a Mid-Air-format tree to train on (default: build a SynthAir one)")
-    p.add_argument("--steps", type=int, default=30, help="timed steps (after the warm-up)")
-    p.add_argument("--warmup", type=int, default=5, help="first steps left out (tracing, pipeline start)")
+def add_run_args(p: argparse.ArgumentParser, steps: int, warmup: int) -> None:
+    """The options :func:`run_ours` reads (timed and warm-up steps, size, batch, sequence length, threads, workers)."""
+    p.add_argument("--steps", type=int, default=steps, help="timed steps (after the warm-up)")
+    p.add_argument("--warmup", type=int, default=warmup, help="first steps left out (tracing, pipeline start)")
     p.add_argument("--size", type=int, default=128)
     p.add_argument("--batch", type=int, default=3)
     p.add_argument("--seq-len", type=int, default=4)
     p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--precision", nargs="+", choices=["fp32", "bf16"], default=["fp32", "bf16"])
     p.add_argument("--workers", type=int, default=None, help="our data.num_workers (default: the config's)")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--tree", type=Path, help="a Mid-Air-format tree to train on (default: build a SynthAir one)")
+    add_run_args(p, steps=30, warmup=5)
+    p.add_argument("--precision", nargs="+", choices=["fp32", "bf16"], default=["fp32", "bf16"])
     p.add_argument("--rounds", type=int, default=1,
                    help="repeat the sequence (original, ours per precision) this many times and report every round "
                         "and the median of the rounds' ratios (a host whose speed drifts hits both sides alike)")
@@ -303,15 +308,18 @@ def main(argv=None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
     m = report["machine"]
+    def order(rnd: dict) -> str:
+        return ", ".join(job if job == "original" else f"ours {job}" for job in rnd["order"])
+
+    setup = f"{a.steps} timed steps after {a.warmup} warm-up steps"
+    if a.rounds > 1:
+        setup += f"; {a.rounds} rounds of ({order(rounds[0])}) one after the other"
+        if a.order == "rotate":
+            setup += ", the order rotated from round to round (" + "; ".join(
+                f"round {k + 1}: {order(rnd)}" for k, rnd in enumerate(rounds)) + ")"
+        setup += ", each ratio taken within its round"
     md = [f"# Training speed, side by side ({a.size} px, batch {a.batch}, seq {a.seq_len}, {a.threads} threads)", "",
-          f"{m['date']}, {m['cpu']} ({m['cpu_count']} CPUs, {m['cpu_capability']}), torch {m['torch']}; "
-          f"{a.steps} timed steps after {a.warmup} warm-up steps"
-          + (f"; {a.rounds} rounds of (" + ", ".join(([] if why else ["original"]) + [f"ours {p}" for p in a.precision])
-             + ") one after "
-             "the other" + (", the order rotated from round to round (" + "; ".join(
-                 f"round {k + 1}: " + ", ".join(rnd["order"]) for k, rnd in enumerate(rounds)) + ")"
-                            if a.order == "rotate" else "")
-             + ", each ratio taken within its round" if a.rounds > 1 else "") + ".", "",
+          f"{m['date']}, {m['cpu']} ({m['cpu_count']} CPUs, {m['cpu_capability']}), torch {m['torch']}; {setup}.", "",
           "| trainer | steps/s | s/step (median) | vs original | of its conv floor | load before |",
           "|---|---:|---:|---:|---:|---|"]
     runs = []  # (label, our run) of every round, for the notes below the table

@@ -42,7 +42,6 @@ def test_names_the_argument_and_refuses_missing_accelerators():
             resolve_device("mps")
 
 
-
 _FAULTS = r"""
 import resource, sys, torch
 from cosemdepth.devices import retain_freed_host_memory
