@@ -33,7 +33,7 @@ from cosemdepth.models import build_model  # noqa: E402
 from cosemdepth.training.data import collate, to_device  # noqa: E402
 from cosemdepth.training.optim import KerasAdam  # noqa: E402
 from cosemdepth.training.toy import ToyDataset  # noqa: E402
-from cosemdepth.training.trainer import bf16_autocast, compute_loss, prepare_for_training  # noqa: E402
+from cosemdepth.training.trainer import bf16_autocast, compute_loss, forward_batch, prepare_for_training  # noqa: E402
 
 SWITCHES = {"fp32", "bf16", "cl", "loop"}
 
@@ -51,7 +51,7 @@ def step(v: dict, batch: dict, cfg: RunConfig) -> float:
     model, opt = v["model"], v["opt"]
     t, c = time.perf_counter(), time.process_time()
     with bf16_autocast(torch.device("cpu"), v["bf16"]):
-        out = model(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch.get("reset"))
+        out = forward_batch(model, batch)
     loss = compute_loss(out, batch, cfg).total
     opt.zero_grad(set_to_none=True)
     loss.backward()

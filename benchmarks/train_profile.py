@@ -36,7 +36,7 @@ from cosemdepth.models import build_model  # noqa: E402
 from cosemdepth.training.data import collate, to_device  # noqa: E402
 from cosemdepth.training.toy import ToyDataset  # noqa: E402
 from cosemdepth.training.optim import make_optimizer  # noqa: E402
-from cosemdepth.training.trainer import bf16_autocast, compute_loss, prepare_for_training  # noqa: E402
+from cosemdepth.training.trainer import bf16_autocast, compute_loss, forward_batch, prepare_for_training  # noqa: E402
 
 #: Functions the decoders call, wrapped in a profiler range of this name (module, attribute, part).
 WRAPPED = [
@@ -228,10 +228,9 @@ def main(argv=None) -> int:
 
     def step():
         batch = to_device(next_batch(), device)
-        rgb = batch["rgb"]
         with record_function("forward"):
             with bf16_autocast(device, a.bf16):
-                out = model(rgb, batch["rot"], batch["trans"], batch["intrinsics"], batch.get("reset"))
+                out = forward_batch(model, batch)
         with record_function("loss (fp32)"):
             loss = compute_loss(out, batch, cfg).total
         opt.zero_grad(set_to_none=True)

@@ -24,7 +24,7 @@ from cosemdepth.models import build_model
 from cosemdepth.training.checkpoint import CheckpointManager, get_rng_state, load_checkpoint, validate_checkpoint
 from cosemdepth.training.data import collate, to_device
 from cosemdepth.training.toy import ToyDataset
-from cosemdepth.training.trainer import bf16_autocast, compute_loss
+from cosemdepth.training.trainer import bf16_autocast, compute_loss, forward_batch
 
 
 def main() -> None:
@@ -47,7 +47,7 @@ def main() -> None:
 
     def step() -> None:
         with bf16_autocast(device, a.bf16):
-            out = model(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch["reset"])
+            out = forward_batch(model, batch)
         loss = compute_loss(out, batch, cfg).total
         opt.zero_grad(set_to_none=True)
         loss.backward()

@@ -240,3 +240,37 @@ def test_dinl_backward_matches_finite_differences_and_plain_ops():
         outs.append((y, *torch.autograd.grad((y * wt).sum(), (x, m.weight, m.bias))))
     for a, r in zip(*outs):
         torch.testing.assert_close(a, r, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("arch", ["cosemdepth", "m4semantic", "m4depth"])
+def test_first_frame_skips_unwanted_work_and_changes_no_wanted_output_or_gradient(arch):
+    """``forward_sequence(first_frame=1)`` (the trainer's): the stateless semantic decoder does not run on frame 0
+    (its maps there are NaN), every output from frame 1 on and the gradient of a loss on them are those of the full
+    run (float64, so summation order cannot hide a difference); the depth decoder runs every frame."""
+    torch.manual_seed(3)
+    m = build_model(arch=arch, levels=3).double().train()
+    rgb, q, tr, K = (x.double() for x in make_inputs(b=2, t=3, h=32, w=32))
+    calls = []
+    if m.semantic_decoder is not None:
+        m.semantic_decoder.levels[0].refiner.register_forward_hook(lambda mod, i, o: calls.append(o.shape[0]))
+    grads, outs = [], []
+    for first in (0, 1):
+        calls.clear()
+        m.zero_grad()
+        seq = m.forward_sequence(rgb, q, tr, K, first_frame=first)
+        maps = [*seq.depth, *seq.semantic] if arch != "m4depth" else list(seq.depth)
+        loss = sum(x[:, 1:].square().mean() for x in maps)
+        loss.backward()
+        grads.append([p.grad.clone() for p in m.parameters()])
+        outs.append([x[:, 1:] for x in maps])
+        if m.semantic_decoder is not None:
+            assert calls == [2 * (3 - first)]  # frames first..2 of both samples, one batched call
+            assert bool(seq.semantic[0][:, :first].isnan().all()) and not bool(seq.semantic[0][:, first:].isnan().any())
+        if m.depth_decoder is not None:
+            assert torch.isfinite(seq.depth[0]).all()  # frame 0 too (the reset branch's constant)
+    for a, b in zip(*outs):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=0)
+    for a, b in zip(*grads):
+        torch.testing.assert_close(a, b, rtol=1e-9, atol=1e-15)
+    with pytest.raises(ValueError, match="first_frame"):
+        m.forward_sequence(rgb, q, tr, K, first_frame=3)

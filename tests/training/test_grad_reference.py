@@ -21,7 +21,7 @@ import torch
 from cosemdepth.evaluation.fidelity import inputs_from_reference
 from cosemdepth.io.convert import convert_tensors
 from cosemdepth.models import build_model
-from cosemdepth.training.trainer import compute_loss, prepare_for_training
+from cosemdepth.training.trainer import compute_loss, forward_batch, prepare_for_training
 
 FIXTURE = Path(__file__).parent / "fixtures" / "grad-s64"
 
@@ -80,7 +80,7 @@ def our_step(channels_last: bool = False):
     from cosemdepth.config import RunConfig
 
     cfg = RunConfig.from_dict({"model": conv.config.to_dict(), "data": {"train": [{"name": "toy"}]}})
-    out = model(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch["reset"])
+    out = forward_batch(model, batch)  # the trainer's forward (the semantic decoder skips frame 0)
     terms = compute_loss(out, batch, cfg)
     terms.total.backward()
     grads = {n: p.grad.detach().double().numpy().ravel() for n, p in model.named_parameters() if p.grad is not None}

@@ -146,6 +146,7 @@ class SceneModel(nn.Module):
         trans: torch.Tensor,
         intrinsics: torch.Tensor,
         reset: Optional[torch.Tensor] = None,
+        first_frame: int = 0,
     ) -> SequenceOutput:
         """Run a whole sequence (training mode).
 
@@ -154,25 +155,37 @@ class SceneModel(nn.Module):
             rot: ``[B, T, 4]`` quaternions (w, x, y, z); trans: ``[B, T, 3]`` metres (motion previous -> current).
             intrinsics: ``[B, 4]`` (fx, fy, cx, cy) at the input size (one camera per sequence), or ``[B, T, 4]``.
             reset: ``[B, T]`` bool; default resets frame 0 only. Frame 0 always resets (it has no previous frame).
+            first_frame: the first frame whose outputs are wanted (the trainer passes the loss's first supervised
+                frame, 1). A stateless decoder (semantic) does not run on the frames before it, and its maps hold NaN
+                there; a temporal decoder (depth) runs every frame, as its later frames depend on the earlier ones.
+                The outputs from ``first_frame`` on, and the gradients of anything computed from them, are those of
+                a run with ``first_frame=0``: a quarter of the semantic decoder's work saved at ``T = 4``.
         Returns:
             :class:`SequenceOutput` with per-level lists (finest first) of ``[B, T, ...]`` tensors.
         """
         _check_inputs(rgb, rot, trans, intrinsics, reset, sequence=True)
         b, t = rgb.shape[:2]
-        feats = self.encoder(rgb.flatten(0, 1))
-        out = SequenceOutput(features=[f.unflatten(0, (b, t)) for f in feats])
+        if not 0 <= first_frame < t:
+            raise ValueError(f"argument first_frame must be in [0, T-1] = [0, {t - 1}], got {first_frame}")
+        # frame-major batch (frame 0 of every sample, then frame 1...): a frame, or the frames from first_frame on,
+        # are one contiguous block of every level's features
+        feats = self.encoder(rgb.transpose(0, 1).flatten(0, 1))
+        out = SequenceOutput(features=[f.unflatten(0, (t, b)).transpose(0, 1) for f in feats])
         for dec in self.decoders.values():
             if dec.temporal:  # frame by frame, the state carried along
                 per_frame, state = [], None
                 for k in range(t):
                     intr = intrinsics[:, k] if intrinsics.dim() == 3 else intrinsics
                     frame_reset = None if reset is None else reset[:, k]
-                    levels, state = dec([f[:, k] for f in out.features], rot[:, k], trans[:, k], intr, state, frame_reset)
+                    levels, state = dec([f[k * b : (k + 1) * b] for f in feats], rot[:, k], trans[:, k], intr, state,
+                                        frame_reset)
                     per_frame.append(dec.level_maps(levels))
                 maps = {key: [torch.stack(per_level, 1) for per_level in zip(*(fr[key] for fr in per_frame))]
                         for key in dec.maps}
-            else:  # every frame at once
-                maps = {key: [m.unflatten(0, (b, t)) for m in v] for key, v in dec.level_maps(dec(feats)[0]).items()}
+            else:  # every wanted frame at once
+                levels = dec([f[first_frame * b :] for f in feats])[0]
+                maps = {key: [_skipped_frames_nan(m.unflatten(0, (t - first_frame, b)).transpose(0, 1), first_frame)
+                              for m in v] for key, v in dec.level_maps(levels).items()}
             for key, v in maps.items():
                 out.put(key, v)
         return out
@@ -293,6 +306,13 @@ def _rebuild_streamer(module: SceneModel, incompatible_keys) -> None:
     if module._fast is not None:
         module._fast = STREAMERS[module._fast_mode](module, **module._fast_options)
         module._fast_weights = module._weights_version()
+
+
+def _skipped_frames_nan(x: torch.Tensor, n: int) -> torch.Tensor:
+    """``[B, T - n, ...]`` -> ``[B, T, ...]``, the first ``n`` frames NaN (outputs not computed)."""
+    if n == 0:
+        return x
+    return torch.cat([x.new_full((x.shape[0], n, *x.shape[2:]), float("nan")), x], dim=1)
 
 
 # ---------------------------------------------------------------------- input checks

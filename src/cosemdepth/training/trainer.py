@@ -65,7 +65,7 @@ from .data import (
     total_steps,
 )
 from .events import CONSOLE_KINDS, EventLog
-from .losses import LossTerms, total_loss
+from .losses import FIRST_SUPERVISED_FRAME, LossTerms, total_loss
 from .optim import make_optimizer
 from .run_config import dump_config
 from .rundir import (
@@ -156,6 +156,14 @@ def compute_loss(out, batch: dict, cfg: RunConfig) -> LossTerms:
             from_logits=from_logits,
             class_weights=cfg.train.semantic_class_weights or None,
         )
+
+
+def forward_batch(net: torch.nn.Module, batch: dict):
+    """The training forward of a batch (run it inside :func:`bf16_autocast`): the model's
+    :meth:`~cosemdepth.models.SceneModel.forward_sequence` with the outputs wanted from the loss's first supervised
+    frame on (the semantic decoder skips frame 0, which no loss term reads)."""
+    return net(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch.get("reset"),
+               first_frame=FIRST_SUPERVISED_FRAME)
 
 
 def _float32(levels):
@@ -468,7 +476,7 @@ class Trainer:
         for g in self.optimizer.param_groups:
             g["lr"] = learning_rate(self.cfg, st.epoch)
         with self._autocast():
-            out = self.net(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch.get("reset"))
+            out = forward_batch(self.net, batch)
         terms = compute_loss(out, batch, self.cfg)
         loss = terms.total
         if step in self.cfg.debug.inject_nonfinite_steps and step not in self._injected:
