@@ -216,6 +216,25 @@ def test_hue_by_hand():
     close(adjust_hue(px(0.6, 0.0, 0.0), 1 / 6), px(0.6, 0.6, 0.0))
 
 
+def test_colour_adjustments_match_python_colorsys():
+    """Hue and saturation on random pixels in [0, 1] against the standard library's HSV conversion (float64, one pixel
+    at a time): an implementation independent of ours, with every hue sector and grey pixels present."""
+    import colorsys
+
+    g = torch.Generator().manual_seed(5)
+    x = torch.rand(2, 3, 3, 16, 16, generator=g, dtype=torch.float64)
+    x[0, 0, :, 0, :4] = 0.25  # grey pixels (hue undefined -> 0)
+    pixels = x.movedim(-3, -1).reshape(-1, 3).tolist()
+    for delta in (0.05, 1 / 3, -0.45, 0.999):
+        want = [colorsys.hsv_to_rgb((h + delta) % 1.0, s, v) for h, s, v in (colorsys.rgb_to_hsv(*p) for p in pixels)]
+        got = adjust_hue(x, delta).movedim(-3, -1).reshape(-1, 3)
+        torch.testing.assert_close(got, torch.tensor(want, dtype=torch.float64), rtol=0, atol=1e-12)
+    for factor in (0.0, 0.4, 1.7):
+        want = [colorsys.hsv_to_rgb(h, min(s * factor, 1.0), v) for h, s, v in (colorsys.rgb_to_hsv(*p) for p in pixels)]
+        got = adjust_saturation(x, factor).movedim(-3, -1).reshape(-1, 3)
+        torch.testing.assert_close(got, torch.tensor(want, dtype=torch.float64), rtol=0, atol=1e-12)
+
+
 def test_hue_rotates_pixels_with_all_channels_negative_as_tf():
     # TF's hue kernel keeps max and min: a third of a turn still permutes (r, g, b) -> (b, r, g) when every channel
     # is <= 0 (after a negative brightness shift); an HSV round trip would have returned grey (V <= 0 -> S = 0)

@@ -220,58 +220,54 @@ def adjust_contrast(rgb: torch.Tensor, factor: float) -> torch.Tensor:
     return (rgb - mean) * factor + mean
 
 
+def _hue(rgb: torch.Tensor, mx: torch.Tensor, mn: torch.Tensor) -> torch.Tensor:
+    """Hue in [0, 1) of ``[..., 3, H, W]`` RGB whose channel max and min are ``mx``, ``mn`` (0 where they are equal)."""
+    r, g, b = rgb.unbind(dim=-3)
+    rng = mx - mn
+    inv = 1.0 / (6 * torch.where(rng > 0, rng, torch.ones_like(rng)))
+    h = torch.where(r == mx, (g - b) * inv, torch.where(g == mx, (b - r) * inv + 1.0 / 3.0, (r - g) * inv + 2.0 / 3.0))
+    h = torch.where(rng > 0, h, torch.zeros_like(h))
+    return torch.where(h < 0, h + 1, h)
+
+
+def _saturation(mx: torch.Tensor, mn: torch.Tensor) -> torch.Tensor:
+    """HSV saturation ``(max - min) / max``, 0 where ``max <= 0``."""
+    return torch.where(mx > 0, (mx - mn) / torch.where(mx > 0, mx, torch.ones_like(mx)), torch.zeros_like(mx))
+
+
 def rgb_to_hsv(rgb: torch.Tensor) -> torch.Tensor:
     """``[..., 3, H, W]`` RGB -> HSV with H in [0, 1) (TF kernel semantics, valid for values outside [0, 1] too)."""
-    r, g, b = rgb.unbind(dim=-3)
-    v = torch.maximum(torch.maximum(r, g), b)
-    mn = torch.minimum(torch.minimum(r, g), b)
-    rng = v - mn
-    s = torch.where(v > 0, rng / torch.where(v > 0, v, torch.ones_like(v)), torch.zeros_like(v))
-    safe = torch.where(rng > 0, rng, torch.ones_like(rng))
-    h = torch.where(
-        r == v,
-        (g - b) / (6 * safe),
-        torch.where(g == v, (b - r) / (6 * safe) + 1.0 / 3.0, (r - g) / (6 * safe) + 2.0 / 3.0),
-    )
-    h = torch.where(rng > 0, h, torch.zeros_like(h))
-    h = torch.where(h < 0, h + 1, h)
-    return torch.stack([h, s, v], dim=-3)
+    v = torch.amax(rgb, dim=-3)
+    mn = torch.amin(rgb, dim=-3)
+    return torch.stack([_hue(rgb, v, mn), _saturation(v, mn), v], dim=-3)
 
 
 def hsv_to_rgb(hsv: torch.Tensor) -> torch.Tensor:
-    """``[..., 3, H, W]`` HSV (H in [0, 1)) -> RGB: chroma ``C = S V``, ``m = V - C``, sector ``floor(6 H)``."""
+    """``[..., 3, H, W]`` HSV (H in [0, 1)) -> RGB: chroma ``C = S V``, ``m = V - C``."""
     h, s, v = hsv.unbind(dim=-3)
     c = s * v
     return _hue_chroma_to_rgb(h, c, v - c)
 
 
+#: Per channel (r, g, b), the offset n of the closed form below, in sixths of the hue circle.
+_CHANNEL_OFFSETS = (5.0, 3.0, 1.0)
+
+
 def _hue_chroma_to_rgb(h: torch.Tensor, c: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
-    """Hue ``h`` in [0, 1), chroma ``c = max - min`` and ``m = min`` -> ``[..., 3, H, W]`` RGB."""
-    dh = h * 6
-    sector = torch.floor(dh)
-    x = c * (1 - torch.abs(torch.remainder(dh, 2) - 1))
-    sector = torch.remainder(sector, 6)
-    z = torch.zeros_like(c)
-    # (r, g, b) before adding m, per sector 0..5
-    table_r = [c, x, z, z, x, c]
-    table_g = [x, c, c, x, z, z]
-    table_b = [z, z, x, c, c, x]
-    r = torch.zeros_like(c)
-    g = torch.zeros_like(c)
-    b = torch.zeros_like(c)
-    for k in range(6):
-        sel = sector == k
-        r = torch.where(sel, table_r[k], r)
-        g = torch.where(sel, table_g[k], g)
-        b = torch.where(sel, table_b[k], b)
-    return torch.stack([r + m, g + m, b + m], dim=-3)
+    """Hue ``h`` in [0, 1), chroma ``c = max - min`` and ``m = min`` -> ``[..., 3, H, W]`` RGB, in closed form: channel
+    ``n`` is ``m + c (1 - clip(min(k, 4 - k), 0, 1))`` with ``k = (n + 6 h) mod 6`` (the six-sector table of the TF
+    kernel: one channel at the max, one at the min, the third interpolated)."""
+    k = torch.remainder(h.unsqueeze(-3) * 6 + h.new_tensor(_CHANNEL_OFFSETS).view(3, 1, 1), 6)
+    t = torch.minimum(k, 4 - k).clamp_(0.0, 1.0)
+    return (m + c).unsqueeze(-3) - c.unsqueeze(-3) * t
 
 
 def adjust_saturation(rgb: torch.Tensor, factor: float) -> torch.Tensor:
     """HSV saturation times ``factor``, clipped to [0, 1] (TF ``adjust_saturation``)."""
-    hsv = rgb_to_hsv(rgb)
-    h, s, v = hsv.unbind(dim=-3)
-    return hsv_to_rgb(torch.stack([h, (s * factor).clamp(0.0, 1.0), v], dim=-3))
+    v = torch.amax(rgb, dim=-3)
+    mn = torch.amin(rgb, dim=-3)
+    c = (_saturation(v, mn) * factor).clamp(0.0, 1.0) * v
+    return _hue_chroma_to_rgb(_hue(rgb, v, mn), c, v - c)
 
 
 def adjust_hue(rgb: torch.Tensor, delta: float) -> torch.Tensor:
@@ -280,10 +276,9 @@ def adjust_hue(rgb: torch.Tensor, delta: float) -> torch.Tensor:
     TF's hue kernel works on (hue, min, max) rather than HSV, so a pixel whose channels are all <= 0 (possible after
     the brightness shift) keeps its colour and is rotated like any other, where an HSV round trip (S = 0 when
     V <= 0) would turn it grey. For V > 0 both are the same."""
-    h = rgb_to_hsv(rgb)[..., 0, :, :]
     mx = torch.amax(rgb, dim=-3)
     mn = torch.amin(rgb, dim=-3)
-    return _hue_chroma_to_rgb(torch.remainder(h + delta, 1.0), mx - mn, mn)
+    return _hue_chroma_to_rgb(torch.remainder(_hue(rgb, mx, mn) + delta, 1.0), mx - mn, mn)
 
 
 def invert(rgb: torch.Tensor) -> torch.Tensor:
