@@ -28,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from cosemdepth.bench.runner import hardware_info  # noqa: E402
 from cosemdepth.config import RunConfig  # noqa: E402
+from cosemdepth.devices import retain_freed_host_memory  # noqa: E402
 from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
 from cosemdepth.models import build_model  # noqa: E402
 from cosemdepth.training.data import collate, to_device  # noqa: E402
@@ -73,6 +74,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path)
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
+    retain_freed_host_memory()  # as the CPU trainer does (train.retain_host_memory)
     torch.manual_seed(0)
     cfg = RunConfig.from_dict({"data": {"train": [{"name": "toy"}], "size": a.size, "seq_len": a.seq_len}})
     base = build_model(cfg.model).train()
