@@ -19,6 +19,10 @@
 # 1-thread job most of the time): 36 minutes of data generation (2 render processes, about 0.5 s per frame of 384x384
 # rays each) and 1 h 42 min of training; the same 18 epochs take about 2 h 20 min on the 2-core AMD EPYC without AMX
 # (0.46-0.74 steps/s). Stage 2 on the 2-core AMD EPYC (2026-12-02): 44 min for its 1,728 steps.
+# With the trainer of 2026-12-03 (frame 0's semantic decoder skipped, faster colour augmentation) one epoch of stage 1
+# took 4 min 35 s of training (1.05 steps/s) and 6 s of validation on the 2-core AMD EPYC (03:26 UTC; `cosemdepth train
+# --config synthair-demo --epochs 1 --set train.validate_every_epochs=1`): both stages' 24 epochs, about 1 h 53 min
+# (the host's speed varies: at 0.82 steps/s, seen in its slow hours, about 2 h 23 min).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
