@@ -3,7 +3,8 @@
 Two ways to run a model:
 
 * training: :meth:`SceneModel.forward_sequence` on a whole sequence ``[B, T, 3, H, W]`` returns every frame's
-  per-level outputs (frame 0, or any frame flagged in ``reset``, takes the depth decoder's reset branch);
+  per-level outputs (frame 0, or any frame flagged in ``reset``, takes the depth decoder's reset branch; with
+  ``first_frame`` the stateless decoders skip the frames before it, which the training loss does not read);
 * streaming: :meth:`SceneModel.step` on one frame ``[B, 3, H, W]`` with an explicit :class:`StreamState` in and a new
   one out, and a per-sample reset mask.
 
