@@ -1,4 +1,4 @@
-"""Speed of the pure-numpy CRC32C and of reading + converting a TensorFlow checkpoint.
+"""Speed of CRC32C (google-crc32c) and of reading + converting a TensorFlow checkpoint.
 
     PYTHONPATH=src python benchmarks/tf_checkpoint_speed.py [--checkpoint PATH] [--out result.json]
 
@@ -48,7 +48,7 @@ def main() -> None:
     }
     for mb in (1, 20):
         data = np.random.default_rng(0).integers(0, 256, mb * 1_000_000, dtype=np.uint8).tobytes()
-        crc32c(data)  # build the cached shift tables once
+        crc32c(data)  # warm-up
         s = best_of(lambda: crc32c(data), args.repeat)
         result[f"crc32c_{mb}MB_s"] = round(s, 4)
         result[f"crc32c_{mb}MB_MBps"] = round(mb / s, 1)
