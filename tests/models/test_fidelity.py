@@ -68,8 +68,12 @@ def test_matches_tensorflow_reference(converted, tfref_dir, mode, pscv_dtype):
     check_report(report)
     # the reset frame is exact: 1000 m and parallax 2^(L-l)
     assert report["streaming"][0]["lvl1_depth"]["max"] == 0.0
-    # the "other" channels of the depth decoder also follow (absolute, values of order 1)
-    assert all(v["max_abs"] < 0.1 for f in report["streaming"] for k, v in f.items() if k.endswith("depth_other"))
+    # the "other" channels of the depth decoder also follow (absolute, values of order 1). With float32 products
+    # (not the original's float16) their worst difference is float32 rounding amplified by the recurrence, and it
+    # moves with the CPU's kernels and the thread count: measured 0.073 (AVX-512, 2 threads), 0.088 (AVX2 only,
+    # 2 threads), 0.102 (AVX2 only, 1 thread); with float16 products 0.004-0.037 (AVX2 only).
+    bound = 0.1 if pscv_dtype == "float16" else 0.15
+    assert all(v["max_abs"] < bound for f in report["streaming"] for k, v in f.items() if k.endswith("depth_other"))
 
 
 def test_float16_products_bring_the_worst_frame_closer(converted, tfref_dir):

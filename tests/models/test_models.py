@@ -1,3 +1,5 @@
+import copy
+
 import pytest
 import torch
 
@@ -104,7 +106,11 @@ def test_reset_frame_outputs_the_init_values(model):
 
 
 def test_per_sample_reset(model):
-    rgb, q, tr, K = make_inputs(t=5)
+    """A reset in one sample of a batch restarts that sample alone: it then equals the same frames run as a batch of
+    one. In float64: a batch of 2 and a batch of 1 may take convolution kernels that round differently in float32
+    (on an AVX2-only CPU the recurrence made 4e-4 of that), which is not what this checks."""
+    model = copy.deepcopy(model).double()
+    rgb, q, tr, K = (x.double() for x in make_inputs(t=5))
     base = torch.zeros(2, 5, dtype=torch.bool)
     base[:, 0] = True
     resets = base.clone()
