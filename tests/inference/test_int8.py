@@ -3,7 +3,7 @@ import torch
 import torch.nn.functional as F
 
 from cosemdepth.inference import FastEngine
-from cosemdepth.inference.int8 import QTensor, QuantConv, Range, has_int8, quantize, quantize_weight
+from cosemdepth.inference.int8 import QTensor, QuantConv, Range, activation_qmax, has_int8, quantize, quantize_weight
 from cosemdepth.models import build_model
 from cosemdepth.ops.padding import Conv2dSame
 
@@ -46,8 +46,23 @@ def frames(b=2, t=4, seed=0, extra=((1, 2),)):
 def test_range_qparams_hand_computed():
     assert Range(-1.0, 3.0).qparams() == pytest.approx((4 / 255, 64))  # round(1 / (4/255)) = round(63.75)
     assert Range(0.5, 2.0).qparams() == pytest.approx((2 / 255, 0))  # 0 always representable
+    assert Range(-1.0, 3.0).qparams(127) == pytest.approx((4 / 127, 32))  # round(31.75): 7-bit activations
     with pytest.raises(RuntimeError, match="no data"):
         Range().qparams()
+
+
+def test_activation_qmax_is_the_largest_input_whose_convolution_is_exact():
+    """Where 8-bit activations would overflow the kernel's 16-bit pair sums (x86 without VNNI), 7 bits are used;
+    either way a convolution at the chosen maximum gives the exact integer result."""
+    qmax = activation_qmax()
+    assert qmax in (127, 255)
+    x = torch.full((1, 16, 3, 3), qmax, dtype=torch.uint8).contiguous(memory_format=torch.channels_last)
+    w = torch.full((1, 16, 3, 3), 127, dtype=torch.int8)
+    one = torch.ones(1)
+    packed = torch.ops.onednn.qconv_prepack(w, one, 1.0, 0, [1, 1], [0, 0], [1, 1], 1, list(x.shape))
+    y = torch.ops.onednn.qconv2d_pointwise(x, 1.0, 0, packed, one, torch.zeros(1, dtype=torch.int32), None,
+                                           [1, 1], [0, 0], [1, 1], 1, 1e5, 0, None, "none", [], "")
+    assert int(y.flatten()[0]) == round(qmax * 127 * 144 / 1e5)
 
 
 def test_weight_quantisation_round_trip_within_half_a_step():
@@ -150,7 +165,7 @@ def test_optimize_int8_through_the_model():
     assert out.depth.dtype == torch.float32
 
 
-def test_int8_chains_quantised_convolutions_and_runs_kept_refiners_in_the_chosen_float_dtype(monkeypatch):
+def test_int8_chains_quantised_convolutions_and_runs_kept_refiners_in_the_chosen_float_dtype(monkeypatch, bf16_cpu):
     import cosemdepth.inference.int8 as int8
 
     torch.manual_seed(6)

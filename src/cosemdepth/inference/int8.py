@@ -57,6 +57,27 @@ def has_int8() -> bool:
         return False
 
 
+_QMAX: int | None = None
+
+
+def activation_qmax() -> int:
+    """The largest uint8 activation value the int8 convolutions may use here: 255, or 127 where oneDNN's kernel
+    sums pairs of uint8 x int8 products in saturating 16-bit arithmetic (x86 without VNNI: AVX2's ``vpmaddubsw``,
+    where 255 * 127 * 2 overflows), as PyTorch's ``reduce_range`` does. Found by running one convolution whose exact
+    result such a kernel cannot reach (all inputs 255, all weights 127), once per process."""
+    global _QMAX
+    if _QMAX is None:
+        x = torch.full((1, 8, 3, 3), 255, dtype=torch.uint8).contiguous(memory_format=_CL)
+        w = torch.full((1, 8, 3, 3), 127, dtype=torch.int8)
+        one = torch.ones(1)
+        packed = torch.ops.onednn.qconv_prepack(w, one, 1.0, 0, [1, 1], [0, 0], [1, 1], 1, list(x.shape))
+        y = torch.ops.onednn.qconv2d_pointwise(x, 1.0, 0, packed, one, torch.zeros(1, dtype=torch.int32), None,
+                                               [1, 1], [0, 0], [1, 1], 1, 1e5, 0, None, "none", [], "")
+        exact = round(255 * 127 * 72 / 1e5)  # 23; pairs saturated at 32767 give 12
+        _QMAX = 255 if int(y.flatten()[0]) == exact else 127
+    return _QMAX
+
+
 @dataclass
 class Range:
     """Running min / max of a tensor over the calibration frames."""
@@ -68,13 +89,14 @@ class Range:
         lo, hi = torch.aminmax(x.detach())
         self.lo, self.hi = min(self.lo, float(lo)), max(self.hi, float(hi))
 
-    def qparams(self) -> tuple[float, int]:
-        """``(scale, zero_point)`` of uint8 affine quantisation covering ``[min(lo, 0), max(hi, 0)]`` (0 exact)."""
+    def qparams(self, qmax: int = 255) -> tuple[float, int]:
+        """``(scale, zero_point)`` of affine quantisation to ``[0, qmax]`` covering ``[min(lo, 0), max(hi, 0)]``
+        (0 exact); ``qmax`` 255 (uint8) or 127 (:func:`activation_qmax` on a CPU whose int8 products saturate)."""
         if self.lo > self.hi:
             raise RuntimeError("int8 calibration saw no data for this convolution")
         lo, hi = min(self.lo, 0.0), max(self.hi, 0.0)
-        scale = max((hi - lo) / 255.0, 1e-8)
-        return scale, int(min(255, max(0, round(-lo / scale))))
+        scale = max((hi - lo) / qmax, 1e-8)
+        return scale, int(min(qmax, max(0, round(-lo / scale))))
 
 
 class ChannelRange:
@@ -154,10 +176,11 @@ class QuantConv:
         self.w_zp = torch.zeros(self.qw.shape[0], dtype=torch.int32)
         self.bias = None if conv.bias is None else conv.bias.detach().float().contiguous()
         self.padding = conv.kernel_size[0] // 2
-        self.x_scale, self.x_zp = x_range.qparams()
+        qmax = activation_qmax()  # the activations a convolution reads: 7 bits where 8 would overflow
+        self.x_scale, self.x_zp = x_range.qparams(qmax)
         self.y_scale, self.y_zp = y_range.qparams()
         # after LeakyReLU the range shrinks on the negative side: requantise to it (finer steps for the next conv)
-        self.out_scale, self.out_zp = Range(NEGATIVE_SLOPE * min(y_range.lo, 0.0), max(y_range.hi, 0.0)).qparams()
+        self.out_scale, self.out_zp = Range(NEGATIVE_SLOPE * min(y_range.lo, 0.0), max(y_range.hi, 0.0)).qparams(qmax)
         self._packed: dict[tuple[int, ...], torch.Tensor] = {}
 
     def _weight(self, shape: tuple[int, ...]) -> torch.Tensor:
