@@ -23,6 +23,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from cosemdepth.bench.runner import hardware_info  # noqa: E402
+from cosemdepth.devices import bf16_convolutions  # noqa: E402
 from cosemdepth.inference.convs import PackedConv  # noqa: E402
 from cosemdepth.inference.int8 import QuantConv, Range, has_int8, quantize  # noqa: E402
 from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
@@ -59,7 +60,8 @@ def main(argv=None) -> int:
     gflop = 2 * 128 * 128 * 9 * 192 * 192 / 1e9
     rows = []
     with torch.inference_mode():
-        for dtype in (torch.float32, torch.bfloat16):
+        # bf16 only where oneDNN has bf16 convolutions (not on an AVX2-only CPU)
+        for dtype in (torch.float32, torch.bfloat16) if bf16_convolutions("cpu") else (torch.float32,):
             packed = PackedConv(conv, dtype, torch.device("cpu"), act=True)
             xin = x.to(dtype).contiguous(memory_format=torch.channels_last)
             for th in a.threads:
@@ -85,6 +87,7 @@ def main(argv=None) -> int:
             nnpack["shapes"][key] = str(e).splitlines()[0]
     print("nnpack", nnpack)
     report = {"conv": "3x3 128->128 at 192x192, batch 1", "gflop": round(gflop, 2), "rows": rows, "nnpack": nnpack,
+              "bf16": "measured" if bf16_convolutions("cpu") else "left out: this CPU has no bf16 convolutions",
               "machine": hardware_info("cpu")}
     atomic_write_text(a.out, json.dumps(report, indent=1) + "\n")
     print(f"wrote {a.out}")

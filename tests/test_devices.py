@@ -1,4 +1,5 @@
-"""resolve_device: the one device-name check (train.device and every --device); the host allocator setting."""
+"""resolve_device: the one device-name check (train.device and every --device); bf16 convolutions and the commands
+that refuse bf16 without them; the host allocator setting."""
 
 import subprocess
 import sys
@@ -6,7 +7,8 @@ import sys
 import pytest
 import torch
 
-from cosemdepth.devices import resolve_device
+import cosemdepth.devices as devices
+from cosemdepth.devices import bf16_convolutions, resolve_device
 from cosemdepth.errors import ConfigError
 
 
@@ -40,6 +42,51 @@ def test_names_the_argument_and_refuses_missing_accelerators():
     if not (torch.backends.mps.is_available()):
         with pytest.raises(ConfigError, match=r"^--device mps: MPS is not available"):
             resolve_device("mps")
+
+
+def test_bf16_convolutions_by_device_and_onednn(monkeypatch):
+    assert bf16_convolutions("cuda") and not bf16_convolutions("mps")
+    with torch.backends.mkldnn.flags(enabled=False):
+        assert bf16_convolutions("cpu")  # PyTorch's own kernels take bf16 anywhere
+        x = torch.randn(1, 2, 5, 5, dtype=torch.bfloat16)
+        assert torch.nn.functional.conv2d(x, torch.ones(3, 2, 3, 3, dtype=torch.bfloat16)).dtype == torch.bfloat16
+    monkeypatch.setattr(devices, "_onednn_bf16", lambda: False)
+    assert bf16_convolutions("cpu") == (not devices.onednn_enabled())
+    monkeypatch.setattr(devices, "_onednn_bf16", lambda: True)
+    assert bf16_convolutions("cpu")
+
+
+@pytest.fixture
+def no_bf16(monkeypatch):
+    """A CPU whose oneDNN has no bf16 convolutions (as an AVX2-only one), whatever this one has."""
+    monkeypatch.setattr(devices, "_onednn_bf16", lambda: False)
+    if not devices.onednn_enabled():
+        pytest.fail("these checks need oneDNN (the CPU build of PyTorch has it)")
+
+
+def test_without_bf16_convolutions_training_and_the_fast_path_refuse_bf16_in_one_line(no_bf16, tmp_path, capsys):
+    from cosemdepth.cli.main import main
+    from cosemdepth.cli._shared import load
+    from cosemdepth.inference.engine import FastEngine
+    from cosemdepth.io.model_io import save_model
+    from cosemdepth.models import build_model
+
+    out = tmp_path / "run"
+    assert main(["train", "--out", str(out), "--dataset", "toy", "--device", "cpu", "--bf16", "--max-steps", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "train.bf16 (--bf16)" in err and "bfloat16 convolutions" in err, err
+    assert not out.exists()  # nothing written
+    m = build_model(arch="m4semantic").eval()
+    with pytest.raises(ValueError, match="bfloat16 convolutions"):
+        FastEngine(m, dtype="bf16")
+    with pytest.raises(ValueError, match="bfloat16 convolutions"):
+        FastEngine(m, dtype="int8", int8_float_dtype="bf16")
+    FastEngine(m, dtype="int8")  # int8 keeps its float refiners in float32 here
+    model_dir = save_model(m, tmp_path / "m")
+    with pytest.raises(ConfigError, match=r"^--precision bf16: bfloat16 needs bfloat16 convolutions"):
+        load(model_dir, "cpu", precision="bf16")
+    assert main(["benchmark", "--device", "cpu", "--precision", "bf16", "--json", "", "--md", ""]) == 2
+    assert "--precision bf16: oneDNN has no bfloat16 convolutions" in capsys.readouterr().err
 
 
 _FAULTS = r"""

@@ -1,5 +1,6 @@
 """The one device-name check of the package: ``resolve_device`` (training's ``train.device``, the commands'
-``--device``); and :func:`retain_freed_host_memory`, the host allocator setting of CPU training."""
+``--device``); what a device can compute in (:func:`onednn_enabled`, :func:`bf16_convolutions`); and
+:func:`retain_freed_host_memory`, the host allocator setting of CPU training."""
 
 from __future__ import annotations
 
@@ -33,6 +34,42 @@ def resolve_device(name: str, what: str = "--device") -> torch.device:
     return device
 
 
+def onednn_enabled() -> bool:
+    """Whether CPU convolutions go through oneDNN: built in and not switched off (``torch.backends.mkldnn.flags``)."""
+    try:
+        return bool(torch.backends.mkldnn.is_available() and torch.backends.mkldnn.enabled)
+    except (AttributeError, RuntimeError):  # pragma: no cover - exotic builds
+        return False
+
+
+def bf16_convolutions(device: torch.device | str = "cpu") -> bool:
+    """Whether bfloat16 convolutions run on ``device``: on CUDA, yes; on the CPU, where oneDNN has bf16 kernels
+    (AVX-512 BW/VL/DQ, AVX512-BF16, AMX or AVX-NE-CONVERT; not an AVX2-only CPU), or where oneDNN is switched off
+    (PyTorch's own kernels, slow). ``train.bf16`` and the fast path's ``bf16`` ask this first."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return True
+    if device.type != "cpu":
+        return False
+    return _onednn_bf16() if onednn_enabled() else True
+
+
+def _onednn_bf16() -> bool:
+    """oneDNN's own answer: bf16 convolution kernels for this CPU."""
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # pragma: no cover - exotic builds
+        return False
+
+
+def cpu_capability() -> str:
+    """The vector extension PyTorch's CPU kernels use here (``"AVX2"``, ``"AVX512"``...), for messages."""
+    try:
+        return torch.backends.cpu.get_cpu_capability()
+    except (AttributeError, RuntimeError):  # pragma: no cover - exotic builds
+        return "unknown"
+
+
 #: glibc's ``mallopt`` parameters (``malloc.h``).
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3
 
@@ -62,4 +99,4 @@ def retain_freed_host_memory(limit_bytes: int = 1 << 30) -> bool:
     return ok
 
 
-__all__ = ["resolve_device", "retain_freed_host_memory"]
+__all__ = ["bf16_convolutions", "cpu_capability", "onednn_enabled", "resolve_device", "retain_freed_host_memory"]

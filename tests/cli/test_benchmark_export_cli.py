@@ -22,7 +22,7 @@ def test_export_command_errors_name_the_argument(tmp_path, capsys):
     assert not (tmp_path / "a.onnx").exists()
 
 
-def test_benchmark_command_writes_json_and_markdown(tmp_path, capsys):
+def test_benchmark_command_writes_json_and_markdown(tmp_path, capsys, bf16_cpu):
     j, md = tmp_path / "b.json", tmp_path / "b.md"
     rc = main(
         ["benchmark", "--models", "m4semantic", "--levels", "2", "--size", "16", "16", "--batch", "1", "2",

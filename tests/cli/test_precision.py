@@ -15,7 +15,9 @@ def model_dir(tmp_path_factory):
 
 
 @pytest.mark.parametrize("precision,dtype", [("fp32", torch.float32), ("bf16", torch.bfloat16), ("int8", "int8")])
-def test_load_selects_the_fast_path_in_the_precision(model_dir, precision, dtype):
+def test_load_selects_the_fast_path_in_the_precision(model_dir, precision, dtype, request):
+    if precision == "bf16":
+        request.getfixturevalue("bf16_cpu")  # PyTorch's own bf16 kernels on a CPU where oneDNN has none
     model, _ = load(model_dir, "cpu", precision=precision)
     assert model.inference_mode == "fast"
     if dtype == "int8":

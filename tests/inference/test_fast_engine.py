@@ -121,7 +121,7 @@ def test_fp32_fast_streams_like_the_reference_over_frames_with_a_reset():
     assert outs["fast"][5].depth.std() > 0  # and the model does depend on the input
 
 
-def test_bf16_refiners_stay_close_and_outputs_are_float32(models):
+def test_bf16_refiners_stay_close_and_outputs_are_float32(models, bf16_cpu):
     m = models["cosemdepth"]
     engine = FastEngine(m, dtype=torch.bfloat16)
     rgb, q, tr, K = sequence()
@@ -139,7 +139,7 @@ def test_bf16_refiners_stay_close_and_outputs_are_float32(models):
     assert engine.ops["depth"][0].refiner.last.weight.dtype == torch.float32
 
 
-def test_bf16_keeps_the_coarse_depth_levels_in_float32_and_all_float32_levels_is_the_fp32_engine(models):
+def test_bf16_keeps_the_coarse_depth_levels_in_float32_and_all_float32_levels_is_the_fp32_engine(models, bf16_cpu):
     m = models["cosemdepth"]
     default = FastEngine(m, dtype="bf16")
     assert default.float32_levels == {"depth": (3, 4, 5)}

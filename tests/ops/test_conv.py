@@ -61,7 +61,7 @@ def test_backward_uses_the_activation_slope():
         assert conv.bias.grad.item() == pytest.approx(slope_grad)
 
 
-def test_bf16_autocast_keeps_fp32_master_weights():
+def test_bf16_autocast_keeps_fp32_master_weights(bf16_cpu):
     torch.manual_seed(1)
     conv = Conv2dSame(8, 8, 3)
     x = torch.randn(1, 8, 12, 12)

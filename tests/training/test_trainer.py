@@ -191,7 +191,7 @@ def test_weighted_mix_of_two_datasets(tmp_path, tiny_config):
     trainer.fit()
 
 
-def test_bf16_autocast_keeps_the_loss_in_float32(tiny_config):
+def test_bf16_autocast_keeps_the_loss_in_float32(tiny_config, bf16_cpu):
     """The model and the loss work under bf16 autocast; the loss stays float32 (CPU autocast, as train.bf16 uses)."""
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
@@ -248,7 +248,7 @@ def _loss_and_grads(model, batch, cfg, bf16: bool):
     return terms, out, grads
 
 
-def test_bf16_cpu_training_step_is_close_to_float32(tiny_config):
+def test_bf16_cpu_training_step_is_close_to_float32(tiny_config, bf16_cpu):
     """train.bf16 on the CPU: the same loss and gradient as float32 within bfloat16's rounding.
 
     Bounds, from the unit roundoff u = 2^-8 (not tuned to the measurement):
@@ -285,7 +285,7 @@ def test_bf16_cpu_training_step_is_close_to_float32(tiny_config):
     assert diff > 0  # bf16 did change the arithmetic
 
 
-def test_loss_is_float32_even_inside_autocast(tiny_config):
+def test_loss_is_float32_even_inside_autocast(tiny_config, bf16_cpu):
     """compute_loss switches autocast off: inside a bf16 autocast region it returns the same float32 value as
     outside it, for bf16 predictions."""
     from cosemdepth.models import build_model
@@ -306,7 +306,7 @@ def test_loss_is_float32_even_inside_autocast(tiny_config):
     assert float(inside.total) == float(outside.total)
 
 
-def test_trainer_bf16_on_cpu_runs_and_keeps_float32_weights(tmp_path, tiny_config):
+def test_trainer_bf16_on_cpu_runs_and_keeps_float32_weights(tmp_path, tiny_config, bf16_cpu):
     from cosemdepth.training.checkpoint import load_checkpoint
 
     cfg = tiny_config(train__bf16=True, train__max_steps=2, train__device="cpu")

@@ -31,7 +31,7 @@ from ..bench.runner import (
     wait_for_idle,
 )
 from ..config import ARCHITECTURES
-from ..devices import resolve_device
+from ..devices import bf16_convolutions, cpu_capability, resolve_device
 from ..errors import ConfigError
 from ..io.outdir import check_output_file, model_inputs
 from ._shared import DEFAULT_SIZE_PAIR, load_or_build, parse_size_pair
@@ -52,7 +52,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--precision",
         nargs="+",
         choices=["fp32", "bf16", "fp16", "int8"],
-        help="fast-path precisions (default: fp32 bf16 int8 on CPU, fp32 fp16 bf16 on CUDA); int8 is CPU only "
+        help="fast-path precisions (default: fp32 bf16 int8 on CPU, without bf16 on a CPU that has no bf16 "
+        "convolutions, such as an AVX2-only one; fp32 fp16 bf16 on CUDA); int8 is CPU only "
         "(calibrated on synthetic frames before timing)",
     )
     parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default auto: CUDA when present)")
@@ -109,7 +110,12 @@ def run(args: argparse.Namespace) -> int:
     for flag, path, ours in (("--json", args.json, _is_our_json), ("--md", args.md, _is_our_md)):
         if path:
             check_output_file(path, what=f"{flag} file", inputs=model_inputs(args.model), recognize=ours)
-    precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16", "int8"])
+    bf16 = bf16_convolutions(device)
+    precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16", "int8"] if bf16 else
+                                    ["fp32", "int8"])
+    if "bf16" in precisions and not bf16:
+        raise ConfigError(f"--precision bf16: oneDNN has no bfloat16 convolutions on this CPU ({cpu_capability()}; "
+                          "they need AVX-512 or AVX-NE-CONVERT): use fp32 or int8")
     if "fp16" in precisions and not cuda:
         raise ConfigError("--precision fp16 is for CUDA; on CPU use bf16")
     if "int8" in precisions and cuda:

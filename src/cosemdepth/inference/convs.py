@@ -50,7 +50,9 @@ class PackedConv:
         self.dtype = dtype
         self.device = torch.device(device)
         supported = dtype in (torch.float32, torch.bfloat16)
-        self.use_mkldnn = (HAS_MKLDNN_POINTWISE if use_mkldnn is None else use_mkldnn) and supported
+        if use_mkldnn is None:  # by default where built in and not switched off (torch.backends.mkldnn.flags)
+            use_mkldnn = HAS_MKLDNN_POINTWISE and torch.backends.mkldnn.enabled
+        self.use_mkldnn = use_mkldnn and supported
         self._packed: dict[tuple[int, ...], torch.Tensor] = {}
 
     def _pad(self, x: torch.Tensor) -> tuple[torch.Tensor, int]:

@@ -28,6 +28,7 @@ from typing import Optional
 import torch
 import torch.nn.functional as F
 
+from ..devices import bf16_convolutions, cpu_capability, onednn_enabled
 from ..models.depth_decoder import DepthLevel
 from ..models.model import STREAMERS
 from ..models.outputs import StepOutput, StreamState
@@ -59,11 +60,8 @@ FLOAT32_FROM_LEVEL: dict[str, int] = {"depth": 3}
 
 
 def native_bf16() -> bool:
-    """Whether oneDNN runs bfloat16 convolutions natively on this CPU (AVX512-BF16 / AMX)."""
-    try:
-        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
-    except (AttributeError, RuntimeError):  # pragma: no cover - exotic builds
-        return False
+    """Whether oneDNN runs bfloat16 convolutions on this CPU (AVX-512 and up; not an AVX2-only CPU)."""
+    return onednn_enabled() and bf16_convolutions("cpu")
 
 
 def is_int8(dtype) -> bool:
@@ -177,6 +175,10 @@ class FastEngine:
         dtype = torch.float32 if self.int8 else parse_dtype(dtype)
         p = next(model.parameters())
         self.device = torch.device(device) if device is not None else p.device
+        if torch.bfloat16 in (dtype, self.int8_float_dtype if self.int8 else dtype) and \
+                not bf16_convolutions(self.device):
+            raise ValueError(f"bfloat16 needs bfloat16 convolutions, which oneDNN lacks on this CPU "
+                             f"({cpu_capability()}; they need AVX-512 or AVX-NE-CONVERT): use float32 or int8")
         self.dtype = dtype
         self.static = static
         f32 = torch.float32

@@ -59,6 +59,7 @@ def _use_fused(x: torch.Tensor, conv: nn.Conv2d) -> bool:
     return (
         _FUSED
         and x.device.type == "cpu"
+        and torch.backends.mkldnn.enabled  # oneDNN switched off (torch.backends.mkldnn.flags): PyTorch's kernels
         and conv.groups == 1
         and conv.dilation == (1, 1)
         and conv.stride[0] == conv.stride[1]
