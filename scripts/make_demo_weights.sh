@@ -31,14 +31,21 @@ bash scripts/setup.sh
 # 128 px, batch 3, seq 4, bf16, benchmarks/results/train_env_ab-amd.md); this script used to set it for all.
 CLI=.venv/bin/cosemdepth
 RUN=${RUN:-runs/synthair-demo}
+# The recipe trains with bf16 autocast; a CPU without bf16 convolutions (AVX2 only) trains in float32 instead (fp32
+# and bf16 runs learn alike, docs/benchmarks.md; on a 2-core AVX2-only AMD EPYC fp32 ran at about 0.3 steps/s: hours).
+PRECISION=()
+if ! .venv/bin/python -c "import sys; from cosemdepth.devices import bf16_convolutions; sys.exit(not bf16_convolutions())"; then
+  echo "make_demo_weights: this CPU has no bf16 convolutions: training in float32 (train.bf16=false)" >&2
+  PRECISION=(--set train.bf16=false)
+fi
 for seed in 11 12 13 14 15 16 17; do
   traj=3; [ "$seed" = 17 ] && traj=1
   OMP_WAIT_POLICY=PASSIVE $CLI synth --out "data/synthair-demo-s$seed" --trajectories "$traj" --frames 400 --size 128 --seed "$seed" \
     --climates sunny cloudy --supersample 3 --workers 2 --no-progress
   [ "$seed" = 17 ] || $CLI splits synthair "data/synthair-demo-s$seed" "data/splits-all/synthair-demo-s$seed" --rule train
 done
-$CLI train --config synthair-demo --out "$RUN"
-$CLI train --config synthair-demo --out "$RUN-finetune" --init-weights "$RUN/best" --epochs 6 --lr 6e-5 --seed 7 \
+$CLI train --config synthair-demo --out "$RUN" "${PRECISION[@]}"
+$CLI train --config synthair-demo --out "$RUN-finetune" "${PRECISION[@]}" --init-weights "$RUN/best" --epochs 6 --lr 6e-5 --seed 7 \
   --set "train.lr_decay_epochs=[4]" --set train.validate_every_epochs=1 \
   --set "train.semantic_class_weights=[0.727, 1.0, 0.681, 0.592, 1.991, 1.252, 2.275]"
 .venv/bin/python scripts/ship_weights.py "$RUN-finetune" weights/synthair-cosemdepth
