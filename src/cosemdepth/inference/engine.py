@@ -178,7 +178,7 @@ class FastEngine:
         if torch.bfloat16 in (dtype, self.int8_float_dtype if self.int8 else dtype) and \
                 not bf16_convolutions(self.device):
             raise ValueError(f"bfloat16 needs bfloat16 convolutions, which oneDNN lacks on this CPU "
-                             f"({cpu_capability()}; they need AVX-512 or AVX-NE-CONVERT): use float32 or int8")
+                             f"({cpu_capability()}; they need AVX-512 or AVX-NE-CONVERT): use fp32 (float32) or int8")
         self.dtype = dtype
         self.static = static
         f32 = torch.float32
