@@ -48,7 +48,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from cosemdepth.bench.runner import hardware_info  # noqa: E402
-from cosemdepth.devices import bf16_convolutions, cpu_capability  # noqa: E402
+from cosemdepth.devices import bf16_convolutions, no_bf16_reason  # noqa: E402
 from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
 
 TFREF = ROOT.parent / "shared" / "tools" / "tfref"
@@ -255,7 +255,7 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     left_out = {}
     if "bf16" in a.precision and not bf16_convolutions("cpu"):  # our --bf16 refuses to train here
-        left_out["bf16"] = f"this CPU has no bfloat16 convolutions in oneDNN ({cpu_capability()})"
+        left_out["bf16"] = no_bf16_reason()
         a.precision = [p for p in a.precision if p != "bf16"]
         print(f"ours --bf16 is not run: {left_out['bf16']}", flush=True)
 

@@ -62,6 +62,12 @@ def _onednn_bf16() -> bool:
         return False
 
 
+def no_bf16_reason() -> str:
+    """Why bf16 is refused on this CPU, for the one-line errors of the commands that take bf16."""
+    return (f"oneDNN has no bfloat16 convolutions on this CPU ({cpu_capability()}; they need AVX-512 or "
+            "AVX-NE-CONVERT)")
+
+
 def cpu_capability() -> str:
     """The vector extension PyTorch's CPU kernels use here (``"AVX2"``, ``"AVX512"``...), for messages."""
     try:
@@ -99,4 +105,5 @@ def retain_freed_host_memory(limit_bytes: int = 1 << 30) -> bool:
     return ok
 
 
-__all__ = ["bf16_convolutions", "cpu_capability", "onednn_enabled", "resolve_device", "retain_freed_host_memory"]
+__all__ = ["bf16_convolutions", "cpu_capability", "no_bf16_reason", "onednn_enabled", "resolve_device",
+           "retain_freed_host_memory"]

@@ -21,6 +21,7 @@ from typing import Callable, Optional
 import torch
 
 from ..config import MIDAIR_IMAGE_SIZE, ModelConfig
+from ..devices import cpu_capability
 from ..evaluation.resources import cpu_model
 from ..export.check import synthetic_sequence
 from ..inference.graphs import make_streamer
@@ -304,20 +305,13 @@ def hardware_info(device: str = "cpu") -> dict:
         "torch": torch.__version__,
         "python": platform.python_version(),
         "platform": platform.platform(),
-        "cpu_capability": _cpu_capability(),
+        "cpu_capability": cpu_capability(),
         "loadavg_start": _loadavg(),
     }
     if torch.device(device).type == "cuda" and torch.cuda.is_available():
         info["gpu"] = torch.cuda.get_device_name(torch.device(device))
         info["cuda"] = torch.version.cuda
     return info
-
-
-def _cpu_capability() -> Optional[str]:
-    try:
-        return torch.backends.cpu.get_cpu_capability()
-    except Exception:  # pragma: no cover
-        return None
 
 
 def _cpu_name() -> str:

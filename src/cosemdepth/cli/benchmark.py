@@ -31,7 +31,7 @@ from ..bench.runner import (
     wait_for_idle,
 )
 from ..config import ARCHITECTURES
-from ..devices import bf16_convolutions, cpu_capability, resolve_device
+from ..devices import bf16_convolutions, no_bf16_reason, resolve_device
 from ..errors import ConfigError
 from ..io.outdir import check_output_file, model_inputs
 from ._shared import DEFAULT_SIZE_PAIR, load_or_build, parse_size_pair
@@ -114,8 +114,7 @@ def run(args: argparse.Namespace) -> int:
     precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16", "int8"] if bf16 else
                                     ["fp32", "int8"])
     if "bf16" in precisions and not bf16:
-        raise ConfigError(f"--precision bf16: oneDNN has no bfloat16 convolutions on this CPU ({cpu_capability()}; "
-                          "they need AVX-512 or AVX-NE-CONVERT): use fp32 or int8")
+        raise ConfigError(f"--precision bf16: {no_bf16_reason()}: use fp32 or int8")
     if "fp16" in precisions and not cuda:
         raise ConfigError("--precision fp16 is for CUDA; on CPU use bf16")
     if "int8" in precisions and cuda:

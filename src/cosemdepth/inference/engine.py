@@ -28,7 +28,7 @@ from typing import Optional
 import torch
 import torch.nn.functional as F
 
-from ..devices import bf16_convolutions, cpu_capability, onednn_enabled
+from ..devices import bf16_convolutions, no_bf16_reason, onednn_enabled
 from ..models.depth_decoder import DepthLevel
 from ..models.model import STREAMERS
 from ..models.outputs import StepOutput, StreamState
@@ -177,8 +177,7 @@ class FastEngine:
         self.device = torch.device(device) if device is not None else p.device
         if torch.bfloat16 in (dtype, self.int8_float_dtype if self.int8 else dtype) and \
                 not bf16_convolutions(self.device):
-            raise ValueError(f"bfloat16 needs bfloat16 convolutions, which oneDNN lacks on this CPU "
-                             f"({cpu_capability()}; they need AVX-512 or AVX-NE-CONVERT): use fp32 (float32) or int8")
+            raise ValueError(f"bfloat16 needs bfloat16 convolutions; {no_bf16_reason()}: use fp32 (float32) or int8")
         self.dtype = dtype
         self.static = static
         f32 = torch.float32

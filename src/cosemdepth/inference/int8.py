@@ -37,6 +37,7 @@ cost volumes and coarse estimates) is quantised once, per tensor, on entry.
 from __future__ import annotations
 
 import copy
+import functools
 import warnings
 from dataclasses import dataclass
 
@@ -57,25 +58,20 @@ def has_int8() -> bool:
         return False
 
 
-_QMAX: int | None = None
-
-
+@functools.cache
 def activation_qmax() -> int:
     """The largest uint8 activation value the int8 convolutions may use here: 255, or 127 where oneDNN's kernel
     sums pairs of uint8 x int8 products in saturating 16-bit arithmetic (x86 without VNNI: AVX2's ``vpmaddubsw``,
     where 255 * 127 * 2 overflows), as PyTorch's ``reduce_range`` does. Found by running one convolution whose exact
     result such a kernel cannot reach (all inputs 255, all weights 127), once per process."""
-    global _QMAX
-    if _QMAX is None:
-        x = torch.full((1, 8, 3, 3), 255, dtype=torch.uint8).contiguous(memory_format=_CL)
-        w = torch.full((1, 8, 3, 3), 127, dtype=torch.int8)
-        one = torch.ones(1)
-        packed = torch.ops.onednn.qconv_prepack(w, one, 1.0, 0, [1, 1], [0, 0], [1, 1], 1, list(x.shape))
-        y = torch.ops.onednn.qconv2d_pointwise(x, 1.0, 0, packed, one, torch.zeros(1, dtype=torch.int32), None,
-                                               [1, 1], [0, 0], [1, 1], 1, 1e5, 0, None, "none", [], "")
-        exact = round(255 * 127 * 72 / 1e5)  # 23; pairs saturated at 32767 give 12
-        _QMAX = 255 if int(y.flatten()[0]) == exact else 127
-    return _QMAX
+    x = torch.full((1, 8, 3, 3), 255, dtype=torch.uint8).contiguous(memory_format=_CL)
+    w = torch.full((1, 8, 3, 3), 127, dtype=torch.int8)
+    one = torch.ones(1)
+    packed = torch.ops.onednn.qconv_prepack(w, one, 1.0, 0, [1, 1], [0, 0], [1, 1], 1, list(x.shape))
+    y = torch.ops.onednn.qconv2d_pointwise(x, 1.0, 0, packed, one, torch.zeros(1, dtype=torch.int32), None,
+                                           [1, 1], [0, 0], [1, 1], 1, 1e5, 0, None, "none", [], "")
+    exact = round(255 * 127 * 72 / 1e5)  # 23; pairs saturated at 32767 give 12
+    return 255 if int(y.flatten()[0]) == exact else 127
 
 
 @dataclass

@@ -43,7 +43,7 @@ from torch.utils.data import Dataset
 from tqdm import tqdm
 
 from ..config import ModelConfig, RunConfig
-from ..devices import bf16_convolutions, cpu_capability, resolve_device, retain_freed_host_memory
+from ..devices import bf16_convolutions, no_bf16_reason, resolve_device, retain_freed_host_memory
 from ..errors import CheckpointError, ConfigError, CosemdepthError, DatasetError
 from ..evaluation.metrics import selection_rule
 from ..io.atomic import atomic_write_text
@@ -262,9 +262,7 @@ class Trainer:
         tc = config.train
         device = resolve_device(tc.device, "train.device")
         if tc.bf16 and bf16_supported(device) and not bf16_convolutions(device):
-            raise ConfigError(f"train.bf16 (--bf16): oneDNN has no bfloat16 convolutions on this CPU "
-                              f"({cpu_capability()}; they need AVX-512 or AVX-NE-CONVERT): train in float32, "
-                              "without --bf16")
+            raise ConfigError(f"train.bf16 (--bf16): {no_bf16_reason()}: train in float32, without --bf16")
         self.dist = D.init_distributed(device.type == "cuda")
         if self.dist.enabled and device.type == "cuda":
             device = torch.device("cuda", self.dist.local_rank)
