@@ -1,7 +1,8 @@
 """Mid-Air split CSVs: the generator from ``sensor_records.hdf5`` (spec 9.3, 9.4) and CSV read/write.
 
-A CSV row ``k`` refers to camera frame ``4 (k + 1)`` and holds the relative motion from frame ``4k`` to frame
-``4k + 4`` in camera axes, such that ``X_prev = R(q) X_curr + t`` (spec 3.2).
+A CSV row ``k`` refers to camera frame ``K (k + 1)`` and holds the relative motion from frame ``K k`` to frame
+``K k + K`` in camera axes, such that ``X_prev = R(q) X_curr + t`` (spec 3.2); ``K`` is the frame step, Mid-Air's
+4 (25 Hz camera, rows at 6.25 Hz) unless a generator asks for another one.
 """
 
 from __future__ import annotations
@@ -23,8 +24,10 @@ from ..files import dataset_root, read_text
 from ..quaternion import qconj, qmul, qrotate
 from . import format as fmt
 
+#: Ground-truth samples per camera frame (100 Hz / 25 Hz).
+GT_PER_FRAME = fmt.GROUNDTRUTH_RATE // fmt.CAMERA_RATE
 #: Ground-truth samples per CSV row: 4 camera frames x 4 ground-truth samples per frame.
-GT_PER_ROW = fmt.FRAME_SKIP * fmt.GROUNDTRUTH_RATE // fmt.CAMERA_RATE
+GT_PER_ROW = fmt.FRAME_SKIP * GT_PER_FRAME
 
 #: Co-SemDepth's validation trajectories (taken out of the M4Depth test split), by (environment, number).
 MIDAIR_VALIDATION = {
@@ -47,20 +50,23 @@ class Trajectory:
         return fmt.trajectory_dir(self.number)
 
 
-def relative_motions(attitude: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def relative_motions(attitude: np.ndarray, position: np.ndarray,
+                     stride: int = GT_PER_ROW) -> tuple[np.ndarray, np.ndarray]:
     """Per-row relative motion in camera axes from 100 Hz ground truth (body NED, quaternion w-first).
 
     Args:
         attitude: ``[N, 4]`` unit quaternions (w, x, y, z), body -> world.
         position: ``[N, 3]`` positions in metres (NED world frame).
+        stride: ground-truth samples between two rows (``4 K`` for a frame step of ``K`` camera frames).
     Returns:
-        ``(q [R, 4], t [R, 3])`` with ``R = (N - 16) // 16`` rows, camera axes (x right, y down, z forward).
+        ``(q [R, 4], t [R, 3])`` with ``R = (N - stride) // stride`` rows, camera axes (x right, y down, z forward):
+        row ``k`` is the motion from sample ``stride k`` to sample ``stride (k + 1)``.
     """
     attitude = np.asarray(attitude, dtype=np.float64)
     position = np.asarray(position, dtype=np.float64)
-    n_rows = max((len(attitude) - GT_PER_ROW) // GT_PER_ROW, 0)
-    a = np.arange(n_rows) * GT_PER_ROW
-    b = a + GT_PER_ROW
+    n_rows = max((len(attitude) - stride) // stride, 0)
+    a = np.arange(n_rows) * stride
+    b = a + stride
     inv_a = qconj(attitude[a])
     q_body = qmul(inv_a, attitude[b])
     t_body = qrotate(inv_a, position[b] - position[a])
@@ -121,13 +127,15 @@ def list_trajectories(root: Path, env: str, climate: str) -> list[Trajectory]:
     return out
 
 
-def trajectory_rows(traj: Trajectory, attitude: np.ndarray, position: np.ndarray) -> list[dict]:
-    """The CSV rows of one trajectory (paths relative to the dataset root)."""
-    q, t = relative_motions(attitude, position)
+def trajectory_rows(traj: Trajectory, attitude: np.ndarray, position: np.ndarray,
+                    frame_step: int = fmt.FRAME_SKIP) -> list[dict]:
+    """The CSV rows of one trajectory (paths relative to the dataset root), one every ``frame_step`` camera
+    frames: row ``k`` is frame ``frame_step (k + 1)`` with the motion from frame ``frame_step k``."""
+    q, t = relative_motions(attitude, position, stride=frame_step * GT_PER_FRAME)
     base = f"{traj.env}/{traj.climate}"
     rows = []
     for k in range(len(q)):
-        frame = fmt.FRAME_SKIP * (k + 1)
+        frame = frame_step * (k + 1)
         rows.append(
             {
                 "id": k,
@@ -229,6 +237,7 @@ def generate_splits(
     root: str | Path,
     out_dir: str | Path,
     rule: Callable[[Trajectory], str] | str = "auto",
+    frame_step: int = fmt.FRAME_SKIP,
 ) -> dict[str, list[Path]]:
     """Write ``out_dir/{train,val,test}_data/<env>/<climate>/traj_XXXX.csv`` for a Mid-Air-format root.
 
@@ -239,10 +248,14 @@ def generate_splits(
             the root has Mid-Air's environment names), a split name (``"train"``, ``"val"``, ``"test"``: every
             trajectory goes to that split, e.g. for a world used only for training or only for testing) or a
             callable ``Trajectory -> split name``.
+        frame_step: camera frames between two rows (Mid-Air's 4: rows at 25 / 4 = 6.25 Hz; 2 doubles the rate).
     Returns:
-        split name -> written CSV paths. A trajectory too short for one row (fewer than 32 ground-truth samples)
-        gets no CSV; the others keep their index in the sorted listing.
+        split name -> written CSV paths. A trajectory too short for one row (fewer than ``8 frame_step``
+        ground-truth samples, 32 at the default step) gets no CSV; the others keep their index in the sorted
+        listing.
     """
+    if not isinstance(frame_step, int) or frame_step < 1:
+        raise ValueError(f"frame_step must be a positive integer, got {frame_step!r}")
     root, out_dir = Path(root), Path(out_dir)
     climates = find_climates(root)
     trajs = [t for env, cl in climates for t in list_trajectories(root, env, cl)]
@@ -273,8 +286,8 @@ def generate_splits(
                 att, pos = _read_groundtruth(h5, h5_path, traj.name)
                 _check_groundtruth(h5_path, traj.name, att, pos)
                 with np.errstate(over="ignore", invalid="ignore"):
-                    rows = trajectory_rows(traj, att, pos)
-                if not rows:  # fewer than 2 x 16 ground-truth samples: nothing to write
+                    rows = trajectory_rows(traj, att, pos, frame_step)
+                if not rows:  # fewer than two rows' worth of ground-truth samples: nothing to write
                     continue
                 _check_motions(h5_path, traj.name, rows)
                 split = rule_fn(traj)
