@@ -6,12 +6,14 @@ ground-truth sample ``4 n``.
 
 A flight is built from uniform cubic B-splines of random control values (speed, turn rate, height above the ground
 or the tree tops, camera pitch, roll and yaw offsets). The altitude is smoothed, then lifted (smoothly) wherever it
-would come closer than ``CLEARANCE`` to the surface under the camera (and within 1 m of it) or to a roof.
+would come closer than ``CLEARANCE`` to the surface under the camera (and within 1 m of it) or to a roof. A motion
+profile (:mod:`.motion`: hover, yaw in place, slow and fast segments) reads such a flight along a warped timeline.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
@@ -140,8 +142,32 @@ def _choose_start(world: World, rng: np.random.Generator, mode: str):
     return {"xy": tuple(rng.uniform(0, PERIOD, 2)), "heading": rng.uniform(0, 2 * np.pi)}
 
 
-def make_flight(world: World, rng: np.random.Generator, n_frames: int, mode: str) -> Flight:
-    """A flight of ``n_frames`` camera frames (25 Hz), i.e. ``4 n_frames`` ground-truth samples (100 Hz)."""
+def flight_from_poses(mode: str, attitude: np.ndarray, position: np.ndarray, altitude: np.ndarray) -> Flight:
+    """A :class:`Flight` from 100 Hz poses: velocity, acceleration and body angular velocity are their finite
+    differences (``np.gradient``: central inside, one-sided at the ends).
+
+    Args:
+        attitude: ``[N, 4]`` unit quaternions (w, x, y, z), body -> world (NED).
+        position: ``[N, 3]`` NED metres.
+        altitude: ``[N]`` metres above the terrain/water surface.
+    """
+    dt = 1.0 / GT_RATE
+    velocity = np.gradient(position, dt, axis=0)
+    acceleration = np.gradient(velocity, dt, axis=0)
+    dq = np.gradient(attitude, dt, axis=0)
+    angular_velocity = 2.0 * qmul(qconj(attitude), dq)[:, 1:]
+    return Flight(mode, attitude, position, velocity, acceleration, angular_velocity, altitude)
+
+
+def make_flight(world: World, rng: np.random.Generator, n_frames: int, mode: str,
+                ground_track: Callable[[np.ndarray], np.ndarray] | None = None) -> Flight:
+    """A flight of ``n_frames`` camera frames (25 Hz), i.e. ``4 n_frames`` ground-truth samples (100 Hz).
+
+    ``ground_track`` maps the horizontal path ``[4 n_frames, 2]`` to the points the drone will actually fly over
+    (a motion profile turns the rest of the path where the drone yaws in place, :mod:`.motion`): the height above
+    the surface and the clearance are then computed over those points, while the returned positions and attitudes
+    stay those of the unturned path (the caller applies the same map). The random draws do not depend on it.
+    """
     n = 4 * n_frames
     dt = 1.0 / GT_RATE
     times = np.arange(n) * dt
@@ -171,11 +197,13 @@ def make_flight(world: World, rng: np.random.Generator, n_frames: int, mode: str
     vel_xy = np.gradient(xy, dt, axis=0)
     path_heading = np.unwrap(np.arctan2(vel_xy[:, 1], vel_xy[:, 0]))
 
-    ground = world.terrain.surface_at(xy[:, 0], xy[:, 1])
+    # the points the drone flies over (the path itself unless a motion profile turns it)
+    track = xy if ground_track is None else np.asarray(ground_track(xy), dtype=np.float64)
+    ground = world.terrain.surface_at(track[:, 0], track[:, 1])
     # Height above the ground or the tree tops (the smoothed surface envelope): a per-flight base (log-uniform),
     # slow variations, and in half of the flights a dip down to the ground or the tree tops.
     # (a running max first, so that the flight does not sink into the gaps between tree tops)
-    canopy = _smooth(_max_filter(surface_max_near(world, xy, 3.0), int(0.75 * GT_RATE)), 0.25 * GT_RATE)
+    canopy = _smooth(_max_filter(surface_max_near(world, track, 3.0), int(0.75 * GT_RATE)), 0.25 * GT_RATE)
     hi_alt = 25.0 if mode == "village" else 45.0
     base = np.exp(rng.uniform(np.log(6.0), np.log(hi_alt)))
     alt = bspline(base * np.exp(rng.uniform(-0.5, 0.5, m)), 2.0, times, -5.0)
@@ -195,7 +223,7 @@ def make_flight(world: World, rng: np.random.Generator, n_frames: int, mode: str
     reference = np.maximum(ground, canopy) * (1.0 - dip) + ground * dip
     target = reference + np.clip(alt, DIP_HEIGHT, 80.0)
     # never inside or right on top of anything: the exact surface under the camera and around it (1 m), roofs
-    obstacle = np.maximum(surface_max_near(world, xy, 1.0), buildings_near(world, xy[:, 0], xy[:, 1]))
+    obstacle = np.maximum(surface_max_near(world, track, 1.0), buildings_near(world, track[:, 0], track[:, 1]))
     required = np.maximum(target, obstacle + CLEARANCE)
     # smooth the altitude, then lift it where it comes too close to an obstacle: the lift is a max filter of the
     # deficit (half-width w) followed by a Gaussian truncated at 3 sigma <= w, which never falls below the deficit
@@ -219,8 +247,4 @@ def make_flight(world: World, rng: np.random.Generator, n_frames: int, mode: str
     attitude /= np.linalg.norm(attitude, axis=1, keepdims=True)
 
     position = np.stack([xy[:, 0], xy[:, 1], -altitude_up], 1)
-    velocity = np.gradient(position, dt, axis=0)
-    acceleration = np.gradient(velocity, dt, axis=0)
-    dq = np.gradient(attitude, dt, axis=0)
-    angular_velocity = 2.0 * qmul(qconj(attitude), dq)[:, 1:]
-    return Flight(mode, attitude, position, velocity, acceleration, angular_velocity, altitude_up - ground)
+    return flight_from_poses(mode, attitude, position, altitude_up - ground)
