@@ -10,10 +10,19 @@ import argparse
 import json
 from pathlib import Path
 
+from ..data.synthair.motion import DEFAULT_YAW, GRAMMAR
 from ..data.synthair.writer import SUPERSAMPLES, SynthConfig, generate
 
 #: The generator's defaults (the flags read them: one home for defaults).
 DEFAULTS = SynthConfig(out=Path("."))
+
+
+class _Given(argparse.Action):
+    """Store the value and note that the flag was given (``--frames`` must then agree with ``--motion``)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        setattr(namespace, f"{self.dest}_given", True)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -22,16 +31,25 @@ def configure(parser: argparse.ArgumentParser) -> None:
     d = DEFAULTS
     parser.add_argument("--trajectories", type=int, default=d.trajectories, metavar="N", help="trajectories per "
                         f"climate (default {d.trajectories}; numbered climate*1000 + i as in Mid-Air: sunny 0, sunset 1, foggy 2, cloudy 3)")
-    parser.add_argument("--frames", type=int, default=d.frames, metavar="F", help="25 Hz camera frames per "
-                        f"trajectory (default {d.frames} = {d.frames / 25:g} s; the ground truth has 4F samples at 100 Hz and the split CSVs "
-                        "floor(F/4) - 1 rows)")
+    parser.add_argument("--frames", type=int, default=d.frames, action=_Given, metavar="F", help="25 Hz camera "
+                        f"frames per trajectory (default {d.frames} = {d.frames / 25:g} s, or with --motion the sum of "
+                        "its segments; the ground truth has 4F samples at 100 Hz and the split CSVs floor(F/K) - 1 "
+                        "rows, K the --frame-step)")
+    parser.add_argument("--motion", default=d.motion, metavar="SPEC", help="motion profile: comma-separated "
+                        f"segments over the 25 Hz frames, in order: {GRAMMAR}; e.g. 'fly:40,hover:10,yaw:10@90,"
+                        f"fly*0.25:40'. hover holds the pose exactly, yaw turns in place (default {DEFAULT_YAW:g} "
+                        "degrees, positive to the right) and the flight goes on in the new direction; the segments "
+                        "must add up to --frames if it is given (default: the normal flight; see docs/synthair.md)")
+    parser.add_argument("--frame-step", type=int, default=d.frame_step, metavar="K", help="the split CSVs (and "
+                        f"the frames rendered) use every K-th 25 Hz frame (default {d.frame_step}, Mid-Air's: "
+                        "6.25 Hz; K=2: 12.5 Hz, K=8: 3.125 Hz); each row holds the motion between frames K apart")
     parser.add_argument("--size", type=int, default=d.size, metavar="S", help="image width = height in pixels "
                         f"(default {d.size}; focal S/2, 90 degree FOV)")
-    parser.add_argument("--seed", type=int, default=d.seed, metavar="K", help=f"world and flight seed (default {d.seed})")
+    parser.add_argument("--seed", type=int, default=d.seed, metavar="SEED", help=f"world and flight seed (default {d.seed})")
     parser.add_argument("--climates", nargs="+", default=list(d.climates), metavar="CLIMATE",
                         help=f"climates to render (default: {' '.join(d.climates)})")
     parser.add_argument("--all-frames", action="store_true", help="render every 25 Hz frame (default: only the "
-                        "frames the split CSVs use, 4, 8, 12, ...)")
+                        "frames the split CSVs use, K, 2K, 3K, ...)")
     parser.add_argument("--supersample", type=int, default=d.supersample, choices=SUPERSAMPLES, help="colour rays per "
                         f"pixel per axis (default {d.supersample}; antialiasing; depth and labels always come from the "
                         "pixel centre)")
@@ -45,13 +63,15 @@ def run(args: argparse.Namespace) -> int:
     cfg = SynthConfig(
         out=args.out,
         trajectories=args.trajectories,
-        frames=args.frames,
+        frames=args.frames if getattr(args, "frames_given", False) or args.motion is None else None,
         size=args.size,
         seed=args.seed,
         climates=tuple(args.climates),
         all_frames=args.all_frames,
         supersample=args.supersample,
         jpeg_quality=args.jpeg_quality,
+        motion=args.motion,
+        frame_step=args.frame_step,
         workers=args.workers,
     )
     summary = generate(cfg, progress=not args.no_progress)

@@ -34,6 +34,11 @@ def test_synth_writes_a_dataset_and_says_where_the_splits_are(world, tmp_path, c
         (["--trajectories", "0"], "--trajectories must be in [1, 1000]"),
         (["--climates", "rainy"], "unknown climate(s) ['rainy']"),
         (["--seed", "-3"], "--seed must be a non-negative integer"),
+        (["--motion", "fly:10,hover"], "--motion: bad segment 'hover' in 'fly:10,hover'"),
+        (["--motion", "fly*0:10"], "--motion: bad segment 'fly*0:10'"),
+        (["--frames", "20", "--motion", "fly:10,hover:4"], "--frames 20 does not match --motion 'fly:10,hover:4'"),
+        (["--frame-step", "0"], "--frame-step must be an integer in [1, 250]"),
+        (["--frames", "12", "--frame-step", "8"], "--frames must be at least 16"),
     ],
 )
 def test_bad_arguments_give_a_clear_error_and_exit_status_2(tmp_path, capsys, argv, message):

@@ -2,6 +2,7 @@
 
 - :mod:`.world` (:mod:`.terrain`, :mod:`.objects`, :mod:`.buildings`) builds the world of a seed;
 - :mod:`.trajectory` makes smooth 6-DoF flights (Mid-Air ground truth: NED, body x forward, 100 Hz);
+  :mod:`.motion` warps their timeline (motion profiles: hover, yaw in place, slow/fast segments, ramps);
 - :mod:`.render` renders colour, z-depth and Mid-Air labels for poses (:mod:`.raymarch`, :mod:`.shading`,
   :mod:`.climate`);
 - :mod:`.writer` writes the Mid-Air tree, ``sensor_records.hdf5``, the split CSVs and ``synthair.json``
@@ -29,6 +30,8 @@ _LAZY = {
     "get_world": ".world",
     "build_world": ".world",
     "make_flight": ".trajectory",
+    "MotionProfile": ".motion",
+    "parse_motion": ".motion",
 }
 
 __getattr__ = _lazy_getattr(__name__, _LAZY)

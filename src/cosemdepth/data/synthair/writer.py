@@ -10,8 +10,9 @@ Layout under the output folder ``DIR``::
     DIR/splits/{train,val,test}_data/SynthAir/<climate>/traj_XXXX.csv      from generate_splits(DIR, DIR/splits)
 
 Trajectory numbers are ``climate_number * 1000 + i`` with Mid-Air's climate numbers (sunny 0, sunset 1, foggy 2,
-cloudy 3). By default only the frames that the split CSVs use are rendered (4, 8, ..., 4 R with R CSV rows);
-``all_frames`` renders every 25 Hz frame. Every file is written atomically; an interrupted run can be resumed by
+cloudy 3). By default only the frames that the split CSVs use are rendered (K, 2K, ..., R K with R CSV rows and
+the frame step K, 4 by default as in Mid-Air); ``all_frames`` renders every 25 Hz frame. A motion profile
+(``motion``, :mod:`.motion`) warps the timeline of every flight. Every file is written atomically; an interrupted run can be resumed by
 running the same command again (frames already on disk are kept, and they are identical to what would be written).
 """
 
@@ -21,6 +22,7 @@ import io
 import json
 import multiprocessing
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import h5py
@@ -34,8 +36,9 @@ from ...io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ...io.outdir import check_output_dir
 from ...model_config import MIDAIR_IMAGE_SIZE
 from ..midair import format as fmt
-from ..midair.splits import GT_PER_ROW, generate_splits
+from ..midair.splits import generate_splits
 from .climate import CLIMATES, get_climate
+from .motion import MotionProfile, SAMPLES_PER_FRAME, parse_motion, timeline, warp_flight
 from .render import render_frames
 from .trajectory import Flight, MODES, make_flight
 from .world import get_world
@@ -53,35 +56,59 @@ CLIMATE_NUMBER = {"sunny": 0, "sunset": 1, "foggy": 2, "cloudy": 3}
 MAX_SIZE = 4096
 #: Colour rays per pixel per axis that the renderer supports (``--supersample``).
 SUPERSAMPLES = (1, 3, 5)
+#: Largest ``--frame-step`` (camera frames between two CSV rows: 25 / K Hz).
+MAX_FRAME_STEP = 250
 MIN_SIZE = 16
+#: Camera frames per flight when neither ``frames`` nor a motion profile says otherwise.
+DEFAULT_FRAMES = 200
 
 
 @dataclass(frozen=True)
 class SynthConfig:
     """What ``cosemdepth synth`` generates. ``trajectories`` is per climate; ``frames`` counts 25 Hz camera frames
-    per trajectory (the ground truth has ``4 * frames`` samples at 100 Hz)."""
+    per trajectory (the ground truth has ``4 * frames`` samples at 100 Hz); ``None``: the sum of the motion
+    profile's segments, or :data:`DEFAULT_FRAMES` without one (given with a profile, it must equal that sum).
+    ``motion``: a motion profile (``--motion``, :mod:`.motion`; ``None``: the normal flight); ``frame_step``: the
+    split CSVs use every ``frame_step``-th camera frame (Mid-Air's 4: 6.25 Hz)."""
 
     out: Path
     trajectories: int = 4
-    frames: int = 200
+    frames: int | None = None
     size: int = MIDAIR_IMAGE_SIZE
     seed: int = 0
     climates: tuple[str, ...] = CLIMATES
     all_frames: bool = False
     supersample: int = 1
     jpeg_quality: int = 98
+    motion: str | None = None
+    frame_step: int = fmt.FRAME_SKIP
     workers: int = field(default=1, compare=False)
+
+    def __post_init__(self) -> None:
+        profile = self.motion_profile
+        if self.frames is None:
+            object.__setattr__(self, "frames", DEFAULT_FRAMES if profile is None else profile.frames)
+        elif profile is not None and self.frames != profile.frames:
+            raise ConfigError(f"--frames {self.frames!r} does not match --motion {self.motion!r}, whose segments "
+                              f"add up to {profile.frames} frames (give one of them, or make them agree)")
+
+    @cached_property
+    def motion_profile(self) -> MotionProfile | None:
+        return None if self.motion is None else parse_motion(self.motion)
 
     def validate(self) -> None:
         if not isinstance(self.size, int) or not MIN_SIZE <= self.size <= MAX_SIZE:
             raise ConfigError(f"--size must be an integer in [{MIN_SIZE}, {MAX_SIZE}] pixels, got {self.size!r}")
         if not isinstance(self.trajectories, int) or not 1 <= self.trajectories <= 1000:
             raise ConfigError(f"--trajectories must be in [1, 1000] (per climate), got {self.trajectories!r}")
-        min_frames = 2 * fmt.FRAME_SKIP
+        if not isinstance(self.frame_step, int) or not 1 <= self.frame_step <= MAX_FRAME_STEP:
+            raise ConfigError(f"--frame-step must be an integer in [1, {MAX_FRAME_STEP}] (25 Hz camera frames between "
+                              f"two CSV rows), got {self.frame_step!r}")
+        min_frames = 2 * self.frame_step
         if not isinstance(self.frames, int) or not min_frames <= self.frames <= 1_000_000:
             raise ConfigError(
                 f"--frames must be at least {min_frames} (25 Hz camera frames per trajectory; the split CSVs need "
-                f"frames 0 and 4 at least), got {self.frames!r}"
+                f"frames 0 and {self.frame_step} at least), got {self.frames!r}"
             )
         if not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
             raise ConfigError(f"--seed must be a non-negative integer, got {self.seed!r}")
@@ -101,8 +128,10 @@ class SynthConfig:
             raise ConfigError(f"--workers must be a positive integer, got {self.workers!r}")
 
     def metadata(self) -> dict:
-        """Everything that determines the output bytes (what ``synthair.json`` records)."""
-        return {
+        """Everything that determines the output bytes (what ``synthair.json`` records). ``motion`` and
+        ``frame_step`` appear only when they differ from the defaults (the normal flight, step 4), so that the
+        default output stays what it was."""
+        meta = {
             "generator": "cosemdepth synth",
             "version": VERSION,
             "environment": ENVIRONMENT,
@@ -120,21 +149,31 @@ class SynthConfig:
             "groundtruth_rate_hz": fmt.GROUNDTRUTH_RATE,
             "depth_encoding": DEPTH_ENCODING,
         }
+        if self.motion_profile is not None:
+            meta["motion"] = self.motion_profile.metadata()
+        if self.frame_step != fmt.FRAME_SKIP:
+            meta["frame_step"] = self.frame_step
+        return meta
+
+
+#: Keys of ``synthair.json`` that are absent at their defaults (compared when resuming all the same).
+OPTIONAL_METADATA = ("motion", "frame_step")
 
 
 def trajectory_number(climate: str, i: int) -> int:
     return CLIMATE_NUMBER[climate] * 1000 + i
 
 
-def csv_rows(frames: int) -> int:
-    """Rows of a trajectory's split CSV for ``frames`` camera frames (spec 9.3)."""
-    return max((4 * frames - GT_PER_ROW) // GT_PER_ROW, 0)
+def csv_rows(frames: int, frame_step: int = fmt.FRAME_SKIP) -> int:
+    """Rows of a trajectory's split CSV for ``frames`` camera frames, one every ``frame_step`` (spec 9.3)."""
+    return max(frames // frame_step - 1, 0)
 
 
 def rendered_frames(cfg: SynthConfig) -> list[int]:
+    """Camera frames rendered: those the split CSVs use (``K, 2K, ...``), or every frame with ``all_frames``."""
     if cfg.all_frames:
         return list(range(cfg.frames))
-    return [fmt.FRAME_SKIP * (k + 1) for k in range(csv_rows(cfg.frames))]
+    return [cfg.frame_step * (k + 1) for k in range(csv_rows(cfg.frames, cfg.frame_step))]
 
 
 def check_output_folder(cfg: SynthConfig) -> bool:
@@ -158,8 +197,9 @@ def check_output_folder(cfg: SynthConfig) -> bool:
     except (OSError, ValueError) as e:
         raise ConfigError(f"--out {out}: cannot read {meta_path.name} ({e})") from None
     expected = cfg.metadata()
-    if {k: meta.get(k) for k in expected} != expected:
-        diff = sorted(k for k in expected if meta.get(k) != expected[k])
+    keys = [*expected, *(k for k in OPTIONAL_METADATA if k not in expected)]
+    diff = sorted(k for k in keys if meta.get(k) != expected.get(k))
+    if diff:
         raise ConfigError(
             f"--out {out}: holds another SynthAir dataset (different {', '.join(diff)}); choose a new or empty "
             "folder, or repeat the original arguments to resume it"
@@ -280,8 +320,11 @@ def plan_flights(cfg: SynthConfig, world) -> dict[str, dict[int, PlannedFlight]]
     """The flights of every climate and trajectory number (deterministic for the seed).
 
     Trajectory ``i`` of climate number ``c`` flies mode ``MODES[(i + c) % 4]`` (road, village, lake, free), so
-    that small sets still see roads, buildings and water.
+    that small sets still see roads, buildings and water. With a motion profile, each flight is its base flight
+    (the plain flight of the same seed, long enough for the warped timeline) read along that timeline.
     """
+    profile = cfg.motion_profile
+    warp = None if profile is None else timeline(profile)
     out: dict[str, dict[int, PlannedFlight]] = {}
     for climate in cfg.climates:
         ci = CLIMATE_NUMBER[climate]
@@ -289,7 +332,11 @@ def plan_flights(cfg: SynthConfig, world) -> dict[str, dict[int, PlannedFlight]]
         for i in range(cfg.trajectories):
             rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 0xF117, ci, i]))
             mode = MODES[(i + ci) % len(MODES)]
-            flight = make_flight(world, rng, cfg.frames, mode)
+            if warp is None:
+                flight = make_flight(world, rng, cfg.frames, mode)
+            else:
+                track = warp.ground_track if warp.turns else None
+                flight = warp_flight(make_flight(world, rng, warp.base_frames, mode, ground_track=track), warp)
             azimuth = get_climate(climate).sun_azimuth + float(rng.uniform(-50.0, 50.0))
             flights[trajectory_number(climate, i)] = PlannedFlight(flight, azimuth)
         out[climate] = flights
@@ -318,8 +365,9 @@ def generate(cfg: SynthConfig, progress: bool = True) -> dict:
             f = planned.flight
             for c in range(0, len(frames), bs):
                 ks = tuple(frames[c : c + bs])
-                tasks.append(_Task(climate, number, ks, tuple(tuple(f.attitude[4 * k]) for k in ks),
-                                   tuple(tuple(f.position[4 * k]) for k in ks), planned.sun_azimuth))
+                tasks.append(_Task(climate, number, ks,
+                                   tuple(tuple(f.attitude[SAMPLES_PER_FRAME * k]) for k in ks),
+                                   tuple(tuple(f.position[SAMPLES_PER_FRAME * k]) for k in ks), planned.sun_azimuth))
 
     _WORKER_STATE.update(cfg=cfg, world=world)
     written = 0
@@ -343,7 +391,7 @@ def generate(cfg: SynthConfig, progress: bool = True) -> dict:
         _WORKER_STATE.clear()
         torch.set_num_threads(threads)
 
-    splits = generate_splits(out, out / SPLITS_DIR, rule="generic")
+    splits = generate_splits(out, out / SPLITS_DIR, rule="generic", frame_step=cfg.frame_step)
     meta["complete"] = True
     atomic_write_text(out / METADATA, json.dumps(meta, indent=2) + "\n")
     return {
