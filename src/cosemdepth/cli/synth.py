@@ -45,7 +45,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         "6.25 Hz; K=2: 12.5 Hz, K=8: 3.125 Hz); each row holds the motion between frames K apart")
     parser.add_argument("--size", type=int, default=d.size, metavar="S", help="image width = height in pixels "
                         f"(default {d.size}; focal S/2, 90 degree FOV)")
-    parser.add_argument("--seed", type=int, default=d.seed, metavar="SEED", help=f"world and flight seed (default {d.seed})")
+    parser.add_argument("--seed", type=int, default=d.seed, metavar="SEED",
+                        help=f"world and flight seed (default {d.seed})")
     parser.add_argument("--climates", nargs="+", default=list(d.climates), metavar="CLIMATE",
                         help=f"climates to render (default: {' '.join(d.climates)})")
     parser.add_argument("--all-frames", action="store_true", help="render every 25 Hz frame (default: only the "

@@ -30,11 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import ConfigError
+from ..midair.splits import GT_PER_FRAME as SAMPLES_PER_FRAME  # ground-truth samples (100 Hz) per frame (25 Hz)
 from ..quaternion import qmul
 from .trajectory import Flight, flight_from_poses
-
-#: Ground-truth samples (100 Hz) per camera frame (25 Hz).
-SAMPLES_PER_FRAME = 4
 #: Largest speed multiplier of ``fly*X`` and ``ramp*A-B`` (the base flights fly at 4-13 m/s).
 MAX_SPEED = 10.0
 #: Default turn of ``yaw:N`` (degrees).
