@@ -13,7 +13,8 @@ Trajectory numbers are ``climate_number * 1000 + i`` with Mid-Air's climate numb
 cloudy 3). By default only the frames that the split CSVs use are rendered (K, 2K, ..., R K with R CSV rows and
 the frame step K, 4 by default as in Mid-Air); ``all_frames`` renders every 25 Hz frame. A motion profile
 (``motion``, :mod:`.motion`) warps the timeline of every flight. Every file is written atomically; an interrupted
-run can be resumed by running the same command again (frames already on disk are kept, and they are identical to what would be written).
+run can be resumed by running the same command again (frames already on disk are kept, and they are identical to
+what would be written).
 """
 
 from __future__ import annotations
