@@ -1,8 +1,13 @@
 import json
+from pathlib import Path
 
+import numpy as np
+import onnx
 import onnxruntime as ort
+from onnx import numpy_helper
 
 from cosemdepth.cli.main import main
+from cosemdepth.export.onnx import export_onnx
 
 
 def test_export_command_writes_a_runnable_graph(tmp_path, capsys):
@@ -61,3 +66,33 @@ def test_benchmark_command_rejects_int8_on_cuda(monkeypatch, capsys):
     assert main(["benchmark", "--device", "cuda", "--precision", "int8", "--json", "", "--md", ""]) == 2
     err = capsys.readouterr().err.strip()
     assert "--precision int8" in err and "CPU" in err and "Traceback" not in err and len(err.splitlines()) == 1
+
+
+SHIPPED = Path(__file__).resolve().parents[2] / "weights" / "synthair-cosemdepth"
+
+
+def test_export_check_reports_what_it_compared_and_fails_a_broken_graph(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "m.onnx"
+    argv = ["export", "--onnx", str(out), "--model", str(SHIPPED), "--size", "32", "32", "--check"]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "6 frames of a SynthAir flight at 32x32" in text and "Noise floor" in text and text.rstrip().endswith("OK")
+    for output in ("depth", "semantic", "state"):
+        assert any(line.split()[:1] == [output] and line.rstrip().endswith("ok") for line in text.splitlines())
+
+    from cosemdepth.cli import export as export_cli
+
+    def broken_export(*args, **kwargs):  # the export, then the semantic decoder's last convolution scaled by 1.01
+        path = export_onnx(*args, **kwargs)
+        proto = onnx.load(str(path))
+        name = "model.semantic_decoder.levels.0.refiner.convs.6.weight"
+        init = next(i for i in proto.graph.initializer if i.name == name)
+        init.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(init) * np.float32(1.01), name))
+        onnx.save(proto, str(path))
+        return path
+
+    monkeypatch.setattr(export_cli, "export_onnx", broken_export)
+    assert main(argv) == 1
+    text = capsys.readouterr().out
+    assert text.rstrip().endswith("MISMATCH")
+    assert any(line.split()[:1] == ["semantic"] and "OVER on frame(s)" in line for line in text.splitlines())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ConfigError
-from ..export.check import compare_onnx
+from ..export.check import CHECK_FRAMES, NOISE_MULTIPLE, compare_onnx
 from ..export.onnx import DEFAULT_OPSET, MIN_OPSET, export_onnx, is_our_onnx
 from ..io.outdir import check_output_file, model_inputs
 from ._shared import DEFAULT_SIZE_PAIR, add_model_or_arch_args, load_or_build, parse_size_pair
@@ -24,7 +24,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--reset-float", action="store_true", help="take the reset mask as float32 (1 = reset) instead of bool"
     )
-    parser.add_argument("--check", action="store_true", help="run the file with ONNX Runtime against PyTorch")
+    parser.add_argument("--check", action="store_true",
+                        help=f"stream {CHECK_FRAMES} frames of a SynthAir flight through ONNX Runtime and PyTorch; exit "
+                        f"status 1 when ONNX Runtime is further from PyTorch than {NOISE_MULTIPLE:g}x the drift of two "
+                        "float32 PyTorch runs that differ only in rounding (docs/deploy.md)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -48,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.model:
         print("note: no --model given, the graph holds freshly initialised weights")
     if args.check:
-        report = compare_onnx(model, path, frames=6)
+        report = compare_onnx(model, path)
         print(report.summary())
         if not report.ok:
             return 1
