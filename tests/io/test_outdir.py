@@ -64,6 +64,13 @@ def test_a_kind_opens_only_its_split_folder_to_splits(folders, tmp_path):
     with pytest.raises(ConfigError, match="lies inside .*a split folder"):
         check_output_file(root / "splits" / "test_data" / "x.json", what="--json file")
     check_output_file(tmp_path / "m.onnx", what="--onnx file")
+    # an existing file in a dataset root is looked at as a new one would be (the root known by its sub-folders)
+    for name in ("new.onnx", "old.onnx"):
+        if name == "old.onnx":
+            (root / name).write_bytes(b"x")
+        with pytest.raises(ConfigError, match=f"lies inside {root}, a Mid-Air-format dataset"):
+            check_output_file(root / name, what="--onnx file")
+    (root / "old.onnx").unlink()
 
 
 def test_the_marker_records_size_and_sha256_of_every_file(tmp_path):

@@ -127,10 +127,10 @@ def check_not_other_input(out: str | os.PathLike, *, command: str | None, what: 
     opens that sub-folder to it. ``command=None``: an output file, which no input folder holds. ``flag``: the
     command has ``--overwrite`` (the message says that it makes no difference)."""
     o = real(out)
-    full = True  # up to the first existing folder (where the output creates something new): any marker counts
+    full = True  # up to the first existing folder (where the output creates its folder or file): any marker counts
     for folder in [o, *o.parents]:
         found = identify(folder, via=None if full else o.relative_to(folder).parts[0])
-        full = full and not folder.exists()
+        full = full and not folder.is_dir()
         if found is None:
             continue
         kind, evidence = found
