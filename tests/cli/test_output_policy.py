@@ -10,6 +10,7 @@ import shutil
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -111,7 +112,7 @@ def test_rerun_into_its_own_output_replaces_it(work, capsys):
     (out / "my_notes.txt").write_text("mine")
     assert predict(ds, model, out, "--overwrite") == 2
     line = err_line(capsys)
-    assert "my_notes.txt" in line and "did not write" in line
+    assert "my_notes.txt" in line and "not written by cosemdepth" in line
     assert (out / "my_notes.txt").read_text() == "mine" and (out / "predictions.json").is_file()
 
 
@@ -167,6 +168,165 @@ def test_other_commands_refuse_outputs_over_their_inputs(work, capsys, tmp_path)
         line = err_line(capsys)
         assert line.startswith(f"cosemdepth {argv[0]}: error: ") and why in line, (argv, line)
     assert snapshot(tmp) == before and leftovers(tmp) == []
+
+
+# -------------------------------------------------------------------------- other commands' inputs, edited outputs
+
+
+def _cli_cases(x: Path, ds: Path, model: Path) -> dict[str, list[str]]:
+    """Every command with ``x`` as its output (the inputs: the work dataset and model, not ``x``)."""
+    return {
+        "predict": ["predict", "--model", str(model), "--dataset", "midair", "--root", str(ds), "--split-dir",
+                    str(ds / "splits"), "--size", str(SIZE), "--max-frames", "2", "--no-progress", "--out", str(x),
+                    "--overwrite"],
+        "demo": ["demo", "--model", str(model), "--data-root", str(ds), "--size", str(SIZE), "--no-progress",
+                 "--out", str(x), "--overwrite"],
+        "evaluate": ["evaluate", "--model", str(model), "--dataset", "midair", "--root", str(ds), "--split-dir",
+                     str(ds / "splits"), "--size", str(SIZE), "--max-frames", "2", "--no-progress", "--out", str(x)],
+        "train": ["train", "--config", "synthair-small", "--dataset", "midair", "--data-root", str(ds),
+                  "--split-dir", str(ds / "splits"), "--out", str(x)],
+        "export": ["export", "--onnx", str(x / "m.onnx"), "--model", str(model), "--size", "32", "32"],
+        "splits": ["splits", "midair", str(ds), str(x)],
+        "synth": ["synth", "--out", str(x), "--size", "32", "--frames", "16", "--trajectories", "1", "--climates",
+                  "sunny"],
+    }
+
+
+def test_no_command_writes_over_or_into_another_commands_input(work, capsys):
+    """Whoever wrote them (here: the project's own writers, rosbags, the test writers), datasets, split folders
+    (with the marker `splits` leaves), models, checkpoints, runs, TF checkpoints, flights and bags are never
+    another command's output, with or without --overwrite."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "io"))
+    from _input_folders import make_input_folders
+
+    tmp, ds, model = work
+    folders = make_input_folders(tmp / "inputs")
+    before = snapshot(tmp)
+    for kind, folder in folders.items():
+        for x, relation in ((folder, "is"), (folder / "new", "lies inside")):
+            cases = _cli_cases(x, ds, model)
+            cases["convert"] = ["convert", str(folders["a TensorFlow checkpoint folder"]), str(x)]
+            for name, argv in cases.items():
+                if (name, kind, relation) in (("train", "a training run folder", "is"),
+                                              ("splits", "a split folder", "is")):
+                    continue  # its own kind (resumed / replaced under the marker rules)
+                if name == "export" and relation != "is":
+                    continue  # an output file goes into an existing folder: x/m.onnx is the case
+                if name == "convert" and ("TensorFlow" in kind or (kind, relation) == ("a model folder", "is")):
+                    continue  # its input; its own kind
+                assert main(argv) == 2, (name, kind, x)
+                line = err_line(capsys)
+                where = "lies inside" if name == "export" else relation
+                assert line.startswith(f"cosemdepth {name}: error: {x if name != 'export' else x / 'm.onnx'}: ")
+                assert f"{where} " in line and kind in line and "which commands read as input" in line, line
+    assert snapshot(tmp) == before and leftovers(tmp) == []
+
+
+def test_the_split_folder_of_another_dataset_is_never_replaced(work, capsys):
+    tmp, ds, model = work
+    other = tmp / "other"
+    shutil.copytree(ds, other)  # its split folder carries the marker of `cosemdepth splits`
+    assert json.loads((other / "splits" / MARKER).read_text())["command"] == "splits"
+    before = snapshot(other)
+    for argv in (_cli_cases(other / "splits", ds, model)["predict"], _cli_cases(other / "splits", ds, model)["demo"]):
+        assert main(argv) == 2
+        line = err_line(capsys)
+        assert f"{other / 'splits'}: the --out folder is a split folder (test_data/)" in line
+        assert "with or without --overwrite" in line
+    assert snapshot(other) == before
+
+
+def test_an_output_file_edited_since_is_the_users(work, capsys):
+    from PIL import Image
+
+    tmp, ds, model = work
+    out = tmp / "out"
+    assert predict(ds, model, out) == 0
+    pj = out / "predictions.json"
+    original = pj.read_bytes()
+    pj.write_bytes(original.replace(b'"fps"', b'"FPS"'))  # same size: only the checksum tells
+    for extra in ((), ("--overwrite",)):
+        assert predict(ds, model, out, *extra) == 2
+        line = err_line(capsys)
+        assert f"{pj}: changed since cosemdepth predict wrote it" in line and "move it" in line
+    assert b'"FPS"' in pj.read_bytes()
+    pj.write_bytes(original)  # put back as it was written: ours again
+    assert predict(ds, model, out) == 0
+    label = next(out.rglob("labels/*.png"))
+    px = np.array(Image.open(label))
+    px[0, 0] = (int(px[0, 0]) + 1) % 7  # a hand-corrected pixel
+    Image.fromarray(px).save(label)
+    edited = label.read_bytes()
+    assert predict(ds, model, out, "--overwrite") == 2
+    assert f"{label}: changed since" in err_line(capsys) and label.read_bytes() == edited
+    # evaluate's files likewise
+    ev = ["evaluate", "--model", str(model), "--dataset", "midair", "--root", str(ds), "--split-dir",
+          str(ds / "splits"), "--size", str(SIZE), "--max-frames", "2", "--no-progress", "--out", str(tmp / "ev")]
+    assert main(ev) == 0
+    (tmp / "ev" / "metrics.md").write_text("my notes on the metrics")
+    capsys.readouterr()
+    assert main(ev) == 2
+    assert f"{tmp / 'ev' / 'metrics.md'}: changed since cosemdepth evaluate" in err_line(capsys)
+    assert (tmp / "ev" / "metrics.md").read_text() == "my notes on the metrics" and leftovers(tmp) == []
+
+
+def test_a_symlinked_or_permission_carrying_out_folder_stays(work, capsys):
+    import stat
+
+    tmp, ds, model = work
+    target = tmp / "results"
+    target.mkdir()
+    os.symlink(target, tmp / "link")
+    for _ in range(2):  # into the target, then replacing the previous output there
+        assert predict(ds, model, tmp / "link") == 0
+    assert (tmp / "link").is_symlink() and os.readlink(tmp / "link") == str(target)
+    assert json.loads((target / "predictions.json").read_text())["frames_written"] == 2
+    shared = tmp / "shared"
+    shared.mkdir()
+    gid = 4242 if os.geteuid() == 0 else os.getegid()
+    os.chown(shared, -1, gid)
+    os.chmod(shared, 0o2770)
+    ino = shared.stat().st_ino
+    for _ in range(2):  # empty, then its own previous output
+        assert predict(ds, model, shared) == 0
+        st = shared.stat()
+        assert (st.st_ino, stat.S_IMODE(st.st_mode), st.st_gid) == (ino, 0o2770, gid)
+        assert all(p.stat().st_gid == gid for p in shared.rglob("*"))
+    old = os.umask(0o077)
+    try:
+        assert predict(ds, model, tmp / "private") == 0
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp / "private").stat().st_mode) == 0o700
+    assert stat.S_IMODE((tmp / "private" / "predictions.json").stat().st_mode) == 0o600
+    assert leftovers(tmp) == [] and not [p for p in tmp.rglob(".cosemdepth-*") if p.name != MARKER]
+
+
+def _csvs(folder: Path) -> list[str]:
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*.csv"))
+
+
+def test_splits_again_with_another_rule_replaces_its_previous_output(work, capsys):
+    tmp, ds, _ = work
+    out = tmp / "splits"
+    assert main(["splits", "synthair", str(ds), str(out), "--rule", "test"]) == 0
+    assert _csvs(out) and all(c.startswith("test_data/") for c in _csvs(out))
+    assert main(["splits", "synthair", str(ds), str(out), "--rule", "train"]) == 0
+    captured = capsys.readouterr()
+    assert "warning" not in captured.err
+    assert _csvs(out) and all(c.startswith("train_data/") for c in _csvs(out))  # no test CSV left over
+    assert not (out / "test_data").exists() and sorted(json.loads((out / MARKER).read_text())["files"]) == _csvs(out)
+    # an edited CSV is the user's: refused, nothing changed
+    csv = out / _csvs(out)[0]
+    csv.write_text(csv.read_text() + "\n")  # a blank line at the end
+    before = snapshot(out)
+    assert main(["splits", "synthair", str(ds), str(out), "--rule", "test"]) == 2
+    line = err_line(capsys)
+    assert f"{csv}: changed since cosemdepth splits wrote it" in line and "move it" in line
+    assert snapshot(out) == before
+    # into the dataset's own split folder (the default), replacing what was there
+    assert main(["splits", "synthair", str(ds), "--rule", "train"]) == 0
+    assert all(c.startswith("train_data/") for c in _csvs(ds / "splits")) and leftovers(ds / "splits") == []
 
 
 # ---------------------------------------------------------------------------------------------- model verification

@@ -78,10 +78,13 @@ def test_cli_writes_authors_format_numbered_in_sorted_order(tmp_path, capsys):
     fields = lines[1].split("\t")
     assert fields[0] == "0" and all(len(f.split(".")[1]) == 6 for f in fields[4:])
     assert "10 CSV files" in capsys.readouterr().out
-    # a CSV left over from an earlier run is reported (readers would include it)
-    (out / "test_data/Kite_training/sunny/traj_0009.csv").write_text("stale")
-    assert main(["splits", "midair", str(tmp_path / "root"), str(out)]) == 0
-    assert "traj_0009.csv" in capsys.readouterr().err
+    # a CSV that this command did not write in OUT_DIR (readers would mix it in): refused, naming it, and kept
+    stale = out / "test_data/Kite_training/sunny/traj_0009.csv"
+    stale.write_text("stale")
+    assert main(["splits", "midair", str(tmp_path / "root"), str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{stale}: not written by cosemdepth" in err and stale.read_text() == "stale"
+    assert len(list(out.rglob("*.csv"))) == 11
     # nothing written into the dataset
     assert not list((tmp_path / "root").rglob("*.csv"))
 

@@ -5,20 +5,22 @@
     cosemdepth splits topair ROOT OUT_DIR      # TopAir, from each environment's airsim_rec.txt
 
 Mid-Air-format output: ``OUT_DIR/{train,val,test}_data/<env>/<climate>/traj_XXXX.csv`` in the authors' tab-separated
-format, trajectories numbered in sorted order of their folders. Nothing is written into ROOT (except for SynthAir
-when OUT_DIR is left out: ROOT/splits is where ``open_dataset("synthair", ROOT)`` looks).
+format, trajectories numbered in sorted order of their folders. OUT_DIR holds this output only: a previous
+``splits`` output there is replaced as a whole (the CSVs of another rule do not stay), a folder holding anything
+else is refused (:mod:`cosemdepth.io.outdir`). Nothing is written into ROOT (except for SynthAir when OUT_DIR is
+left out: ROOT/splits is where ``open_dataset("synthair", ROOT)`` looks).
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from ..data.midair.splits import SPLITS
 from ..data.registry import DATASETS, dataset_spec
 from ..errors import ConfigError
-from ..io.outdir import Input, check_output_dir
+from ..io.outdir import Input
+from ..io.staging import StagedDir
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -46,18 +48,15 @@ def run(args: argparse.Namespace) -> int:
         out_dir = args.root / spec.split_dir
     # ROOT/<split_dir> is where the reader looks for a root's split CSVs
     carve = (spec.split_dir,) if spec.split_dir else ()
-    check_output_dir(out_dir, command="splits", mode="into", what="OUT_DIR", inputs=[Input("ROOT", args.root, carve)])
+    # the whole folder is this run's output: a previous `splits` output there is replaced (nothing of another rule
+    # is left over), anything else refused
+    StagedDir(out_dir, "splits", overwrite=None, what="OUT_DIR", inputs=[Input("ROOT", args.root, carve)]).check()
     written = spec.split_generator(args.root, out_dir, rule=args.rule)
     args.out_dir = out_dir
     for split, paths in written.items():
         rows = sum(_count_rows(p) for p in paths)
         print(f"{split}: {len(paths)} trajectories, {rows} rows")
     print(f"wrote {sum(len(p) for p in written.values())} CSV files under {args.out_dir}")
-    ours = {p.resolve() for paths in written.values() for p in paths}
-    stale = sorted(p for p in Path(args.out_dir).glob("*_data/**/*.csv") if p.resolve() not in ours)
-    if stale:
-        print(f"warning: {len(stale)} other CSV file(s) under {args.out_dir} were not written by this run "
-              f"(e.g. {stale[0]}); readers would include them: remove them or use a fresh OUT_DIR", file=sys.stderr)
     return 0
 
 

@@ -1,6 +1,7 @@
 """Atomic file writes: write to a temporary file in the same folder, flush, fsync, then rename over the target.
 
-A reader never sees a half-written file, and a crash (even SIGKILL) leaves either the old file or the new one.
+A reader never sees a half-written file, and a crash (even SIGKILL) leaves either the old file or the new one. A
+path that is a symlink is written through: the link's target is replaced and the link stays.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     the target's suffix so that libraries choosing a format from the extension still work.
     """
     path = Path(path)
+    if path.is_symlink():  # a link names where to write: its target is replaced, the link stays
+        path = Path(os.path.realpath(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
     os.close(fd)

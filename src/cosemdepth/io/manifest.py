@@ -3,6 +3,9 @@
 One mechanism for every reader of such a folder: resuming a run (:mod:`cosemdepth.training.checkpoint`) and loading
 the folder as a model (:func:`cosemdepth.io.model_io.load_model`, ``--model RUN/checkpoints/ckpt-N``) both call
 :func:`validate_manifest`, so a truncated or damaged file is refused with an error naming it.
+
+:func:`file_digest` is the same SHA-256 for the output marker of :mod:`cosemdepth.io.outdir`, remembered per file
+state so that a check made twice in one run reads each file once.
 """
 
 from __future__ import annotations
@@ -26,6 +29,25 @@ def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
         for block in iter(lambda: f.read(chunk), b""):
             h.update(block)
     return h.hexdigest()
+
+
+#: (device, inode, size, mtime, ctime) -> SHA-256 of files hashed by this process. Any write to a file changes its
+#: ctime, which no tool can set back, so an entry never stands for other content.
+_DIGESTS: dict[tuple[int, ...], str] = {}
+_MAX_DIGESTS = 200_000
+
+
+def file_digest(path: str | os.PathLike) -> tuple[int, str]:
+    """``(size, SHA-256 hex)`` of the regular file ``path`` (symlinks followed)."""
+    st = os.stat(path)
+    key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    digest = _DIGESTS.get(key)
+    if digest is None:
+        digest = sha256_file(Path(path))
+        if len(_DIGESTS) >= _MAX_DIGESTS:
+            _DIGESTS.clear()
+        _DIGESTS[key] = digest
+    return st.st_size, digest
 
 
 def validate_manifest(path: str | os.PathLike, required: Iterable[str] = ()) -> dict[str, Any]:
@@ -69,4 +91,4 @@ def validate_manifest(path: str | os.PathLike, required: Iterable[str] = ()) -> 
     return manifest
 
 
-__all__ = ["MANIFEST_FILE", "MANIFEST_FORMAT", "MANIFEST_VERSION", "sha256_file", "validate_manifest"]
+__all__ = ["MANIFEST_FILE", "MANIFEST_FORMAT", "MANIFEST_VERSION", "file_digest", "sha256_file", "validate_manifest"]

@@ -1,21 +1,34 @@
 """The output policy of every command: where a command may write, and what it may replace.
 
 One rule for every command that writes a folder or a file (predict, evaluate, demo, train, synth, splits, convert,
-export, benchmark):
+export, benchmark, view):
 
 * An output is never the same as, never contains, and never lies inside an input of the command (dataset root,
   images folder, pose file, split folder, model folder, checkpoint...). Paths are compared after resolving symlinks,
   ``..`` and relative parts (:func:`real`). An input may name sub-folders where outputs are allowed
   (:class:`Input.carve_out`, e.g. a SynthAir root's ``splits/``).
-* A folder is only replaced (``mode="replace"``: predict, demo) when it does not exist, is empty, or was written by
-  cosemdepth: it holds the marker :data:`MARKER`, which the command writes last and which lists every file it wrote,
-  and it holds nothing else. Without ``--overwrite`` only a previous output of the same command is replaced.
-* A command that writes a few files into a folder (``mode="into"``: evaluate, convert, splits) leaves the folder's
-  other files alone and only replaces files that the marker says cosemdepth wrote.
+* A folder that some command reads as input (a dataset, a split folder, a model, a training run or checkpoint, a
+  TensorFlow checkpoint, a flight, a ROS 2 bag: :mod:`cosemdepth.io.input_kinds`, recognised by the markers its
+  readers need, whoever wrote it) is never another command's output: it is not replaced, written into or deleted,
+  with or without ``--overwrite`` (:func:`check_not_other_input`). Only the command that produces that kind works
+  on it, under the rules below (``synth`` resumes a SynthAir dataset, ``splits`` replaces its split folder,
+  ``convert`` writes a model folder, ``train`` resumes a run), and only the sub-folders the kind opens
+  (a dataset root's ``splits/``, for ``splits``) are written inside one.
+* Every file a command writes is listed in the folder's marker :data:`MARKER` with its size and SHA-256. A file
+  whose content changed since (a hand-corrected label PNG, an edited ``predictions.json``), a file the marker does
+  not list, a link where a file was: each is the user's, and is never replaced or deleted.
+* A folder is replaced (``mode="replace"``: predict, demo, splits) only when it does not exist, is empty, or holds
+  a previous output and nothing else, every file unchanged. Without ``--overwrite`` only a previous output of the
+  same command is replaced. The folder itself stays (a symlink stays and its target is written; an existing
+  folder keeps its inode, mode, group and setgid bit): only its contents are replaced
+  (:class:`cosemdepth.io.staging.StagedDir`).
+* A command that writes a few files into a folder (``mode="into"``: evaluate, convert) leaves the folder's other
+  files alone and only replaces files of its own marker that are unchanged.
 * Folders recognised by a command's own manifest (``recognize``: a training run's ``config.yaml``, a SynthAir
   dataset's ``synthair.json``) are resumed, never replaced (``mode="resume"``).
-* A single output file (``export --onnx``, ``benchmark --json``) must not be a folder, its parent folder must exist,
-  be a folder and be writable, and an existing file is replaced only if ``recognize`` says cosemdepth wrote it.
+* A single output file (``export --onnx``, ``benchmark --json``, ``--rerun``) must not be a folder, its parent
+  folder must exist, be a folder, be writable and lie in no input folder of any command, and an existing file is
+  replaced only if ``recognize`` says cosemdepth wrote it.
 
 Anything else is a :class:`~cosemdepth.errors.ConfigError` naming the output and why; the caller checks before
 writing anything, so nothing is touched.
@@ -23,19 +36,34 @@ writing anything, so nothing is touched.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, Iterator, Sequence
 
 from .. import __version__
 from ..errors import ConfigError
 from .atomic import atomic_write_text
+from .input_kinds import identify
+from .manifest import file_digest
 
 MARKER = ".cosemdepth-output.json"
 MARKER_FORMAT = "cosemdepth-output"
+#: 1: a list of names; 2: every file with its size and SHA-256.
+MARKER_VERSION = 2
+
+#: The hidden work folders of a replacement inside the output folder (:class:`cosemdepth.io.staging.StagedDir`):
+#: the new output being written (holding :data:`LOCK_NAME`, locked while its run lives), the previous output while
+#: it is moved out, and the previous output once it is entirely out. They share a token after the prefix.
+STAGING_PREFIX = ".cosemdepth-partial-"
+OLD_PREFIX = ".cosemdepth-old-"
+DONE_PREFIX = ".cosemdepth-done-"
+LOCK_NAME = ".cosemdepth-lock"
+WORK_PREFIXES = (STAGING_PREFIX, OLD_PREFIX, DONE_PREFIX)
 
 
 @dataclass(frozen=True)
@@ -93,8 +121,35 @@ def check_not_input(out: str | os.PathLike, inputs: Iterable[Input | None], what
                               f"{_kind(what)} outside it")
 
 
+def check_not_other_input(out: str | os.PathLike, *, command: str | None, what: str, flag: bool = False) -> None:
+    """Raise :class:`ConfigError` if ``out`` is, or lies inside, a folder that commands read as input
+    (:func:`cosemdepth.io.input_kinds.identify`), unless ``command`` produces that kind (``out`` itself) or the kind
+    opens that sub-folder to it. ``command=None``: an output file, which no input folder holds. ``flag``: the
+    command has ``--overwrite`` (the message says that it makes no difference)."""
+    o = real(out)
+    full = True  # up to the first existing folder (where the output creates its folder or file): any marker counts
+    for folder in [o, *o.parents]:
+        found = identify(folder, via=None if full else o.relative_to(folder).parts[0])
+        full = full and not folder.is_dir()
+        if found is None:
+            continue
+        kind, evidence = found
+        if folder == o:
+            if command in kind.writers:
+                continue
+            where = f"is {kind.name} ({evidence}{'' if o == Path(out).absolute() else f': {o}'})"
+        else:
+            if command is not None and (o.relative_to(folder).parts[0], command) in kind.open_inside:
+                continue
+            where = f"lies inside {folder}, {kind.name} ({evidence})"
+        who = (f"cosemdepth {command} never writes there{', with or without --overwrite' if flag else ''}"
+               if command else "no output goes there")
+        raise ConfigError(f"{out}: the {what} {where}, which commands read as input: {who}; choose another "
+                          f"{_kind(what)}")
+
+
 def _kind(what: str) -> str:
-    return "file" if "file" in what else "folder"
+    return "file" if "file" in what or "recording" in what else "folder"
 
 
 def _why(e: OSError) -> str:
@@ -129,43 +184,147 @@ def probe_writable(folder: Path, message: str) -> None:
 
 
 def read_marker(folder: str | os.PathLike) -> dict | None:
-    """The marker of ``folder`` (``{"command", "files", ...}``), or None if there is none or it is damaged."""
+    """The marker of ``folder``, or None if there is none or it is damaged: ``{"command": str, "files": {relative
+    path: {"size": int, "sha256": str}}, ...}``; files of a version-1 marker (names only) have ``None`` for both."""
     p = Path(folder) / MARKER
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError):
         return None
-    if (not isinstance(data, dict) or data.get("format") != MARKER_FORMAT or not isinstance(data.get("command"), str)
-            or not isinstance(data.get("files"), list) or not all(isinstance(f, str) for f in data["files"])):
+    if not isinstance(data, dict) or data.get("format") != MARKER_FORMAT or not isinstance(data.get("command"), str):
+        return None
+    files = data.get("files")
+    if isinstance(files, list) and all(isinstance(f, str) for f in files):
+        data["files"] = {f: {"size": None, "sha256": None} for f in files}
+    elif not (isinstance(files, dict) and all(isinstance(f, str) and isinstance(e, dict) for f, e in files.items())):
         return None
     return data
 
 
-def list_files(folder: Path) -> list[str]:
-    """Every file (and symlink) under ``folder``, relative, POSIX separators, sorted; the marker excluded."""
-    out = []
+def _skipped(name: str, skip: Sequence[str]) -> bool:
+    return name == MARKER or name in skip
+
+
+def list_files(folder: Path, skip: Sequence[str] = ()) -> list[str]:
+    """Every file (and symlink) under ``folder``, relative, POSIX separators, sorted; the marker and the top-level
+    entries named in ``skip`` excluded."""
+    return sorted(rel for rel, _ in _walk(folder, skip))
+
+
+def _walk(folder: Path, skip: Sequence[str] = ()) -> Iterator[tuple[str, bool]]:
+    """``(relative path, is a folder)`` of every file, symlink and folder under ``folder`` (folders only where
+    they hold nothing; symlinks are not followed)."""
     for dirpath, dirnames, filenames in os.walk(folder):
         base = Path(dirpath)
+        if base == folder:
+            dirnames[:] = [d for d in dirnames if not _skipped(d, skip)]
+            filenames = [f for f in filenames if not _skipped(f, skip)]
         for name in filenames + [d for d in dirnames if (base / d).is_symlink()]:
-            rel = (base / name).relative_to(folder).as_posix()
-            if rel != MARKER:
-                out.append(rel)
-    return sorted(out)
+            yield (base / name).relative_to(folder).as_posix(), False
+
+
+def _subfolders(folder: Path, skip: Sequence[str] = ()) -> Iterator[Path]:
+    for dirpath, dirnames, _ in os.walk(folder):
+        if Path(dirpath) == folder:
+            dirnames[:] = [d for d in dirnames if not _skipped(d, skip)]
+        for d in dirnames:
+            yield Path(dirpath) / d
 
 
 def write_marker(folder: str | os.PathLike, command: str, files: Iterable[str], merge: bool = True) -> Path:
-    """Write ``folder/.cosemdepth-output.json`` naming ``command`` and the ``files`` it wrote (relative paths); with
-    ``merge``, the files of an existing marker are kept in the list."""
+    """Write ``folder/.cosemdepth-output.json`` naming ``command`` and the ``files`` it wrote (relative paths; each
+    recorded with its size and SHA-256, read from disk); with ``merge``, the other files of an existing marker are
+    kept in the list."""
     folder = Path(folder)
-    names = set(files)
     old = read_marker(folder) if merge else None
-    if old is not None:
-        names |= set(old["files"])
+    entries = dict(old["files"]) if old is not None else {}
+    for rel in files:
+        p = folder / rel
+        if p.is_symlink() or not p.is_file():
+            entries.pop(rel, None)  # only regular files are ever ours
+            continue
+        size, digest = file_digest(p)
+        entries[rel] = {"size": size, "sha256": digest}
     # no date: the same command writes the same bytes (a generated dataset is reproducible to the byte)
-    data = {"format": MARKER_FORMAT, "command": command, "cosemdepth_version": __version__, "files": sorted(names)}
+    data = {"format": MARKER_FORMAT, "version": MARKER_VERSION, "command": command,
+            "cosemdepth_version": __version__, "files": dict(sorted(entries.items()))}
     path = folder / MARKER
     atomic_write_text(path, json.dumps(data, indent=1) + "\n")
     return path
+
+
+def file_problem(folder: Path, rel: str, marker: dict | None) -> str | None:
+    """Why the existing file ``folder/rel`` is not cosemdepth's to replace, or None if it is (listed in the marker,
+    a regular file, same size and SHA-256 as recorded)."""
+    p = folder / rel
+    if marker is None:
+        return f"not written by cosemdepth (no {MARKER} in {folder})"
+    entry = marker["files"].get(rel)
+    if entry is None:
+        return f"not written by cosemdepth (not listed in {folder / MARKER})"
+    if p.is_symlink() or not p.is_file():
+        return "not written by cosemdepth (a link or a special file where it wrote a file)"
+    if not isinstance(entry.get("sha256"), str):
+        return f"listed in {MARKER} without a checksum (an older cosemdepth wrote it), so it may have changed since"
+    try:
+        size, digest = file_digest(p)
+    except OSError as e:
+        return f"cannot be read to check that cosemdepth wrote it ({_why(e)})"
+    if size != entry.get("size") or digest != entry["sha256"]:
+        return (f"changed since cosemdepth {marker['command']} wrote it (not the SHA-256 that {MARKER} records), so "
+                "it is yours")
+    return None
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Work folders of a replacement (written by cosemdepth.io.staging.StagedDir)
+
+
+def is_locked(lock: Path) -> bool:
+    """Whether another open file holds the lock ``lock`` (a live run's staging folder)."""
+    try:
+        fd = os.open(lock, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    finally:
+        os.close(fd)  # closing releases the probe's lock
+    return False
+
+
+def work_folders(folder: Path) -> dict[str, dict[str, Path]]:
+    """The work folders in ``folder``, by token: ``{token: {"staging" | "old" | "done": path}}``."""
+    out: dict[str, dict[str, Path]] = {}
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(folder):
+            for role, prefix in zip(("staging", "old", "done"), WORK_PREFIXES):
+                if entry.name.startswith(prefix) and entry.is_dir(follow_symlinks=False):
+                    out.setdefault(entry.name[len(prefix):], {})[role] = Path(entry.path)
+    return out
+
+
+def _check_work_folders(out: Path, ignore: Sequence[str]) -> list[str]:
+    """The names of the leftover work folders of finished runs in ``out`` (to be skipped as ours); a ConfigError if
+    a live run is writing ``out`` or a replacement was interrupted."""
+    skip = []
+    for token, roles in work_folders(out).items():
+        names = [p.name for p in roles.values()]
+        if any(n in ignore for n in names):
+            skip += names
+            continue
+        staging = roles.get("staging")
+        if staging is not None and is_locked(staging / LOCK_NAME):
+            raise ConfigError(f"{out}: another cosemdepth run is writing this folder ({staging.name}); wait for it, "
+                              "or choose another folder")
+        if "old" in roles or "done" in roles:
+            raise ConfigError(f"{out}: holds an interrupted replacement ({', '.join(sorted(names))}); run the command "
+                              "again to complete it, or move those folders")
+        if staging is not None and (staging / LOCK_NAME).is_file():
+            skip.append(staging.name)  # a killed run's partial output: ours, removed by the next replacement
+    return skip
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -179,75 +338,98 @@ def check_output_dir(
     mode: str = "replace",
     what: str = "--out folder",
     inputs: Iterable[Input | None] = (),
-    overwrite: bool = False,
+    overwrite: bool | None = False,
     files: Sequence[str] = (),
     recognize: Callable[[Path], bool] | None = None,
+    ignore: Sequence[str] = (),
 ) -> bool:
     """Check that ``out`` may be written by ``command`` (see the module docstring); write nothing.
 
     Args:
-        mode: ``"replace"`` (the folder is replaced as a whole), ``"into"`` (``files`` are written into it) or
-            ``"resume"`` (a folder ``recognize`` accepts is continued).
+        mode: ``"replace"`` (the folder's contents are replaced as a whole), ``"into"`` (``files`` are written into
+            it) or ``"resume"`` (a folder ``recognize`` accepts is continued).
+        overwrite: for ``"replace"``: also replace another command's output; None: the command has no such flag.
         files: for ``"into"``: the relative paths the command will write (those known in advance).
         recognize: for ``"resume"``: is this non-empty folder one of the command's own (to be resumed)?
+        ignore: for ``"replace"``: top-level work folders of the calling run (its staging folder).
     Returns:
         True if ``out`` exists and is not empty (a previous output: replaced, written into or resumed).
     Raises:
-        ConfigError: ``out`` is a file or under one, overlaps an input, holds files cosemdepth did not write (that
-            would be replaced), or cannot be written.
+        ConfigError: ``out`` is a file or under one, overlaps an input of this command or is or lies in an input
+            folder of any command, holds files that are not cosemdepth's unchanged output (that would be
+            replaced), or cannot be written.
     """
     if mode not in ("replace", "into", "resume"):
         raise ValueError(f"unknown mode {mode!r}")
     out = Path(out)
     check_not_under_file(out, what)
-    if mode == "replace" and _inside(real(Path.cwd()), real(out)):
-        raise ConfigError(f"{out}: the {what} cannot be the current folder or one of its parents")
+    if mode == "replace" and real(out) in real(Path.cwd()).parents:
+        raise ConfigError(f"{out}: the {what} holds the current folder; choose another folder")
     check_not_input(out, inputs, what)
-    busy = out.is_dir() and any(out.iterdir())
+    check_not_other_input(out, command=command, what=what, flag=mode == "replace" and overwrite is not None)
+    target = real(out)  # a symlink's target, `..` resolved: the folder that is written
+    skip: list[str] = []
+    if mode == "replace" and target.is_dir():
+        skip = _check_work_folders(target, ignore)
+    busy = target.is_dir() and any(p.name not in skip for p in target.iterdir())
     if busy:
-        marker = read_marker(out)
+        marker = read_marker(target)
         if mode == "replace":
-            _check_replaceable(out, marker, command, overwrite, what)
+            _check_replaceable(target, marker, command, overwrite, what, skip)
         elif mode == "into":
-            check_files_replaceable(out, files, marker)
+            check_files_replaceable(target, files, marker)
         elif recognize is None or not recognize(out):
             raise ConfigError(f"{out}: the {what} is not empty and was not written by cosemdepth {command}; choose a "
                               "new or empty folder")
     if mode == "replace" or not out.exists():
-        probe_writable(out.absolute().parent, f"{out}: cannot write the {what} here")
+        probe_writable(target if target.is_dir() else target.parent, f"{out}: cannot write the {what} here")
     else:
         probe_writable(out, f"{out}: cannot write the {what}")
     return busy
 
 
-def _check_replaceable(out: Path, marker: dict | None, command: str, overwrite: bool, what: str) -> None:
+def _check_replaceable(out: Path, marker: dict | None, command: str, overwrite: bool | None, what: str,
+                       skip: Sequence[str]) -> None:
+    how = f"move it, or choose another {_kind(what)}"
     if marker is None:
-        hint = (" (--overwrite only replaces folders that cosemdepth wrote)" if overwrite else "")
+        hint = " (--overwrite only replaces folders that cosemdepth wrote)" if overwrite else ""
         raise ConfigError(f"{out}: the {what} exists and is not empty, and was not written by cosemdepth (no {MARKER})"
                           f"; choose a new or empty folder{hint}")
-    if marker["command"] != command and not overwrite:
-        raise ConfigError(f"{out}: the {what} holds the output of `cosemdepth {marker['command']}`, not of "
-                          f"`cosemdepth {command}`; pass --overwrite to replace it, or choose another folder")
-    ours = set(marker["files"])
-    foreign = [f for f in list_files(out) if f not in ours]
+    if marker["command"] != command:
+        if not overwrite:
+            flag = "pass --overwrite to replace it, or " if overwrite is not None else ""
+            raise ConfigError(f"{out}: the {what} holds the output of `cosemdepth {marker['command']}`, not of "
+                              f"`cosemdepth {command}`; {flag}choose another folder")
+        for sub in _subfolders(out, skip):  # another command's output never takes an input folder with it
+            found = identify(sub)
+            if found is not None:
+                raise ConfigError(f"{out}: the {what} holds {sub}, {found[0].name} ({found[1]}), which commands read "
+                                  f"as input; nothing was replaced: {how}")
+    files = list_files(out, skip)
+    foreign = [f for f in files if f not in marker["files"]]
     if foreign:
-        more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
-        raise ConfigError(f"{out}: the {what} holds {foreign[0]}{more}, which cosemdepth did not write; nothing was "
-                          "replaced (move those files, or choose another folder)")
+        more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
+        raise ConfigError(f"{out / foreign[0]}: {file_problem(out, foreign[0], marker)}{more}; nothing was replaced: "
+                          f"{how}")
+    for f in files:
+        problem = file_problem(out, f, marker)
+        if problem is not None:
+            raise ConfigError(f"{out / f}: {problem}; nothing was replaced: {how}")
 
 
 def check_files_replaceable(folder: Path, files: Iterable[str], marker: dict | None = None) -> None:
-    """Raise :class:`ConfigError` if one of ``files`` (relative to ``folder``) exists and is not listed in the
-    folder's marker (i.e. cosemdepth did not write it), or is a folder."""
+    """Raise :class:`ConfigError` if one of ``files`` (relative to ``folder``) exists and is not cosemdepth's to
+    replace (:func:`file_problem`: not listed in the folder's marker, or changed since), or is a folder."""
+    folder = Path(folder)
     marker = read_marker(folder) if marker is None else marker
-    ours = set(marker["files"]) if marker else set()
     for f in files:
         p = folder / f
         if p.is_dir() and not p.is_symlink():
             raise ConfigError(f"{p}: a folder is in the way of an output file")
-        if (p.exists() or p.is_symlink()) and f not in ours:
-            raise ConfigError(f"{p}: exists and was not written by cosemdepth (not listed in {folder / MARKER}); "
-                              "nothing was overwritten (move it, or choose another output folder)")
+        if p.exists() or p.is_symlink():
+            problem = file_problem(folder, f, marker)
+            if problem is not None:
+                raise ConfigError(f"{p}: {problem}; nothing was replaced: move it, or choose another output folder")
 
 
 def check_output_file(
@@ -258,7 +440,8 @@ def check_output_file(
     recognize: Callable[[Path], bool] | None = None,
 ) -> None:
     """Check that the single output file ``out`` can be written: not a folder, its parent folder exists (is a
-    folder, writable), not an input, and if it exists, ``recognize`` says cosemdepth wrote it."""
+    folder, writable), not an input, in no input folder of any command, and if it exists, ``recognize`` says
+    cosemdepth wrote it."""
     out = Path(out)
     if out.is_dir():
         raise ConfigError(f"{out}: the {what} is a folder; give a file name")
@@ -271,6 +454,7 @@ def check_output_file(
     if not parent.exists():
         raise ConfigError(f"{out}: cannot write the {what}: the folder {parent} does not exist")
     check_not_input(out, inputs, what)
+    check_not_other_input(out, command=None, what=what)
     if out.exists() or out.is_symlink():
         if not out.is_file():
             raise ConfigError(f"{out}: the {what} exists and is not a regular file")
@@ -280,6 +464,7 @@ def check_output_file(
     probe_writable(parent, f"{out}: cannot write the {what}")
 
 
-__all__ = ["Input", "MARKER", "check_files_replaceable", "check_not_input", "check_not_under_file",
-           "check_output_dir", "check_output_file", "list_files", "model_inputs", "probe_writable", "read_marker",
-           "real", "write_marker"]
+__all__ = ["DONE_PREFIX", "Input", "LOCK_NAME", "MARKER", "OLD_PREFIX", "STAGING_PREFIX", "check_files_replaceable",
+           "check_not_input", "check_not_other_input", "check_not_under_file", "check_output_dir",
+           "check_output_file", "file_problem", "is_locked", "list_files", "model_inputs", "probe_writable",
+           "read_marker", "real", "work_folders", "write_marker"]

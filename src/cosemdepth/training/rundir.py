@@ -24,7 +24,7 @@ from ..config import ModelConfig, RunConfig
 from ..errors import ConfigError
 from ..io.outdir import probe_writable
 from ..io.atomic import _fsync_dir, atomic_write_text
-from ..io.outdir import Input, check_not_input
+from ..io.outdir import Input, check_not_input, check_not_other_input
 from .checkpoint import _jsonable, save_model_files
 from .run_config import dump_config
 
@@ -60,6 +60,7 @@ def check_output_dir(run_dir: str | os.PathLike, config: RunConfig | None = None
     """
     p = Path(run_dir)
     check_not_input(p, run_inputs(config), "--out run folder")
+    check_not_other_input(p, command="train", what="--out run folder")  # no dataset, model... of another command
     if p.exists() or p.is_symlink():
         if not p.is_dir():
             raise ConfigError(f"--out {p}: exists and is not a folder (the run folder must be a new or empty "

@@ -53,6 +53,17 @@ def test_layout_is_the_mid_air_tree(small):
         p.relative_to(root / "splits").as_posix() for p in (root / "splits").rglob("*.csv"))
 
 
+def test_a_generated_dataset_is_an_input_of_other_commands(small):
+    from cosemdepth.io.input_kinds import identify
+
+    cfg, _ = small
+    root = Path(cfg.out)
+    assert identify(root) is not None and identify(root)[0].name == "a SynthAir dataset"
+    assert identify(root)[0].writers == ("synth",)  # resumed by synth, never another command's output
+    assert identify(root / "splits")[0].name == "a split folder"
+    assert identify(root / "SynthAir" / "sunny")[0].name == "part of a Mid-Air-format dataset"
+
+
 def test_sensor_records_hold_100hz_ground_truth_and_camera_lists(small):
     cfg, _ = small
     base = Path(cfg.out) / "SynthAir" / "sunny"

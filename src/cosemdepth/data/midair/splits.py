@@ -19,7 +19,7 @@ import numpy as np
 
 from ...errors import DatasetError
 from ...io.atomic import atomic_write_text
-from ...io.outdir import check_files_replaceable, write_marker
+from ...io.staging import StagedDir
 from ..files import dataset_root, read_text
 from ..quaternion import qconj, qmul, qrotate
 from . import format as fmt
@@ -299,18 +299,17 @@ def generate_splits(
 
 def write_split_files(out_dir: Path, planned: list, written: dict[str, list[Path]],
                       columns: tuple[str, ...] | None = None) -> dict[str, list[Path]]:
-    """Write the planned ``(split, relative path, rows)`` CSVs into ``out_dir`` under the output policy
-    (:mod:`cosemdepth.io.outdir`: an existing CSV is only replaced if cosemdepth wrote it) and record them in the
-    folder's marker; returns ``written`` with the paths appended."""
-    rels = [rel.as_posix() for _, rel, _ in planned]
-    if out_dir.is_dir():
-        check_files_replaceable(out_dir, rels)
-    for split, rel, rows in planned:
-        path = out_dir / rel
-        write_csv(path, rows, *([columns] if columns else []))
-        written[split].append(path)
-    if planned:
-        write_marker(out_dir, "splits", rels)
+    """Make the planned ``(split, relative path, rows)`` CSVs the contents of ``out_dir``, under the output policy
+    (:mod:`cosemdepth.io.outdir`): a previous ``splits`` output there is replaced as a whole (no CSV of another
+    rule is left over), a folder holding anything else (a CSV nobody wrote or one edited since) is refused. Returns
+    ``written`` with the paths appended."""
+    if not planned:
+        return written
+    with StagedDir(out_dir, "splits", overwrite=None, what="split folder") as tmp:
+        for _, rel, rows in planned:
+            write_csv(tmp / rel, rows, *([columns] if columns else []))
+    for split, rel, _ in planned:
+        written[split].append(Path(out_dir) / rel)
     return written
 
 
