@@ -26,7 +26,7 @@ import torch
 
 from ..errors import ConfigError, DatasetError
 from .flight import parse_intrinsics, scale_intrinsics
-from .frames import Size, as_size, rgb_to_tensor
+from .frames import Size, resolve_size, rgb_to_tensor
 from .poses import convention_matrix, relative_camera_motions
 from .quaternion import qmatrix
 from .rosbag import (
@@ -245,7 +245,7 @@ def open_bag_flight(
     idx = BagIndex(idx.indices[keep], idx.stamps[keep], [idx.frame_ids[i] for i in keep], idx.positions[keep],
                    idx.quaternions[keep], idx.skipped, native, idx.total)
     q_rel, t_rel = relative_camera_motions(idx.quaternions, idx.positions, m)
-    out_size = as_size(size) or native
+    out_size = resolve_size(size, lambda: (native, float(k_native[0]))) or native
     name = image_topic.strip("/").replace("/", "_") or "images"
     traj = Trajectory(
         name if name != "bag" else "bag_images",  # predict's output bag is OUT/bag/: the frames go beside it
