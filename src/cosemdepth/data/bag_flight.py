@@ -222,7 +222,9 @@ def open_bag_flight(
 ) -> BagFlight:
     """Open a bag flight (see the module docstring). Intrinsics: the first ``camera_info_topic`` message (K, with
     ROS's pixel-centre convention converted: ``cx + 0.5``, ``cy + 0.5``), else ``intrinsics`` (fx, fy, cx, cy in the
-    package's convention, as ``--flight``) or ``fov``. ``frame_skip = k`` keeps every k-th posed image. ``jpeg_idct``: how compressed JPEG images are
+    package's convention, as ``--flight``) or ``fov``. ``size``: the output size (default the images'; a
+    :class:`~cosemdepth.data.frames.FocalSize` is applied to the native size and ``fx``). ``frame_skip = k`` keeps
+    every k-th posed image. ``jpeg_idct``: how compressed JPEG images are
     decoded (as the dataset readers: :mod:`cosemdepth.data.decode`)."""
     path = Path(path)
     if not isinstance(frame_skip, int) or frame_skip < 1:
