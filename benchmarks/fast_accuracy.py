@@ -82,8 +82,8 @@ def main(argv=None) -> int:
     p.add_argument("--root", required=True, help="dataset root")
     p.add_argument("--split-dir", help="split folder (default: the dataset's)")
     p.add_argument("--split", default="test")
-    p.add_argument("--size", type=int, help="image size (default: the model's training size if its folder records one, "
-                   "else 384)")
+    p.add_argument("--size", type=int, help="image size (default: the size where the dataset's camera has the model's "
+                   "focal length in pixels, from its operating point; else the dataset's default)")
     p.add_argument("--max-frames", type=int, help="stop after this many frames (whole split by default)")
     p.add_argument("--modes", nargs="+", choices=[m for m in MODES if m != "reference"], default=["fast-fp32", "fast-bf16"])
     p.add_argument("--device", default="cpu")
@@ -96,11 +96,11 @@ def main(argv=None) -> int:
     from cosemdepth.io.model_io import load_model
 
     device = torch.device(a.device)
-    from cosemdepth.demo import _training_size
-    from cosemdepth.io.model_io import read_model_files
+    from cosemdepth.cli._shared import input_size, model_operating_point
 
-    size = a.size or _training_size(read_model_files(a.model)[2]) or 384
+    size = input_size(a.size, model_operating_point(a.model))
     dataset = open_dataset(a.dataset, a.root, split_dir=a.split_dir, split=a.split, seq_len=1, size=size)
+    size = list(dataset[0]["rgb"].shape[-2:])  # what it runs at (recorded in the report)
     calib_root = a.calibration_root or a.root
     calibration = None
     if "fast-int8" in a.modes:

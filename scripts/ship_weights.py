@@ -5,7 +5,8 @@
 Writes ``OUT_DIR/model.safetensors`` + ``config.json`` (loadable with ``cosemdepth.load_model``; weights stored in
 float16 and loaded as float32), ``OUT_DIR/training_curve.csv`` (losses per logged step, validation metrics per
 epoch) and ``OUT_DIR/training_curve.png``. The provenance in config.json names the run's config, the best
-checkpoint's step and validation metrics, the git commit and the date.
+checkpoint's step and validation metrics, the git commit and the date; its ``operating_point`` (training size,
+focal length, per-step motion statistics) is the best model's, carried over.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import torch
 import yaml
 
 from cosemdepth.io.atomic import atomic_path, atomic_write_text
-from cosemdepth.io.model_io import read_model_files, save_weights
+from cosemdepth.io.model_io import read_model_files, read_operating_point, save_weights
 from cosemdepth.training.events import read_events
 
 
@@ -95,7 +96,8 @@ def main() -> int:
         "date": datetime.date.today().isoformat(),
         "trained_from": meta.get("source"),
     }
-    save_weights(state, cfg, args.out_dir, source=source)
+    save_weights(state, cfg, args.out_dir, source=source,
+                 operating_point=read_operating_point(meta, str(best / "config.json")))
     rows = curve_rows(events)
     buf = io.StringIO()
     fields = ["kind", "step", "epoch", "lr", "loss_total", "loss_depth", "loss_semantic", "abs_rel", "rmse",

@@ -176,15 +176,28 @@ def test_majority_and_constant_baselines_by_hand():
     assert maj["class"] == 0 and maj["miou"] == pytest.approx((5 / 7 + 0) / 2)
 
 
-@pytest.mark.parametrize(
-    "source, size",
-    [
-        ({"size": 96}, 96),
-        ({"data": {"size": 64}}, 64),
-        ({"run_config": {"data": {"size": [128, 128]}}}, 128),  # what scripts/ship_weights.py records
-        ({"run_config": {"data": {"size": [128, 96]}}}, None),  # not square: the demo's default applies
-        ({"type": "tensorflow"}, None),
-    ],
-)
-def test_training_size_read_from_the_model_folder(source, size):
-    assert demo_mod._training_size({"source": source}) == size
+def test_the_generated_flight_has_the_model_s_focal_length():
+    from cosemdepth.io.convert import MIDAIR_OPERATING_POINT
+    from cosemdepth.operating_point import OperatingPoint
+
+    # SynthAir's camera is a 90-degree pinhole (f = S/2): the side is twice the model's focal length
+    assert demo_mod.flight_size(OperatingPoint((32, 32), (16.0, 16.0))) == 32
+    assert demo_mod.flight_size(OperatingPoint((96, 128), (64.0, 64.0))) == 128
+    assert demo_mod.flight_size(MIDAIR_OPERATING_POINT) == 384
+    assert demo_mod.flight_size(None) == demo_mod.DEFAULT_SIZE
+
+
+def test_demo_on_a_given_dataset_without_size_runs_at_the_model_s_focal_length(data, tmp_path, capsys):
+    from cosemdepth import build_model, save_model
+    from cosemdepth.operating_point import OperatingPoint
+
+    torch.manual_seed(0)
+    model = save_model(build_model(arch="cosemdepth", levels=2), tmp_path / "m",
+                       operating_point=OperatingPoint((16, 16), (8.0, 8.0)))  # the 32x32 split at half its size
+    m = demo_mod.run_demo(tmp_path / "r", model=model, data_root=data, video=None, progress=False,
+                          log=lambda *a: None)
+    assert m["flight"]["size"] == [16, 16] and "--size" not in m["command"]
+    assert "warning" not in capsys.readouterr().err
+    demo_mod.run_demo(tmp_path / "r2", model=model, data_root=data, size=SIZE, video=None, progress=False,
+                      log=lambda *a: None)
+    assert "16.0 px, but the model was trained at 8.0 px (16x16)" in capsys.readouterr().err

@@ -34,6 +34,7 @@ import importlib.util
 import io
 import math
 import os
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -47,6 +48,7 @@ from . import __version__
 from .cli import main as cli
 from .data import open_dataset
 from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
+from .data.frames import FocalSize, midair_intrinsics
 from .errors import CheckpointError, ConfigError, DatasetError
 from .evaluation.classes import class_info
 from .evaluation.evaluator import Evaluator, to_json
@@ -56,6 +58,7 @@ from .evaluation.resources import machine_info, resolve_device
 from .evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 from .io.atomic import atomic_path, atomic_write_text
 from .io.model_io import load_model, read_config_file
+from .operating_point import OperatingPoint
 from .io.outdir import Input, check_not_input, model_inputs
 from .io.staging import StagedDir
 
@@ -97,25 +100,18 @@ def resolve_model_path(model: str | os.PathLike | None) -> Path:
     )
 
 
-def _training_size(meta: dict[str, Any]) -> int | None:
-    """The (square) image size recorded in a model folder's ``source``, if its trainer recorded one.
+def flight_size(op: OperatingPoint | None) -> int:
+    """The side of the generated (square, 90-degree) SynthAir flight: the size where its focal length in pixels is
+    the model's (:attr:`~cosemdepth.operating_point.OperatingPoint.focal`), or :data:`DEFAULT_SIZE` for a model
+    without an operating point."""
+    if op is None:
+        return DEFAULT_SIZE
+    native = (DEFAULT_SIZE, DEFAULT_SIZE)
+    return op.input_size(native, float(midair_intrinsics(native)[0]))[1]
 
-    Looks at ``source.size``, ``source.data.size`` and the ``data.size`` of a recorded ``config`` / ``run_config``
-    (``scripts/ship_weights.py`` records the run's config as ``run_config``, with the size as ``[H, W]``).
-    """
-    src = meta.get("source") or {}
-    places = [src, src.get("data")]
-    for key in ("config", "run_config"):
-        cfg = src.get(key)
-        if isinstance(cfg, dict):
-            places += [cfg, cfg.get("data")]
-    for d in places:
-        v = d.get("size") if isinstance(d, dict) else None
-        if isinstance(v, (list, tuple)) and len(v) == 2 and v[0] == v[1]:
-            v = v[0]
-        if isinstance(v, int) and v > 0:
-            return v
-    return None
+
+def _hw(size) -> str:
+    return f"{size}x{size}" if isinstance(size, int) else "x".join(str(v) for v in size)
 
 
 # ---------------------------------------------------------------------------------------------------- flight
@@ -142,7 +138,7 @@ def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climat
     return data_dir
 
 
-def open_flight_split(root: Path, size: int, split_dir: Path | None = None, jpeg_idct: str = DEFAULT_JPEG_IDCT):
+def open_flight_split(root: Path, size: int | FocalSize, split_dir: Path | None = None, jpeg_idct: str = DEFAULT_JPEG_IDCT):
     """The first of the test, val and train splits of ``root`` (splits in ``root/splits``) that has trajectories."""
     split_dir = split_dir or root / "splits"
     errors = []
@@ -345,7 +341,7 @@ def report_markdown(m: dict[str, Any]) -> str:
     lines += ["", "## Timings", "", "| stage | seconds |", "|---|---|"]
     for k, v in tm.items():
         lines.append(f"| {k.replace('_', ' ')} | {v:.1f} |")
-    lines += ["", f"Model speed: {_num(ev['speed']['ms_per_frame'], '.1f')} ms/frame at {fl['size']}x{fl['size']} "
+    lines += ["", f"Model speed: {_num(ev['speed']['ms_per_frame'], '.1f')} ms/frame at {_hw(fl['size'])} "
               f"(model step only, batch 1, float32); peak memory {_num(ev.get('peak_memory_mb'), '.0f')} MiB "
               f"({ev.get('peak_memory_method')}).", "",
               "## Reproduce", "", "```bash", m["command"], "```", ""]
@@ -384,7 +380,10 @@ def run_demo(
     Args:
         out: report folder (new, empty, or a previous demo report, which is replaced).
         model: model folder (default: the shipped ``weights/synthair-cosemdepth``).
-        size: image size (default: the model's training size if its folder records one, else 128).
+        size: image size of the generated flight and of the evaluation (default: the size where the flight's
+            90-degree camera has the model's focal length in pixels, from its operating point: the training size
+            of a model trained on SynthAir; 128 for a model without one; with ``data_root``, the size rule applied to
+            that dataset's camera). A size whose focal length is far from the model's gets a warning on stderr.
         frames: evaluated-flight length in CSV rows (frames at 6.25 Hz). seed: world seed. climate: SynthAir climate.
         supersample: colour rays per pixel of the generated flight (1, 3 or 5; default 3, as the training data).
         data_root: evaluate on this existing Mid-Air-format dataset (splits in ``data_root/splits``) instead of
@@ -422,8 +421,10 @@ def run_demo(
     except CheckpointError:
         meta = {}
     cfg = net.config
+    op = getattr(net, "operating_point", None)
+    requested = size
     if size is None:
-        size = _training_size(meta) or DEFAULT_SIZE
+        size = flight_size(op)
     timings["load_model"] = time.perf_counter() - t
     log(f"model: {model_path} ({cfg.arch}, {net.num_parameters():,} parameters)")
 
@@ -446,7 +447,13 @@ def run_demo(
             description = (f"SynthAir, world seed {seed}, climate {climate}, one trajectory of {frames} frames at "
                            f"{size}x{size} ({supersample}x supersampled)")
             timings["generate_flight"] = time.perf_counter() - t
-        dataset, split = open_flight_split(root, size, jpeg_idct=jpeg_idct)
+        # an existing dataset without --size: at the model's focal length (its camera, its aspect ratio)
+        at_model = data_root is not None and requested is None and op is not None
+        dataset, split = open_flight_split(root, FocalSize(op.focal) if at_model else size, jpeg_idct=jpeg_idct)
+        if requested is not None and op is not None:
+            warning = op.size_warning((size, size), float(dataset.intrinsics[0]))
+            if warning:
+                print(warning, file=sys.stderr)
 
         with staged as tmp:
             names, palette = class_info(cfg.num_classes, "synthair") if cfg.has_semantic else ((), None)
@@ -495,7 +502,9 @@ def run_demo(
                 },
                 # the generated flight's root only when it is kept (--data-dir); a temporary one is gone by now
                 "flight": {"description": description, "root": None if temporary else str(root.resolve()),
-                           "kept": not temporary, "jpeg_idct": jpeg_idct, "split": split, "size": size,
+                           "kept": not temporary, "jpeg_idct": jpeg_idct, "split": split,
+                           "size": result.info["dataset"]["size"] if at_model else size,
+                           "model_operating_point": None if op is None else op.to_dict(),
                            "frames": frames if data_root is None else None, "seed": seed if data_root is None
                            else None, "climate": climate if data_root is None else None},
                 "files": {"report": "report.md", "iou_chart": "iou.png" if names else None,
@@ -505,7 +514,7 @@ def run_demo(
                 "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
                 "cosemdepth_version": __version__,
             }
-            cmd = ["cosemdepth demo", f"--out {out}", f"--size {size}"]
+            cmd = ["cosemdepth demo", f"--out {out}", *([] if at_model else [f"--size {size}"])]
             if model is not None:
                 cmd.append(f"--model {model}")
             if data_root is not None:

@@ -26,6 +26,20 @@ from .errors import ConfigError
 
 #: The statistics of :class:`MotionStats`, in the order written.
 MOTION_KEYS = ("count", "mean", "median", "p05", "p25", "p75", "p95")
+#: A requested input size whose focal length (pixels) differs from the model's by more than this factor, either way,
+#: gets a warning (:meth:`OperatingPoint.size_warning`).
+FOCAL_WARN_FACTOR = 1.25
+
+
+def size_for_focal(native_size: Sequence[int], native_focal_px: float, focal_px: float) -> tuple[int, int]:
+    """The input size ``(H', W')`` at which an image of ``native_size = (H, W)`` with horizontal focal length
+    ``native_focal_px`` (pixels) has the focal length ``focal_px``: both sides scaled by ``s = focal_px /
+    native_focal_px`` and rounded half up (the aspect ratio is kept), at least 1 pixel each."""
+    h, w = (int(v) for v in native_size)
+    if not (math.isfinite(native_focal_px) and native_focal_px > 0 and math.isfinite(focal_px) and focal_px > 0):
+        raise ConfigError(f"focal lengths must be positive, got {native_focal_px!r} and {focal_px!r}")
+    s = focal_px / native_focal_px
+    return max(1, math.floor(h * s + 0.5)), max(1, math.floor(w * s + 0.5))
 
 
 @dataclass(frozen=True)
@@ -101,6 +115,32 @@ class OperatingPoint:
         f = size[1] / (2 * math.tan(math.radians(hfov_deg) / 2))
         return cls((int(size[0]), int(size[1])), (f, f), **kw)
 
+    @property
+    def focal(self) -> float:
+        """The horizontal focal length in pixels (the one the size rule matches)."""
+        return float(self.focal_px[0])
+
+    def input_size(self, native_size: Sequence[int], native_focal_px: float) -> tuple[int, int]:
+        """The size to run the model at on an input of ``native_size`` (H, W) whose horizontal focal length is
+        ``native_focal_px``: the model's focal length, the input's aspect ratio (:func:`size_for_focal`)."""
+        return size_for_focal(native_size, native_focal_px, self.focal)
+
+    def focal_ratio(self, focal_px: float) -> float:
+        """``max(f / f_model, f_model / f)`` of an input's horizontal focal length ``f`` (pixels): 1 = the model's."""
+        r = float(focal_px) / self.focal
+        return max(r, 1 / r) if r > 0 else math.inf
+
+    def size_warning(self, size: Sequence[int], focal_px: float, what: str = "--size") -> str | None:
+        """A one-line warning when running at ``size`` (H, W), where the input's horizontal focal length is
+        ``focal_px``, is more than :data:`FOCAL_WARN_FACTOR` away from the model's focal length; else None."""
+        if self.focal_ratio(focal_px) <= FOCAL_WARN_FACTOR:
+            return None
+        h, w = size
+        mh, mw = size_for_focal(size, focal_px, self.focal)
+        return (f"warning: {what} {h}x{w} gives a focal length of {focal_px:.1f} px, but the model was trained at "
+                f"{self.focal:.1f} px ({self.size[0]}x{self.size[1]}); parallax and apparent sizes scale with it, "
+                f"so expect worse depth (without {what} this input runs at {mh}x{mw})")
+
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"size": list(self.size), "focal_px": [float(v) for v in self.focal_px]}
         if self.step_translation is not None:
@@ -127,4 +167,4 @@ class OperatingPoint:
                    extra)
 
 
-__all__ = ["MOTION_KEYS", "MotionStats", "OperatingPoint"]
+__all__ = ["FOCAL_WARN_FACTOR", "MOTION_KEYS", "MotionStats", "OperatingPoint", "size_for_focal"]

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from cosemdepth.cli.main import main
-from cosemdepth.io.convert import convert_checkpoint
+from cosemdepth.io.convert import MIDAIR_STEP_TRANSLATION, convert_checkpoint
 from cosemdepth.io.model_io import read_model_files
 from tf_bundle_writer import model_tensors, write_bundle
 
@@ -34,6 +34,11 @@ def test_convert_fixture(tfref_dir, tmp_path, capsys):
     assert meta["source"]["checkpoint"] == str((tfref_dir / "ckpt" / "cp-0000.ckpt").resolve())
     ref, _ = convert_checkpoint(tfref_dir / "ckpt")
     assert all(torch.equal(sd[k], ref[k]) for k in ref)
+    # Mid-Air's operating point: 384x384, a 90-degree camera (f = 192 px), the training CSVs' per-step motion
+    op = meta["operating_point"]
+    assert op["size"] == [384, 384] and op["focal_px"] == [192.0, 192.0]
+    assert op["step_translation_m"] == MIDAIR_STEP_TRANSLATION.to_dict()
+    assert "operating:  384x384 px, focal length 192 px (90 degrees)" in text
 
 
 def test_convert_with_arch(tfref_dir, tmp_path, capsys):

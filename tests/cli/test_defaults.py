@@ -8,7 +8,7 @@ import re
 import pytest
 
 from cosemdepth.bench.runner import BenchCase
-from cosemdepth.cli._shared import parse_size_pair
+from cosemdepth.cli._shared import MODEL_SIZE_RULE, parse_size_pair
 from cosemdepth.cli.main import COMMANDS, build_parser
 from cosemdepth.config import DataConfig, ModelConfig, RunConfig
 from cosemdepth.data.bag_flight import open_bag_flight
@@ -92,6 +92,24 @@ def test_split_flags_come_from_the_dataset_table():
         assert f"{name} {spec.split}" in actions["split"].help
         size = "native" if spec.size is None else str(spec.size)
         assert re.search(rf"{size} for [a-z, ]*\b{name}\b", actions["size"].help), (name, actions["size"].help)
+
+
+@pytest.mark.parametrize("command", ["evaluate", "predict", "view"])
+def test_size_defaults_to_the_model_s_focal_length_then_the_dataset_table(command):
+    """No --size: the model's focal length (cli._shared.MODEL_SIZE_RULE), the table's sizes only for a model without
+    an operating point; the parsed default stays None (decided when the model is known)."""
+    help_text = " ".join({a.dest: a.help for a in subparser(command)._actions}["size"].split())
+    assert help_text.startswith(f"network input size, S or HxW (default: {MODEL_SIZE_RULE}; for a model without one:")
+    required = {"evaluate": ["--dataset", "synthair", "--root", "r"], "predict": ["--out", "o"],
+                "view": ["--rrd", "x.rrd"]}[command]
+    assert parse(command, "--model", "m", *required).size is None
+
+
+def test_export_and_benchmark_say_the_model_s_size_comes_first():
+    for command in ("export", "benchmark"):
+        helps = {a.dest: a.help for a in subparser(command)._actions}
+        assert "the training size of --model" in helps["size"] or "the model's training size" in helps["size"]
+        assert "{} {}".format(*DataConfig().size) in helps["size"]
 
 
 def test_train_flags_leave_the_defaults_to_the_config():

@@ -8,6 +8,7 @@ from _writers import snapshot
 from PIL import Image
 
 from cosemdepth.data import open_dataset
+from cosemdepth.data.frames import FocalSize
 from cosemdepth.errors import ConfigError, DatasetError
 
 C, S = np.cos(np.pi / 4), np.sin(np.pi / 4)
@@ -63,6 +64,17 @@ def test_tum_poses_give_hand_computed_relative_motions(flight):
     assert it["rgb"].shape == (1, 3, H, W) and "depth" not in it and "semantic" not in it
     assert it["intrinsics"].tolist() == [20.0, 20.0, 20.0, 15.0]
     assert it["timestamp"].tolist() == [1.0]
+
+
+def test_a_focal_size_rule_gives_the_flight_that_focal_length_at_its_aspect_ratio(flight):
+    write_tum(flight / "poses.txt")
+    # 30x40 images with a 90-degree horizontal FOV: f = 20 px; a focal length of 30 px is the size 45x60
+    ds = open_dataset("flight", flight, seq_len=1, fov=90.0, size=FocalSize(30.0))
+    assert ds[0]["rgb"].shape[-2:] == (45, 60)
+    assert ds.intrinsics.tolist() == [30.0, 30.0, 30.0, 22.5]
+    # with intrinsics: fx = 10 px at 30x40 -> a focal length of 5 px halves the size (rounded half up: 15x20)
+    ds = open_dataset("flight", flight, seq_len=1, intrinsics=(10.0, 12.0, 20.0, 15.0), size=FocalSize(5.0))
+    assert ds[0]["rgb"].shape[-2:] == (15, 20) and ds.intrinsics.tolist() == [5.0, 6.0, 10.0, 7.5]
 
 
 @pytest.mark.parametrize("columns", [("timestamp", "tx", "ty", "tz", "qw", "qx", "qy", "qz"),

@@ -12,6 +12,7 @@ from _writers import read_split_rows, snapshot, write_midair
 from PIL import Image
 
 from cosemdepth.data import make_loader, open_dataset
+from cosemdepth.data.frames import FocalSize
 from cosemdepth.data.midair.splits import generate_splits
 from cosemdepth.errors import ConfigError, DatasetError
 
@@ -128,6 +129,42 @@ def test_train_windows_random_offset_in_chunks_and_reset_first(dataset):
         open_dataset("midair", root, split_dir=splits, split="train", seq_len=4, db_seq_len=2)
     with pytest.raises(DatasetError, match="no window of 8 rows fits"):
         open_dataset("midair", root, split_dir=splits, split="train", seq_len=2, db_seq_len=8)
+
+
+def _csv_norms(folder):
+    """``||t||`` of every row of every CSV under ``folder`` (sorted paths, as the reader takes them), by a plain parse."""
+    out = []
+    for csv in sorted(folder.rglob("*.csv"), key=lambda p: p.relative_to(folder).as_posix()):
+        out.append([float(np.linalg.norm([float(r[c]) for c in ("tx", "ty", "tz")])) for r in read_split_rows(csv)])
+    return out
+
+
+def test_step_translations_are_the_window_rows_after_the_first(dataset):
+    _, root, splits = dataset
+    train = _csv_norms(splits / "train_data")
+    assert train and all(len(rows) == 4 for rows in train)
+    # train windows of 2 in chunks of 4: any row of a chunk but its first is a later frame of some window
+    ds = open_dataset("midair", root, split_dir=splits, split="train", seq_len=2, size=8, db_seq_len=4)
+    np.testing.assert_allclose(ds.step_translations(), [n for rows in train for n in rows[1:4]], rtol=1e-6)
+    # windowed (val, seq_len 2): windows rows 0-1 and 2-3, their second rows
+    val = _csv_norms(splits / "val_data")
+    ds = open_dataset("midair", root, split_dir=splits, split="val", seq_len=2, size=8)
+    np.testing.assert_allclose(ds.step_translations(), [rows[k] for rows in val for k in (1, 3)], rtol=1e-6)
+    # streaming every row: all but the resets (the first row of each trajectory: CSV id 0)
+    test = _csv_norms(splits / "test_data")
+    ds = open_dataset("midair", root, split_dir=splits, split="test", seq_len=1, size=8)
+    np.testing.assert_allclose(ds.step_translations(), [n for rows in test for n in rows[1:]], rtol=1e-6)
+
+
+def test_a_focal_size_rule_opens_the_split_where_its_camera_has_that_focal_length(dataset):
+    _, root, splits = dataset
+    # native 32x32 with the 90-degree camera (f = 16 px): a focal length of 8 px is the 16x16 size
+    ds = open_dataset("midair", root, split_dir=splits, split="test", seq_len=1, size=FocalSize(8.0))
+    ref = open_dataset("midair", root, split_dir=splits, split="test", seq_len=1, size=16)
+    assert ds.intrinsics.tolist() == [8.0, 8.0, 8.0, 8.0]
+    assert torch.equal(ds[1]["rgb"], ref[1]["rgb"]) and ds[1]["rgb"].shape[-2:] == (16, 16)
+    assert open_dataset("midair", root, split_dir=splits, split="test", size=FocalSize(20.0))[0]["rgb"].shape[-2:] \
+        == (40, 40)
 
 
 def test_val_split_uses_windows_with_reset_first(dataset):

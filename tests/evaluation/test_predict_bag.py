@@ -297,3 +297,21 @@ def test_jpeg_compressed_bag_decodes_like_a_jpeg_flight(model_dir, tmp_path, cap
             depth[how, idct] = np.stack([np.load(out / f["files"]["depth"]) for f in man["frames"]])
         np.testing.assert_allclose(depth["bag", idct], depth["flight", idct], rtol=1e-5, atol=1e-4)
     assert not np.array_equal(depth["bag", "fast"], depth["bag", "accurate"])  # the IDCT choice reaches the bag
+
+
+def test_a_bag_runs_at_the_model_s_focal_length_from_its_camera_info(tmp_path):
+    from cosemdepth import build_model, save_model
+    from cosemdepth.cli.main import build_parser
+    from cosemdepth.cli.predict import _open
+    from cosemdepth.operating_point import OperatingPoint
+
+    model = save_model(build_model(arch="cosemdepth", levels=2), tmp_path / "m",
+                       operating_point=OperatingPoint((16, 16), (8.0, 8.0)))
+    bag = make_bag(tmp_path / "in")
+    argv = ["predict", "--model", model, *bag_args(bag, "--camera-info-topic", "/cam/info"), "--out", tmp_path / "o"]
+    ds = _open(build_parser(only="predict").parse_args([str(a) for a in argv]))
+    try:
+        # camera_info: fx = 16 px at 32x32 (cx 15.5 + 0.5 in our convention); the model's 8 px is the size 16x16
+        assert ds.intrinsics.tolist() == [8.0, 8.0, 8.0, 8.0] and ds[0]["rgb"].shape[-2:] == (16, 16)
+    finally:
+        ds.bag_flight.close()

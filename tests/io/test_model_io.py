@@ -335,3 +335,97 @@ def test_shipped_weights_carry_their_checksum():
     folder = Path(__file__).resolve().parents[2] / "weights" / "synthair-cosemdepth"
     meta = json.loads((folder / "config.json").read_text())
     assert meta[WEIGHTS_CHECKSUM] == hashlib.sha256((folder / "model.safetensors").read_bytes()).hexdigest()
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# The operating point (config.json "operating_point")
+
+
+def _op(**kw):
+    from cosemdepth.operating_point import MotionStats, OperatingPoint
+
+    motion = MotionStats.from_samples([0.5, 1.0, 1.5, 2.0])
+    return OperatingPoint(kw.pop("size", (96, 128)), kw.pop("focal", (64.0, 48.0)), motion, "test", **kw)
+
+
+def test_operating_point_round_trip(tmp_path):
+    from cosemdepth.io.model_io import operating_point_of, read_operating_point
+
+    op = _op()
+    out = save_weights(_random_state(SMALL), SMALL, tmp_path / "m", operating_point=op)
+    meta = json.loads((out / "config.json").read_text())
+    written = dict(meta["operating_point"])
+    motion = written.pop("step_translation_m")
+    assert written == {"size": [96, 128], "focal_px": [64.0, 48.0], "source": "test"}
+    # numpy's linear quantiles of 0.5, 1, 1.5, 2 by hand
+    assert motion == pytest.approx({"count": 4, "mean": 1.25, "median": 1.25, "p05": 0.575, "p25": 0.875,
+                                    "p75": 1.625, "p95": 1.925}, rel=1e-12)
+    assert read_operating_point(meta) == op and operating_point_of(out) == op
+    loaded = load_model(out)
+    assert loaded.operating_point == op
+    # save_model keeps the model's own operating point
+    again = save_model(loaded, tmp_path / "again")
+    assert read_operating_point(read_model_files(again)[2]) == op
+    # a model without one writes none
+    plain = save_weights(_random_state(SMALL), SMALL, tmp_path / "plain")
+    assert "operating_point" not in json.loads((plain / "config.json").read_text())
+    assert load_model(plain).operating_point is None
+
+
+@pytest.mark.parametrize(
+    "source, size",
+    [
+        ({"size": 96}, (96, 96)),
+        ({"data": {"size": 64}}, (64, 64)),
+        ({"run_config": {"data": {"size": [128, 128]}}}, (128, 128)),  # what scripts/ship_weights.py records
+        ({"run_config": {"data": {"size": [128, 96]}}}, (128, 96)),
+        ({"type": "tensorflow"}, None),
+        ({"size": True}, None),
+    ],
+)
+def test_a_folder_without_an_operating_point_falls_back_to_its_training_size(source, size):
+    from cosemdepth.io.model_io import read_operating_point
+
+    op = read_operating_point({"source": source})
+    if size is None:
+        assert op is None
+        return
+    h, w = size
+    # the 90-degree camera of the Mid-Air-format datasets: f = W/2 (and H/2), no motion statistics
+    assert op.size == size and op.focal_px == (w / 2, h / 2) and op.step_translation is None
+    assert op.hfov_deg == pytest.approx(90.0)
+
+
+def test_a_malformed_operating_point_is_refused_naming_the_file(tmp_path):
+    out = save_weights(_random_state(SMALL), SMALL, tmp_path / "m", operating_point=_op())
+    meta = json.loads((out / "config.json").read_text())
+    meta["operating_point"]["focal_px"] = [-1, 64]
+    (out / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(CheckpointError, match=r"config\.json: invalid \"operating_point\" entry.*focal_px"):
+        load_model(out)
+
+
+def test_a_tensorflow_checkpoint_gets_mid_air_s_operating_point(tfref_dir):
+    from cosemdepth.io.model_io import operating_point_of
+
+    op = load_model(tfref_dir / "ckpt").operating_point
+    assert op.size == (384, 384) and op.focal_px == (192.0, 192.0) and op.hfov_deg == pytest.approx(90.0)
+    assert op.step_translation is not None and operating_point_of(tfref_dir / "ckpt") == op
+
+
+def test_mid_air_s_motion_statistics_fit_the_spec():
+    from cosemdepth.io.convert import MIDAIR_STEP_TRANSLATION as m
+
+    # spec 3.2: in the shipped Mid-Air CSVs ||t|| ranges from 0.044 to 3.8 m and t_z has a median of +1.48 m
+    assert 0.044 <= m.p05 < m.p25 < m.median < m.p75 < m.p95 <= 3.8
+    assert 1.48 <= m.median <= 3.8 and m.count == 3 * (m.count // 3)  # three steps per 4-row window
+
+
+def test_shipped_weights_record_their_operating_point():
+    from cosemdepth.io.model_io import operating_point_of
+
+    folder = Path(__file__).resolve().parents[2] / "weights" / "synthair-cosemdepth"
+    op = operating_point_of(folder)
+    assert op.size == (128, 128) and op.focal_px == (64.0, 64.0)
+    assert op.step_translation is not None and op.step_translation.count == 6 * 2 * 3 * 24 * 3  # worlds x climates
+    # x trajectories x 4-row chunks of 99 rows x 3 steps

@@ -409,3 +409,51 @@ def test_cpu_trainer_retains_host_memory_unless_told_not_to(tmp_path, tiny_confi
     monkeypatch.setattr("cosemdepth.training.trainer.retain_freed_host_memory", lambda: calls.append(1) or True)
     Trainer(tiny_config(train__device="cpu", train__retain_host_memory=retain), tmp_path / "run", console=False)
     assert calls == ([1] if retain else [])
+
+
+def test_every_model_folder_of_a_run_records_the_motion_of_its_training_windows(tmp_path, tiny_config, cli_env):
+    """The operating point in config.json: data.size, the dataset's focal length there, and the statistics of the
+    translations of rows 1..3 of every 4-row chunk of the training CSVs (computed here from a plain parse)."""
+    import sys
+    from pathlib import Path
+
+    import numpy as np
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
+    from _writers import read_split_rows, write_midair
+
+    from cosemdepth.data.midair.splits import generate_splits
+    from cosemdepth.io.model_io import load_model, operating_point_of
+
+    root, splits = tmp_path / "midair", tmp_path / "splits"
+    write_midair(root, {("Kite_training", "sunny"): [0, 1, 2]}, frames=36, size=32)  # 8 CSV rows per trajectory
+    generate_splits(root, splits, rule="train")
+    norms = []
+    for csv in sorted((splits / "train_data").rglob("*.csv")):
+        rows = read_split_rows(csv)
+        assert len(rows) == 8
+        for chunk in (rows[0:4], rows[4:8]):
+            norms += [math.sqrt(sum(float(r[c]) ** 2 for c in ("tx", "ty", "tz"))) for r in chunk[1:]]
+    x = np.array(norms)
+    expected = {"count": 18, "mean": x.mean(), "median": np.median(x),
+                **{f"p{q:02d}": np.percentile(x, q) for q in (5, 25, 75, 95)}}
+
+    src = {"name": "midair", "root": str(root), "split_dir": str(splits)}
+    cfg = tiny_config(data__train=[src], data__val=src, data__val_split="train", data__seq_len=2,
+                      data__db_seq_len=4, data__val_seq_len=2, train__max_steps=2, train__validate_every_epochs=1,
+                      train__checkpoint_every=1)
+    Trainer(cfg, tmp_path / "run", console=False).fit()
+    folders = [*sorted((tmp_path / "run" / "checkpoints").iterdir()), tmp_path / "run" / "best"]
+    assert len(folders) >= 2
+    for folder in folders:
+        op = operating_point_of(folder)
+        assert op.size == (16, 16) and op.focal_px == (8.0, 8.0), folder  # the 90-degree camera at 16 px
+        assert op.step_translation.to_dict() == pytest.approx(expected, rel=1e-6), folder
+    assert load_model(folders[-1]).operating_point == op
+    # scripts/ship_weights.py carries it over to the shipped folder
+    import subprocess
+
+    script = Path(__file__).resolve().parents[2] / "scripts" / "ship_weights.py"
+    subprocess.run([sys.executable, str(script), str(tmp_path / "run"), str(tmp_path / "shipped")], env=cli_env,
+                   check=True, capture_output=True)
+    assert operating_point_of(tmp_path / "shipped") == op

@@ -58,15 +58,17 @@ def check_args(args: argparse.Namespace) -> None:
         require_rerun()  # the file itself is checked with the command's inputs (cli.predict.inputs)
 
 
-def open_bag(args: argparse.Namespace):
-    """The stream-mode dataset of ``--bag``; the :class:`~cosemdepth.data.bag_flight.BagFlight` is attached to it
-    as ``dataset.bag_flight`` (stamps, frame_ids, absolute poses for the output bag and the recording)."""
+def open_bag(args: argparse.Namespace, size=None):
+    """The stream-mode dataset of ``--bag`` at ``size`` (an int, ``(H, W)``, a
+    :class:`~cosemdepth.data.frames.FocalSize` or None: the images' size); the
+    :class:`~cosemdepth.data.bag_flight.BagFlight` is attached to it as ``dataset.bag_flight`` (stamps, frame_ids,
+    absolute poses for the output bag and the recording)."""
     check_args(args)
     flight = open_bag_flight(
         args.bag, args.image_topic, args.pose_topic, camera_info_topic=args.camera_info_topic,
         intrinsics=args.intrinsics, fov=args.hfov, convention=args.convention or "flu",
         frame_skip=args.frame_skip, max_pose_gap=args.max_pose_gap, skip_unposed=args.skip_unposed,
-        ignore_distortion=args.ignore_distortion, size=args.size, jpeg_idct=args.jpeg_idct,
+        ignore_distortion=args.ignore_distortion, size=size, jpeg_idct=args.jpeg_idct,
     )
     dataset = flight.dataset
     dataset.bag_flight = flight

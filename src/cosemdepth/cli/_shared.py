@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import torch
@@ -10,11 +11,13 @@ import torch
 from ..config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
 from ..data import open_dataset
 from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
+from ..data.frames import FocalSize, as_size
 from ..data.registry import DATASETS, split_datasets
-from ..errors import ConfigError
+from ..errors import CheckpointError, ConfigError
 from ..devices import resolve_device
-from ..io.model_io import load_model
+from ..io.model_io import load_model, operating_point_of
 from ..models import build_model
+from ..operating_point import OperatingPoint
 
 #: The model config's defaults (``--arch/--levels/--classes`` read them: one home for defaults).
 MODEL_DEFAULTS = ModelConfig()
@@ -102,6 +105,21 @@ def load_or_build(args: argparse.Namespace, device: str = "cpu"):
     return build_model(cfg).to(device).eval()
 
 
+def model_size_pair(values: list[int] | None, model, warn: bool = True) -> tuple[int, int]:
+    """``--size H W`` of export / benchmark: as given, else the model's training size (its operating point), else
+    :data:`DEFAULT_SIZE_PAIR`. With ``warn``, a given size far from the model's focal length (its camera's field of
+    view assumed) gets a warning on stderr."""
+    op = getattr(model, "operating_point", None)
+    if values is None:
+        return tuple(op.size) if op is not None else DEFAULT_SIZE_PAIR
+    h, w = parse_size_pair(values)
+    if warn and op is not None:
+        msg = op.size_warning((h, w), op.focal * w / op.size[1])
+        if msg:
+            print(msg, file=sys.stderr)
+    return h, w
+
+
 def parse_size_pair(values: list[int] | None, default: tuple[int, int] = DEFAULT_SIZE_PAIR) -> tuple[int, int]:
     """``--size H W`` (nargs=2) -> ``(H, W)``."""
     if values is None:
@@ -142,13 +160,50 @@ def add_split_args(parser: argparse.ArgumentParser, required: bool = True) -> No
     parser.add_argument("--split", default=None, help=f"split to use (default: {defaults})")
 
 
+#: What the commands that run a model on an input with a camera do without --size.
+MODEL_SIZE_RULE = ("the size at which the input's focal length in pixels is the model's (its operating point in "
+                   "config.json), with the input's aspect ratio")
+
+
 def size_help(what: str = "network input size, S or HxW") -> str:
-    """``--size`` help naming each split dataset's default size (from the dataset table)."""
+    """``--size`` help: the model's focal length by default, else each split dataset's default size (from the
+    dataset table)."""
     sizes: dict[str, list[str]] = {}
     for name in split_datasets():
         size = DATASETS[name].size
         sizes.setdefault("native" if size is None else str(size), []).append(name)
-    return f"{what} (default: " + "; ".join(f"{v} for {', '.join(n)}" for v, n in sizes.items()) + ")"
+    return (f"{what} (default: {MODEL_SIZE_RULE}; for a model without one: "
+            + "; ".join(f"{v} for {', '.join(n)}" for v, n in sizes.items()) + ")")
+
+
+def model_operating_point(model_path) -> OperatingPoint | None:
+    """The operating point of ``--model`` (read from its config.json, without the weights), or None: the model has
+    none, or its folder is unreadable (loading it reports that)."""
+    try:
+        return operating_point_of(model_path)
+    except (CheckpointError, OSError):
+        return None
+
+
+def input_size(requested, op: OperatingPoint | None):
+    """The size to open an input at: ``requested`` (``--size``) when given; else, for a model with an operating
+    point, the size rule of its focal length (:class:`~cosemdepth.data.frames.FocalSize`: every reader applies it
+    to its camera, keeping the input's aspect ratio); else None (the reader's default)."""
+    if requested is not None or op is None:
+        return requested
+    return FocalSize(op.focal)
+
+
+def warn_far_size(op: OperatingPoint | None, requested, dataset, what: str = "--size") -> str | None:
+    """When the user's ``requested`` size puts the input's focal length (``dataset.intrinsics``) more than
+    :data:`~cosemdepth.operating_point.FOCAL_WARN_FACTOR` away from the model's, print one warning line on stderr
+    naming both (and return it)."""
+    if op is None or requested is None or getattr(dataset, "intrinsics", None) is None:
+        return None
+    msg = op.size_warning(as_size(requested, what), float(dataset.intrinsics[0]), what)
+    if msg:
+        print(msg, file=sys.stderr)
+    return msg
 
 
 def add_run_args(parser: argparse.ArgumentParser) -> None:
@@ -196,5 +251,6 @@ def open_split(args: argparse.Namespace, size):
 
 
 __all__ = ["add_device_args", "add_model_args", "add_model_or_arch_args", "add_precision_arg", "add_reference_arg",
-           "add_jpeg_idct_arg", "add_run_args", "add_split_args", "apply_threads", "load", "load_or_build", "open_split", "parse_size",
-           "parse_size_pair", "positive_int"]
+           "add_jpeg_idct_arg", "add_run_args", "add_split_args", "apply_threads", "input_size", "load",
+           "load_or_build", "model_operating_point", "model_size_pair", "open_split", "parse_size", "parse_size_pair", "positive_int",
+           "warn_far_size"]

@@ -34,7 +34,7 @@ from ..config import ARCHITECTURES
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device
 from ..errors import ConfigError
 from ..io.outdir import check_output_file, model_inputs
-from ._shared import DEFAULT_SIZE_PAIR, load_or_build, parse_size_pair
+from ._shared import DEFAULT_SIZE_PAIR, load_or_build, model_size_pair, parse_size_pair
 
 #: The defaults of one measurement (size, levels, classes, warm-up and timed frames at batch 1).
 CASE = BenchCase()
@@ -44,7 +44,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", nargs="+", choices=ARCHITECTURES, default=list(ARCHITECTURES))
     parser.add_argument("--model", metavar="DIR", help="time these weights (its architecture) instead of --models")
     parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"),
-                        help="input size (default {} {})".format(*DEFAULT_SIZE_PAIR))
+                        help="input size (default: the training size of --model, from its operating point; else "
+                        "{} {})".format(*DEFAULT_SIZE_PAIR))
     parser.add_argument("--levels", type=int, default=CASE.levels,
                         help=f"pyramid levels of the --models (default {CASE.levels})")
     parser.add_argument("--batch", nargs="+", type=int, default=[1, 8, 32], help="batch sizes (default 1 8 32)")
@@ -125,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
     if args.model:
         weights = load_or_build(argparse.Namespace(model=args.model))
         models = [weights.config.arch]
+        h, w = model_size_pair(args.size, weights, warn=False)
 
     def case(arch, batch, precision, path="fast"):
         big = batch > 1

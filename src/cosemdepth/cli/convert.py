@@ -8,7 +8,7 @@ from pathlib import Path
 from ..config import ARCHITECTURES
 from ..model_config import ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
 from ..errors import CheckpointError
-from ..io.convert import import_checkpoint
+from ..io.convert import MIDAIR_OPERATING_POINT, import_checkpoint
 from ..io.model_io import CONFIG_FILE, WEIGHTS_FILE, save_weights
 from ..io.outdir import check_output_dir, model_inputs, write_marker
 
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
         feature_normalization=args.feature_normalization,
         pscv_dtype=args.pscv_dtype,
     )
-    save_weights(conv.state_dict, conv.config, out, source=conv.source)
+    save_weights(conv.state_dict, conv.config, out, source=conv.source, operating_point=MIDAIR_OPERATING_POINT)
     write_marker(out, "convert", files)
     cfg = conv.config
     yes = {True: "on", False: "off"}
@@ -87,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
         f"tensors:    {len(conv.converted_keys)} converted, {dropped}"
         f"{conv.source['ignored_tensors']} ignored (optimizer, metrics, counters, state, object graph)"
     )
+    op = MIDAIR_OPERATING_POINT
+    lines.append(f"operating:  {op.size[0]}x{op.size[1]} px, focal length {op.focal:g} px ({op.hfov_deg:g} degrees), "
+                 f"median step {op.step_translation.median:.2f} m (Mid-Air's; commands run the model at this focal "
+                 "length)")
     lines.append(f"wrote:      {out / CONFIG_FILE}, {out / WEIGHTS_FILE}")
     print("\n".join(lines))
     return 0

@@ -23,8 +23,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", default=None, metavar="DIR",
                         help=f"model folder (default: the shipped weights, {DEFAULT_MODEL}/ in the repository)")
     parser.add_argument("--size", type=positive_int, default=None, metavar="S",
-                        help=f"image size in pixels (default: the model's training size if recorded, else "
-                        f"{DEFAULT_SIZE})")
+                        help="side of the generated flight in pixels (default: the size at which its 90-degree "
+                        "camera has the model's focal length in pixels, from the model's operating point: its "
+                        f"training size for SynthAir-trained weights; {DEFAULT_SIZE} for a model without one; with "
+                        "--data-root, that rule applied to the dataset's camera)")
     parser.add_argument("--frames", type=positive_int, default=DEFAULT_FRAMES, metavar="F",
                         help=f"frames in the held-out flight (default {DEFAULT_FRAMES})")
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="K",

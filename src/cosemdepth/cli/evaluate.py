@@ -1,7 +1,11 @@
 """``cosemdepth evaluate``: the test protocol of the original (spec 10.3) on a dataset split.
 
-    cosemdepth evaluate --model MODEL --dataset NAME --root ROOT [--split-dir D] [--split test] [--size 384]
+    cosemdepth evaluate --model MODEL --dataset NAME --root ROOT [--split-dir D] [--split test] [--size S]
                         [--out DIR] [--device cpu] [--max-frames N] [--trajectories-per-batch B]
+
+Without ``--size`` the split is read at the size where its camera has the model's focal length in pixels (the
+operating point in the model's config.json: 384x384 for the official Mid-Air checkpoints, 128x128 for the shipped
+SynthAir weights); a ``--size`` far from it gets a warning on stderr.
 
 Prints the results table; with ``--out DIR`` also writes ``DIR/metrics.json`` and ``DIR/metrics.md`` (both renamed
 into place together at the end; nothing is written if the run fails).
@@ -18,8 +22,8 @@ from ..data.registry import dataset_spec
 from ..evaluation.evaluator import evaluate
 from ..io.outdir import Input, model_inputs
 from ..io.staging import OutputFiles
-from ._shared import (add_model_args, add_run_args, add_split_args, apply_threads, load, open_split, parse_size,
-                      size_help)
+from ._shared import (add_model_args, add_run_args, add_split_args, apply_threads, input_size, load,
+                      model_operating_point, open_split, parse_size, size_help, warn_far_size)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -40,7 +44,9 @@ def run(args: argparse.Namespace) -> int:
     files_ctx = (OutputFiles(args.out, "--out folder", command="evaluate", names=("metrics.json", "metrics.md"),
                              inputs=inputs) if args.out else contextlib.nullcontext())
     with files_ctx as files:
-        dataset = open_split(args, args.size)
+        op = model_operating_point(args.model)
+        dataset = open_split(args, input_size(args.size, op))
+        warn_far_size(op, args.size, dataset)
         model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
         result = evaluate(model, dataset, lanes=args.lanes, max_frames=args.max_frames, num_workers=args.workers,
                           progress=not args.no_progress and sys.stderr.isatty(), dataset_name=args.dataset)

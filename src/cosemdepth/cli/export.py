@@ -8,7 +8,7 @@ from ..errors import ConfigError
 from ..export.check import CHECK_FRAMES, NOISE_MULTIPLE, compare_onnx
 from ..export.onnx import DEFAULT_OPSET, MIN_OPSET, export_onnx, is_our_onnx
 from ..io.outdir import check_output_file, model_inputs
-from ._shared import DEFAULT_SIZE_PAIR, add_model_or_arch_args, load_or_build, parse_size_pair
+from ._shared import DEFAULT_SIZE_PAIR, add_model_or_arch_args, load_or_build, model_size_pair, parse_size_pair
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -16,7 +16,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         "replaced only if cosemdepth export wrote it)")
     add_model_or_arch_args(parser)
     parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"),
-                        help="input size (default {} {})".format(*DEFAULT_SIZE_PAIR))
+                        help="input size (default: the model's training size, from its operating point, with "
+                        "--model; else {} {})".format(*DEFAULT_SIZE_PAIR))
     parser.add_argument("--batch", type=int, default=1, help="batch size (default 1)")
     parser.add_argument("--dynamic-batch", action="store_true", help="make the batch axis dynamic")
     parser.add_argument("--opset", type=int, default=DEFAULT_OPSET,
@@ -31,12 +32,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    h, w = parse_size_pair(args.size)
+    parse_size_pair(args.size)  # (checked before anything is read)
     if args.batch < 1:
         raise ConfigError(f"--batch must be at least 1, got {args.batch}")
     # the output policy: not a folder, under an existing folder, not an input; an existing file only if we wrote it
     check_output_file(args.onnx, what="--onnx file", inputs=model_inputs(args.model), recognize=is_our_onnx)
     model = load_or_build(args)
+    h, w = model_size_pair(args.size, model)
     path = export_onnx(
         model,
         args.onnx,

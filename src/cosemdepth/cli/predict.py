@@ -6,6 +6,11 @@
 
 Outputs (depth as float32 .npy and 16-bit PNG = round(depth_m * 256), labels, colourised labels, side-by-side
 pictures, a video): see :mod:`cosemdepth.evaluation.predict`.
+
+Without ``--size`` the input is read at the size where its camera (the dataset's, ``--intrinsics`` / ``--hfov`` at
+the images' size, or the bag's camera_info) has the model's focal length in pixels, keeping its aspect ratio (the
+operating point in the model's config.json); a model without one runs at the dataset table's size, or a flight's
+image size. A ``--size`` far from the model's focal length gets a warning on stderr.
 """
 
 from __future__ import annotations
@@ -23,7 +28,8 @@ from ..io.outdir import Input, model_inputs
 from ..io.rerun_writer import check_rrd_path
 from ..io.staging import StagedDir
 from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
-from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, parse_size, size_help
+from ._shared import (add_model_args, apply_threads, add_run_args, add_split_args, input_size, load,
+                      model_operating_point, parse_size, size_help, warn_far_size)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -43,7 +49,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="axes of the posed frame (default opencv: x right, y down, z forward; flu for --bag)")
     flight.add_argument("--frame-skip", type=int, default=1, metavar="K", help="keep every K-th image (default 1)")
     parser.add_argument("--size", type=parse_size, default=None, metavar="S",
-                        help=size_help()[:-1] + "; the image size for flights)")
+                        help=size_help()[:-1] + "; the image size for flights and bags)")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (new, empty, or the "
                         "output of a previous predict, which is replaced; never an input, a folder holding one or a "
                         "folder inside one)")
@@ -79,14 +85,21 @@ def _validate(args: argparse.Namespace) -> None:
 
 
 def _open(args: argparse.Namespace):
+    """The input of predict / view, at ``--size`` or else at the model's focal length (``cli._shared.input_size``);
+    a ``--size`` far from the model's focal length gets a warning."""
+    op = model_operating_point(args.model)
+    size = input_size(args.size, op)
     if args.bag is not None:
-        return open_bag(args)
-    if args.flight:
-        return open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
-                            convention=args.convention or "opencv", frame_skip=args.frame_skip, seq_len=1, size=args.size,
-                            jpeg_idct=args.jpeg_idct)
-    return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
-                        size=args.size, jpeg_idct=args.jpeg_idct)
+        dataset = open_bag(args, size)
+    elif args.flight:
+        dataset = open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
+                               convention=args.convention or "opencv", frame_skip=args.frame_skip, seq_len=1,
+                               size=size, jpeg_idct=args.jpeg_idct)
+    else:
+        dataset = open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
+                               size=size, jpeg_idct=args.jpeg_idct)
+    warn_far_size(op, args.size, dataset)
+    return dataset
 
 
 def command_inputs(args: argparse.Namespace) -> list:

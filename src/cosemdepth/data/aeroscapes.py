@@ -23,7 +23,7 @@ from ..errors import DatasetError
 from .augment import resolve_augment
 from .decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, image_size, read_label_ids, read_rgb
 from .files import dataset_root, read_text
-from .frames import Size, as_size, labels_to_tensor, midair_intrinsics, rgb_to_tensor
+from .frames import Size, labels_to_tensor, midair_intrinsics, resolve_size, rgb_to_tensor
 from .sequence import FrameRecord, SequenceDataset, Trajectory
 
 CLASSES = (
@@ -95,7 +95,11 @@ def open_aeroscapes(
         for i, n in enumerate(names)
     ]
     trajectory = Trajectory.from_records(split, frames, reset=np.ones(len(frames), dtype=bool))
-    out_size = as_size(size)
+    def native():  # the first image's size and the focal length of the intrinsics convention there
+        shape = image_size(frames[0].rgb)
+        return shape, float(midair_intrinsics(shape)[0])
+
+    out_size = resolve_size(size, native)
     return SequenceDataset(
         [trajectory],
         AeroscapesFrameLoader(out_size, jpeg_idct),

@@ -26,7 +26,7 @@ import torch
 
 from ..errors import ConfigError, DatasetError
 from .flight import parse_intrinsics, scale_intrinsics
-from .frames import Size, as_size, rgb_to_tensor
+from .frames import Size, resolve_size, rgb_to_tensor
 from .poses import convention_matrix, relative_camera_motions
 from .quaternion import qmatrix
 from .rosbag import (
@@ -222,7 +222,9 @@ def open_bag_flight(
 ) -> BagFlight:
     """Open a bag flight (see the module docstring). Intrinsics: the first ``camera_info_topic`` message (K, with
     ROS's pixel-centre convention converted: ``cx + 0.5``, ``cy + 0.5``), else ``intrinsics`` (fx, fy, cx, cy in the
-    package's convention, as ``--flight``) or ``fov``. ``frame_skip = k`` keeps every k-th posed image. ``jpeg_idct``: how compressed JPEG images are
+    package's convention, as ``--flight``) or ``fov``. ``size``: the output size (default the images'; a
+    :class:`~cosemdepth.data.frames.FocalSize` is applied to the native size and ``fx``). ``frame_skip = k`` keeps
+    every k-th posed image. ``jpeg_idct``: how compressed JPEG images are
     decoded (as the dataset readers: :mod:`cosemdepth.data.decode`)."""
     path = Path(path)
     if not isinstance(frame_skip, int) or frame_skip < 1:
@@ -245,7 +247,7 @@ def open_bag_flight(
     idx = BagIndex(idx.indices[keep], idx.stamps[keep], [idx.frame_ids[i] for i in keep], idx.positions[keep],
                    idx.quaternions[keep], idx.skipped, native, idx.total)
     q_rel, t_rel = relative_camera_motions(idx.quaternions, idx.positions, m)
-    out_size = as_size(size) or native
+    out_size = resolve_size(size, lambda: (native, float(k_native[0]))) or native
     name = image_topic.strip("/").replace("/", "_") or "images"
     traj = Trajectory(
         name if name != "bag" else "bag_images",  # predict's output bag is OUT/bag/: the frames go beside it

@@ -17,7 +17,7 @@ from ..errors import ConfigError, DatasetError
 from .augment import resolve_augment
 from .decode import image_size
 from .files import dataset_root, is_dir
-from .frames import Size, as_size, midair_intrinsics
+from .frames import FocalSize, Size, as_size, midair_intrinsics, resolve_size
 from .midair.splits import read_csv
 from .sequence import FrameLoader, SequenceDataset, Trajectory, default_mode
 
@@ -133,6 +133,8 @@ def open_csv_split(
     to the wanted modalities, ``reset_rule`` and ``derive``), checks that they agree on their modalities, and returns
     a :class:`SequenceDataset` whose frames are read by ``make_loader(output size)`` (``None``: native size) and
     whose intrinsics are the 90-degree convention at the output size (the first image's size if ``size`` is None).
+    ``size`` may be a :class:`~cosemdepth.data.frames.FocalSize`: applied to the first image's size and the
+    90-degree camera there.
 
     Args:
         columns: modality -> CSV column, for ``"rgb"``, ``"depth"`` and ``"semantic"``.
@@ -140,7 +142,8 @@ def open_csv_split(
         Other arguments as :func:`cosemdepth.data.midair.dataset.open_midair`.
     """
     root = dataset_root(root)
-    out_size = as_size(size)
+    if not isinstance(size, FocalSize):
+        as_size(size)  # (checked before the CSVs are read)
     wanted = set(("depth", "semantic") if modalities is None else modalities)
     unknown = wanted - {"depth", "semantic"}
     if unknown:
@@ -159,6 +162,12 @@ def open_csv_split(
         derive=derive,
     )
     check_modalities_consistent(trajectories, folder)
+
+    def native() -> tuple[Size, float]:  # the first image's size, and the 90-degree camera's focal length there
+        shape = image_size(trajectories[0].frame(0).rgb)
+        return shape, float(midair_intrinsics(shape)[0])
+
+    out_size = resolve_size(size, native)
     intrinsics_size = out_size if out_size is not None else image_size(trajectories[0].frame(0).rgb)
     return SequenceDataset(
         trajectories,

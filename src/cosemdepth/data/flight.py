@@ -50,7 +50,7 @@ from ..model_config import ModelConfig
 from .augment import resolve_augment
 from .decode import (DEFAULT_JPEG_IDCT, check_image_size, check_jpeg_idct, check_nonnegative, image_size, read_label_ids,
                      read_rgb, read_uint16_png)
-from .frames import Size, as_size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
+from .frames import Size, depth_to_tensor, labels_to_tensor, resolve_size, rgb_to_tensor
 from .poses import poses_at, read_poses, relative_camera_motions
 from .sequence import FrameRecord, SequenceDataset, Trajectory
 
@@ -220,7 +220,8 @@ def open_flight(
     jpeg_idct: str = DEFAULT_JPEG_IDCT,
 ) -> SequenceDataset:
     """Open your own flight (see the module docstring). ``split_dir`` and ``split`` are ignored (one flight is
-    one trajectory); ``size`` defaults to the native image size. ``jpeg_idct``: JPEG decoding, ``"fast"`` (default,
+    one trajectory); ``size`` defaults to the native image size (a
+    :class:`~cosemdepth.data.frames.FocalSize` is applied to the native size and ``fx`` of the intrinsics). ``jpeg_idct``: JPEG decoding, ``"fast"`` (default,
     as the models were trained: the original's ``tf.io.decode_jpeg``) or ``"accurate"``."""
     check_jpeg_idct(jpeg_idct)
     root = Path(root)
@@ -292,7 +293,7 @@ def open_flight(
         )
     native = image_size(images[0])
     k_native = parse_intrinsics(intrinsics, fov, native, intrinsics_convention)
-    out_size = as_size(size) or native
+    out_size = resolve_size(size, lambda: (native, float(k_native[0]))) or native
     return SequenceDataset(
         [Trajectory.from_records(root.name, frames)],
         FlightFrameLoader(out_size, native, depth_scale, num_classes, jpeg_idct),

@@ -8,10 +8,14 @@ labels the authors resized with OpenCV; NN2 = TF2 half-pixel nearest for TopAir/
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Callable
+
 import numpy as np
 import torch
 
 from ..errors import ConfigError
+from ..operating_point import size_for_focal
 from ..ops.resample import resize_bl2, resize_nn1, resize_nn2
 
 Size = tuple[int, int]
@@ -32,6 +36,33 @@ def as_size(size: int | tuple[int, int] | list[int] | None, what: str = "size") 
     if h < 1 or w < 1:
         raise ConfigError(f"{what} must be positive, got {size!r}")
     return h, w
+
+
+@dataclass(frozen=True)
+class FocalSize:
+    """A size rule instead of a size: the output size at which the input's horizontal focal length is ``focal_px``
+    pixels, keeping the input's aspect ratio (:func:`cosemdepth.operating_point.size_for_focal`). Every reader
+    applies it to its own camera: ``open_dataset("synthair", root, size=FocalSize(64.0))`` opens a split at the
+    size where its 90-degree camera has a focal length of 64 px (128x128 for square images)."""
+
+    focal_px: float
+
+    def __post_init__(self) -> None:
+        f = self.focal_px
+        if isinstance(f, bool) or not isinstance(f, (int, float)) or not np.isfinite(f) or f <= 0:
+            raise ConfigError(f"FocalSize needs a positive focal length in pixels, got {f!r}")
+
+    def __call__(self, native: Size, native_fx: float) -> Size:
+        return size_for_focal(native, native_fx, float(self.focal_px))
+
+
+def resolve_size(size, native: Callable[[], tuple[Size, float]], what: str = "size") -> Size | None:
+    """A reader's output size: ``size`` as :func:`as_size` takes it, or a :class:`FocalSize` applied to the native
+    camera; ``native()`` gives ``((H, W), fx)`` of the native images (called only for a rule)."""
+    if isinstance(size, FocalSize):
+        shape, fx = native()
+        return size(shape, fx)
+    return as_size(size, what)
 
 
 def midair_intrinsics(size: Size) -> torch.Tensor:

@@ -146,6 +146,20 @@ class MixedDataset(Dataset):
     def __len__(self) -> int:
         return self.length
 
+    def step_translations(self):
+        """``[N]`` per-step translation norms of the mixed datasets' windows, pooled (each dataset with a positive
+        weight and a ``step_translations`` method; its windows once each, whatever its weight), or None when one
+        of them has no such method."""
+        parts = []
+        for d, w in zip(self.datasets, self.weights.tolist()):
+            if w <= 0:
+                continue
+            fn = getattr(d, "step_translations", None)
+            if fn is None:
+                return None
+            parts.append(np.asarray(fn(), dtype=np.float64))
+        return np.concatenate(parts) if parts else None
+
     def pick(self, index: int) -> tuple[int, int]:
         """``(dataset index, item index)`` of mixed item ``index`` in the current epoch."""
         g = torch.Generator().manual_seed(item_seed(self.seed, self.epoch, index))

@@ -229,6 +229,23 @@ class SequenceDataset(Dataset):
     def num_frames(self) -> int:
         return sum(len(t) for t in self.trajectories)
 
+    def step_translations(self) -> np.ndarray:
+        """``[N]`` float64: the norms ``||t||`` (metres) of the motions the model is given between two frames of a
+        window, read from the trajectories (no image is decoded).
+
+        ``"train"`` mode: rows ``1 .. db_seq_len - 1`` of every chunk (each is a frame after the first of some window
+        drawn from the chunk; the first row of a window is a reset, its motion unused); ``"windowed"``: rows
+        ``1 .. seq_len - 1`` of every window; ``"stream"``: every row of the windows that is not a reset.
+        """
+        parts = []
+        for ti, start in self.windows:
+            traj = self.trajectories[ti]
+            rows = np.arange(start, start + self.db_seq_len)
+            rows = rows[~traj.reset[rows]] if self.mode == "stream" else rows[1:]
+            parts.append(traj.trans[rows])
+        trans = np.concatenate(parts) if parts else np.zeros((0, 3), dtype=np.float32)
+        return np.linalg.norm(trans.astype(np.float64), axis=1)
+
     def generator(self, index: int) -> torch.Generator:
         return torch.Generator().manual_seed(item_seed(self.seed, self.epoch, index))
 

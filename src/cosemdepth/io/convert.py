@@ -35,14 +35,29 @@ import torch
 
 from .. import __version__
 from ..config import ARCHITECTURES, ENCODER_CHANNELS, ModelConfig
-from ..model_config import ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
+from ..model_config import MIDAIR_IMAGE_SIZE, ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
 from ..errors import CheckpointError, ConfigError
 from ..models.depth_decoder import refiner_in_channels
 from ..models.model import build_model
+from ..operating_point import MotionStats, OperatingPoint
 from .tf_checkpoint import CheckpointReader
 
 #: Convs of the refiner's ``prep_conv_layers`` stack; the ``est_*_conv_layers`` stack holds the other four.
 PREP_CONVS = 3
+
+#: Per-step camera translation ``||t||`` (metres) of Mid-Air's training windows: the rows after the first of every
+#: 4-row chunk (the paper's seq_len = db_seq_len = 4) of the authors' published training-split CSVs
+#: (Malga-Vision/Co-SemDepth, data/midair/train_data, 70,399 rows). Recomputed by
+#: ``python scripts/midair_motion_stats.py AUTHORS_DIR``.
+MIDAIR_STEP_TRANSLATION = MotionStats(count=52632, mean=1.6760828560801506, median=1.604856814287929,
+                                      p05=0.7155285897518835, p25=1.164078108511934, p75=2.1368632936091183,
+                                      p95=2.909905478710922)
+#: The operating point of the official checkpoints (trained on Mid-Air at 384x384, a 90-degree camera: f = W/2),
+#: written by ``cosemdepth convert`` and given to TensorFlow checkpoints loaded on the fly.
+MIDAIR_OPERATING_POINT = OperatingPoint(
+    (MIDAIR_IMAGE_SIZE, MIDAIR_IMAGE_SIZE), (MIDAIR_IMAGE_SIZE / 2, MIDAIR_IMAGE_SIZE / 2), MIDAIR_STEP_TRANSLATION,
+    "Mid-Air at 384x384, 90-degree field of view; motion: the authors' Mid-Air training-split CSVs",
+)
 
 _VAR = r"/\.ATTRIBUTES/VARIABLE_VALUE$"
 _ENC_CONV = re.compile(r"^(?P<root>(?:.*/)?)conv_layers_s(?P<s>[12])/(?P<k>\d+)/(?P<p>kernel|bias)" + _VAR)
@@ -424,6 +439,8 @@ def convert_checkpoint(
 
 
 __all__ = [
+    "MIDAIR_OPERATING_POINT",
+    "MIDAIR_STEP_TRANSLATION",
     "Conversion",
     "convert_checkpoint",
     "convert_tensors",

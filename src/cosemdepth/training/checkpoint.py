@@ -41,6 +41,7 @@ from ..errors import CheckpointError
 from ..io.atomic import _fsync_dir, atomic_open, atomic_write_text
 from ..io.manifest import MANIFEST_FILE, MANIFEST_FORMAT, MANIFEST_VERSION, sha256_file, validate_manifest
 from ..io.model_io import read_model_files, save_weights
+from ..operating_point import OperatingPoint
 
 STATE_FILE = "trainer_state.json"
 OPTIMIZER_FILE = "optimizer.pt"
@@ -69,9 +70,10 @@ def _debug_delay() -> None:
 
 
 def save_model_files(state_dict: Mapping[str, torch.Tensor], config: ModelConfig, folder: Path,
-                     source: Mapping[str, Any]) -> None:
-    """Write ``model.safetensors`` + ``config.json`` into ``folder`` (our model format)."""
-    save_weights(state_dict, config, folder, source=source)
+                     source: Mapping[str, Any], operating_point: OperatingPoint | None = None) -> None:
+    """Write ``model.safetensors`` + ``config.json`` (with the run's ``operating_point``) into ``folder`` (our model
+    format)."""
+    save_weights(state_dict, config, folder, source=source, operating_point=operating_point)
 
 
 def read_model_state(folder: Path) -> dict[str, torch.Tensor]:
@@ -217,9 +219,10 @@ class CheckpointManager:
         trainer_state: Mapping[str, Any],
         rng_state: Mapping[str, Any],
         source: Mapping[str, Any] | None = None,
+        operating_point: OperatingPoint | None = None,
     ) -> Path:
         """Write the checkpoint of ``trainer_state["step"]`` atomically, then remove the oldest beyond
-        ``keep_last``. Returns its path."""
+        ``keep_last``. Returns its path. ``operating_point`` goes into its ``config.json``."""
         step = int(trainer_state["step"])
         final = self.folder / checkpoint_name(step)
         tmp = self.folder / f".tmp-{final.name}-{os.getpid()}"
@@ -228,7 +231,7 @@ class CheckpointManager:
             shutil.rmtree(tmp)
         tmp.mkdir()
         try:
-            save_model_files(model_state, model_config, tmp, dict(source or {}, step=step))
+            save_model_files(model_state, model_config, tmp, dict(source or {}, step=step), operating_point)
             _debug_delay()
             with atomic_open(tmp / OPTIMIZER_FILE, "wb") as f:
                 torch.save(optimizer_state, f)

@@ -27,6 +27,7 @@ from torch.utils.data import DataLoader, Dataset, DistributedSampler, Sampler
 from ..config import DataConfig, DatasetSource, ModelConfig, key_path
 from ..data import MixedDataset, dataset_spec, open_dataset
 from ..errors import ConfigError, DatasetError
+from ..operating_point import MotionStats, OperatingPoint
 from .toy import ToyDataset
 
 #: Seed stride between the sample orders of successive rollbacks (a rollback re-shuffles the rest of the epoch).
@@ -111,6 +112,26 @@ def build_val_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Datase
         raise DatasetError(f"{key} ({src.name}, split {data.val_split!r}) has no validation window of "
                            f"{data.val_seq_len} frames; set data.validate: false to train without validation")
     return ds
+
+
+def training_operating_point(dataset: Dataset, size: tuple[int, int], what: str = "data.train") -> OperatingPoint:
+    """The operating point a run trains at: the input ``size`` (``data.size``), the focal length in pixels of the
+    training data's intrinsics at that size, and the statistics of the per-step translations of its training windows
+    (``dataset.step_translations()``, read from the trajectories without decoding images; none when the dataset
+    cannot tell them). The intrinsics are the dataset's ``intrinsics`` (the first dataset's for a mix), else those
+    of its first item."""
+    intr = getattr(dataset, "intrinsics", None)
+    if intr is None and isinstance(dataset, MixedDataset):
+        intr = getattr(dataset.datasets[0], "intrinsics", None)
+    if intr is None:
+        intr = dataset[0]["intrinsics"]
+    fx, fy = (float(v) for v in torch.as_tensor(intr).reshape(-1)[:2])
+    steps = getattr(dataset, "step_translations", None)
+    norms = steps() if steps is not None else None
+    motion = MotionStats.from_samples(norms) if norms is not None and len(norms) else None
+    return OperatingPoint((int(size[0]), int(size[1])), (fx, fy), motion,
+                          f"cosemdepth train: {what} at {size[0]}x{size[1]}"
+                          + (f", {motion.count} window steps" if motion is not None else ""))
 
 
 def check_modalities(dataset: Dataset, model: ModelConfig, what: str) -> None:
@@ -256,5 +277,5 @@ def total_steps(epochs: int, per_epoch: int, max_steps: int) -> int:
 __all__ = [
     "SALT_STRIDE", "EpochBatchSampler", "EpochItems", "ResumableSampler", "build_train_dataset", "build_val_dataset",
     "check_modalities", "collate", "make_loader", "make_train_stream", "open_source", "steps_per_epoch", "to_device",
-    "total_steps",
+    "total_steps", "training_operating_point",
 ]

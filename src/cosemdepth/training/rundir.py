@@ -25,6 +25,7 @@ from ..errors import ConfigError
 from ..io.outdir import probe_writable
 from ..io.atomic import _fsync_dir, atomic_write_text
 from ..io.outdir import Input, check_not_input, check_not_other_input
+from ..operating_point import OperatingPoint
 from .checkpoint import _jsonable, save_model_files
 from .run_config import dump_config
 
@@ -154,9 +155,11 @@ def _diff(a: Any, b: Any, prefix: str):
 
 
 def save_best(run_dir: str | os.PathLike, model_state: Mapping[str, torch.Tensor], model_config: ModelConfig,
-              metrics: Mapping[str, Any], source: Mapping[str, Any]) -> Path:
-    """Replace ``RUN_DIR/best`` by a new model folder (with ``metrics.json``), atomically: the new folder is fully
-    written under a temporary name, then swapped in. :func:`recover_best` repairs an interrupted swap."""
+              metrics: Mapping[str, Any], source: Mapping[str, Any],
+              operating_point: OperatingPoint | None = None) -> Path:
+    """Replace ``RUN_DIR/best`` by a new model folder (with ``metrics.json``, and the run's ``operating_point`` in
+    its ``config.json``), atomically: the new folder is fully written under a temporary name, then swapped in.
+    :func:`recover_best` repairs an interrupted swap."""
     run_dir = Path(run_dir)
     best = run_dir / BEST_NAME
     tmp = run_dir / f".tmp-best-{os.getpid()}"
@@ -164,7 +167,7 @@ def save_best(run_dir: str | os.PathLike, model_state: Mapping[str, torch.Tensor
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
-        save_model_files(model_state, model_config, tmp, source)
+        save_model_files(model_state, model_config, tmp, source, operating_point)
         atomic_write_text(tmp / BEST_METRICS_NAME, json.dumps(_jsonable(dict(metrics, **source)), indent=2) + "\n")
         if best.exists():
             os.replace(best, old)

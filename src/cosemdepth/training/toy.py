@@ -66,6 +66,12 @@ class ToyDataset(Dataset):
     def set_epoch(self, epoch: int) -> None:
         """Items do not change across epochs (present for the loader protocol)."""
 
+    def step_translations(self) -> np.ndarray:
+        """``[length * (seq_len - 1)]`` norms of the per-step translations of the items (metres): every frame after
+        the first moves ``shift * altitude / f`` metres sideways."""
+        dx = self.shift * self.altitude / (self.size[1] / 2.0)
+        return np.full(self.length * (self.seq_len - 1), abs(float(np.float32(dx))))
+
     def _rng(self, index: int) -> np.random.Generator:
         key = zlib.crc32(f"{self.seed}/{self.split}/{index}".encode())
         return np.random.default_rng(key)

@@ -16,6 +16,9 @@ One :class:`Trainer` runs one run folder (layout in :mod:`cosemdepth.training.ru
   workers start once per run (and again after a rollback) and prefetch the next epoch's first batches while an
   epoch ends, validates and checkpoints; the batches are those of one loader per epoch, so the epoch
   accounting, resume and rollback are unchanged;
+* every model folder it writes (checkpoints, ``best``) records the run's operating point (``config.json``
+  ``"operating_point"``: ``data.size``, the training data's focal length in pixels at that size, and the statistics
+  of the per-step translations of its training windows; :func:`.data.training_operating_point`);
 * DistributedDataParallel when started by ``torchrun`` (rank 0 writes everything);
 * TensorBoard, a JSON-lines event log, a tqdm progress bar.
 
@@ -63,6 +66,7 @@ from .data import (
     steps_per_epoch,
     to_device,
     total_steps,
+    training_operating_point,
 )
 from .events import CONSOLE_KINDS, EventLog
 from .losses import FIRST_SUPERVISED_FRAME, LossTerms, total_loss
@@ -281,6 +285,8 @@ class Trainer:
         self.train_set = train_dataset if train_dataset is not None else build_train_dataset(
             config.data, config.model, tc.seed)
         check_modalities(self.train_set, config.model, "the training data")
+        #: What every model folder the run writes records (config.json "operating_point").
+        self.operating_point = training_operating_point(self.train_set, config.data.size)
         self.val_set = val_dataset if val_dataset is not None else build_val_dataset(
             config.data, config.model, tc.seed)
         if self.val_set is not None:
@@ -374,7 +380,8 @@ class Trainer:
                         steps_per_epoch=self.steps_per_epoch, world_size=dist.world_size, device=str(self.device),
                         bf16_autocast=bf16_supported(self.device) and bool(cfg.train.bf16),
                         num_parameters=self.model.num_parameters(), train_items=len(self.train_set),
-                        val_items=None if self.val_set is None else len(self.val_set))
+                        val_items=None if self.val_set is None else len(self.val_set),
+                        operating_point=self.operating_point.to_dict())
             self._save_checkpoint()
         if main:
             self.board = _make_board(self.run_dir / TENSORBOARD_NAME, self.state.step if path else None)
@@ -417,6 +424,7 @@ class Trainer:
                 trainer_state=self._trainer_state(),
                 rng_state=get_rng_state(),
                 source={"kind": "training", "run_dir": str(self.run_dir.absolute()), "epoch": self.state.epoch},
+                operating_point=self.operating_point,
             )
             self.events("checkpoint", path=str(path), step=self.state.step, epoch=self.state.epoch)
         D.barrier(self.dist)
@@ -575,7 +583,8 @@ class Trainer:
         if self.is_better(metrics, best):
             if self.dist.is_main:
                 path = save_best(self.run_dir, self.model.state_dict(), self.cfg.model, metrics,
-                                 {"step": st.step, "epoch": st.epoch, "rule": self.cfg.train.best})
+                                 {"step": st.step, "epoch": st.epoch, "rule": self.cfg.train.best},
+                                 self.operating_point)
                 self.events("best", step=st.step, epoch=st.epoch, path=str(path), rule=self.cfg.train.best,
                             metrics=metrics)
             D.barrier(self.dist)
