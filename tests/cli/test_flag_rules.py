@@ -124,3 +124,23 @@ def test_help_states_where_a_flag_applies():
     assert known["--image-topic"].help.endswith("[applies to --bag]")
     assert "[applies" not in known["--size"].help
     assert actions("demo")["--frames"].help.endswith(f"[applies to {flag_rules.GENERATED}]")
+
+
+def test_the_docs_table_is_the_code_table():
+    """docs/data.md's table of predict's inputs states RULES['predict'] (every restricted flag, its sources)."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "data.md").read_text()
+    section = text.split("## Which flags apply to which input", 1)[1].split("\n## ", 1)[0]
+    header, *rows = [ln for ln in section.splitlines() if ln.startswith("| `--") or ln.startswith("| flag |")]
+    sources = [c.strip(" `") for c in header.strip("|").split("|")[1:]]
+    documented = {}
+    for row in rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        if cells[0].startswith("every other flag"):
+            continue
+        where = tuple(s for s, c in zip(sources, cells[1:]) if c == "yes")
+        for flag in re.findall(r"`(--[a-z-]+)`", cells[0]):
+            documented[flag] = where
+    assert documented == dict(RULES["predict"].applies)
