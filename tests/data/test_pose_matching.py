@@ -147,3 +147,14 @@ def test_open_flight_keeps_what_was_matched(tmp_path):
     assert len(ds.trajectories[0].frames) == 5 and ds.pose_matching["skipped"] == 0
     with pytest.raises(ConfigError, match="match must be one of auto, stamp, order, index"):
         open_dataset("flight", tmp_path / "f", fov=90.0, match="timestamp")
+
+
+def test_frame_numbers_read_as_stamps_say_so(tmp_path):
+    track = read_poses(tum(tmp_path / "p.txt", [f"{0.04 * k:.2f}" for k in range(16)]))
+    with pytest.raises(DatasetError, match=r"000001\.png: no pose for timestamp 1\.000000 .*; the image names look "
+                       r"like zero-padded frame numbers: --match order \(one pose per image\) or index$"):
+        match_images(names(*(f"{k:06d}" for k in range(16))), track, match="stamp")
+    # frame numbers past the end of a longer track: index is suggested only for names that can be row numbers
+    with pytest.raises(DatasetError) as e:
+        match_images(names(*(3_000_000 + k for k in range(3))), track)
+    assert "--match index" not in str(e.value) and "to match by stamp anyway: --match stamp" in str(e.value)

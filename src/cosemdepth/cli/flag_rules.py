@@ -102,7 +102,7 @@ WEIGHTS, FRESH = "--model", "a freshly initialised model, without --model"
 RULES: dict[str, CommandRules] = {
     "predict": CommandRules(_INPUTS, _INPUT_FLAGS),
     "view": CommandRules(_INPUTS, _INPUT_FLAGS, not_taken={
-        "--out": _VIEW_WRITES, "--video": _VIEW_WRITES, "--fps": _VIEW_WRITES, "--rerun": _VIEW_WRITES + " (--rrd)",
+        "--out": _VIEW_WRITES, "--video": _VIEW_WRITES, "--fps": _VIEW_WRITES, "--rerun": _VIEW_WRITES + " (give the file as --rrd)",
         "--overwrite": _VIEW_WRITES + " (an existing one is replaced only if cosemdepth wrote it)",
         "--out-namespace": _VIEW_WRITES + " (no output bag)"}),
     "demo": CommandRules(

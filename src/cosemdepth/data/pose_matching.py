@@ -145,11 +145,11 @@ def _choose(images: list[Path], stems: list[str], track: PoseTrack, image_side: 
     past = sum(k >= rows for k in numbers)
     index = ("; if image k goes with pose row k (rows numbered from 0), pass --match index"
              + (f" (--skip-unposed leaves out the {past} past the last row)" if past else "")
-             if len(numbers) == n else "")
+             if len(numbers) == n and (past == 0 or _frame_number_names(stems)) else "")
     raise DatasetError(
         f"{track.path}: cannot tell how the {n} images of {images[0].parent} go with its {rows} poses: {why}, and "
-        f"the counts differ (so not one pose per image, --match order){index}; or name the images by their stamps "
-        f"(--match stamp, --skip-unposed to leave out images without a pose){hint}"
+        f"the counts differ (so not one pose per image, --match order){index}; to match by stamp anyway: --match "
+        f"stamp (--skip-unposed leaves out images without a pose){hint}"
     )
 
 
@@ -167,6 +167,8 @@ def _by_stamp(images: list[Path], raw: list, track: PoseTrack, image_side: Stamp
     span = pose_side.seconds[-1] - pose_side.seconds[0]
 
     def hint(distance: float) -> str:
+        if _frame_number_names([p.stem for p in images]):
+            return "the image names look like zero-padded frame numbers: --match order (one pose per image) or index"
         text = unit_hint(image_side, pose_side, max_gap)
         far = distance > max(span, 60.0)
         return text if far or "pass --stamp-unit" in text else ""
