@@ -104,7 +104,7 @@ CASES = [
      "{T}/notes.rrd"),
     (["predict", "--model", "{M}", *EVAL, "--out", "{T}/p", "--rerun", "{T}/p/x.rrd"], "{T}/p"),
     (["view", "--model", "{M}", *EVAL, "--rrd", "{T}/notes.txt"], "{T}/notes.txt"),
-    (["view", "--model", "{M}", *EVAL, "--rrd", "{T}/notes.rrd", "--overwrite"], "{T}/notes.rrd"),
+    (["view", "--model", "{M}", *EVAL, "--rrd", "{T}/notes.rrd"], "{T}/notes.rrd"),
     (["view", "--model", "{M}", *EVAL, "--rrd", "{M}/x.rrd"], "{M}"),
     (["view", "--model", "{M}", *EVAL, "--rrd", "{D}/x.rrd"], "{D}"),
     (["view", "--model", "{M}", *EVAL, "--rrd", "{T}/notes.txt/x.rrd"], "{T}/notes.txt"),

@@ -12,6 +12,7 @@ from cosemdepth.cli._shared import MODEL_SIZE_RULE, parse_size_pair
 from cosemdepth.cli.main import COMMANDS, build_parser
 from cosemdepth.config import DataConfig, ModelConfig, RunConfig
 from cosemdepth.data.bag_flight import open_bag_flight
+from cosemdepth.data.flight import open_flight
 from cosemdepth.data.registry import DATASETS, split_datasets
 from cosemdepth.data.synthair.writer import SynthConfig
 from cosemdepth.demo import run_demo
@@ -71,8 +72,15 @@ def test_predict_defaults_are_the_functions_it_calls():
     fn = defaults_of(predict)
     assert (args.video, args.fps, args.lanes, args.workers) == (fn["video"], fn["fps"], fn["lanes"], fn["num_workers"])
     bag = defaults_of(open_bag_flight)
-    assert (args.max_pose_gap, args.jpeg_idct, args.frame_skip) == (bag["max_pose_gap"], bag["jpeg_idct"],
-                                                                     bag["frame_skip"])
+    assert (args.jpeg_idct, args.frame_skip) == (bag["jpeg_idct"], bag["frame_skip"])
+    flight = defaults_of(open_flight)
+    assert (args.match, args.stamp_unit, args.frame_skip, args.skip_unposed) == (
+        flight["match"], flight["stamp_unit"], flight["frame_skip"], flight["skip_unposed"])
+    # --max-pose-gap: each source's own default, stated in the help
+    assert args.max_pose_gap is None
+    helps = {a.dest: a.help for a in subparser("predict")._actions}
+    assert (f"{flight['max_gap']:g} for --flight, {bag['max_pose_gap']:g} for --bag"
+            in helps["max_pose_gap"])
 
 
 def test_demo_defaults_are_run_demo_s():

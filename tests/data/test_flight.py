@@ -170,7 +170,7 @@ def test_timestamps_that_do_not_match_name_the_image(tmp_path):
     write_images(tmp_path / "f", ["1.000000.png", "1.100000.png", "1.500000.png"])
     write_tum(tmp_path / "f" / "poses.txt")
     with pytest.raises(DatasetError, match=r"1\.500000\.png: no pose for timestamp 1\.500000 in .*poses\.txt"):
-        open_dataset("flight", tmp_path / "f", fov=90.0, match="timestamp")
+        open_dataset("flight", tmp_path / "f", fov=90.0, match="stamp")
     # a gap larger than max_gap is not interpolated
     write_images(tmp_path / "g", ["1.000000.png", "1.150000.png"])
     write_tum(tmp_path / "g" / "poses.txt", times=[1.0, 1.1, 1.4, 1.5])

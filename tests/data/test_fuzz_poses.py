@@ -120,7 +120,7 @@ def test_fuzz_flight_poses(tmp_path_factory, truth, data):
         assert np.isfinite(traj.rot).all() and np.isfinite(traj.trans).all()
         np.testing.assert_allclose(np.linalg.norm(traj.rot, axis=1), 1.0, atol=1e-5)
 
-    match = data.draw(st.sampled_from(("order", "auto", "timestamp"))) if data is not None else "order"
+    match = data.draw(st.sampled_from(("order", "auto", "stamp"))) if data is not None else "order"
     if match != "order":  # images named by the poses' timestamps (or near them), matched by timestamp
         for old in root.glob("*.png"):
             old.unlink()

@@ -89,11 +89,11 @@ def test_view_a_dataset_with_metrics(model_dir, data, tmp_path, capsys):
     assert main(argv) == 0
     capsys.readouterr()
     rrd.write_bytes(b"my own notes")
-    for extra in ([], ["--overwrite"]):
+    for extra, message in (([], f"{rrd}: the --rrd recording exists and was not written by cosemdepth"),
+                           (["--overwrite"], "--overwrite does not apply to view")):  # view has no --overwrite
         assert main([*argv, *extra]) == 2
         err = capsys.readouterr().err.strip()
-        assert err.startswith(f"cosemdepth view: error: {rrd}: the --rrd recording exists and was not written by "
-                              "cosemdepth") and "\n" not in err
+        assert err.startswith(f"cosemdepth view: error: {message}") and "\n" not in err
         assert rrd.read_bytes() == b"my own notes"
     assert not leftovers(tmp_path)
 

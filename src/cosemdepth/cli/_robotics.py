@@ -23,11 +23,6 @@ def add_robotics_args(parser: argparse.ArgumentParser) -> None:
                      "poses of the body (axes: --convention, default flu = REP 103) or of the camera")
     bag.add_argument("--camera-info-topic", metavar="T", help="sensor_msgs/CameraInfo topic for the intrinsics "
                      "(instead of --intrinsics / --hfov)")
-    bag.add_argument("--max-pose-gap", type=float, default=DEFAULT_MAX_POSE_GAP, metavar="S",
-                     help="interpolate an image's pose only between poses at most S seconds apart (default "
-                     f"{DEFAULT_MAX_POSE_GAP:g})")
-    bag.add_argument("--skip-unposed", action="store_true",
-                     help="skip images without poses around them (counted in the report) instead of failing")
     bag.add_argument("--ignore-distortion", action="store_true",
                      help="use camera_info's K even when it has a non-zero distortion")
     bag.add_argument("--out-namespace", default=DEFAULT_NAMESPACE, metavar="NS",
@@ -51,8 +46,6 @@ def check_args(args: argparse.Namespace) -> None:
                               "--hfov DEG")
         if args.hfov is not None and not 0 < args.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {args.hfov}")
-        if not args.max_pose_gap >= 0:
-            raise ConfigError(f"--max-pose-gap must be >= 0 seconds, got {args.max_pose_gap}")
         check_namespace(args.out_namespace)
     if getattr(args, "rerun", None) is not None:
         require_rerun()  # the file itself is checked with the command's inputs (cli.predict.inputs)
@@ -67,7 +60,8 @@ def open_bag(args: argparse.Namespace, size=None):
     flight = open_bag_flight(
         args.bag, args.image_topic, args.pose_topic, camera_info_topic=args.camera_info_topic,
         intrinsics=args.intrinsics, fov=args.hfov, convention=args.convention or "flu",
-        frame_skip=args.frame_skip, max_pose_gap=args.max_pose_gap, skip_unposed=args.skip_unposed,
+        frame_skip=args.frame_skip, skip_unposed=args.skip_unposed,
+        max_pose_gap=DEFAULT_MAX_POSE_GAP if args.max_pose_gap is None else args.max_pose_gap,
         ignore_distortion=args.ignore_distortion, size=size, jpeg_idct=args.jpeg_idct,
     )
     dataset = flight.dataset

@@ -14,6 +14,7 @@ import os
 import sys
 
 from ..errors import CosemdepthError
+from . import flag_rules
 
 #: name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -57,6 +58,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_, description=help_)
         if only is None or only == name:
             importlib.import_module(mod).configure(p)
+            flag_rules.track(p, name)
     return parser
 
 
@@ -70,6 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     module = importlib.import_module(COMMANDS[args.command][0])
     try:
+        flag_rules.check(args.command, args)  # a flag given that does not apply to the chosen input: exit 2
         return int(module.run(args) or 0)
     except CosemdepthError as e:
         # one line, whatever a wrapped library message holds (YAML and JSON parsers put line breaks in theirs)

@@ -20,7 +20,10 @@ import sys
 from pathlib import Path
 
 from ..data import open_dataset
+from ..data.bag_flight import DEFAULT_MAX_POSE_GAP
+from ..data.pose_matching import DEFAULT_MAX_GAP, MATCHES
 from ..data.poses import CONVENTIONS
+from ..data.stamps import UNITS, parse_stamp_unit
 from ..errors import ConfigError
 from ..evaluation.predict import predict
 from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
@@ -29,7 +32,8 @@ from ..io.rerun_writer import check_rrd_path
 from ..io.staging import StagedDir
 from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
 from ._shared import (add_model_args, apply_threads, add_run_args, add_split_args, input_size, load,
-                      model_operating_point, parse_size, size_help, warn_far_size)
+                      model_operating_point, parse_size, positive_int, size_help, warn_far_size)
+from .flag_rules import explicit
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -47,7 +51,21 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         "--intrinsics; square pixels, centred principal point)")
     flight.add_argument("--convention", default=None, choices=tuple(CONVENTIONS),
                         help="axes of the posed frame (default opencv: x right, y down, z forward; flu for --bag)")
-    flight.add_argument("--frame-skip", type=int, default=1, metavar="K", help="keep every K-th image (default 1)")
+    flight.add_argument("--frame-skip", type=positive_int, default=1, metavar="K",
+                        help="keep every K-th image (default 1)")
+    flight.add_argument("--match", choices=MATCHES, default="auto",
+                        help="which pose goes with which image (default auto): stamp (image names are stamps), "
+                        "order (the n-th pose row for the n-th image), index (image names are frame numbers "
+                        "indexing the pose rows from 0), auto (stamp if every name is a stamp within the poses' "
+                        "time range, else order if there is one pose per image; docs/data.md)")
+    flight.add_argument("--stamp-unit", default="auto", metavar="U",
+                        help=f"unit of the stamps: {', '.join(UNITS)} for image names and pose stamps, or "
+                        "IMAGES,POSES (e.g. ns,s); default auto: the unit in which they are dates since 1970, else s")
+    flight.add_argument("--max-pose-gap", type=float, default=None, metavar="S",
+                        help="interpolate an image's pose only between poses at most S seconds apart (default: "
+                        f"{DEFAULT_MAX_GAP:g} for --flight, {DEFAULT_MAX_POSE_GAP:g} for --bag)")
+    flight.add_argument("--skip-unposed", action="store_true",
+                        help="leave out images without a pose (counted in the summary) instead of failing")
     parser.add_argument("--size", type=parse_size, default=None, metavar="S",
                         help=size_help()[:-1] + "; the image size for flights and bags)")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (new, empty, or the "
@@ -66,6 +84,8 @@ def _validate(args: argparse.Namespace) -> None:
     """The argument checks that need no file."""
     if args.workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {args.workers}")
+    if args.max_pose_gap is not None and not args.max_pose_gap >= 0:
+        raise ConfigError(f"--max-pose-gap must be >= 0 seconds, got {args.max_pose_gap}")
     check_args(args)
     if args.bag is not None:
         return
@@ -80,6 +100,13 @@ def _validate(args: argparse.Namespace) -> None:
             raise ConfigError("--flight needs exactly one of --intrinsics FX FY CX CY and --hfov DEG")
         if args.hfov is not None and not 0 < args.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {args.hfov}")
+        parse_stamp_unit(args.stamp_unit)
+        given = explicit(args)
+        # flags of matching by stamp, given with a rule that reads no image stamps
+        for flag, rules in (("--max-pose-gap", ("order", "index")), ("--skip-unposed", ("order",))):
+            if flag in given and args.match in rules:
+                raise ConfigError(f"{flag} does not apply to --match {args.match} (every image takes a pose row as "
+                                  "it is; no interpolation between poses)")
     elif not args.dataset or args.root is None:
         raise ConfigError("give --dataset NAME --root ROOT (a dataset split), or --flight --images DIR --poses FILE")
 
@@ -94,7 +121,9 @@ def _open(args: argparse.Namespace):
     elif args.flight:
         dataset = open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
                                convention=args.convention or "opencv", frame_skip=args.frame_skip, seq_len=1,
-                               size=size, jpeg_idct=args.jpeg_idct)
+                               size=size, jpeg_idct=args.jpeg_idct, match=args.match, stamp_unit=args.stamp_unit,
+                               max_gap=DEFAULT_MAX_GAP if args.max_pose_gap is None else args.max_pose_gap,
+                               skip_unposed=args.skip_unposed)
     else:
         dataset = open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
                                size=size, jpeg_idct=args.jpeg_idct)
@@ -109,6 +138,12 @@ def command_inputs(args: argparse.Namespace) -> list:
         ("--bag", args.bag)) if p is not None)]
 
 
+def flight_report(dataset) -> str:
+    """``"; flight: 16 of 16 images matched to poses by stamp (...)"`` for a flight, else ``""``."""
+    matching = getattr(dataset, "pose_matching", None)
+    return f"; flight: {matching['describe']}" if matching else ""
+
+
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
     _validate(args)
@@ -120,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
     info = {
         "model": {"path": str(args.model)},
         "dataset": {"root": str(args.bag if args.bag else args.images if args.flight else args.root),
-                    "split": None if args.flight else args.split},
+                    "split": None if args.flight else args.split,
+                    **({"pose_matching": dataset.pose_matching} if hasattr(dataset, "pose_matching") else {})},
         "device": str(device),
     }
     manifest = predict(model, dataset, args.out, video=args.video, fps=args.fps, max_frames=args.max_frames,
@@ -131,6 +167,6 @@ def run(args: argparse.Namespace) -> int:
     n = manifest["frames_written"]
     videos = [t["video"] for t in manifest["trajectories"] if "video" in t]
     print(f"wrote {n} frames of {len(manifest['trajectories'])} trajectories to {args.out}"
-          + (f"; videos: {', '.join(str(args.out / v) for v in videos)}" if videos else "") + bag_report(dataset)
+          + (f"; videos: {', '.join(str(args.out / v) for v in videos)}" if videos else "") + bag_report(dataset) + flight_report(dataset)
           + (f"; rerun recording: {args.rerun}" if args.rerun else ""))
     return 0

@@ -22,10 +22,10 @@ from ..evaluation.streaming import make_schedule, stream, trajectory_rows
 from ..io.rerun_writer import check_rrd_path, require_rerun
 from ._robotics import make_sinks
 from ._shared import apply_threads, load
-from .predict import _open, _validate, command_inputs
+from .predict import _open, _validate, command_inputs, flight_report
 from .predict import configure as configure_predict
 
-#: predict's arguments that do not apply to view (hidden from its help, ignored).
+#: predict's arguments that do not apply to view (hidden from its help; refused when given: cli.flag_rules).
 _PREDICT_ONLY = ("out", "video", "fps", "rerun", "out_namespace")
 
 
@@ -66,5 +66,6 @@ def run(args: argparse.Namespace) -> int:
         flight = getattr(dataset, "bag_flight", None)
         if flight is not None:
             flight.close()
-    print(f"wrote a rerun recording of {info['rerun']['frames']} frames to {args.rrd}; open it with: rerun {args.rrd}")
+    print(f"wrote a rerun recording of {info['rerun']['frames']} frames to {args.rrd}; open it with: rerun {args.rrd}"
+          + flight_report(dataset))
     return 0

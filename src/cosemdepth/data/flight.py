@@ -12,16 +12,9 @@ Inputs:
   convention (pixel centres at integer coordinates, centred ``cx = (W-1)/2``) need ``+0.5``:
   pass ``intrinsics_convention="opencv"`` to have it added.
 
-Matching images to poses (``match``):
-
-* ``"timestamp"``: image file stems are timestamps in the pose file's unit (e.g. ``1305031102.175304.png``); each
-  image takes the pose with the same timestamp, or the interpolation of the two poses around it when they are at
-  most ``max_gap`` seconds apart; otherwise a DatasetError names the image;
-* ``"order"``: one pose per image: the n-th pose (file order) goes with the n-th image (natural sort of the names);
-  a count mismatch is a DatasetError;
-* ``"auto"`` (default): ``"timestamp"`` when every image stem is a number, the pose file has timestamps and at
-  least one image stem falls in the poses' time range; else ``"order"`` (so ``000001.png`` ... with a pose file
-  in seconds since 1970 is matched by order).
+Matching images to poses (``match``: ``"auto"``, ``"stamp"``, ``"order"``, ``"index"``; ``stamp_unit``;
+``max_gap``; ``skip_unposed``): see :mod:`cosemdepth.data.pose_matching`. What was matched, and why, is kept as
+``dataset.pose_matching`` (:meth:`~cosemdepth.data.pose_matching.PoseMatch.summary`, plus ``"describe"``: one line).
 
 ``frame_skip = k`` keeps images 0, k, 2k, ... (after matching). The first kept frame is a reset with the identity
 motion; every other frame carries the motion from the previous kept frame, ``X_prev = R X_curr + t`` in camera axes
@@ -51,7 +44,8 @@ from .augment import resolve_augment
 from .decode import (DEFAULT_JPEG_IDCT, check_image_size, check_jpeg_idct, check_nonnegative, image_size, read_label_ids,
                      read_rgb, read_uint16_png)
 from .frames import Size, depth_to_tensor, labels_to_tensor, resolve_size, rgb_to_tensor
-from .poses import poses_at, read_poses, relative_camera_motions
+from .pose_matching import DEFAULT_MAX_GAP, match_images
+from .poses import read_poses, relative_camera_motions
 from .sequence import FrameRecord, SequenceDataset, Trajectory
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png")
@@ -61,14 +55,6 @@ DEFAULT_POSE_FILES = ("poses.txt", "poses.tum", "poses.csv", "groundtruth.txt")
 def natural_key(name: str) -> list:
     """Sort key putting ``img2`` before ``img10``."""
     return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", name)]
-
-
-def _as_number(stem: str) -> float | None:
-    try:
-        v = float(stem)
-    except ValueError:
-        return None
-    return v if math.isfinite(v) else None
 
 
 def list_images(folder: Path) -> list[Path]:
@@ -207,8 +193,10 @@ def open_flight(
     fov: float | None = None,
     intrinsics_convention: str = "model",
     match: str = "auto",
+    stamp_unit="auto",
     frame_skip: int = 1,
-    max_gap: float = 0.1,
+    max_gap: float = DEFAULT_MAX_GAP,
+    skip_unposed: bool = False,
     depth_dir: str | Path | None = None,
     depth_scale: float = 0.001,
     semantic_dir: str | Path | None = None,
@@ -235,31 +223,9 @@ def open_flight(
     if not isinstance(frame_skip, int) or frame_skip < 1:
         raise ConfigError(f"frame_skip must be a positive integer, got {frame_skip!r}")
 
-    stamps = [_as_number(p.stem) for p in images]
-    if match == "auto":
-        match = "order"
-        if all(s is not None for s in stamps) and track.timestamps is not None:
-            lo, hi = track.timestamps[0] - max_gap, track.timestamps[-1] + max_gap
-            if any(lo <= s <= hi for s in stamps):
-                match = "timestamp"
-    if match == "timestamp":
-        bad = [p for p, s in zip(images, stamps) if s is None]
-        if bad:
-            raise DatasetError(f"{bad[0]}: image name is not a timestamp (needed by match='timestamp')")
-        order = np.argsort(np.array(stamps, dtype=np.float64), kind="stable")
-        images = [images[i] for i in order]
-        times = np.array([stamps[i] for i in order], dtype=np.float64)
-        pos, quat = poses_at(track, times, [str(p) for p in images], max_gap)
-    elif match == "order":
-        if len(track) != len(images):
-            raise DatasetError(
-                f"{track.path}: {len(track)} poses for {len(images)} images in {images[0].parent} "
-                "(match='order' needs one pose per image)"
-            )
-        pos, quat = track.positions, track.quaternions
-        times = track.timestamps
-    else:
-        raise ConfigError(f"match must be 'auto', 'timestamp' or 'order', got {match!r}")
+    matched = match_images(images, track, match=match, stamp_unit=stamp_unit, max_gap=max_gap,
+                           skip_unposed=skip_unposed)
+    images, pos, quat, times = matched.images, matched.positions, matched.quaternions, matched.times
 
     keep = np.arange(0, len(images), frame_skip)
     images = [images[i] for i in keep]
@@ -287,14 +253,14 @@ def open_flight(
                 semantic=_companion(semantic_dir, img.stem, (".png",), "label") if semantic_dir else None,
                 rot=tuple(float(v) for v in q_rel[i]),
                 trans=tuple(float(v) for v in t_rel[i]),
-                id=int(keep[i]),
+                id=int(matched.indices[keep[i]]),
                 timestamp=float(times[i]) if times is not None else None,
             )
         )
     native = image_size(images[0])
     k_native = parse_intrinsics(intrinsics, fov, native, intrinsics_convention)
     out_size = resolve_size(size, lambda: (native, float(k_native[0]))) or native
-    return SequenceDataset(
+    dataset = SequenceDataset(
         [Trajectory.from_records(root.name, frames)],
         FlightFrameLoader(out_size, native, depth_scale, num_classes, jpeg_idct),
         scale_intrinsics(k_native, native, out_size),
@@ -305,3 +271,5 @@ def open_flight(
         seed=seed,
         name=name,
     )
+    dataset.pose_matching = {**matched.summary(), "describe": matched.describe()}
+    return dataset

@@ -31,6 +31,7 @@ import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -197,34 +198,47 @@ def interpolate_pose(a: float, p0: np.ndarray, q0: np.ndarray, p1: np.ndarray,
 
 
 def poses_at(track: PoseTrack, times: np.ndarray, names: list[str], max_gap: float,
-             exact_tolerance: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-    """Poses at ``times``: the pose with the same timestamp (within ``exact_tolerance`` s), else the interpolation
-    (linear position, slerp rotation) of the two poses around it when they are at most ``max_gap`` s apart.
+             exact_tolerance: float = 1e-6, *, pose_times: np.ndarray | None = None, skip_unposed: bool = False,
+             hint: Callable[[float], str] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Poses at ``times`` (seconds): the pose with the same timestamp (within ``exact_tolerance`` s), else the
+    interpolation (linear position, slerp rotation) of the two poses around it when they are at most ``max_gap`` s
+    apart. ``pose_times``: the track's timestamps in seconds (default: ``track.timestamps`` as written).
 
-    Raises a DatasetError naming ``names[i]`` (the image) and the pose file when no pose matches ``times[i]``.
+    Returns ``(positions [N, 3], quaternions [N, 4], posed [N] bool)``. A time without a pose is a DatasetError
+    naming ``names[i]`` (the image) and the pose file, ending with ``hint(distance to the nearest pose)`` when that
+    is not empty; with ``skip_unposed`` its ``posed`` entry is False instead (and its pose rows are NaN).
     """
     if track.timestamps is None:
         raise DatasetError(f"{track.path}: pose file has no timestamp column; match images by order instead")
-    ts = track.timestamps
-    pos = np.empty((len(times), 3))
-    quat = np.empty((len(times), 4))
+    ts = track.timestamps if pose_times is None else np.asarray(pose_times, dtype=np.float64)
+    pos = np.full((len(times), 3), np.nan)
+    quat = np.full((len(times), 4), np.nan)
+    posed = np.zeros(len(times), dtype=bool)
     for i, t in enumerate(times):
         k = int(np.searchsorted(ts, t))
         near = [j for j in (k - 1, k) if 0 <= j < len(ts)]
         j_best = min(near, key=lambda j: abs(ts[j] - t))
         if abs(ts[j_best] - t) <= exact_tolerance:
             pos[i], quat[i] = track.positions[j_best], track.quaternions[j_best]
+            posed[i] = True
             continue
         if 0 < k < len(ts) and ts[k] - ts[k - 1] <= max_gap + 1e-9:
             a = (t - ts[k - 1]) / (ts[k] - ts[k - 1])
             pos[i], quat[i] = interpolate_pose(a, track.positions[k - 1], track.quaternions[k - 1],
                                                track.positions[k], track.quaternions[k])
+            posed[i] = True
             continue
+        if skip_unposed:
+            continue
+        around = (f"poses {t - ts[k - 1]:.6f} s before and {ts[k] - t:.6f} s after, {ts[k] - ts[k - 1]:.6f} s apart"
+                  if 0 < k < len(ts) else f"nearest pose {ts[j_best] - t:+.6f} s away")
+        extra = hint(abs(ts[j_best] - t)) if hint is not None else ""
         raise DatasetError(
-            f"{names[i]}: no pose for timestamp {t:.6f} in {track.path} (nearest pose {ts[j_best] - t:+.6f} s away, "
-            f"poses cover {ts[0]:.6f}..{ts[-1]:.6f} s, interpolation only across gaps <= {max_gap} s)"
+            f"{names[i]}: no pose for timestamp {t:.6f} in {track.path} ({around}; poses cover {ts[0]:.6f}.."
+            f"{ts[-1]:.6f} s; interpolation only across gaps <= {max_gap:g} s: --max-pose-gap, or --skip-unposed)"
+            + (f"; {extra}" if extra else "")
         )
-    return pos, quat
+    return pos, quat, posed
 
 
 def convention_matrix(convention: str | np.ndarray) -> np.ndarray:
