@@ -20,6 +20,8 @@ _LAZY = {
     "save_model": ("cosemdepth.io.model_io", "save_model"),
     "build_model": ("cosemdepth.models", "build_model"),
     "ModelConfig": ("cosemdepth.config", "ModelConfig"),
+    "Streamer": ("cosemdepth.inference.policy", "Streamer"),
+    "StreamPolicy": ("cosemdepth.inference.policy", "StreamPolicy"),
 }
 
 __getattr__ = _lazy_getattr(__name__, _LAZY)

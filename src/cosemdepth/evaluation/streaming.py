@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterator, Sequence
 
 import torch
@@ -23,6 +23,7 @@ from torch.utils.data import DataLoader
 
 from ..data.loader import collate
 from ..errors import ConfigError, NonFiniteOutputError
+from ..inference.policy import EVERY_FRAME, Streamer
 
 
 @dataclass(frozen=True)
@@ -101,6 +102,10 @@ class StreamBatch:
         depth: predicted ``[B, 1, H, W]`` metres or None; semantic: ``[B, N, H, W]`` probabilities or None;
             labels: ``[B, H, W]`` int64 argmax or None.
         seconds: wall time of the model step (synchronised on CUDA).
+        valid: ``[B, 1, H, W]`` bool, the depth pixels that are estimates (None without depth); status: per frame
+            ``"reset"``, ``"estimated"`` or ``"held"``; baseline: ``[B]`` metres from the frame the depth was
+            estimated against (see :class:`~cosemdepth.models.outputs.StepOutput`).
+        rot, trans: ``[B, 4]``, ``[B, 3]`` the input motion (previous -> current frame).
     """
 
     indices: list[int]
@@ -115,13 +120,22 @@ class StreamBatch:
     semantic: torch.Tensor | None
     labels: torch.Tensor | None
     seconds: float
+    valid: torch.Tensor | None = None
+    status: list[str] = field(default_factory=list)
+    baseline: torch.Tensor | None = None
+    rot: torch.Tensor | None = None
+    trans: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return len(self.indices)
 
 
 def _slice_state(state, rows: list[int]):
-    if state is None or not state.flatten():
+    if state is None:
+        return state
+    if hasattr(state, "select"):
+        return state.select(rows)
+    if not state.flatten():
         return state
     idx = torch.tensor(rows, device=state.flatten()[0].device)
     return type(state)(**{k: tuple(t.index_select(0, idx) for t in v) for k, v in state.components.items()})
@@ -183,11 +197,15 @@ def stream(
     max_frames: int | None = None,
     num_workers: int = 0,
     schedule: Sequence[StepPlan] | None = None,
+    policy=EVERY_FRAME,
 ) -> Iterator[StreamBatch]:
     """Run ``model.step`` over ``dataset`` (see the module docstring) and yield one :class:`StreamBatch` per step.
 
     Args:
-        model: a :class:`~cosemdepth.models.SceneModel` (or anything with the same ``step`` and ``parameters``).
+        model: a :class:`~cosemdepth.models.SceneModel` (or anything with the same ``step`` and ``parameters``), or a
+            :class:`~cosemdepth.inference.Streamer` (then ``policy`` is ignored).
+        policy: the streaming policy (:class:`~cosemdepth.inference.StreamPolicy` or its mode name):
+            ``"every-frame"`` (default: the paper's protocol) or ``"baseline"``.
         dataset: stream-mode, ``seq_len = 1`` dataset from :func:`cosemdepth.data.open_dataset`.
         lanes: trajectories streamed side by side (batch size); 1 as the original.
         max_frames: only the first ``max_frames`` rows of the dataset (in order).
@@ -198,6 +216,7 @@ def stream(
         schedule = make_schedule(trajectory_rows(dataset, max_frames), lanes)
     device = _model_device(model)
     dtype = _model_dtype(model)
+    streamer = model if isinstance(model, Streamer) else Streamer(model, policy)
     loader = DataLoader(dataset, batch_sampler=[list(s.indices) for s in schedule], collate_fn=collate,
                         num_workers=num_workers)
     state = None
@@ -216,7 +235,7 @@ def stream(
             reset_dev = reset.to(device)
             _sync(device)
             t0 = time.perf_counter()
-            out, state = model.step(rgb, rot, trans, intr, reset_dev, state)
+            out, state = streamer.step(rgb, rot, trans, intr, reset_dev, state)
             _sync(device)
             seconds = time.perf_counter() - t0
             check_finite_outputs(out, dataset, list(step.indices), list(batch["trajectory"]), batch["frame"][:, 0])
@@ -235,6 +254,11 @@ def stream(
                 semantic=out.semantic,
                 labels=None if out.semantic is None else out.semantic.argmax(dim=1),
                 seconds=seconds,
+                valid=out.valid,
+                status=list(out.status),
+                baseline=out.baseline,
+                rot=rot,
+                trans=trans,
             )
 
 

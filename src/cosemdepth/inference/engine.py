@@ -274,6 +274,7 @@ class FastEngine:
         intrinsics: torch.Tensor,
         reset: Optional[torch.Tensor] = None,
         state: Optional[StreamState] = None,
+        decoders=None,
     ) -> tuple[StepOutput, StreamState]:
         """Same contract as :meth:`SceneModel.step` (inputs are moved to the engine's device)."""
         dev = self.device
@@ -286,7 +287,7 @@ class FastEngine:
         size = tuple(rgb.shape[-2:])
         result = decode_step(
             self.decoders, feats, rot, trans, intrinsics, reset, state,
-            lambda x: upsample_nearest(x, size, half_pixel=True), self.ops, self.static,
+            lambda x: upsample_nearest(x, size, half_pixel=True), self.ops, self.static, only=decoders,
         )
         if self._calibrating:
             self._calibrating -= 1

@@ -200,6 +200,7 @@ class SceneModel(nn.Module):
         intrinsics: torch.Tensor,
         reset: Optional[torch.Tensor] = None,
         state: Optional[StreamState] = None,
+        decoders: Optional[Sequence[str]] = None,
     ) -> tuple[StepOutput, StreamState]:
         """Process one frame per sample, streaming.
 
@@ -210,17 +211,29 @@ class SceneModel(nn.Module):
             intrinsics: ``[B, 4]`` = (fx, fy, cx, cy) in pixels of the input size.
             reset: ``[B]`` bool, True where a sample starts a new trajectory (None: no reset).
             state: the state returned by the previous call, or None for a fresh start (every sample resets).
+            decoders: run only these decoders (names of :attr:`decoders`, e.g. ``("semantic",)``); the state of the
+                others passes through unchanged (default: all).
         Returns:
             ``(out, new_state)``; ``out.depth [B,1,H,W]`` metres and ``out.semantic [B,N,H,W]`` probabilities at the
-            input size (nearest upsampling of the finest level), ``out.levels`` the per-level maps.
+            input size (nearest upsampling of the finest level), ``out.levels`` the per-level maps; ``out.valid``
+            ``[B,1,H,W]`` the depth pixels that are estimates and ``out.status`` per sample ``"reset"`` or
+            ``"estimated"`` (every frame is estimated from the previous one; the baseline-aware policy of
+            :class:`~cosemdepth.inference.Streamer` also holds frames).
         """
         _check_inputs(rgb, rot, trans, intrinsics, reset, sequence=False)
+        if decoders is not None:
+            unknown = sorted(set(decoders) - set(self.decoders))
+            if unknown:
+                raise ValueError(f"argument decoders: {unknown} not among this model's {list(self.decoders)}")
+            if not decoders:  # nothing to run: the state passes through
+                return StepOutput(None, None), state if state is not None else StreamState()
         streamer = self._streamer()
         if streamer is not None:
-            return streamer.step(rgb, rot, trans, intrinsics, reset, state)
+            return streamer.step(rgb, rot, trans, intrinsics, reset, state, decoders=decoders)
         size = tuple(rgb.shape[-2:])
         feats = self.encoder(rgb)
-        return decode_step(self.decoders, feats, rot, trans, intrinsics, reset, state, lambda x: resize_nn2(x, size))
+        return decode_step(self.decoders, feats, rot, trans, intrinsics, reset, state, lambda x: resize_nn2(x, size),
+                           only=decoders)
 
     @torch.no_grad()
     def infer(

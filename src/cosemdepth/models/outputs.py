@@ -72,6 +72,12 @@ class StreamState:
         return all(torch.equal(a, b) for a, b in zip(self.flatten(), other.flatten()))
 
 
+#: Per-frame depth status (``StepOutput.status``): no depth (a reset frame, and the frames after it until the camera
+#: has moved far enough), depth estimated from parallax, depth carried from the reference frame.
+RESET, ESTIMATED, HELD = "reset", "estimated", "held"
+STATUSES = (RESET, ESTIMATED, HELD)
+
+
 @dataclass
 class StepOutput:
     """Output of one streaming step.
@@ -82,12 +88,21 @@ class StepOutput:
         levels: per-level maps, finest first: keys ``depth``, ``parallax``, ``depth_other``, ``semantic``,
             ``semantic_logits``, ``semantic_other`` (those the model has, and those of any further decoder).
         heads: the input-size output of every decoder by its head name (``depth``, ``semantic``, ...).
+        valid: ``[B, 1, H, W]`` bool, the depth pixels that are estimates: False on every pixel of a reset frame, where
+            the depth is not finite or not positive, and where parallax -> depth is ill-conditioned (near the focus of
+            expansion, too little translation; :mod:`cosemdepth.geometry.validity`). None without depth.
+        status: per sample, :data:`RESET`, :data:`ESTIMATED` or :data:`HELD` (empty without depth).
+        baseline: ``[B]`` metres, the translation from the frame the depth was estimated against (the previous frame,
+            or the streaming policy's reference frame; 0 on reset frames). None without depth.
     """
 
     depth: Optional[Tensor]
     semantic: Optional[Tensor]
     levels: dict[str, list[Tensor]] = field(default_factory=dict)
     heads: dict[str, Tensor] = field(default_factory=dict)
+    valid: Optional[Tensor] = None
+    status: list[str] = field(default_factory=list)
+    baseline: Optional[Tensor] = None
 
     @property
     def labels(self) -> Optional[Tensor]:

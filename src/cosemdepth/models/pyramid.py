@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Optional, Sequence
+from typing import Any, Callable, Collection, Mapping, Optional, Sequence
 
 import torch
 import torch.nn as nn
@@ -20,7 +20,9 @@ from ..ops.cost_volume import parallax_sweep_cost_volume, spatial_cost_volume
 from ..ops.concat import concat_into
 from ..ops.normalize import grouped_l2_normalize
 from ..ops.resample import resize_nn1
-from .outputs import StepOutput, StreamState
+from ..geometry.motion import baseline
+from ..geometry.validity import depth_validity
+from .outputs import ESTIMATED, RESET, StepOutput, StreamState
 
 Tensor = torch.Tensor
 
@@ -208,19 +210,47 @@ def decode_step(
     decoders: Mapping[str, PyramidDecoder], feats: Sequence[Tensor], rot: Tensor, trans: Tensor, intrinsics: Tensor,
     reset: Optional[Tensor], state: Optional[StreamState], upsample: Callable[[Tensor], Tensor],
     ops: Optional[Mapping[str, Sequence[LevelOps]]] = None, static: Optional[bool] = None,
+    only: Optional[Collection[str]] = None,
 ) -> tuple[StepOutput, StreamState]:
     """One streaming step of every decoder on the encoder features of a frame (the reference path and the fast
     engine both run this): the per-level maps, each decoder's head (its finest map passed through ``upsample``, to
-    the input size) and the new state."""
+    the input size), the depth's validity and status (:func:`depth_status`; not in static mode, which must not
+    read values on the host) and the new state. With ``only``, just
+    the decoders named there run; the state components of the others pass through unchanged."""
     levels: dict[str, list[Tensor]] = {}
     components: dict[str, tuple[Tensor, ...]] = {}
+    ran = []
     for name, dec in decoders.items():
+        if only is not None and name not in only:
+            if state is not None:
+                components.update((c, state.components[c]) for c in dec.state_names if c in state.components)
+            continue
         prev = None
         if dec.temporal and state is not None and all(state.components.get(c) for c in dec.state_names):
             prev = [state.components[c] for c in dec.state_names]
         outs, new = dec(feats, rot, trans, intrinsics, prev, reset, None if ops is None else ops[name], static)
         levels.update(dec.level_maps(outs))
         components.update(zip(dec.state_names, new))
-    heads = {dec.head: upsample(levels[dec.head][0]) for dec in decoders.values()}
-    return StepOutput(heads.get("depth"), heads.get("semantic"), levels, heads), StreamState(**components)
+        ran.append(dec)
+    heads = {dec.head: upsample(levels[dec.head][0]) for dec in ran}
+    out = StepOutput(heads.get("depth"), heads.get("semantic"), levels, heads)
+    is_static = static if static is not None else any(dec.static for dec in ran)
+    if out.depth is not None and not is_static:  # graph capture and export: the host calls depth_status itself
+        resets = state is None or not state.flatten()
+        if not resets and reset is None:
+            reset = torch.zeros(out.depth.shape[0], dtype=torch.bool, device=out.depth.device)
+        elif resets:
+            reset = torch.ones(out.depth.shape[0], dtype=torch.bool, device=out.depth.device)
+        out.valid, out.status, out.baseline = depth_status(out.depth, rot, trans, intrinsics, reset)
+    return out, StreamState(**components)
 
+
+def depth_status(depth: Tensor, rot: Tensor, trans: Tensor, intrinsics: Tensor, reset: Tensor
+                 ) -> tuple[Tensor, list[str], Tensor]:
+    """``(valid [B,1,H,W], status, baseline [B])`` of a depth estimated from parallax with the motion
+    ``rot, trans`` (reset samples: nothing valid, status ``reset``, baseline 0); see :class:`StepOutput`."""
+    reset = reset.to(depth.device)
+    valid = depth_validity(depth.float(), rot.float(), trans.float(), intrinsics.float(), reset)
+    status = [RESET if r else ESTIMATED for r in reset.tolist()]
+    base = torch.where(reset, torch.zeros_like(trans[:, 0]), baseline(trans)).float()
+    return valid, status, base
