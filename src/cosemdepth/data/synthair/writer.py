@@ -1,4 +1,4 @@
-"""Write a SynthAir dataset in the Mid-Air layout (spec 9.1-9.5) and its split CSVs.
+"""Write a SynthAir dataset in the Mid-Air layout (design 10.1-10.5) and its split CSVs.
 
 Layout under the output folder ``DIR``::
 
@@ -127,7 +127,7 @@ def trajectory_number(climate: str, i: int) -> int:
 
 
 def csv_rows(frames: int) -> int:
-    """Rows of a trajectory's split CSV for ``frames`` camera frames (spec 9.3)."""
+    """Rows of a trajectory's split CSV for ``frames`` camera frames (design 10.3)."""
     return max((4 * frames - GT_PER_ROW) // GT_PER_ROW, 0)
 
 
