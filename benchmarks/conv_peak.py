@@ -5,7 +5,7 @@
 Times the largest convolution of the model (3x3, 128 -> 128 channels at 192x192, 10.9 GFLOP, channels-last, fused
 LeakyReLU, the fast path's kernel) in fp32 and bf16, and as the int8 path runs it (uint8 activations, oneDNN
 quantized convolution, then the LeakyReLU requantisation) at each thread count, reports GFLOP/s and the time the model's
-81 GFLOP per 384x384 frame (spec 12.2) would need at that rate. Also records whether NNPACK's Winograd convolution
+81 GFLOP per 384x384 frame (design 12.2) would need at that rate. Also records whether NNPACK's Winograd convolution
 runs here. Writes JSON.
 """
 

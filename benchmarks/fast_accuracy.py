@@ -4,7 +4,7 @@
         [--split test] [--max-frames N] [--modes fast-fp32 fast-bf16 fast-int8] [--device cpu] [--out FILE] \
         [--calibration-root ROOT2 --calibration-frames 16]
 
-Streams the split's trajectories frame by frame (as the test protocol, spec 10.3: reset frames count in no metric)
+Streams the split's trajectories frame by frame (as the test protocol, design 11.3: reset frames count in no metric)
 through the reference path and through each fast mode, computes mIoU and the depth metrics with
 ``cosemdepth.evaluation.metrics.EvaluationMetrics``, and checks the acceptance of issue 5: each fast mode within
 0.5 points of mIoU and within 1% (relative) of AbsRel of the fp32 reference. Writes JSON; exit status 1 if a mode

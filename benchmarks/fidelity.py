@@ -1,7 +1,9 @@
 """Per-frame fidelity figures of a converted official checkpoint against the authors' TensorFlow outputs.
 
-    python benchmarks/fidelity.py [--fixture ../shared/fixtures/tfref-s128] [--out FILE | --update]
+    python benchmarks/fidelity.py [--fixture DIR] [--out FILE | --update]
 
+The fixture: ``../shared/fixtures/tfref-s128`` when it is there (the figures of the README), else the repository's
+``tests/fixtures/tfref-64x96`` (its compact form is rebuilt in a temporary folder first).
 Prints, for both cost-volume precisions, the per-frame figures; with ``--out FILE`` writes the JSON (median / 99th
 percentile / max relative error of depth and parallax per frame and level, max absolute error of the semantic
 probabilities and encoder features) to FILE; ``--update`` writes it to the tracked
@@ -14,16 +16,25 @@ import argparse
 import datetime
 import json
 import platform
+import tempfile
 from pathlib import Path
 
 import torch
 
 from cosemdepth.evaluation.fidelity import compare_with_reference
+from cosemdepth.evaluation.tfref_fixture import open_fixture
 from cosemdepth.io.atomic import atomic_write_text
 from cosemdepth.io.model_io import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACKED = ROOT / "benchmarks" / "results" / "fidelity.json"
+SHARED_FIXTURE = ROOT.parent / "shared" / "fixtures" / "tfref-s128"
+IN_REPO_FIXTURE = ROOT / "tests" / "fixtures" / "tfref-64x96"
+
+
+def default_fixture() -> Path:
+    """The shared fixture when it is beside the repository, else the repository's own."""
+    return SHARED_FIXTURE if (SHARED_FIXTURE / "reference.npz").is_file() else IN_REPO_FIXTURE
 
 
 def output_path(args: argparse.Namespace) -> Path | None:
@@ -33,7 +44,8 @@ def output_path(args: argparse.Namespace) -> Path | None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--fixture", type=Path, default=ROOT.parent / "shared" / "fixtures" / "tfref-s128")
+    p.add_argument("--fixture", type=Path, default=None,
+                   help=f"default: {SHARED_FIXTURE} if present, else {IN_REPO_FIXTURE}")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--out", type=Path, default=None, help="write the JSON here")
     where.add_argument("--update", action="store_true", help="write the JSON to the tracked benchmarks/results/fidelity.json")
@@ -42,16 +54,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
-    model = load_model(args.fixture / "ckpt", mode="reference")  # the modules: what the fidelity bar is about
+    fixture = args.fixture if args.fixture is not None else default_fixture()
+    print(f"fixture: {fixture}")
+    with tempfile.TemporaryDirectory(prefix="cosemdepth-fidelity.") as scratch:
+        run(args, fixture, open_fixture(fixture, scratch))
+
+
+def run(args: argparse.Namespace, fixture: Path, folder: Path) -> None:
+    """Compare on ``folder`` (the fixture ``fixture``, rebuilt if it is in compact form)."""
+    model = load_model(folder / "ckpt", mode="reference")  # the modules: what the fidelity bar is about
     result = {
-        "fixture": str(args.fixture),
+        "fixture": str(fixture),
         "date": datetime.date.today().isoformat(),
         "torch": torch.__version__,
         "machine": platform.processor() or platform.machine(),
     }
     for dtype in ("float16", "float32"):
         model.set_numerics(pscv_half=dtype == "float16")
-        result[f"pscv_{dtype}"] = compare_with_reference(model, args.fixture)
+        result[f"pscv_{dtype}"] = compare_with_reference(model, folder)
         print(f"cost volume products in {dtype}:")
         for t, frame in enumerate(result[f"pscv_{dtype}"]["streaming"]):
             d = frame.get("depth", {})

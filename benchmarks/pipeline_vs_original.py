@@ -160,7 +160,7 @@ def read_chunks(split_dir: str, db_seq_len: int) -> list[dict]:
 
 
 def geometric(rot, trans, v, h, tr):
-    """The motion after vertical flip, horizontal flip, transposition (in this order), as spec 8.3 / the original."""
+    """The motion after vertical flip, horizontal flip, transposition (in this order), as design 9.3 / the original."""
     rot, trans = rot.copy(), trans.copy()
     if v:
         rot *= [1, -1, 1, -1]

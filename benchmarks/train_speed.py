@@ -4,7 +4,7 @@
         [--device cpu] [--steps 5] [--out result.json]
 
 Prints a JSON object (seconds; best of the timed steps after one warm-up) and writes it to ``--out`` if given.
-The step is the whole training step of the trainer: Co-SemDepth forward over 4 frames, the spec-7 loss, backward,
+The step is the whole training step of the trainer: Co-SemDepth forward over 4 frames, the loss of design 8, backward,
 the non-finite check and Adam. The checkpoint figures are for the model of ``--levels`` levels (5: the paper's).
 """
 

@@ -52,7 +52,7 @@ from cosemdepth.devices import bf16_convolutions, no_bf16_reason  # noqa: E402
 from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
 
 TFREF = ROOT.parent / "shared" / "tools" / "tfref"
-#: Forward multiply-accumulates of the Co-SemDepth network per frame at 384x384 (spec 12.2: 81 GFLOP = 40.5 GMAC).
+#: Forward multiply-accumulates of the Co-SemDepth network per frame at 384x384 (design 12.2: 81 GFLOP = 40.5 GMAC).
 FRAME_GFLOP_384 = 81.0
 
 

@@ -10,7 +10,7 @@
 #    per class (the square root of median-frequency balancing over the six training worlds, printed by
 #    `python scripts/class_weights.py --config synthair-demo`; stage 1 never predicts the two smallest classes,
 #    boulders and others), lr 6e-5 then 1.8e-5 from epoch 4, validation every epoch, into runs/synthair-demo-finetune.
-# 4. Stage 2's best checkpoint (spec 8.5 rule on the validation world) is written to weights/synthair-cosemdepth in
+# 4. Stage 2's best checkpoint (design 9.5 rule on the validation world) is written to weights/synthair-cosemdepth in
 #    float16, with its training curve (weights/synthair-cosemdepth/training_curve.csv and .png; stage 1's curve is
 #    kept beside it as stage1_training_curve.csv and .png).
 # The shipped stage 2 started from the float16 copy of stage 1's best model (the weights shipped before it); this

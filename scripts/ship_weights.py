@@ -59,7 +59,7 @@ def plot(rows: list[dict], out: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     for key in ("loss_total", "loss_depth", "loss_semantic"):
         axes[0].plot([r["step"] for r in tr], [r[key] for r in tr], label=key.replace("loss_", ""), lw=0.8)
-    axes[0].set(xlabel="step", ylabel="training loss", yscale="log", title="training losses (spec 7)")
+    axes[0].set(xlabel="step", ylabel="training loss", yscale="log", title="training losses (design 8)")
     axes[0].legend()
     axes[1].plot([r["step"] for r in va], [r["abs_rel"] for r in va], "o-", label="AbsRel")
     axes[1].set(xlabel="step", title="validation AbsRel (lower is better)")

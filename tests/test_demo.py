@@ -40,7 +40,7 @@ def check_schema(m):
 
 
 def independent_baselines(root):
-    """Spec 10 by hand on the non-reset frames: constant median depth, majority class."""
+    """Design 11 by hand on the non-reset frames: constant median depth, majority class."""
     ds = open_dataset("synthair", root, split="test", seq_len=1, size=SIZE)
     items = [ds[i] for i in range(len(ds)) if not bool(ds[i]["reset"][0])]
     gts = [np.clip(it["depth"][0, 0].double().numpy(), 0, 80) for it in items]

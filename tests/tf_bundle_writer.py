@@ -1,11 +1,11 @@
 """A small writer of TensorFlow-format checkpoints (``P.index`` + ``P.data-*``), for tests only.
 
-It writes the format of spec Appendix D from the description, independently of the reader: a LevelDB-format
+It writes the format of design 13.2 from the description, independently of the reader: a LevelDB-format
 table (prefix-compressed keys, restart points, several data blocks, an index block, an empty meta-index block,
 the 48-byte footer) whose empty key holds the ``BundleHeaderProto``, and raw little-endian tensors in one or
 more data shards, every block and tensor with its masked CRC32C. Options produce the odd cases the reader must
 reject (big-endian header, compressed block type, ...). It also builds the key/shape sets of Co-SemDepth,
-M4Depth and M4Semantic checkpoints as spec section 13.1 names them.
+M4Depth and M4Semantic checkpoints as design section 13.1 names them.
 
 CRC32C comes from ``cosemdepth.io.crc32c``, whose values are checked separately against published test vectors,
 a bit-by-bit reference and a checkpoint written by TensorFlow itself.
@@ -221,7 +221,7 @@ def write_bundle(
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Model checkpoints (spec 13.1 names, spec 2.1 / 4.1 / 5 shapes)
+# Model checkpoints (design 13.1 names, design 4.1 / 5.1 / 6 shapes)
 
 ENCODER_CHANNELS = (16, 32, 64, 96, 128, 192)
 REFINER = (128, 128, 96, 64, 32, 16)
@@ -312,5 +312,5 @@ def model_tensors(
 
 
 def refiner_params(c_in: int, c_out: int) -> int:
-    """Spec 4.6: ``P(C_in, C_out) = 1152·C_in + 336,848 + 145·C_out``."""
+    """Design 5.5.6: ``P(C_in, C_out) = 1152·C_in + 336,848 + 145·C_out``."""
     return 1152 * c_in + 336_848 + 145 * c_out

@@ -1,4 +1,4 @@
-"""The one place for defaults: the paper's Mid-Air configuration (spec sections 8.1 and 14).
+"""The one place for defaults: the paper's Mid-Air configuration (design sections 9.1 and 14.1).
 
 Two layers: the model config (:class:`ModelConfig`, ``ARCHITECTURES``, the image size) lives low in
 :mod:`cosemdepth.model_config` and is re-exported here; the run recipe (data, training) is defined here.
@@ -25,7 +25,7 @@ def to_dict(cfg: Any) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Training (spec 8): the paper's Mid-Air recipe as defaults
+# Training (design 9): the paper's Mid-Air recipe as defaults
 # ---------------------------------------------------------------------------------------------------------------
 
 def known_datasets() -> tuple[str, ...]:
@@ -70,7 +70,7 @@ def key_path(key: str) -> str:
 
 @dataclass(frozen=True)
 class DataConfig:
-    """What a run trains and validates on (spec 8.2, 6.3).
+    """What a run trains and validates on (design 9.2, 7.3).
 
     ``train`` holds one dataset or a weighted mix of several (sampling weights ``weight``). ``val`` defaults to the
     first training dataset's ``val_split``; ``validate: false`` turns validation off.
@@ -85,9 +85,9 @@ class DataConfig:
     size: tuple[int, ...] = (MIDAIR_IMAGE_SIZE, MIDAIR_IMAGE_SIZE)
     seq_len: int = 4
     db_seq_len: int = 4
-    #: Window length of the validation (spec 6.3): windows of 4, only the last frame of each counts.
+    #: Window length of the validation (design 7.3): windows of 4, only the last frame of each counts.
     val_seq_len: int = 4
-    #: The augmentations of spec 8.3 (True), none (False) or a preset name of the data package.
+    #: The augmentations of design 9.3 (True), none (False) or a preset name of the data package.
     augment: Union[bool, str] = True
     #: Items per epoch of a mix (default: the sum of the datasets' lengths).
     mix_length: Optional[int] = None
@@ -122,7 +122,7 @@ class DataConfig:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Optimisation, checkpointing, validation and logging of a run (spec 8.1, 8.4, 8.5)."""
+    """Optimisation, checkpointing, validation and logging of a run (design 9.1, 9.4, 9.5)."""
 
     epochs: int = 60
     #: Stop after this many training steps in all (0: no limit besides ``epochs``).
@@ -141,13 +141,13 @@ class TrainConfig:
     lr_decay: float = 0.1
     #: Clip the gradient norm to this value (0: no clipping, the paper).
     grad_clip: float = 0.0
-    #: Weight of the semantic loss in the total loss (spec 7.3).
+    #: Weight of the semantic loss in the total loss (design 8.3).
     semantic_weight: float = 0.1
     #: One weight per class for the semantic loss (a deviation from the paper; empty: every pixel alike, the
     #: paper). Rare classes weighted up are learnt at all in short trainings; ``scripts/class_weights.py`` computes
     #: median-frequency weights from a training set's labels.
     semantic_class_weights: tuple[float, ...] = ()
-    #: Semantic loss on log-softmax of logits instead of Keras' clipped probabilities (spec 15 item 21).
+    #: Semantic loss on log-softmax of logits instead of Keras' clipped probabilities (design 8.2).
     semantic_from_logits: bool = False
     #: Start a new run from these weights instead of a random initialisation (fine-tuning, as the original's
     #: ``finetune`` mode): one of our model folders, a run's checkpoint or ``best`` folder, or an official
@@ -177,7 +177,7 @@ class TrainConfig:
     #: Validate on at most this many batches (0: the whole validation set).
     val_max_batches: int = 0
     val_batch_size: int = 4
-    #: Best-checkpoint rule: "paper" (spec 8.5), or one metric: "rmse", "miou", "abs_rel:min", ...
+    #: Best-checkpoint rule: "paper" (design 9.5), or one metric: "rmse", "miou", "abs_rel:min", ...
     best: str = "paper"
     #: Non-finite guard: after this many non-finite steps in a row, roll back to the last good checkpoint.
     nonfinite_patience: int = 3

@@ -7,7 +7,7 @@ Steps:
 2. build a held-out SynthAir flight with ``cosemdepth synth`` (one trajectory of ``frames`` evaluated frames at
    ``size``, with a world seed the training data did not use) - or use an existing Mid-Air-format dataset
    (``data_root``);
-3. evaluate the model with the test protocol (spec 10.3: streamed frame by frame, the reset frame excluded);
+3. evaluate the model with the test protocol (design 11.3: streamed frame by frame, the reset frame excluded);
 4. evaluate two trivial baselines on the same frames: *constant depth* (the median of all evaluated ground-truth
    depths, clipped to [0, 80] m as the metrics clip them, predicted everywhere) and *majority class* (the most
    frequent ground-truth class, predicted everywhere);
@@ -205,7 +205,7 @@ class DemoCollector:
         return self.pictures.finish()
 
     def constant_depth(self) -> dict[str, float] | None:
-        """Metrics of the constant median-depth prediction over the evaluated frames (spec 10.1 protocol)."""
+        """Metrics of the constant median-depth prediction over the evaluated frames (design 11.1 protocol)."""
         if not self.gt_depths:
             return None
         g = torch.stack(self.gt_depths).to(torch.float64).clamp(0.0, EVAL_MAX_DEPTH)
@@ -296,7 +296,7 @@ def report_markdown(m: dict[str, Any]) -> str:
         f"device {mach.get('device')}), torch {mach.get('torch')}, cosemdepth {m.get('cosemdepth_version')}.",
         "",
         f"Flight: {fl['description']}. {ev['protocol']['frames_streamed']} frames streamed frame by frame, "
-        f"{ev['protocol']['frames_evaluated']} evaluated (reset frames excluded, spec 10.3).",
+        f"{ev['protocol']['frames_evaluated']} evaluated (reset frames excluded, design 11.3).",
         f"Model: `{det['model_path']}` ({ev['model']['arch']}, {ev['params']:,} parameters).",
         "",
         "## Results",

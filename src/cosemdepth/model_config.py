@@ -17,7 +17,7 @@ from .errors import ConfigError
 ARCHITECTURES: dict[str, tuple[str, ...]] = {"cosemdepth": ("depth", "semantic"), "m4depth": ("depth",),
                                               "m4semantic": ("semantic",)}
 
-#: Encoder output channels per absolute level (spec 2.1); a model with L levels uses the first L entries.
+#: Encoder output channels per absolute level (design 4.1); a model with L levels uses the first L entries.
 ENCODER_CHANNELS = (16, 32, 64, 96, 128, 192)
 
 #: Precisions of the parallax-sweeping cost-volume products (``ModelConfig.pscv_dtype``); the original computes them
@@ -25,7 +25,7 @@ ENCODER_CHANNELS = (16, 32, 64, 96, 128, 192)
 PSCV_DTYPES = ("float32", "float16")
 ORIGINAL_PSCV_DTYPE = "float16"
 
-#: Mid-Air camera: 90 degree horizontal FOV, so f = W/2 and c = (W/2, H/2) (spec 3.1).
+#: Mid-Air camera: 90 degree horizontal FOV, so f = W/2 and c = (W/2, H/2) (design 2.1).
 MIDAIR_IMAGE_SIZE = 384
 
 

@@ -52,3 +52,13 @@ def test_out_and_update_are_exclusive(fidelity, tmp_path):
     with pytest.raises(SystemExit) as e:
         fidelity.parse_args(["--out", str(tmp_path / "x.json"), "--update"])
     assert e.value.code == 2
+
+
+def test_default_fixture_is_the_shared_one_when_present_else_the_repositorys(fidelity, tmp_path, monkeypatch):
+    monkeypatch.setattr(fidelity, "SHARED_FIXTURE", tmp_path / "absent")
+    assert fidelity.default_fixture() == fidelity.IN_REPO_FIXTURE
+    assert (fidelity.IN_REPO_FIXTURE / "reference.npz").is_file()
+    (tmp_path / "shared").mkdir()
+    (tmp_path / "shared" / "reference.npz").write_bytes(b"")
+    monkeypatch.setattr(fidelity, "SHARED_FIXTURE", tmp_path / "shared")
+    assert fidelity.default_fixture() == tmp_path / "shared"

@@ -1,6 +1,6 @@
 """Test writers of tiny datasets in the Mid-Air, TopAir and Aeroscapes formats (independent of the readers).
 
-Mid-Air layout written here (spec 9.1): ``<root>/<env>/<climate>/color_left/trajectory_XXXX/NNNNNN.JPEG``,
+Mid-Air layout written here (design 10.1): ``<root>/<env>/<climate>/color_left/trajectory_XXXX/NNNNNN.JPEG``,
 ``stereo_disparity/.../NNNNNN.PNG`` (uint16 holding float16 bits), ``segmentation/.../NNNNNN.PNG`` (8-bit gray IDs)
 and ``sensor_records.hdf5`` with ``trajectory_XXXX/groundtruth/{attitude,position}`` at 100 Hz (NED body,
 quaternions w-first, body-to-world) and ``trajectory_XXXX/camera_data/<sensor>`` lists of relative image paths.

@@ -1,4 +1,4 @@
-"""Augmentations of spec 8.3: involutions, geometric consistency on an analytic scene, colour values by hand."""
+"""Augmentations of design 9.3: involutions, geometric consistency on an analytic scene, colour values by hand."""
 
 from __future__ import annotations
 

@@ -17,7 +17,7 @@ from cosemdepth.data.midair.splits import generate_splits
 from cosemdepth.errors import ConfigError, DatasetError
 
 SIZE = 32
-SPEC_MAP = np.array([0, 6, 2, 3, 3, 3, 4, 6, 1, 6, 5, 6, 6, 6])  # spec 9.5, by Mid-Air ID
+SPEC_MAP = np.array([0, 6, 2, 3, 3, 3, 4, 6, 1, 6, 5, 6, 6, 6])  # design 10.5, by Mid-Air ID
 LAYOUT = {("Kite_training", "sunny"): [0, 1, 2, 3], ("PLE_training", "fall"): [4000, 4006, 4001]}
 
 
@@ -47,7 +47,7 @@ def test_items_read_back_exactly_at_native_size(dataset):
         np.testing.assert_array_equal(rgb, decoded_jpeg(root / row["camera_l"]))
         assert np.abs(rgb * 255 - truth.rgb[row["camera_l"]]).mean() < 3  # JPEG quality 95
         disp = truth.disparity_bits[row["disp"]].view(np.float16).astype(np.float32)
-        np.testing.assert_array_equal(item["depth"][0, 0].numpy(), np.float32(512) / disp)  # any size (spec 9.2)
+        np.testing.assert_array_equal(item["depth"][0, 0].numpy(), np.float32(512) / disp)  # any size (design 10.2)
         np.testing.assert_array_equal(item["semantic"][0].numpy(), SPEC_MAP[truth.labels[row["semantic"]]])
         assert item["semantic"].dtype == torch.int64
         np.testing.assert_array_equal(

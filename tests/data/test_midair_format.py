@@ -34,7 +34,7 @@ def test_disparity_round_trip_through_png_is_bit_exact(tmp_path):
 
 
 def test_depth_is_512_over_disparity_at_any_png_size(tmp_path):
-    # Mid-Air's convention (spec 9.2, the authors' loader): 512 / disparity whatever the PNG's width. The old
+    # Mid-Air's convention (design 10.2, the authors' loader): 512 / disparity whatever the PNG's width. The old
     # reader computed (W / 2) / disparity, wrong for any PNG not at 1024 px.
     disp = np.array([[1.0, 2.0, 0.5, 64.0], [3.0, 0.125, 100.0, 7.5]], dtype=np.float16)
     path = tmp_path / "d.PNG"
@@ -99,7 +99,7 @@ def test_8bit_disparity_png_is_rejected(tmp_path):
 
 
 def test_14_to_7_mapping_matches_spec_9_5():
-    # spec 9.5, written out independently: Mid-Air ID -> Co-SemDepth class
+    # design 10.5, written out independently: Mid-Air ID -> Co-SemDepth class
     spec_table = {0: 0, 1: 6, 2: 2, 3: 3, 4: 3, 5: 3, 6: 4, 7: 6, 8: 1, 9: 6, 10: 5, 11: 6, 12: 6, 13: 6}
     ids = np.arange(14)
     np.testing.assert_array_equal(fmt.map_labels(ids), [spec_table[i] for i in ids])

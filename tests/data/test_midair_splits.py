@@ -1,4 +1,4 @@
-"""Split CSVs: motion convention (spec 3.2/9.3), the split rules (9.4), the `splits` CLI, CSV validation."""
+"""Split CSVs: motion convention (design 2.2/10.3), the split rules (10.4), the `splits` CLI, CSV validation."""
 
 from __future__ import annotations
 

@@ -44,7 +44,7 @@ def expected(tf_model, split):
 
 
 def manual_protocol(model, root):
-    """Independent implementation of spec 10.1-10.3: batch 1, reset frames skipped, numpy metrics."""
+    """Independent implementation of design 11.1-11.3: batch 1, reset frames skipped, numpy metrics."""
     ds = open_dataset("midair", root, split_dir=root / "splits", split="test", seq_len=1, size=SIZE)
     rows = {"abs_rel": [], "rmse": [], "delta1": [], "rmse_log": []}
     conf = np.zeros((7, 7), dtype=np.int64)

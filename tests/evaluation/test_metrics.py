@@ -1,4 +1,4 @@
-"""Metrics (spec 10), best-checkpoint rule (spec 8.5) and tables (spec 16) against hand-computed values."""
+"""Metrics (design 11), best-checkpoint rule (design 9.5) and tables (design 15) against hand-computed values."""
 
 from __future__ import annotations
 

@@ -84,7 +84,7 @@ def test_parallax_formulas_against_direct_projection():
 
 def test_prev_depth_to_parallax_identity():
     # A point seen by the previous frame at integer pixel (i, j) with depth d' has, w.r.t. the current frame, the
-    # parallax rho' of spec 3.4; check it against depth_to_parallax of the same point seen from the current frame.
+    # parallax rho' of design 2.4; check it against depth_to_parallax of the same point seen from the current frame.
     b, h, w = 2, 5, 7
     q, t = random_motion(b, seed=3)
     K = torch.tensor([[3.5, 2.5, 3.5, 2.5]], dtype=torch.float64).expand(b, 4)

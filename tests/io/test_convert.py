@@ -1,6 +1,6 @@
 """TF checkpoint -> our state dict + ModelConfig: the real fixture, M4Depth / M4Semantic bundles, ablations, errors.
 
-Expected parameter counts come from the spec (section 12.1 and its "other configurations" table) or are computed
+Expected parameter counts come from design 12.1 (its table and the other configurations below it) or are computed
 by hand in the comments from the refiner formula P(C_in, C_out) = 1152·C_in + 336,848 + 145·C_out.
 """
 
@@ -24,9 +24,9 @@ from cosemdepth.io.convert import (
 from cosemdepth.io.tf_checkpoint import read_checkpoint
 from tf_bundle_writer import SUFFIX, depth_refiner_inputs, model_tensors, refiner_params, write_bundle
 
-# Spec 2.1: encoder totals (with the 32 DINL parameters).
+# Design 4.1: encoder totals (with the 32 DINL parameters).
 ENCODER = {4: 210_544, 5: 468_848, 6: 1_022_192}
-# 3 levels: 448 + 32 + 2,320 + 4,640 + 9,248 + 18,496 + 36,928 (spec 2.1 table)
+# 3 levels: 448 + 32 + 2,320 + 4,640 + 9,248 + 18,496 + 36,928 (design 4.1 table)
 ENCODER_L3 = 72_112
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -61,7 +61,7 @@ def test_fixture_per_level_refiner_counts(fixture_conversion):
         if name.startswith(("depth_decoder", "semantic_decoder")):
             part, _, j = name.split(".")[:3]
             per_level[(part, int(j))] = per_level.get((part, int(j)), 0) + t.numel()
-    # spec 12.1
+    # design 12.1
     assert [per_level["depth_decoder", j] for j in range(5)] == [411_301, 478_117, 478_117, 611_749, 611_749]
     assert [per_level["semantic_decoder", j] for j in range(5)] == [369_547, 387_979, 424_843, 461_707, 498_571]
 
@@ -105,10 +105,10 @@ def test_fixture_ignored_entries(fixture_conversion):
 def test_fixture_partial_arch(tfref_dir):
     sd, cfg = convert_checkpoint(tfref_dir / "ckpt", arch="m4depth")
     assert cfg.arch == "m4depth" and cfg.levels == 5
-    assert sum(t.numel() for t in sd.values()) == 3_059_881  # spec 12.1
+    assert sum(t.numel() for t in sd.values()) == 3_059_881  # design 12.1
     assert not any(k.startswith("semantic_decoder") for k in sd)
     conv = import_checkpoint(tfref_dir / "ckpt", arch="m4semantic")
-    assert conv.num_parameters == 2_611_495  # spec 12.1
+    assert conv.num_parameters == 2_611_495  # design 12.1
     assert len(conv.dropped_keys) == 70 and all(k.startswith("d_estimator/") for k in conv.dropped_keys)
     assert "arch" not in conv.inferred
 
@@ -122,7 +122,7 @@ def test_m4depth_four_levels_from_file(tmp_path):
     prefix = write_bundle(tmp_path / "train" / "cp-0042.ckpt", t)
     conv = import_checkpoint(tmp_path / "train")
     assert conv.config == ModelConfig(arch="m4depth", levels=4, pscv_dtype="float16")
-    assert conv.num_parameters == 2_189_828  # spec 12.1 table, L = 4 M4Depth part
+    assert conv.num_parameters == 2_189_828  # design 12.1 table, L = 4 M4Depth part
     assert "num_classes" not in conv.inferred and "sncv" in conv.inferred
     # inference state variables of both naming schemes and the string object graph are ignored, not converted
     assert conv.ignored_keys[f"d_estimator/levels/0/prev_f_maps{SUFFIX}"] == "inference state"
@@ -142,7 +142,7 @@ def test_m4depth_six_levels_other_root_names(tmp_path):
     prefix = write_bundle(tmp_path / "m4d" / "cp-0001.ckpt", t)
     conv = import_checkpoint(prefix)
     assert conv.config.arch == "m4depth" and conv.config.levels == 6
-    # spec 12.1: the original 6-level M4Depth; refiner inputs 64, 122, 122, 238, 238, 470 (spec 4.1)
+    # design 12.1: the original 6-level M4Depth; refiner inputs 64, 122, 122, 238, 238, 470 (design 5.1)
     assert conv.num_parameters == 4_492_238
     assert [conv.state_dict[f"depth_decoder.levels.{j}.refiner.convs.0.weight"].shape[1] for j in range(6)] == [
         64, 122, 122, 238, 238, 470,
@@ -154,7 +154,7 @@ def test_m4semantic_twelve_classes(tmp_path):
     prefix = write_bundle(tmp_path / "sem" / "cp-0000.ckpt", t)
     conv = import_checkpoint(tmp_path / "sem")
     assert conv.config.arch == "m4semantic" and conv.config.num_classes == 12 and conv.config.levels == 5
-    assert conv.num_parameters == 2_643_920  # spec 12.1, Aeroscapes M4Semantic
+    assert conv.num_parameters == 2_643_920  # design 12.1, Aeroscapes M4Semantic
     assert conv.state_dict["semantic_decoder.levels.0.refiner.convs.6.weight"].shape == (16, 16, 3, 3)
     assert conv.source["checkpoint"] == str(prefix.resolve())
 
@@ -173,7 +173,7 @@ def test_m4semantic_six_levels_nine_classes_no_dinl(tmp_path):
 def test_joint_nine_classes():
     conv = convert_tensors(model_tensors(levels=5, classes=9, zeros=True))
     assert conv.config == ModelConfig(levels=5, num_classes=9, pscv_dtype="float16")
-    assert conv.num_parameters == 5_215_498  # spec 12.1, TopAir
+    assert conv.num_parameters == 5_215_498  # design 12.1, TopAir
 
 
 def test_m4depth_four_levels_without_sncv(tmp_path):

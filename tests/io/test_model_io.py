@@ -263,15 +263,14 @@ def test_load_model_errors(tmp_path):
 
 def test_converted_checkpoint_reproduces_tensorflow_outputs(tfref_dir):
     """End to end: the TF checkpoint loaded through the converter gives the outputs the authors' TF code computed
-    with it (streaming, 4 frames at 128x128). Semantic probabilities agree to float32 rounding; depth agrees
+    with it (streaming, every frame of the fixture). Semantic probabilities agree to float32 rounding; depth agrees
     closely except in rare pixels where TF's float16 / oneDNN arithmetic differs (fixture README)."""
     ref = np.load(tfref_dir / "reference.npz")
     model = load_model(tfref_dir / "ckpt")
-    f, c = ref["camera_f"][0], ref["camera_c"][0]
-    intrinsics = torch.tensor([[f[0], f[1], c[0], c[1]]], dtype=torch.float32)
+    intrinsics = torch.from_numpy(np.concatenate([ref["camera_f"], ref["camera_c"]], -1))  # [B,4] (fx, fy, cx, cy)
     state = None
     with torch.no_grad():
-        for t in range(4):
+        for t in range(ref["rgb"].shape[0]):
             out, state = model.step(
                 torch.from_numpy(ref["rgb"][t]).permute(0, 3, 1, 2),
                 torch.from_numpy(ref["rot"][t]),

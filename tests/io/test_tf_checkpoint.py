@@ -113,23 +113,26 @@ def test_fixture_every_variable_has_listed_shape_and_dtype(tf_fixture):
     assert len(tensors) == 180
 
 
-def test_fixture_values_are_the_documented_random_draws(tf_fixture):
-    """weights.json documents the generator: numpy default_rng([0, crc32(key)]), biases N(0, 0.05), DINL scale
-    1 + N(0, 0.1), DINL bias N(0, 0.1), kernels He truncated normal with out-of-range draws redrawn. Regenerating
-    them independently checks that the reader returns the bytes TensorFlow wrote, in the right order."""
+def test_fixture_values_are_the_documented_random_draws(tf_fixture, tfref_dir):
+    """weights.json documents the generator: numpy default_rng([seed, crc32(key)]), biases N(0, bias_std), DINL
+    scale 1 + N(0, 0.1), DINL bias N(0, 0.1), kernels He truncated normal with out-of-range draws redrawn (seed and
+    bias_std from meta.json). Regenerating them independently checks that the reader returns the bytes TensorFlow
+    wrote, in the right order."""
     _, tensors, weights = tf_fixture
+    config = json.loads((tfref_dir / "meta.json").read_text())["config"]
+    seed, bias_std = config["seed"], config["bias_std"]
     for v in weights["variables"]:
         if not v["trainable"]:
             continue
         key, shape = v["checkpoint_key"], tuple(v["shape"])
-        rng = np.random.default_rng([0, zlib.crc32(key.encode())])
+        rng = np.random.default_rng([seed, zlib.crc32(key.encode())])
         got = tensors[key]
         if "/dn_layers/0/scale/" in key:
             np.testing.assert_array_equal(got, (1 + rng.normal(0, 0.1, shape)).astype(np.float32))
         elif "/dn_layers/0/bias/" in key:
             np.testing.assert_array_equal(got, rng.normal(0, 0.1, shape).astype(np.float32))
         elif key.endswith("/bias/.ATTRIBUTES/VARIABLE_VALUE"):
-            np.testing.assert_array_equal(got, rng.normal(0, 0.05, shape).astype(np.float32))
+            np.testing.assert_array_equal(got, rng.normal(0, bias_std, shape).astype(np.float32))
         else:
             std = np.sqrt(2.0 / (9 * shape[2])) / 0.87962566103423978
             z = rng.standard_normal(shape)

@@ -50,7 +50,7 @@ def test_infer_equals_step_by_step(model):
     assert out.depth.shape == (2, 5, 1, 32, 48) and out.semantic.shape == (2, 5, 7, 32, 48)
     torch.testing.assert_close(out.depth, d, rtol=0, atol=0)
     torch.testing.assert_close(out.semantic, s, rtol=0, atol=0)
-    # frame 0 is a reset: the initial depth of 1000 m everywhere (spec 4.5), whatever the motion given for it
+    # frame 0 is a reset: the initial depth of 1000 m everywhere (design 5.4), whatever the motion given for it
     assert torch.all(out.depth[:, 0] == 1000.0)
 
 

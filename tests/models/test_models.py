@@ -224,7 +224,7 @@ def test_training_gradients_reach_the_encoder_and_stop_at_previous_depth():
 
 def test_dinl_backward_matches_finite_differences_and_plain_ops():
     """DINL's hand-written backward against torch's numerical gradient (float64), and its float32 values and
-    gradients against the plain ops of the spec (the path ``export --check`` takes)."""
+    gradients against the plain ops of design 4.2 (the path ``export --check`` takes)."""
     g = torch.Generator().manual_seed(3)
     layer = DINL(4).double()
     with torch.no_grad():

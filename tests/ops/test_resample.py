@@ -9,7 +9,7 @@ def row(values):
 
 
 def test_bl1_doubling_matches_tf_legacy_rule():
-    # spec A.1: [0,10,20,30] -> [0,5,10,15,20,25,30,30]
+    # design 3.1: [0,10,20,30] -> [0,5,10,15,20,25,30,30]
     out = resize_bl1(row([0, 10, 20, 30]), (1, 8))
     assert out.flatten().tolist() == [0, 5, 10, 15, 20, 25, 30, 30]
 

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -19,32 +17,12 @@ import pytest
 import torch
 
 from cosemdepth.evaluation.fidelity import inputs_from_reference
+from cosemdepth.evaluation.tfref_fixture import seeded_weight
 from cosemdepth.io.convert import convert_tensors
 from cosemdepth.models import build_model
 from cosemdepth.training.trainer import compute_loss, forward_batch, prepare_for_training
 
 FIXTURE = Path(__file__).parent / "fixtures" / "grad-s64"
-
-
-def regenerate_weight(key: str, shape: tuple[int, ...], seed: int, bias_std: float) -> np.ndarray:
-    """The harness's seeded weights (make_reference.py's rule), from the checkpoint key alone: numpy's
-    generator seeded with ``[seed, crc32(key)]``; kernels He-normal truncated at 2 sigma (std sqrt(2/fan_in) over
-    the truncation's std 0.8796), conv biases N(0, bias_std), DomainNormalization scales 1 + N(0, 0.1) and biases
-    N(0, 0.1)."""
-    rng = np.random.default_rng([seed, zlib.crc32(key.encode())])
-    leaf = key.split("/.ATTRIBUTES")[0].rsplit("/", 1)[-1]
-    if leaf == "kernel":
-        z = rng.standard_normal(shape)
-        out = np.abs(z) > 2.0
-        while out.any():
-            z[out] = rng.standard_normal(int(out.sum()))
-            out = np.abs(z) > 2.0
-        return (z * (math.sqrt(2.0 / int(np.prod(shape[:-1]))) / 0.87962566103423978)).astype(np.float32)
-    if leaf == "bias":
-        return ((0.1 if "dn_layers" in key else bias_std) * rng.standard_normal(shape)).astype(np.float32)
-    if leaf == "scale":
-        return (1.0 + 0.1 * rng.standard_normal(shape)).astype(np.float32)
-    raise AssertionError(f"no rule for {key}")
 
 
 @pytest.fixture(scope="module", params=[False, True], ids=["nchw", "channels_last"])
@@ -59,7 +37,7 @@ def our_step(channels_last: bool = False):
     info = json.loads((FIXTURE / "weights.json").read_text())
     tensors = {}
     for key, d in info["keys"].items():
-        w = regenerate_weight(key, tuple(d["shape"]), info["seed"], info["bias_std"])
+        w = seeded_weight(key, tuple(d["shape"]), info["seed"], info["bias_std"])
         assert hashlib.sha256(w.tobytes()).hexdigest() == d["sha256"], key  # exactly the TF run's weights
         tensors[key] = w
     conv = convert_tensors(tensors)

@@ -1,4 +1,4 @@
-"""Losses (spec 7) against hand-computed values on small constructed cases."""
+"""Losses (design 8) against hand-computed values on small constructed cases."""
 
 from __future__ import annotations
 

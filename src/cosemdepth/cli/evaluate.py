@@ -1,4 +1,4 @@
-"""``cosemdepth evaluate``: the test protocol of the original (spec 10.3) on a dataset split.
+"""``cosemdepth evaluate``: the test protocol of the original (design 11.3) on a dataset split.
 
     cosemdepth evaluate --model MODEL --dataset NAME --root ROOT [--split-dir D] [--split test] [--size S]
                         [--out DIR] [--device cpu] [--max-frames N] [--trajectories-per-batch B]

@@ -1,6 +1,6 @@
 """``cosemdepth splits``: write the train/val/test split CSVs of a dataset.
 
-    cosemdepth splits midair ROOT OUT_DIR      # Mid-Air: the paper's rule (spec 9.4)
+    cosemdepth splits midair ROOT OUT_DIR      # Mid-Air: the paper's rule (design 10.4)
     cosemdepth splits synthair ROOT [OUT_DIR]  # SynthAir / any Mid-Air-format root: generic rule; default ROOT/splits
     cosemdepth splits topair ROOT OUT_DIR      # TopAir, from each environment's airsim_rec.txt
 

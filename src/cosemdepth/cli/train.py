@@ -24,7 +24,7 @@ DEFAULTS = RunConfig()
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.epilog = ("Defaults are the paper's Mid-Air recipe (spec 8.1). Precedence: defaults < --config file < the "
+    p.epilog = ("Defaults are the paper's Mid-Air recipe (design 9.1). Precedence: defaults < --config file < the "
                 "explicit flags < --set overrides (in order). Config keys: see docs/training.md.")
     p.add_argument("--config", "-c", metavar="YAML",
                    help="config file, or the name of a shipped config (midair, synthair-small)")

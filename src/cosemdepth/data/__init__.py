@@ -40,7 +40,7 @@ def open_dataset(
         seq_len: frames per item (T). With ``seq_len=1`` on a test split every CSV row is yielded, in order.
         size: output size, an int or ``(H, W)``. Default: 384 for Mid-Air/SynthAir/TopAir, the native size for
             Aeroscapes and flights.
-        augment: ``False`` (default), ``True`` (the paper's augmentation, spec 8.3), a preset name
+        augment: ``False`` (default), ``True`` (the paper's augmentation, design 9.3), a preset name
             (``"train"``, ``"finetune"``, ``"geometric"``) or an :class:`AugmentConfig`.
         **kwargs: reader options: ``mode`` (``"train"``/``"windowed"``/``"stream"``), ``db_seq_len``, ``seed``,
             ``labels`` and ``modalities`` (Mid-Air/SynthAir), and the flight options of

@@ -1,4 +1,4 @@
-"""Aeroscapes (spec 9.9): 3,269 aerial images at 720x1280 with 12 classes; semantic segmentation only.
+"""Aeroscapes (design 10.9): 3,269 aerial images at 720x1280 with 12 classes; semantic segmentation only.
 
 On disk: ``<root>/JPEGImages/<name>.jpg``, ``<root>/SegmentationClass/<name>.png`` (channel 0 = class ID 0..11)
 and ``<root>/ImageSets/trn.txt`` / ``val.txt`` (one image name per line). Split names: ``"train"`` (or ``"trn"``)

@@ -1,10 +1,10 @@
-"""Per-sequence training augmentations (spec 8.3): flips, transpose and colour jitter, drawn once per sequence.
+"""Per-sequence training augmentations (design 9.3): flips, transpose and colour jitter, drawn once per sequence.
 
 A *sample* is a dict as produced by the readers (one sequence, no batch axis):
 
 * ``rgb`` ``[T, 3, H, W]`` float, ``depth`` ``[T, 1, H, W]`` (optional), ``semantic`` ``[T, H, W]`` (optional);
 * ``rot`` ``[T, 4]`` (w, x, y, z) and ``trans`` ``[T, 3]``: relative motion, ``X_prev = R(q) X_curr + t``;
-* ``intrinsics`` ``[4] = (fx, fy, cx, cy)`` in pixels, principal point in the convention of spec 3.1
+* ``intrinsics`` ``[4] = (fx, fy, cx, cy)`` in pixels, principal point in the convention of design 2.1
   (pixel ``(i, j)`` has centred coordinates ``u = j + 0.5 - cx``, ``v = i + 0.5 - cy``).
 
 Geometric operations (applied in this order, each with its own probability):
@@ -16,7 +16,7 @@ vertical flip      reverse rows           q -> (w, -x, y, -z),        cy -> H - 
                                           t -> (tx, -ty, tz)
 horizontal flip    reverse columns        q -> (w, x, -y, -z),        cx -> W - cx
                                           t -> (-tx, ty, tz)
-transpose          swap H and W           q -> (w, -y, -x, -z),       fx <-> fy and cx <-> cy (fix of spec 15.11;
+transpose          swap H and W           q -> (w, -y, -x, -z),       fx <-> fy and cx <-> cy (a fix, design 9.3;
 (square only)                             t -> (ty, tx, tz)           the original swapped neither)
 =================  =====================  =========================  ===============================================
 
@@ -32,7 +32,7 @@ Colour operations, on ``rgb`` only, with TensorFlow ``tf.image`` semantics writt
   also rotates pixels whose channels are all <= 0), ``delta ~ U[-0.4, 0.4]``;
 * inversion ``x -> 1 - x`` with probability 0.5 (in the code, not in the paper).
 
-No clipping follows (spec 15.10, reproduced), so values can leave [0, 1]. The HSV conversion follows TF's kernel:
+No clipping follows (design 9.3, reproduced), so values can leave [0, 1]. The HSV conversion follows TF's kernel:
 ``V = max``, ``S = (max - min) / V`` if ``V > 0`` else 0 (so saturation turns a pixel with all channels <= 0 grey,
 as TF does), hue in [0, 1) (0 for gray pixels).
 
@@ -55,7 +55,7 @@ Sample = dict[str, torch.Tensor]
 
 @dataclass(frozen=True)
 class AugmentConfig:
-    """Probabilities and ranges of the augmentations. The defaults are the paper's training settings (spec 8.3)."""
+    """Probabilities and ranges of the augmentations. The defaults are the paper's training settings (design 9.3)."""
 
     p_vflip: float = 0.5
     p_hflip: float = 0.5
@@ -80,7 +80,7 @@ class AugmentConfig:
 
     @classmethod
     def train(cls) -> "AugmentConfig":
-        """The paper's training augmentation (spec 8.3)."""
+        """The paper's training augmentation (design 9.3)."""
         return cls()
 
     @classmethod
@@ -290,7 +290,7 @@ def invert(rgb: torch.Tensor) -> torch.Tensor:
 
 
 def apply_params(sample: Mapping[str, torch.Tensor], p: AugmentParams) -> Sample:
-    """Apply one draw of parameters to a sample (geometric then colour, in the order of spec 8.3)."""
+    """Apply one draw of parameters to a sample (geometric then colour, in the order of design 9.3)."""
     out = dict(sample)
     if p.vflip:
         out = vflip(out)

@@ -7,7 +7,7 @@ Inputs:
 * ``poses``: a pose file (default: the first of ``poses.txt``, ``poses.tum``, ``poses.csv``, ``groundtruth.txt``
   in ``root``) in TUM or CSV format, with the world/camera convention of :mod:`cosemdepth.data.poses`;
 * ``intrinsics=(fx, fy, cx, cy)`` in pixels of the original images, or ``fov`` = horizontal field of view in
-  degrees (square pixels, centred principal point). The principal point is in the convention of spec 3.1 (pixel
+  degrees (square pixels, centred principal point). The principal point is in the convention of design 2.1 (pixel
   ``(i, j)`` covers ``[j, j+1] x [i, i+1]``; a centred camera has ``cx = W/2``). Calibration tools in the OpenCV
   convention (pixel centres at integer coordinates, centred ``cx = (W-1)/2``) need ``+0.5``:
   pass ``intrinsics_convention="opencv"`` to have it added.

@@ -1,6 +1,6 @@
 """Per-frame tensors shared by the readers: image -> tensor conversion, resizing rules and intrinsics.
 
-Resizing rules (spec 9.6, Appendix A): colour and metric depth use BL2 (TF2 bilinear, half-pixel centres, no
+Resizing rules (design 10.6, 3.1-3.4): colour and metric depth use BL2 (TF2 bilinear, half-pixel centres, no
 antialias); label maps use a nearest rule chosen by the reader (NN1 = OpenCV/legacy-TF nearest for Mid-Air, whose
 labels the authors resized with OpenCV; NN2 = TF2 half-pixel nearest for TopAir/Aeroscapes, whose loaders call
 ``tf.image.resize(..., "nearest")``).
@@ -66,7 +66,7 @@ def resolve_size(size, native: Callable[[], tuple[Size, float]], what: str = "si
 
 
 def midair_intrinsics(size: Size) -> torch.Tensor:
-    """Intrinsics ``[4] = (fx, fy, cx, cy)`` of a 90-degree-FOV centred pinhole at ``size = (H, W)`` (spec 3.1):
+    """Intrinsics ``[4] = (fx, fy, cx, cy)`` of a 90-degree-FOV centred pinhole at ``size = (H, W)`` (design 2.1):
     ``fx = W/2, fy = H/2, cx = W/2, cy = H/2``."""
     h, w = size
     return torch.tensor([w / 2, h / 2, w / 2, h / 2], dtype=torch.float32)

@@ -77,7 +77,7 @@ def make_loader(
     Args:
         dataset: any dataset of item dicts (e.g. from :func:`cosemdepth.data.open_dataset`).
         batch_size: items per batch; tensors get a leading batch axis (``rgb`` -> ``[B, T, 3, H, W]``).
-        shuffle: reshuffle every epoch (training, spec 8.2 step 3); order from ``(seed, epoch)``.
+        shuffle: reshuffle every epoch (training, design 9.2 step 3); order from ``(seed, epoch)``.
         num_workers: worker processes (0 loads in the main process).
         seed: seed of the shuffling and of the workers' global generators.
         drop_last: drop the last incomplete batch (the original trains with ``drop_remainder``).

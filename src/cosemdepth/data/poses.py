@@ -1,4 +1,4 @@
-"""Absolute pose files (TUM, CSV) and their conversion to the model's relative camera motion (spec 3.2).
+"""Absolute pose files (TUM, CSV) and their conversion to the model's relative camera motion (design 2.2).
 
 Pose files hold, per line, a timestamp and the pose of the camera (or body) in a fixed world frame: the position
 ``p`` of its origin in world coordinates and the unit quaternion ``q`` rotating its axes into the world's
@@ -21,7 +21,7 @@ Axes of the local frame (``convention``), as 3x3 ``M`` with ``X_camera = M X_loc
 
 The relative motion of frame ``i`` w.r.t. the previous sampled frame ``j`` is, in local axes,
 ``R_l = R_j^T R_i`` and ``t_l = R_j^T (p_i - p_j)``, and in camera axes ``R = M R_l M^T``, ``t = M t_l``, so that
-``X_prev = R X_curr + t`` (spec 3.2).
+``X_prev = R X_curr + t`` (design 2.2).
 """
 
 from __future__ import annotations

@@ -35,7 +35,7 @@ def qrotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def qmatrix(q: np.ndarray) -> np.ndarray:
-    """``[..., 4]`` unit quaternions -> ``[..., 3, 3]`` rotation matrices (spec 3.2)."""
+    """``[..., 4]`` unit quaternions -> ``[..., 3, 3]`` rotation matrices (design 2.2)."""
     w, x, y, z = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
     return np.stack(
         [

@@ -171,7 +171,7 @@ def pose_from_msg(msgtype: str, msg: Any) -> tuple[int, np.ndarray, np.ndarray]:
 @dataclass(frozen=True)
 class CameraInfo:
     """Intrinsics of a ``sensor_msgs/CameraInfo``: image ``size`` (H, W) and ``k = (fx, fy, cx, cy)`` in the
-    package's pixel convention (ROS/OpenCV's ``cx, cy`` + 0.5: spec 3.1)."""
+    package's pixel convention (ROS/OpenCV's ``cx, cy`` + 0.5: design 2.1)."""
 
     size: tuple[int, int]
     k: tuple[float, float, float, float]

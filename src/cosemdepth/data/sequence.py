@@ -1,4 +1,4 @@
-"""Sequence windows over trajectories of frames, shared by every reader (spec 6.3, 8.2, 10.3).
+"""Sequence windows over trajectories of frames, shared by every reader (design 7.3, 9.2, 11.3).
 
 A reader turns its files into :class:`Trajectory` objects (ordered :class:`FrameRecord` rows) and a frame loader;
 :class:`SequenceDataset` cuts the trajectories into windows and returns one dict per window:
@@ -9,7 +9,7 @@ key             shape / type        meaning
 ``rgb``         [T, 3, H, W] f32    colour in [0, 1] (augmentation may leave that range)
 ``depth``       [T, 1, H, W] f32    z-depth in metres (only when the dataset has depth)
 ``semantic``    [T, H, W] int64     class indices (only when the dataset has labels)
-``rot``         [T, 4] f32          relative rotation (w, x, y, z): ``X_prev = R X_curr + t`` (spec 3.2)
+``rot``         [T, 4] f32          relative rotation (w, x, y, z): ``X_prev = R X_curr + t`` (design 2.2)
 ``trans``       [T, 3] f32          relative translation in metres, camera axes (x right, y down, z forward)
 ``intrinsics``  [4] f32             (fx, fy, cx, cy) in pixels of the output size
 ``reset``       [T] bool            start of a new trajectory (the model resets its state there)
@@ -21,12 +21,12 @@ key             shape / type        meaning
 
 Window modes:
 
-* ``"train"`` (spec 8.2): each trajectory is cut into consecutive non-overlapping chunks of ``db_seq_len`` rows
+* ``"train"`` (design 9.2): each trajectory is cut into consecutive non-overlapping chunks of ``db_seq_len`` rows
   (remainder dropped); an item is a random window of ``seq_len`` rows inside its chunk (offset uniform in
   ``[0, db_seq_len - seq_len]``); ``reset = [True, False, ...]``, ignoring the CSV id.
-* ``"windowed"`` (spec 6.3, validation during training): consecutive non-overlapping windows of ``seq_len`` rows
+* ``"windowed"`` (design 7.3, validation during training): consecutive non-overlapping windows of ``seq_len`` rows
   (remainder dropped), ``reset = [True, False, ...]``.
-* ``"stream"`` (spec 10.3, test/eval/predict): consecutive non-overlapping windows of ``seq_len`` rows, in file
+* ``"stream"`` (design 11.3, test/eval/predict): consecutive non-overlapping windows of ``seq_len`` rows, in file
   order, the remainder of each trajectory dropped (none when ``seq_len = 1``: every row is yielded, in order);
   ``reset`` comes from the rows (``id == 0`` for Mid-Air, and the first row of every trajectory).
 
@@ -53,7 +53,7 @@ MODES = ("train", "windowed", "stream")
 
 
 def default_mode(split: str | None, seq_len: int) -> str:
-    """``"train"`` for the train split; ``"windowed"`` for the val split with ``seq_len > 1`` (spec 6.3);
+    """``"train"`` for the train split; ``"windowed"`` for the val split with ``seq_len > 1`` (design 7.3);
     ``"stream"`` otherwise (so ``seq_len = 1`` on val streams with the CSV resets, as on test)."""
     if split == "train":
         return "train"

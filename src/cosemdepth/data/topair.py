@@ -1,4 +1,4 @@
-"""TopAir (spec 9.8): an AirSim aerial dataset with 8-bit depth and 9 classes, read through split CSVs.
+"""TopAir (design 10.8): an AirSim aerial dataset with 8-bit depth and 9 classes, read through split CSVs.
 
 On disk: ``<root>/<env>/images/NNNNNN.png`` (RGB), ``<root>/<env>/depth/NNNNNN.png`` (8-bit,
 ``depth = value * 100 / 255`` m), ``<root>/<env>/seg_id/NNNNNN.png`` (channel 0 = class ID 0..8).
@@ -9,7 +9,7 @@ Decoding: colour ``/255`` then BL2; depth and labels with TF2 nearest (NN2, the 
 ``tf.image.resize(..., "nearest")``); intrinsics ``f = W/2, H/2``, ``c = W/2, H/2`` as for Mid-Air.
 
 The authors' CSVs start with a row of ``id = -1`` (the true first frame, with a dummy motion) and their loader
-resets on ``id == 0``, i.e. on the *second* frame (spec 15.15). Here the first row of each CSV is the reset and
+resets on ``id == 0``, i.e. on the *second* frame (design 10.8). Here the first row of each CSV is the reset and
 ``id == 0`` is not.
 """
 

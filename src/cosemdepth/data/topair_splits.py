@@ -1,4 +1,4 @@
-"""TopAir split CSVs from the AirSim recordings (spec 9.8), in the authors' format.
+"""TopAir split CSVs from the AirSim recordings (design 10.8), in the authors' format.
 
 Input: ``<root>/<env>/airsim_rec.txt`` (AirSim's tab-separated recording with a header; the columns used are
 ``POS_X POS_Y POS_Z`` (NED world, metres) and ``Q_W Q_X Q_Y Q_Z`` (body-to-world, body x forward, y right,

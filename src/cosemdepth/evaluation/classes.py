@@ -1,4 +1,4 @@
-"""Class names and colour palettes of the datasets (spec 9.5, 9.8, 9.9), looked up by dataset name or class count."""
+"""Class names and colour palettes of the datasets (design 10.5, 10.8, 10.9), by dataset name or class count."""
 
 from __future__ import annotations
 

@@ -1,9 +1,9 @@
-"""The test protocol of the original (spec 10.3) with every metric of spec 10, speed, size and memory.
+"""The test protocol of the original (design 11.3) with every metric of design 11, speed, size and memory.
 
-Each trajectory of the split is streamed frame by frame with the model's explicit state (spec 6.2); frames that start
+Each trajectory of the split is streamed frame by frame with the model's explicit state (design 7.2); frames that start
 a trajectory (``reset``; Mid-Air's CSV ``id == 0``) are run (they initialise the state) but left out of **all**
-metrics. Depth metrics are per-frame values averaged over the evaluated frames (spec 10.1); mIoU comes from one global
-confusion matrix (spec 10.2). What is evaluated follows the model and the data: depth when the model predicts depth
+metrics. Depth metrics are per-frame values averaged over the evaluated frames (design 11.1); mIoU comes from one global
+confusion matrix (design 11.2). What is evaluated follows the model and the data: depth when the model predicts depth
 and the dataset has depth, segmentation when the model predicts classes and the dataset has labels (M4Depth,
 M4Semantic, Aeroscapes).
 
@@ -156,7 +156,7 @@ class EvaluationResult:
             f"{proto.get('frames_streamed')} frames streamed in {proto.get('trajectories')} trajectories, "
             f"{proto.get('frames_evaluated')} evaluated",
             f"- protocol: each trajectory streamed frame by frame ({proto.get('lanes')} at a time); "
-            + ("reset frames excluded from all metrics (spec 10.3)" if proto.get("reset_frames_excluded")
+            + ("reset frames excluded from all metrics (design 11.3)" if proto.get("reset_frames_excluded")
                else "every frame counted (a dataset of independent images)"),
             f"- speed: {_fmt(self.ms_per_frame, '.1f')} ms/frame (model step only, {speed.get('timed_frames')} "
             f"frames after {speed.get('warmup_steps')} warm-up steps) on {mach.get('device')}: {mach.get('cpu')}"
@@ -166,9 +166,9 @@ class EvaluationResult:
             f"- peak memory: {_fmt(self.peak_memory_mb, '.1f')} MiB ({self.memory_method})",
             f"- date: {info.get('date')}",
             "",
-            "RMSE_log is the original's (its mask drops every pixel with ground truth <= 1 m, spec 15.4); "
+            "RMSE_log is the original's (its mask drops every pixel with ground truth <= 1 m, design 11.1); "
             "RMSE_log (fixed) uses the plain valid mask. Depth metrics are per-frame values averaged over frames; "
-            "ground truth is clipped to [0, 80] m and predictions to [0.001, 80] m (spec 9.7, 10.1).",
+            "ground truth is clipped to [0, 80] m and predictions to [0.001, 80] m (design 10.7, 11.1).",
         ]
         return "\n".join(lines) + "\n"
 

@@ -1,6 +1,6 @@
-"""Depth and segmentation metrics exactly as the original evaluation computes them (spec 10, 8.5, 16).
+"""Depth and segmentation metrics exactly as the original evaluation computes them (design 11, 9.5, 15).
 
-Depth (spec 10.1), per frame, with ``g = clip(GT, 0, 80)``, ``e = clip(pred, 0.001, 80)``, valid mask
+Depth (design 11.1), per frame, with ``g = clip(GT, 0, 80)``, ``e = clip(pred, 0.001, 80)``, valid mask
 ``m = g > 1e-6`` and the NaN-safe masked mean ``sum(x * m) / max(sum(m), 1)``:
 
 ==================  ==============================================================================================
@@ -8,20 +8,20 @@ Depth (spec 10.1), per frame, with ``g = clip(GT, 0, 80)``, ``e = clip(pred, 0.0
 ``sq_rel``          ``(g - e)^2 / (g + 1e-6)``
 ``rmse``            ``sqrt(mean (g - e)^2)``
 ``rmse_log``        ``sqrt(mean (log(g + 1e-6) - log(e + 1e-6))^2)`` over the mask ``log(g + 1e-6) > 1e-6``: the
-                    original's bug, which drops every pixel with GT <= 1 m. Kept for comparability (spec 15.4).
+                    original's bug, which drops every pixel with GT <= 1 m. Kept for comparability (design 11.1).
 ``rmse_log_fixed``  the same error over the plain valid mask ``m`` (the corrected variant)
 ``delta1..3``       ``max(g/e, e/g) < 1.25^k``, as fractions in [0, 1]
 ==================  ==============================================================================================
 
-Sky and far pixels count as 80 m (spec 9.7). The dataset value of a metric is the **unweighted mean of its per-frame
-values** (spec 15.5): RMSE is the mean of per-frame RMSEs, not a pixel-pooled RMSE. Frames marked as not included
-(the reset frames of the test protocol, spec 10.3) are left out.
+Sky and far pixels count as 80 m (design 10.7). The dataset value of a metric is the **unweighted mean of its per-frame
+values** (design 11.1): RMSE is the mean of per-frame RMSEs, not a pixel-pooled RMSE. Frames marked as not included
+(the reset frames of the test protocol, design 11.3) are left out.
 
-Segmentation (spec 10.2): one global confusion matrix over all included frames and pixels; ``IoU_c = TP / (TP + FP +
+Segmentation (design 11.2): one global confusion matrix over all included frames and pixels; ``IoU_c = TP / (TP + FP +
 FN)``, and mIoU is the mean over the classes with a non-zero denominator (Keras ``MeanIoU``): a class absent from both
 GT and prediction is left out, a class predicted but absent from GT counts with IoU 0.
 
-Best checkpoint (spec 8.5): :func:`is_better`. Tables like the paper's (spec 16): :func:`format_markdown_table`.
+Best checkpoint (design 9.5): :func:`is_better`. Tables like the paper's (design 15): :func:`format_markdown_table`.
 
 Per-frame depth metrics are computed in float64 (float32 on MPS, which has no float64); the original used float32.
 The difference is rounding only.
@@ -36,7 +36,7 @@ import torch
 
 from ..errors import ConfigError, DatasetError
 
-#: Evaluation clipping (spec 9.7): GT to [0, EVAL_MAX_DEPTH], prediction to [EVAL_MIN_PRED, EVAL_MAX_DEPTH].
+#: Evaluation clipping (design 10.7): GT to [0, EVAL_MAX_DEPTH], prediction to [EVAL_MIN_PRED, EVAL_MAX_DEPTH].
 EVAL_MAX_DEPTH = 80.0
 EVAL_MIN_PRED = 1e-3
 #: The epsilon of the original metrics (validity threshold and the ``+ 1e-6`` in divisions and logs).
@@ -46,14 +46,14 @@ EPS = 1e-6
 DEPTH_METRICS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "delta1", "delta2", "delta3")
 #: Every per-frame depth value this module computes.
 ALL_DEPTH_METRICS = DEPTH_METRICS + ("rmse_log_fixed",)
-#: The order of the original ``perfs-midair.txt``: the seven depth metrics, then mIoU (spec 11).
+#: The order of the original ``perfs-midair.txt``: the seven depth metrics, then mIoU (design 11.4).
 PERFS_ORDER = DEPTH_METRICS + ("miou",)
 #: Whether a lower ("min") or higher ("max") value is better, for every scalar metric.
 METRIC_MODES = {
     "abs_rel": "min", "sq_rel": "min", "rmse": "min", "rmse_log": "min", "rmse_log_fixed": "min",
     "delta1": "max", "delta2": "max", "delta3": "max", "miou": "max",
 }
-#: Number of the seven depth metrics that must improve strictly for a new best checkpoint (spec 8.5).
+#: Number of the seven depth metrics that must improve strictly for a new best checkpoint (design 9.5).
 MIN_DEPTH_IMPROVED = 4
 
 
@@ -93,7 +93,7 @@ def depth_metrics(
     max_depth: float = EVAL_MAX_DEPTH,
     min_pred: float = EVAL_MIN_PRED,
 ) -> dict[str, torch.Tensor]:
-    """Per-frame depth metrics of spec 10.1.
+    """Per-frame depth metrics of design 11.1.
 
     Args:
         gt: ground-truth depth in metres, ``[H, W]`` (one frame) or ``[B, 1, H, W]`` (B frames).
@@ -124,7 +124,7 @@ def depth_metrics(
         "abs_rel": _masked_mean(diff.abs() / (g + EPS), valid),
         "sq_rel": _masked_mean(sq / (g + EPS), valid),
         "rmse": torch.sqrt(_masked_mean(sq, valid)),
-        # The original's mask: computed on log(g + 1e-6) instead of g, so GT <= 1 m is excluded (spec 15.4).
+        # The original's mask: computed on log(g + 1e-6) instead of g, so GT <= 1 m is excluded (design 11.1).
         "rmse_log": torch.sqrt(_masked_mean(sq_log, log_g > EPS)),
         "delta1": _masked_mean((ratio < 1.25).to(dtype), valid),
         "delta2": _masked_mean((ratio < 1.25**2).to(dtype), valid),
@@ -210,7 +210,7 @@ def _label_frames(x: torch.Tensor, name: str) -> torch.Tensor:
 
 
 class ConfusionMatrix:
-    """One global confusion matrix over all included frames and pixels (Keras ``MeanIoU``, spec 10.2).
+    """One global confusion matrix over all included frames and pixels (Keras ``MeanIoU``, design 11.2).
 
     ``matrix[i, j]`` counts pixels with ground truth ``i`` predicted as ``j`` (int64). Labels must lie in
     ``[0, num_classes - 1]``; there is no ignore label unless ``ignore_index`` is given, in which case GT pixels with
@@ -381,7 +381,7 @@ def _has_group(d: Mapping[str, Any], keys: Iterable[str]) -> bool:
 
 def is_better(new: Mapping[str, Any], best: Mapping[str, Any] | None, *,
               min_depth_improved: int = MIN_DEPTH_IMPROVED) -> bool:
-    """The original best-checkpoint rule (spec 8.5), restricted naturally to single-task models.
+    """The original best-checkpoint rule (design 9.5), restricted naturally to single-task models.
 
     * Co-SemDepth (both the seven :data:`DEPTH_METRICS` and ``miou`` present): at least ``min_depth_improved`` (4)
       of the seven depth metrics strictly better **and** ``miou`` strictly better.
@@ -481,7 +481,7 @@ def _fmt(v: Any, kind: str) -> str:
     return f"{x:.4f}"
 
 
-#: Columns of the paper's main table (spec 16): (header, result key, format).
+#: Columns of the paper's main table (design 15): (header, result key, format).
 TABLE_COLUMNS = (
     ("params", "params", "params"),
     ("ms/frame", "ms_per_frame", "ms"),
@@ -510,7 +510,7 @@ def format_markdown_table(
     *,
     extra_columns: bool = False,
 ) -> str:
-    """Markdown tables laid out like the paper's (spec 16).
+    """Markdown tables laid out like the paper's (design 15).
 
     Args:
         results: ``{row name: result dict}``. Keys used: ``params`` (a count), ``ms_per_frame``, ``miou``, ``rmse``,

@@ -9,7 +9,7 @@ twice in one trajectory gets ``_<row>`` appended)::
     OUT/<trajectory>/depth_png/NNNNNN.png      16-bit PNG, uint16 = round(depth_m * 256), saturated to [0, 65535]
                                                (1/256 m steps up to 255.996 m; depth_m = png / 256)
     OUT/<trajectory>/labels/NNNNNN.png         8-bit PNG of class indices (argmax)
-    OUT/<trajectory>/labels_color/NNNNNN.png   RGB PNG, the dataset's palette (Mid-Air/SynthAir: spec 9.5)
+    OUT/<trajectory>/labels_color/NNNNNN.png   RGB PNG, the dataset's palette (Mid-Air/SynthAir: design 10.5)
     OUT/<trajectory>/side_by_side/NNNNNN.png   RGB | depth | GT depth | labels | GT labels (GT when known), each
                                                panel >= 384 px, a depth colour bar and a class legend below
     OUT/<trajectory>/video.mp4                 the side-by-side frames as a video (GIF without ffmpeg)

@@ -1,4 +1,4 @@
-"""Stream a model over the trajectories of a dataset, frame by frame, with its explicit state (spec 6.2, 10.3).
+"""Stream a model over the trajectories of a dataset, frame by frame, with its explicit state (design 7.2, 11.3).
 
 This is the loop shared by ``cosemdepth evaluate``, ``predict`` and ``demo``. The dataset must yield single frames in
 stream mode (``open_dataset(..., seq_len=1)`` on a test split: every CSV row, in order, with ``reset`` on the rows that
@@ -96,7 +96,7 @@ class StreamBatch:
     Attributes:
         indices: dataset index of each frame; trajectory: trajectory names; frame: row in the trajectory ``[B]``.
         reset: ``[B]`` bool, the frame starts a trajectory (the model reset its state); such frames are left out of
-            the metrics of the test protocol (spec 10.3).
+            the metrics of the test protocol (design 11.3).
         rgb: ``[B, 3, H, W]``; intrinsics ``[B, 4]``.
         gt_depth: ``[B, 1, H, W]`` metres or None; gt_labels: ``[B, H, W]`` int64 or None.
         depth: predicted ``[B, 1, H, W]`` metres or None; semantic: ``[B, N, H, W]`` probabilities or None;

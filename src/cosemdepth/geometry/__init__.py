@@ -1,8 +1,8 @@
-"""Camera geometry of M4Depth (spec section 3): rotations, intrinsics, parallax <-> depth, flows and warping.
+"""Camera geometry of M4Depth (design section 2): rotations, intrinsics, parallax <-> depth, flows and warping.
 
 All functions are pure and work on batched tensors (NCHW for maps). Intrinsics are ``[B, 4] = (fx, fy, cx, cy)``
 in pixels; motion is ``rot [B, 4]`` (unit quaternion w, x, y, z) and ``trans [B, 3]`` in metres, in camera axes
-(x right, y down, z forward), such that ``X_prev = R(rot) @ X_curr + trans`` (spec 3.2).
+(x right, y down, z forward), such that ``X_prev = R(rot) @ X_curr + trans`` (design 2.2).
 """
 
 from .camera import level_intrinsics, pixel_grid, pixel_rays

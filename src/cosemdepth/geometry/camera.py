@@ -1,4 +1,4 @@
-"""Pinhole camera helpers (spec 3.1)."""
+"""Pinhole camera helpers (design 2.1)."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def pixel_grid(height: int, width: int, device=None, dtype=torch.float32) -> tup
 def centred_coordinates(
     height: int, width: int, intrinsics: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Centred pixel coordinates ``u = j + 0.5 - cx``, ``v = i + 0.5 - cy`` (spec 3.1).
+    """Centred pixel coordinates ``u = j + 0.5 - cx``, ``v = i + 0.5 - cy`` (design 2.1).
 
     Args:
         intrinsics: ``[B, 4]`` of this grid.

@@ -1,4 +1,4 @@
-"""Parallax geometry of M4Depth (spec 3.3-3.4).
+"""Parallax geometry of M4Depth (design 2.3-2.4).
 
 For a current-frame pixel with normalised ray ``x~`` and the relative motion ``(R, t)`` (``X_prev = R X_curr + t``):
 
@@ -66,7 +66,7 @@ def epipolar_geometry(
     guard: bool = True,
     hypot: bool = False,
 ) -> EpipolarGeometry:
-    """Epipolar quantities of every pixel of a ``height x width`` grid (spec 3.3).
+    """Epipolar quantities of every pixel of a ``height x width`` grid (design 2.3).
 
     Args:
         rot: ``[B, 4]`` quaternion (w, x, y, z) or ``[B, 3, 3]`` rotation matrix.
@@ -126,15 +126,15 @@ def parallax_to_depth(parallax: torch.Tensor, geom: EpipolarGeometry, guard: boo
 def prev_depth_to_parallax(
     prev_depth: torch.Tensor, trans: torch.Tensor, intrinsics: torch.Tensor, guard: bool = True
 ) -> torch.Tensor:
-    """Parallax, with respect to the current frame, of the points seen by the previous frame (spec 3.4).
+    """Parallax, with respect to the current frame, of the points seen by the previous frame (design 2.4).
 
     Evaluated on the previous frame's own grid: ``rho' = |(fx t_x - t_z u', fy t_y - t_z v')| / |d' - t_z|``.
     The caller applies stop-gradient.
 
     The original computes the norm of the vector divided by ``d' - t_z``, hence the absolute value of the denominator:
     a previous depth below ``t_z`` (e.g. the negative depths an untrained network gives near the focus of expansion)
-    gives a positive parallax, not a negative one (spec 3.4 writes ``d' - t_z``; the reference outputs of the
-    original confirm the absolute value).
+    gives a positive parallax, not a negative one (design 2.4: the geometry alone gives ``d' - t_z``; the
+    reference outputs of the original confirm the absolute value).
 
     Args:
         prev_depth: ``[B, 1, H, W]`` depth ``d'`` of the previous frame (metres).
@@ -159,7 +159,7 @@ def prev_depth_to_parallax(
 
 
 def candidate_flows(parallax: torch.Tensor, geom: EpipolarGeometry) -> torch.Tensor:
-    """Flows to the previous frame for parallax hypotheses (spec 3.4): ``p_rot + rho * delta/|delta| - (u, v)``.
+    """Flows to the previous frame for parallax hypotheses (design 2.4): ``p_rot + rho * delta/|delta| - (u, v)``.
 
     Args:
         parallax: ``[B, K, H, W]`` K hypotheses per pixel.

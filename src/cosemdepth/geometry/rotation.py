@@ -1,4 +1,4 @@
-"""Rotation representations (spec 3.2)."""
+"""Rotation representations (design 2.2)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Bilinear backward warping with border clamping (spec 3.5)."""
+"""Bilinear backward warping with border clamping (design 2.5)."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ def sample_bilinear(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
 
 
 def warp(image: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
-    """``Warp(img, flow)[i, j] = img(i + flow_y, j + flow_x)``, bilinear, border-clamped (spec 3.5).
+    """``Warp(img, flow)[i, j] = img(i + flow_y, j + flow_x)``, bilinear, border-clamped (design 2.5).
 
     Gradients flow to the image and to the flow (zero where the clamp is active).
 

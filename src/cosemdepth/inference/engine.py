@@ -261,7 +261,7 @@ class FastEngine:
         return feats
 
     def _dinl(self, x: torch.Tensor) -> torch.Tensor:
-        """DINL (spec 2.2) in few passes (:func:`cosemdepth.ops.normalize.dinl`, the training's too)."""
+        """DINL (design 4.2) in few passes (:func:`cosemdepth.ops.normalize.dinl`, the training's too)."""
         return dinl(x, *self.dinl)
 
     # ------------------------------------------------------------------ step

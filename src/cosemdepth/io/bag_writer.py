@@ -43,7 +43,7 @@ class BagWriter:
 
     Args:
         header: ``dataset index -> (stamp_ns, frame_id)`` of the input image.
-        intrinsics: ``(fx, fy, cx, cy)`` at the output size in the package's pixel convention (spec 3.1).
+        intrinsics: ``(fx, fy, cx, cy)`` at the output size in the package's pixel convention (design 2.1).
         palette: ``[N, 3]`` uint8 for ``labels_color`` (None: no label topics).
         namespace: topic prefix.
     """

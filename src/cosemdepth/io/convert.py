@@ -1,6 +1,6 @@
 """Convert the weights of an official TensorFlow checkpoint (Co-SemDepth, M4Depth, M4Semantic) to ours.
 
-Key map (spec section 13.1 and Appendix C; ``<enc>``, ``<dec>`` are whatever root attribute names the model used,
+Key map (design section 13.1; ``<enc>``, ``<dec>`` are whatever root attribute names the model used,
 e.g. ``encoder``, ``d_estimator``, ``s_estimator``; keys are matched by pattern below the root)::
 
     <enc>/conv_layers_s{1,2}/{k}/kernel|bias                    -> encoder.conv_s{1,2}.{k}.weight|bias
@@ -16,7 +16,7 @@ inference state variables (``*prev_*``) and the object graph are ignored; any ot
 The model config is inferred from shapes: the architecture from which refiners exist, the number of levels from
 the encoder, the classes from the last semantic conv (``N + 4`` channels), DINL from its presence, and the depth
 ablations from the depth refiners' input channels ``9K + 1 + 4·[level memory] + 49K·[SNCV] + [time recurrence]``
-with ``K = 2^floor(l/2)`` (``1`` without feature subdivision) at absolute level ``l`` (spec 4.1, 4.6). Feature
+with ``K = 2^floor(l/2)`` (``1`` without feature subdivision) at absolute level ``l`` (design 5.1, 5.5). Feature
 normalization has no weights, so it cannot be read from a checkpoint: it is taken from the caller (default on), and
 so is the cost-volume precision (default float16, as the original computes it).
 """
@@ -143,7 +143,7 @@ def _classify(key: str) -> tuple[str, str, str] | None:
     if m:
         p = "weight" if m["p"] == "scale" else "bias"
         k = int(m["k"])
-        # Only the level-1 DINL ever gets weights (spec 2.2); another index is reported as unexpected below.
+        # Only the level-1 DINL ever gets weights (design 4.2); another index is reported as unexpected below.
         return "encoder", m["root"], ("encoder.dinl." if k == 0 else f"encoder.dinl{k}.") + p
     m = _REFINER.match(key)
     if m:
@@ -197,7 +197,7 @@ def _infer_depth_ablations(
     if not matches:
         raise CheckpointError(
             f"{origin}: depth refiner input channels {c_ins} (finest level first) match no combination of the "
-            "SNCV / time recurrence / level memory / feature subdivision switches (spec 4.1): not an M4Depth decoder"
+            "SNCV / time recurrence / level memory / feature subdivision switches (design 5.1): not an M4Depth decoder"
         )
     # Several matches only when they are indistinguishable (e.g. 1 level: K = 1 with or without subdivision);
     # the first one in product order is the one with the most switches on, i.e. the defaults.
@@ -304,7 +304,7 @@ def convert_tensors(
     ``arch`` loads only part of a checkpoint (e.g. ``"m4depth"`` from a joint checkpoint: the semantic decoder's
     weights are dropped); by default the architecture the checkpoint holds. ``feature_normalization`` and
     ``pscv_dtype`` leave no trace in the weights and are set as given: float16 cost-volume products reproduce the
-    original's numbers (spec 4.6 step 2). ``origin`` names the checkpoint in error messages. Raises :class:`CheckpointError` on a missing, unexpected or wrongly shaped tensor.
+    original's numbers (design 5.5.2). ``origin`` names the checkpoint in error messages. Raises :class:`CheckpointError` on a missing, unexpected or wrongly shaped tensor.
     """
     hits: list[tuple[str, str, str]] = []  # (tf key, part, our name)
     ignored: dict[str, str] = {}

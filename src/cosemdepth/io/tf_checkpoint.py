@@ -1,6 +1,6 @@
 """Read TensorFlow object-based checkpoints (``P.index`` + ``P.data-SSSSS-of-NNNNN``) without TensorFlow.
 
-The format (spec Appendix D): ``P.index`` is a LevelDB-format sorted table whose empty key holds a
+The format (design 13.2): ``P.index`` is a LevelDB-format sorted table whose empty key holds a
 ``BundleHeaderProto`` and whose other keys are variable paths with a ``BundleEntryProto`` each; a numeric tensor is
 ``size`` raw little-endian bytes at ``offset`` in data shard ``shard_id``. Every block of the table and every tensor
 carries a masked CRC32C, and this reader checks all of them, so a corrupt or truncated file is reported, never

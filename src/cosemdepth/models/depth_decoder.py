@@ -1,4 +1,4 @@
-"""M4Depth depth decoder (spec 4): per level a parallax-sweeping cost volume, a spatial cost volume, time recurrence
+"""M4Depth depth decoder (design 5): per level a parallax-sweeping cost volume, a spatial cost volume, time recurrence
 through the previous depth, level memory, a refiner and the parallax -> depth decoding."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from .layers import Refiner
 from .outputs import DepthLevelOutput
 from .pyramid import LevelOps, PyramidDecoder, PyramidLevel
 
-#: Parallax hypotheses rho_in + k, k = -SEARCH..SEARCH (spec 4.6.2).
+#: Parallax hypotheses rho_in + k, k = -SEARCH..SEARCH (design 5.5.2).
 SEARCH_RANGE = 4
 SNCV_RADIUS = 3
 #: Depth of the initial / reset state (metres) and the clip of the decoded log-parallax.
@@ -71,7 +71,7 @@ class DepthLevel(PyramidLevel):
         self.refiner = Refiner(refiner_in_channels(level, cfg), 5)
 
     def coarse_inputs(self, coarse: DepthLevelOutput | None, like: torch.Tensor, ops: LevelOps) -> DepthLevelOutput:
-        """``(rho_in, depth_in, other_in)`` from the coarser level (BL1 upsampling) or the constant init (spec 4.4)."""
+        """``(rho_in, depth_in, other_in)`` from the coarser level (BL1) or the constant init (design 5.3)."""
         b, _, h, w = like.shape
         if coarse is None:
             ones = like.new_ones(b, 1, h, w)
@@ -89,7 +89,7 @@ class DepthLevel(PyramidLevel):
         prev: tuple[torch.Tensor, torch.Tensor],
         ops: LevelOps,
     ) -> DepthLevelOutput:
-        """The normal branch (spec 4.6); ``prev`` is the previous frame's (features, depth) at this level."""
+        """The normal branch (design 5.5); ``prev`` is the previous frame's (features, depth) at this level."""
         guard = frame.guard
         rho_in, other_in = inputs.parallax, inputs.other
         prev_feat, prev_depth = prev

@@ -1,4 +1,4 @@
-"""Shared feature-pyramid encoder with DINL (spec 2)."""
+"""Shared feature-pyramid encoder with DINL (design 4)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ def _spatial_mean(x: torch.Tensor) -> torch.Tensor:
 
 
 class DINL(nn.Module):
-    """Domain-invariant normalisation layer exactly as the original codes it (spec 2.2).
+    """Domain-invariant normalisation layer exactly as the original codes it (design 4.2).
 
     Per image and channel: ``z = (x - mean) / (variance + 1e-12)`` (the variance, not the std), then L2
     normalisation across channels per pixel (``max(sum z^2, 1e-12)``), then an affine ``gamma * n + beta``.

@@ -38,7 +38,7 @@ def conv3x3(in_channels: int, out_channels: int, stride: int = 1) -> Conv2dSame:
 
 
 class Refiner(nn.Module):
-    """The seven-convolution estimator stack of both decoders (spec 4.6.6 and 5.4).
+    """The seven-convolution estimator stack of both decoders (design 5.5.6 and 6.1).
 
     ``in -> 128 -> 128 -> 96 -> 64 -> 32 -> 16 -> out``, 3x3 "same" convolutions, LeakyReLU(0.1) after all but the last.
     Parameters: ``1152 C_in + 336,848 + 145 C_out``.

@@ -60,7 +60,7 @@ REFERENCE_OPS = LevelOps()
 class PyramidLevel(nn.Module):
     """One level l (absolute, 1 = finest) of a decoder. Its operations:
 
-    * ``prepare(feat, guard)``: the encoder features as the level uses them (grouped L2 normalisation, spec 4.3, if
+    * ``prepare(feat, guard)``: the encoder features as the level uses them (grouped L2 normalisation, design 5.2, if
       ``normalize``);
     * ``coarse_inputs(coarse, f_hat, ops)``: the level's inputs from the coarser level's output (None at the
       coarsest level), a dataclass of tensors like the output: also what a resetting sample outputs;
@@ -93,7 +93,7 @@ class PyramidDecoder(nn.Module):
     finest map, upsampled to the input size, is the decoder's output).
 
     Attributes:
-        guard: protect the degenerate cases of spec 3.4 (default True; results on normal inputs are unchanged).
+        guard: protect the degenerate cases of design 2.4 (default True; results on normal inputs are unchanged).
         static: never branch on the reset mask (always refine and select per sample); for graph capture and export.
             The default skips the refiners when every sample resets.
     """

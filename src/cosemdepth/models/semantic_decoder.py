@@ -1,4 +1,4 @@
-"""M4Semantic segmentation decoder (spec 5): per level, the encoder features with the upsampled class probabilities
+"""M4Semantic segmentation decoder (design 6): per level, the encoder features with the upsampled class probabilities
 and "other" channels of the coarser level go through a refiner; softmax gives the probabilities."""
 
 from __future__ import annotations

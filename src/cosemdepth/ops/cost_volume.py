@@ -1,4 +1,4 @@
-"""Cost volumes of the depth decoder (spec 4.6): the parallax-sweeping cost volume (PSCV) and the spatial
+"""Cost volumes of the depth decoder (design 5.5): the parallax-sweeping cost volume (PSCV) and the spatial
 neighbourhood cost volume (SNCV).
 
 Both correlate channel groups: for group ``g`` of ``n_g`` channels, ``corr = (1 / n_g) sum_{c in g} a_c b_c``, i.e. the

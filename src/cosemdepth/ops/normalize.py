@@ -1,4 +1,4 @@
-"""Feature normalisation (spec 4.3 and 5.1)."""
+"""Feature normalisation (design 5.2)."""
 
 from __future__ import annotations
 
@@ -68,14 +68,14 @@ class _GroupedL2(torch.autograd.Function):
         return gx.reshape(b, c, h, w), None, None
 
 
-#: DINL's guards (spec 2.2): added to the per-channel variance; the lower bound of the per-pixel norm over channels
+#: DINL's guards (design 4.2): added to the per-channel variance; the lower bound of the per-pixel norm over channels
 #: (the original's ``max(sum z^2, 1e-12)`` under the square root).
 DINL_VAR_EPS = 1e-12
 DINL_NORM_MIN = 1e-6
 
 
 def dinl(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-    """Domain-invariant normalisation (spec 2.2) in few passes over the map, with a hand-written backward.
+    """Domain-invariant normalisation (design 4.2) in few passes over the map, with a hand-written backward.
 
     Per image and channel ``z = (x - mean) / (var + 1e-12)`` (the variance, not the std), then ``n = z / max(|z|,
     1e-6)`` with ``|z|`` the L2 norm over the channels per pixel, then ``weight * n + bias``. Computed in float32 for

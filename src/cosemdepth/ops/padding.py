@@ -1,4 +1,4 @@
-"""TensorFlow "same" padding (spec A.6).
+"""TensorFlow "same" padding (design 3.5).
 
 For a 3x3 convolution with stride 1 the padding is 1 on every side (PyTorch ``padding=1``). For stride 2 TF pads
 ``pad_total = max((ceil(n / s) - 1) * s + k - n, 0)`` split as ``floor(pad_total / 2)`` before and the rest after:

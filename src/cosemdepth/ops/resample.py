@@ -1,4 +1,4 @@
-"""Resampling primitives that reproduce TensorFlow's resize rules exactly (spec Appendix A).
+"""Resampling primitives that reproduce TensorFlow's resize rules exactly (design 3).
 
 All functions take NCHW tensors (any leading batch/channel layout with the last two axes spatial) and a target
 ``size = (H_out, W_out)``.
@@ -37,7 +37,7 @@ def _legacy_axis(n_in: int, n_out: int, device: torch.device) -> tuple[torch.Ten
 
 
 def resize_bl1(x: torch.Tensor, size: Size) -> torch.Tensor:
-    """Legacy TF1 bilinear resize (``align_corners=False``, ``half_pixel_centers=False``), spec A.1.
+    """Legacy TF1 bilinear resize (``align_corners=False``, ``half_pixel_centers=False``), design 3.1.
 
     For an exact x2 upsampling: ``out[2m] = in[m]``, ``out[2m+1] = (in[m] + in[m+1]) / 2`` and the last output
     repeats the last input. Interpolates along W first, then along H, with TF's ``a + (b - a) * t`` form.
@@ -65,14 +65,14 @@ def resize_bl1(x: torch.Tensor, size: Size) -> torch.Tensor:
 
 
 def resize_bl2(x: torch.Tensor, size: Size) -> torch.Tensor:
-    """TF2 bilinear resize (half-pixel centres, no antialias), spec A.2. ``x`` is ``[B,C,H,W]``."""
+    """TF2 bilinear resize (half-pixel centres, no antialias), design 3.2. ``x`` is ``[B,C,H,W]``."""
     if tuple(x.shape[-2:]) == tuple(size):
         return x
     return F.interpolate(x, size=tuple(size), mode="bilinear", align_corners=False, antialias=False)
 
 
 def resize_nn1(x: torch.Tensor, size: Size) -> torch.Tensor:
-    """Legacy TF1 / OpenCV nearest resize, ``src = min(floor(k * n_in / n_out), n_in - 1)``, spec A.3/A.5.
+    """Legacy TF1 / OpenCV nearest resize, ``src = min(floor(k * n_in / n_out), n_in - 1)``, design 3.3.
 
     Works for float and integer tensors of shape ``[..., H, W]``.
     """
@@ -80,7 +80,7 @@ def resize_nn1(x: torch.Tensor, size: Size) -> torch.Tensor:
 
 
 def resize_nn2(x: torch.Tensor, size: Size) -> torch.Tensor:
-    """TF2 nearest resize (half-pixel), ``src = min(floor((k + 0.5) * n_in / n_out), n_in - 1)``, spec A.4.
+    """TF2 nearest resize (half-pixel), ``src = min(floor((k + 0.5) * n_in / n_out), n_in - 1)``, design 3.4.
 
     Works for float and integer tensors of shape ``[..., H, W]``.
     """

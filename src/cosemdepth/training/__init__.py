@@ -1,6 +1,6 @@
 """Training: losses, the training loop and its parts.
 
-* :mod:`~cosemdepth.training.losses`: the losses of spec 7;
+* :mod:`~cosemdepth.training.losses`: the losses of design 8;
 * :mod:`~cosemdepth.training.trainer`: :class:`Trainer` (the loop, resume, non-finite guard, validation, best model);
 * :mod:`~cosemdepth.training.run_config`: YAML configs and ``KEY=VALUE`` overrides (the dataclasses are in
   :mod:`cosemdepth.config`);

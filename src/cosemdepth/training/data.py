@@ -1,9 +1,9 @@
 """Datasets and batches of a training run: opening the configured datasets, a resumable distributed sampler, and
 batch collation / device transfer.
 
-Training items come from :func:`cosemdepth.data.open_dataset` in ``"train"`` window mode (spec 8.2: chunks of
+Training items come from :func:`cosemdepth.data.open_dataset` in ``"train"`` window mode (design 9.2: chunks of
 ``db_seq_len``, a random ``seq_len`` window in each, the paper's augmentations); validation items in ``"windowed"``
-mode (spec 6.3: non-overlapping windows of ``val_seq_len``, no augmentation). A mix of datasets samples items with
+mode (design 7.3: non-overlapping windows of ``val_seq_len``, no augmentation). A mix of datasets samples items with
 the configured weights. The order of the items of an epoch follows ``(seed, epoch)`` exactly as
 :class:`torch.utils.data.DistributedSampler`, so a run can resume in the middle of an epoch by skipping the batches
 it already consumed, without loading them.
@@ -101,7 +101,7 @@ def build_train_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Data
 
 
 def build_val_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Dataset | None:
-    """The validation dataset (spec 6.3 windows), or None when validation is off."""
+    """The validation dataset (design 7.3 windows), or None when validation is off."""
     src = data.val_source
     if src is None:
         return None

@@ -1,11 +1,11 @@
-"""Training losses of Co-SemDepth, M4Depth and M4Semantic, as the original code computes them (spec 7).
+"""Training losses of Co-SemDepth, M4Depth and M4Semantic, as the original code computes them (design 8).
 
 Both losses take the per-level predictions of a training forward pass over a ``T``-frame sequence, finest level
 first, and supervise frames ``first_frame .. T-1`` (frame 0 is the reset frame and is never supervised by default).
 Each supervised frame contributes ``mean over batch and pixels`` and the frame terms are averaged, i.e. summed and
 divided by the number of supervised frames (``T - 1`` by default).
 
-Depth (spec 7.1)::
+Depth (design 8.1)::
 
     pre(x)  = log(clip(x, 0.01, 200))
     L_depth = sum_t sum_i  w_i * mean_{b,h,w} | BL2(pre(D_gt^t), size_i) - pre(D_i^t) |  / (T - 1)
@@ -13,7 +13,7 @@ Depth (spec 7.1)::
 
 The ground truth is log-transformed first and then resized to every level (TF2 half-pixel bilinear, ``BL2``).
 
-Semantic (spec 7.2): Keras ``SparseCategoricalCrossentropy`` on softmax probabilities, weight 1 per level, labels
+Semantic (design 8.2): Keras ``SparseCategoricalCrossentropy`` on softmax probabilities, weight 1 per level, labels
 resized with TF2 half-pixel nearest (``NN2``). Keras clips the probabilities to ``[1e-7, 1 - 1e-7]``, takes their log
 and feeds it as logits to a softmax cross-entropy, so the per-pixel loss is::
 
@@ -22,11 +22,11 @@ and feeds it as logits to a softmax cross-entropy, so the per-pixel loss is::
 For a probability vector with no clipped entry the second term is exactly ``log 1 = 0``; otherwise it is at most
 ``log(1 + N * 1e-7)``. The loss is therefore capped at ``-log(1e-7) = 16.118`` (plus that tiny term), and a pixel whose
 target probability is below ``1e-7`` sends no gradient through it. ``from_logits=True`` switches to the numerically
-stable ``log_softmax`` of logits, a documented deviation (spec 15 item 21).
+stable ``log_softmax`` of logits, a documented deviation (design 8.2).
 
-Total (spec 7.3): ``L = L_depth + 0.1 * L_sem``. M4Depth has no semantic term; M4Semantic has only ``0.1 * L_sem``.
+Total (design 8.3): ``L = L_depth + 0.1 * L_sem``. M4Depth has no semantic term; M4Semantic has only ``0.1 * L_sem``.
 
-Deliberate deviation (spec 15 item 1): non-finite ground-truth depth (``inf`` from a zero disparity, ``NaN`` from a
+Deliberate deviation (design 8.1): non-finite ground-truth depth (``inf`` from a zero disparity, ``NaN`` from a
 resize of ``inf``) is replaced by the 200 m cap before the log. The original let ``NaN`` through ``clip`` and into the
 loss. Predictions are left as they are, so a diverging model still shows up as a non-finite loss.
 """
@@ -44,12 +44,12 @@ import torch.nn.functional as F
 
 from ..ops.resample import resize_bl2, resize_nn2
 
-#: Depth clipping range of the loss, in metres (spec 7.1).
+#: Depth clipping range of the loss, in metres (design 8.1).
 LOSS_MIN_DEPTH = 0.01
 LOSS_MAX_DEPTH = 200.0
-#: Keras ``epsilon()``: the probability clip of the sparse categorical cross-entropy (spec 7.2).
+#: Keras ``epsilon()``: the probability clip of the sparse categorical cross-entropy (design 8.2).
 SCCE_EPSILON = 1e-7
-#: Weight of the semantic loss in the total loss (spec 7.3).
+#: Weight of the semantic loss in the total loss (design 8.3).
 SEMANTIC_WEIGHT = 0.1
 #: First supervised frame of a training sequence (frame 0 is the reset frame).
 FIRST_SUPERVISED_FRAME = 1
@@ -72,7 +72,7 @@ def log_depth(depth: torch.Tensor, min_depth: float = LOSS_MIN_DEPTH, max_depth:
 
 
 def sanitize_gt_depth(depth: torch.Tensor, max_depth: float = LOSS_MAX_DEPTH) -> torch.Tensor:
-    """Replace non-finite ground-truth depth (``+-inf``, ``NaN``) by ``max_depth`` (deliberate fix, spec 15.1)."""
+    """Replace non-finite ground-truth depth (``+-inf``, ``NaN``) by ``max_depth`` (deliberate fix, design 8.1)."""
     return torch.where(torch.isfinite(depth), depth, torch.full_like(depth, max_depth))
 
 
@@ -111,7 +111,7 @@ def depth_loss(
     min_depth: float = LOSS_MIN_DEPTH,
     max_depth: float = LOSS_MAX_DEPTH,
 ) -> torch.Tensor:
-    """Multi-level L1 loss on log depth (spec 7.1).
+    """Multi-level L1 loss on log depth (design 8.1).
 
     Args:
         pred_depths: per-level predicted depth in metres, finest first, each ``[B, T, 1, h_l, w_l]``.
@@ -173,7 +173,7 @@ def semantic_loss(
     epsilon: float = SCCE_EPSILON,
     class_weights: Sequence[float] | None = None,
 ) -> torch.Tensor:
-    """Multi-level sparse categorical cross-entropy (spec 7.2).
+    """Multi-level sparse categorical cross-entropy (design 8.2).
 
     Args:
         pred_semantic: per-level class scores, finest first, each ``[B, T, N, h_l, w_l]``: softmax probabilities
@@ -297,7 +297,7 @@ def total_loss(
     from_logits: bool = False,
     class_weights: Sequence[float] | None = None,
 ) -> LossTerms:
-    """``L_depth + semantic_weight * L_sem`` (spec 7.3) for any of the three architectures.
+    """``L_depth + semantic_weight * L_sem`` (design 8.3) for any of the three architectures.
 
     Co-SemDepth passes both pairs; M4Depth only ``(pred_depths, gt_depth)``; M4Semantic only
     ``(pred_semantic, gt_labels)`` (its total is ``semantic_weight * L_sem``, as in the original).

@@ -1,14 +1,14 @@
-"""The training loop (spec 8): :class:`Trainer`.
+"""The training loop (design 9): :class:`Trainer`.
 
 One :class:`Trainer` runs one run folder (layout in :mod:`cosemdepth.training.rundir`):
 
 * Adam with the configured recipe (the paper's: lr 1e-4 constant, betas 0.9/0.999, eps 1e-7, Keras 2's update of
-  :mod:`.optim`) on the loss of spec 7;
+  :mod:`.optim`) on the loss of design 8;
 * a checkpoint every ``train.checkpoint_every`` steps and at every epoch end, the newest ``train.keep_last`` kept;
   running the same command again resumes from the newest valid checkpoint (weights, optimizer, position in the
   epoch, RNG states, best metrics), so the resumed run continues exactly where the checkpoint was taken;
-* validation as in spec 6.3 every ``train.validate_every_epochs`` epochs and/or ``train.validate_every_steps``
-  steps, and the best model in ``RUN_DIR/best`` by the rule ``train.best`` (spec 8.5, or one metric);
+* validation as in design 7.3 every ``train.validate_every_epochs`` epochs and/or ``train.validate_every_steps``
+  steps, and the best model in ``RUN_DIR/best`` by the rule ``train.best`` (design 9.5, or one metric);
 * a non-finite guard: a step whose loss or gradient is not finite is skipped (no optimizer update) and logged; after
   ``train.nonfinite_patience`` such steps in a row the run rolls back to the last good checkpoint, re-shuffles the
   rest of that epoch, and continues; it gives up after ``train.max_rollbacks`` rollbacks without progress;
@@ -141,7 +141,7 @@ def seed_everything(seed: int) -> None:
 
 
 def compute_loss(out, batch: dict, cfg: RunConfig) -> LossTerms:
-    """The training loss (spec 7) of a :class:`SequenceOutput` against a batch, for any of the three models.
+    """The training loss (design 8) of a :class:`SequenceOutput` against a batch, for any of the three models.
 
     Always float32: autocast is switched off here and bfloat16 predictions (``train.bf16``) are cast to float32
     before the log, the resizes and the means, so the loss and its gradient have float32 rounding."""

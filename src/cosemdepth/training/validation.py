@@ -1,8 +1,8 @@
-"""Validation during training, as the original runs it (spec 6.3, 10.3).
+"""Validation during training, as the original runs it (design 7.3, 11.3).
 
 Each validation item is a window of ``T`` (4) consecutive frames with ``reset = [True, False, ...]``. The streaming
 model runs through the window, resetting at its first frame, and only the **last frame** of each window enters the
-metrics (depth metrics of spec 10.1 and the global confusion matrix of spec 10.2, at the input resolution, the
+metrics (depth metrics of design 11.1 and the global confusion matrix of design 11.2, at the input resolution, the
 prediction nearest-upsampled from the finest level by ``model.step``).
 """
 
@@ -47,7 +47,7 @@ def validate(
     autocast: contextlib.AbstractContextManager | None = None,
     keep_example: bool = True,
 ) -> tuple[dict[str, Any], dict[str, torch.Tensor] | None]:
-    """Windowed validation (spec 6.3) of ``model`` (unwrapped, it is switched to eval mode and back).
+    """Windowed validation (design 7.3) of ``model`` (unwrapped, it is switched to eval mode and back).
 
     Args:
         batches: an iterable of collated validation windows (a DataLoader).

@@ -26,7 +26,7 @@ def depth_to_rgb(depth: torch.Tensor | np.ndarray, lo: float = DEPTH_VIS_RANGE[0
 
 
 def palette(num_classes: int) -> np.ndarray:
-    """``[N, 3]`` uint8 colours: the Mid-Air palette (spec 9.5) for up to 7 classes, "tab20" beyond."""
+    """``[N, 3]`` uint8 colours: the Mid-Air palette (design 10.5) for up to 7 classes, "tab20" beyond."""
     if num_classes <= len(PALETTE_7):
         return PALETTE_7[:num_classes]
     from matplotlib import colormaps  # deferred (see depth_to_rgb)

@@ -1,7 +1,7 @@
 """Geometric consistency of SynthAir: the ground-truth depth and the CSV motions explain the image motion.
 
-An independent check, written here from the spec alone: for each pixel of frame t, back-project with its depth
-(f = W/2, c = W/2), move into frame t-1 with X_prev = R X_curr + t (spec 3.2), project and sample frame t-1
+An independent check, written here from design 2 alone: for each pixel of frame t, back-project with its depth
+(f = W/2, c = W/2), move into frame t-1 with X_prev = R X_curr + t (design 2.2), project and sample frame t-1
 bilinearly. The warped frame must match frame t far better than frame t-1 itself does, on every climate.
 """
 

@@ -100,7 +100,7 @@ def _rot(q):
 
 
 def test_split_csv_motions_match_the_hdf5_ground_truth(small):
-    """Recompute every CSV row from the 100 Hz ground truth by hand (spec 9.3) and check the spec 3.2 convention
+    """Recompute every CSV row from the 100 Hz ground truth by hand (design 10.3) and check the design 2.2 convention
     X_prev = R X_curr + t on a world point seen by both cameras."""
     cfg, _ = small
     root = Path(cfg.out)
@@ -241,7 +241,7 @@ def test_bad_arguments_are_refused_before_anything_is_written(tmp_path, kwargs, 
 
 
 def test_a_128px_set_read_by_an_independent_mid_air_reader_gives_the_rendered_depth(world, tmp_path):
-    """Mid-Air's convention, as every Mid-Air tool reads it (spec 9.2): depth = 512 / disparity whatever the PNG's
+    """Mid-Air's convention, as every Mid-Air tool reads it (design 10.2): depth = 512 / disparity whatever the PNG's
     size. A minimal reader written here (PNG -> uint16 -> float16 bits -> 512 / disparity) must give the renderer's
     depth from a 128 px set; the old writer stored (S/2)/z, which this reader would read 8x too far."""
     cfg = SynthConfig(out=tmp_path / "s128", trajectories=1, frames=8, size=128, seed=0, climates=("sunny",))

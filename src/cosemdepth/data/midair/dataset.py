@@ -1,19 +1,19 @@
-"""The Mid-Air sequence dataset (spec 9), also used for SynthAir (same on-disk format, any env/climate names).
+"""The Mid-Air sequence dataset (design 10), also used for SynthAir (same on-disk format, any env/climate names).
 
-Decoding of one row (spec 9.2, 9.6):
+Decoding of one row (design 10.2, 10.6):
 
 * colour: ``camera_l`` JPEG -> uint8 (libjpeg-turbo, fast integer IDCT like the original by default; ``jpeg_idct``) -> ``/255`` -> BL2 resize to the output size;
 * depth: ``disp`` 16-bit PNG whose values are float16 bit patterns -> disparity -> z-depth ``512 / disparity``
-  whatever the PNG's size (Mid-Air's convention, spec 9.2: resizing a PNG never rescales its values) at the native
+  whatever the PNG's size (Mid-Air's convention, design 10.2: resizing a PNG never rescales its values) at the native
   size -> BL2 resize (in the depth domain). A zero disparity (infinitely far) is read as the smallest positive float16
-  disparity (2^-24), i.e. a depth of ``512 * 2^24`` m, so that the bilinear resize stays finite (spec 15.1); a negative, NaN or infinite
+  disparity (2^-24), i.e. a depth of ``512 * 2^24`` m, so that the bilinear resize stays finite (design 10.2); a negative, NaN or infinite
   disparity is a :class:`DatasetError`;
 * labels: ``semantic`` PNG, channel 0 (8-bit gray, 16-bit gray, palette indices or RGB) -> OpenCV nearest (NN1)
   to the output size -> the 14 Mid-Air IDs mapped to the 7 classes on the fly (``labels="midair"``; the dataset is
   never rewritten), or already-mapped 7-class files (``labels="mapped"``), or the raw 14 IDs (``labels="raw"``).
   An ID out of range is a :class:`DatasetError` naming the file;
 * motion: ``(qw, qx, qy, qz)``, ``(tx, ty, tz)`` from the CSV; intrinsics ``fx = W/2, fy = H/2, cx = W/2,
-  cy = H/2`` at the output size (spec 3.1).
+  cy = H/2`` at the output size (design 2.1).
 """
 
 from __future__ import annotations
@@ -119,7 +119,7 @@ def open_midair(
         size: output size, int or ``(H, W)``; ``None`` keeps the native size of each file.
         augment: ``False``, ``True`` (paper settings), a preset name or an :class:`AugmentConfig`.
         mode: window mode (``"train"``, ``"windowed"``, ``"stream"``); default ``"train"`` for the train split,
-            ``"windowed"`` for val with ``seq_len > 1`` (spec 6.3) and ``"stream"`` otherwise
+            ``"windowed"`` for val with ``seq_len > 1`` (design 7.3) and ``"stream"`` otherwise
             (:func:`cosemdepth.data.sequence.default_mode`).
         db_seq_len: chunk length in train mode (default ``seq_len``; the paper uses 4 / 4).
         labels: ``"midair"`` (14 IDs mapped to 7 classes), ``"mapped"`` (files already hold the 7 classes) or

@@ -1,8 +1,8 @@
-"""Mid-Air on-disk encodings (spec sections 9.1-9.5), shared by the reader and by the SynthAir writer.
+"""Mid-Air on-disk encodings (design sections 10.1-10.5), shared by the reader and by the SynthAir writer.
 
 Depth is stored as stereo disparity in a 16-bit PNG whose uint16 values are the *bit patterns* of float16
 disparities, ``z_depth = 512 / disparity`` (Mid-Air's native focal of 512 px, 1 m baseline) **whatever the PNG's
-size**: like every Mid-Air tool (the authors' loader included, spec 9.2) we never rescale the stored values when an
+size**: like every Mid-Air tool (the authors' loader included, design 10.2) we never rescale the stored values when an
 image is resized, so a PNG downsized by a user keeps its meaning, and SynthAir writes ``512 / z_depth`` at every size.
 """
 
@@ -25,12 +25,12 @@ MIDAIR_CLASSES = (
     "empty", "water", "man_made_construction", "road", "train_track", "road_sign", "others",
 )
 
-#: Mid-Air ID -> Co-SemDepth class (spec 9.5).
+#: Mid-Air ID -> Co-SemDepth class (design 10.5).
 MIDAIR_TO_7 = np.array([0, 6, 2, 3, 3, 3, 4, 6, 1, 6, 5, 6, 6, 6], dtype=np.uint8)
 
 CLASSES_7 = ("sky", "water", "trees", "land", "boulders", "road", "others")
 
-#: RGB visualisation palette of the 7 classes (spec 9.5).
+#: RGB visualisation palette of the 7 classes (design 10.5).
 PALETTE_7 = np.array(
     [
         (127, 175, 230),
@@ -44,7 +44,7 @@ PALETTE_7 = np.array(
     dtype=np.uint8,
 )
 
-#: Split CSV columns, tab separated, floats printed with 6 decimals (spec 9.3).
+#: Split CSV columns, tab separated, floats printed with 6 decimals (design 10.3).
 CSV_COLUMNS = ("id", "camera_l", "disp", "semantic", "qw", "qx", "qy", "qz", "tx", "ty", "tz")
 
 #: Folders of one climate, and file extensions.

@@ -1,4 +1,4 @@
-"""Mid-Air split CSVs: the generator from ``sensor_records.hdf5`` (spec 9.3, 9.4) and CSV read/write.
+"""Mid-Air split CSVs: the generator from ``sensor_records.hdf5`` (design 10.3, 10.4) and CSV read/write.
 
 A CSV row ``k`` refers to camera frame ``K (k + 1)`` and holds the relative motion from frame ``K k`` to frame
 ``K k + K`` in camera axes, such that ``X_prev = R(q) X_curr + t`` (spec 3.2); ``K`` is the frame step, Mid-Air's
@@ -175,7 +175,7 @@ _REQUIRED_COLUMNS = ("id", "camera_l") + _MOTION_COLUMNS
 
 
 def read_csv(path: Path) -> list[dict]:
-    """Read and validate a split CSV (tab separated, header line, spec 9.3).
+    """Read and validate a split CSV (tab separated, header line, design 10.3).
 
     ``id`` is converted to int and the motion columns to float; other columns (``camera_l``, ``disp``,
     ``semantic``, TopAir's ``depth``...) stay strings. Raises a :class:`DatasetError` naming the file and line for a

@@ -1,6 +1,6 @@
 """Render one SynthAir frame: colour, exact z-depth and Mid-Air labels from a camera pose.
 
-Camera model (spec 3.1, 9.3): a pinhole with a 90 degree horizontal FOV, ``f_x = W / 2``, ``f_y = H / 2``,
+Camera model (design 2.1, 10.3): a pinhole with a 90 degree horizontal FOV, ``f_x = W / 2``, ``f_y = H / 2``,
 ``c = (W / 2, H / 2)``; pixel ``(i, j)`` looks along camera ray ``((j + 0.5 - c_x) / f_x, (i + 0.5 - c_y) / f_y, 1)``.
 The camera is fixed to the body: camera ``x`` = body ``y`` (right), camera ``y`` = body ``z`` (down), camera
 ``z`` = body ``x`` (forward). Poses are Mid-Air's: attitude quaternion ``(w, x, y, z)`` body -> world and position,

@@ -21,7 +21,7 @@ from .raymarch import Lod, bilinear_corners, sample_surface
 from .terrain import CELL, GRID, PERIOD, ROAD_HALF_WIDTH
 from .world import World
 
-#: Mid-Air label IDs used by SynthAir (spec 9.5).
+#: Mid-Air label IDs used by SynthAir (design 10.5).
 SKY, TREES, DIRT, VEGETATION, ROCKY, BOULDERS, WATER, CONSTRUCTION, ROAD = 0, 2, 3, 4, 5, 6, 8, 9, 10
 
 _NOISE_N = 256

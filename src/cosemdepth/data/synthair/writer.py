@@ -1,4 +1,4 @@
-"""Write a SynthAir dataset in the Mid-Air layout (spec 9.1-9.5) and its split CSVs.
+"""Write a SynthAir dataset in the Mid-Air layout (design 10.1-10.5) and its split CSVs.
 
 Layout under the output folder ``DIR``::
 
