@@ -5,12 +5,12 @@
 ``AUTHORS_DIR`` is a checkout of the authors' repository (Malga-Vision/Co-SemDepth); its split CSVs
 (``data/midair/<split>_data/**/*.csv``) carry the relative camera motion of every row (``tx ty tz``, metres). The
 CSVs are read with our Mid-Air reader, in the paper's training windows (chunks of ``db_seq_len`` rows, windows of
-``seq_len``; spec 8.2), and the statistics are those of the translations the model is given inside a window (the
+``seq_len``; design 9.2), and the statistics are those of the translations the model is given inside a window (the
 rows after each window's first: :meth:`cosemdepth.data.sequence.SequenceDataset.step_translations`), exactly as
 ``cosemdepth train`` computes them for its own data. No image is read (the Mid-Air images need not be present).
 
 Prints the statistics as JSON (the ``step_translation_m`` block of a model folder's ``operating_point``) and a few
-figures of the raw CSV rows to compare with spec 3.2; ``src/cosemdepth/io/convert.py`` holds the result as
+figures of the raw CSV rows to compare with design 2.2; ``src/cosemdepth/io/convert.py`` holds the result as
 ``MIDAIR_STEP_TRANSLATION``.
 """
 

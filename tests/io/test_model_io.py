@@ -415,7 +415,7 @@ def test_a_tensorflow_checkpoint_gets_mid_air_s_operating_point(tfref_dir):
 def test_mid_air_s_motion_statistics_fit_the_spec():
     from cosemdepth.io.convert import MIDAIR_STEP_TRANSLATION as m
 
-    # spec 3.2: in the shipped Mid-Air CSVs ||t|| ranges from 0.044 to 3.8 m and t_z has a median of +1.48 m
+    # design 2.2: in the shipped Mid-Air CSVs ||t|| ranges from 0.044 to 3.8 m and t_z has a median of +1.48 m
     assert 0.044 <= m.p05 < m.p25 < m.median < m.p75 < m.p95 <= 3.8
     assert 1.48 <= m.median <= 3.8 and m.count == 3 * (m.count // 3)  # three steps per 4-row window
 

@@ -1,7 +1,7 @@
 """Mid-Air split CSVs: the generator from ``sensor_records.hdf5`` (design 10.3, 10.4) and CSV read/write.
 
 A CSV row ``k`` refers to camera frame ``K (k + 1)`` and holds the relative motion from frame ``K k`` to frame
-``K k + K`` in camera axes, such that ``X_prev = R(q) X_curr + t`` (spec 3.2); ``K`` is the frame step, Mid-Air's
+``K k + K`` in camera axes, such that ``X_prev = R(q) X_curr + t`` (design 2.2); ``K`` is the frame step, Mid-Air's
 4 (25 Hz camera, rows at 6.25 Hz) unless a generator asks for another one.
 """
 

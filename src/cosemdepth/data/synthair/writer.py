@@ -166,7 +166,7 @@ def trajectory_number(climate: str, i: int) -> int:
 
 
 def csv_rows(frames: int, frame_step: int = fmt.FRAME_SKIP) -> int:
-    """Rows of a trajectory's split CSV for ``frames`` camera frames, one every ``frame_step`` (spec 9.3)."""
+    """Rows of a trajectory's split CSV for ``frames`` camera frames, one every ``frame_step`` (design 10.3)."""
     return max(frames // frame_step - 1, 0)
 
 
