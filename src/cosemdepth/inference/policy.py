@@ -139,7 +139,8 @@ class Streamer:
             policy = replace(policy, min_baseline=min_baseline)
         self.model = model
         self.policy = policy
-        self.decoders = tuple(model.decoders)
+        names = getattr(model, "decoders", None)
+        self.decoders = tuple(names) if names is not None else tuple(model.config.decoders)
         self.has_depth = "depth" in self.decoders
         mb = 0.0 if policy.mode == EVERY_FRAME else policy.min_baseline
         if self.has_depth and mb is None:
@@ -183,13 +184,22 @@ class Streamer:
 
         # the motion from the reference frame (every-frame: the previous frame) to this one; a reset starts afresh
         one, zero = identity_motion(b, dev)
-        q, t = (one, zero) if fresh else compose_motion(state.rot.to(dev), state.trans.to(dev), rot, trans)
+        if fresh:
+            q, t = one, zero
+        else:
+            q, t = compose_motion(state.rot.to(dev), state.trans.to(dev), rot, trans)
+            # the reference is the previous frame: its motion as given, bit for bit (the paper's protocol)
+            at_ref = (state.rot.to(dev) == one).all(-1) & (state.trans.to(dev) == 0).all(-1)
+            q, t = _where(at_ref, rot, q), _where(at_ref, trans, t)
         q, t = _where(reset, one, q), _where(reset, zero, t)
         base = baseline(t)
         estimate = ~reset & (base >= self.min_baseline)
         run_depth = reset | estimate
         decoders = None if bool(run_depth.any()) else tuple(n for n in self.decoders if n != "depth")
-        out, net = self.model.step(rgb, q, t, intrinsics, reset, net_prev, decoders=decoders)
+        if decoders is None:  # a model's plain step (any backend, or a stand-in with only step())
+            out, net = self.model.step(rgb, q, t, intrinsics, reset, net_prev)
+        else:
+            out, net = self.model.step(rgb, q, t, intrinsics, reset, net_prev, decoders=decoders)
         if fresh:
             ref_depth, ref_valid = out.depth, torch.zeros_like(out.depth, dtype=torch.bool)
             has_depth = torch.zeros(b, dtype=torch.bool, device=dev)
@@ -201,8 +211,8 @@ class Streamer:
             carried, carried_valid = carry_depth(ref_depth, ref_valid, q, t, intrinsics)
             carried_valid &= has_depth.view(-1, 1, 1, 1)
         if decoders is None:  # the depth decoder ran: its results for the samples that needed it
-            new_valid = out.valid
-            if self.policy.max_conditioning != MAX_CONDITIONING:
+            new_valid = getattr(out, "valid", None)
+            if new_valid is None or self.policy.max_conditioning != MAX_CONDITIONING:
                 new_valid = depth_validity(out.depth.float(), q, t, intrinsics, reset, self.policy.max_conditioning)
             new_valid = new_valid & ~inconsistent(out.depth, carried, carried_valid, self.policy.max_log_ratio)
             if not fresh:
