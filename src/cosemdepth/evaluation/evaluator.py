@@ -39,7 +39,9 @@ from tqdm.auto import tqdm
 from .. import __version__
 from ..errors import ConfigError
 from .classes import class_info, dataset_classes
-from .metrics import ALL_DEPTH_METRICS, EvaluationMetrics, format_markdown_table
+from ..inference.policy import EVERY_FRAME, Streamer, policy_info
+from ..models.outputs import STATUSES
+from .metrics import ALL_DEPTH_METRICS, EvaluationMetrics, ValidDepthMetrics, format_markdown_table
 from .resources import PeakMemory, machine_info
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
 
@@ -195,8 +197,10 @@ class Evaluator:
         progress: bool = False,
         callbacks: Iterable[FrameCallback] = (),
         dataset_name: str | None = None,
+        policy=EVERY_FRAME,
     ) -> None:
         self.model = model
+        self.policy = policy
         self.dataset = dataset
         self.cfg = _model_config(model)
         self.lanes = lanes
@@ -239,6 +243,9 @@ class Evaluator:
 
     def run(self) -> EvaluationResult:
         metrics = EvaluationMetrics(self.cfg.num_classes if self.eval_semantic else None, depth=self.eval_depth)
+        valid_metrics = ValidDepthMetrics() if self.eval_depth else None
+        streamer = Streamer(self.model, self.policy)
+        statuses = {s: 0 for s in STATUSES}
         device = next((p.device for p in self.model.parameters()), torch.device("cpu"))
         timed_seconds = 0.0
         timed_frames = 0
@@ -246,7 +253,7 @@ class Evaluator:
         start = time.perf_counter()
         bar = tqdm(total=self.num_frames, unit="frame", desc="evaluate", disable=not self.progress, leave=False)
         with PeakMemory(device) as mem:
-            for k, batch in enumerate(stream(self.model, self.dataset, schedule=self.schedule,
+            for k, batch in enumerate(stream(streamer, self.dataset, schedule=self.schedule,
                                              num_workers=self.num_workers)):
                 include = ~batch.reset if self.exclude_resets else torch.ones_like(batch.reset)
                 metrics.update(
@@ -256,6 +263,10 @@ class Evaluator:
                     pred_semantic=batch.labels if self.eval_semantic else None,
                     include=include,
                 )
+                if valid_metrics is not None and batch.valid is not None:
+                    valid_metrics.update(batch.gt_depth, batch.depth, batch.valid, include)
+                for st, inc in zip(batch.status, include.tolist()):
+                    statuses[st] += int(inc)
                 for cb in self.callbacks:
                     cb(batch, include)
                 n = len(batch)
@@ -271,6 +282,8 @@ class Evaluator:
         bar.close()
         wall = time.perf_counter() - start
         values = metrics.compute()
+        if valid_metrics is not None:
+            values.update(valid_metrics.compute())
         confusion = metrics.semantic.matrix.clone() if metrics.semantic is not None else None
         params = sum(p.numel() for p in self.model.parameters())
         ms = 1000.0 * timed_seconds / timed_frames if timed_frames else math.nan
@@ -289,6 +302,8 @@ class Evaluator:
                 "depth_evaluated": self.eval_depth,
                 "semantic_evaluated": self.eval_semantic,
                 "max_frames": self.max_frames,
+                "policy": policy_info(streamer),
+                "frames_by_status": statuses if self.eval_depth else None,
             },
             "speed": {"timed_frames": timed_frames, "warmup_steps": min(self.warmup, len(self.schedule)),
                       "wall_seconds": wall},
@@ -328,6 +343,9 @@ def evaluate(model, dataset, **options: Any) -> EvaluationResult:
         max_frames: evaluate only the first N rows of the split (in order).
         num_workers: DataLoader workers reading frames.
         exclude_resets: leave reset frames out of the metrics (default: yes, unless every frame is a reset).
+        policy: the streaming policy (:class:`~cosemdepth.inference.StreamPolicy` or ``"every-frame"`` (default,
+            the paper's protocol) / ``"baseline"``); the paper's metrics use every pixel with ground truth, the
+            ``valid_*`` metrics and ``coverage`` the pixels the prediction marks valid.
         warmup: streaming steps left out of the timing.
         progress: show a progress bar (tqdm, on stderr).
         callbacks: ``f(batch, include)`` run after every streaming step (e.g. writers, baselines).

@@ -92,6 +92,7 @@ def depth_metrics(
     *,
     max_depth: float = EVAL_MAX_DEPTH,
     min_pred: float = EVAL_MIN_PRED,
+    mask: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """Per-frame depth metrics of design 11.1.
 
@@ -101,6 +102,8 @@ def depth_metrics(
         max_depth: the evaluation cap (80 m); GT is clipped to ``[0, max_depth]``, prediction to
             ``[min_pred, max_depth]``.
         min_pred: the prediction floor (0.001 m).
+        mask: optional bool, shaped like ``gt``: only these pixels count (e.g. the prediction's validity mask); the
+            paper's metrics use every pixel with ground truth.
     Returns:
         ``{name: value}`` for :data:`ALL_DEPTH_METRICS`; each value a 0-d tensor for ``[H, W]`` input, else ``[B]``.
         A frame with no valid pixel gets 0 for every metric (the original's ``max(sum m, 1)``).
@@ -112,6 +115,10 @@ def depth_metrics(
     g = _as_frames(gt, "gt").to(dtype).clamp(0.0, max_depth)
     e = _as_frames(pred, "pred").to(dtype).clamp(min_pred, max_depth)
     valid = g > EPS
+    if mask is not None:
+        if mask.shape != gt.shape:
+            raise ValueError(f"depth_metrics: mask {list(mask.shape)} must have the shape of gt {list(gt.shape)}")
+        valid = valid & _as_frames(mask, "mask").to(torch.bool)
 
     diff = g - e
     sq = diff * diff
@@ -188,6 +195,61 @@ class DepthMetrics:
         for k, v in self.per_frame().items():
             out[k] = float(v.mean()) if v.numel() else math.nan
         out["depth_frames"] = len(self)
+        return out
+
+
+#: The metrics of :class:`ValidDepthMetrics`.
+VALID_DEPTH_METRICS = ("valid_abs_rel", "valid_delta1", "valid_rmse", "coverage")
+
+
+class ValidDepthMetrics:
+    """Depth metrics over the pixels a prediction marks valid, and how many it marks.
+
+    Per frame: AbsRel, delta1 and RMSE over the pixels with ground truth that the prediction's ``valid`` mask keeps
+    (the dataset value: mean over the frames with at least one such pixel), and the coverage, the fraction of the
+    pixels with ground truth that are valid (the dataset value: pooled over the pixels of every included frame).
+    """
+
+    def __init__(self, *, max_depth: float = EVAL_MAX_DEPTH, min_pred: float = EVAL_MIN_PRED) -> None:
+        self.max_depth = float(max_depth)
+        self.min_pred = float(min_pred)
+        self.reset()
+
+    def reset(self) -> None:
+        self._values: dict[str, list[torch.Tensor]] = {k: [] for k in ("abs_rel", "delta1", "rmse")}
+        self._kept: list[torch.Tensor] = []
+        self._total: list[torch.Tensor] = []
+
+    def update(self, gt: torch.Tensor, pred: torch.Tensor, valid: torch.Tensor, include: Any = None
+               ) -> dict[str, torch.Tensor]:
+        """Add frames ``[B, 1, H, W]`` (or one ``[H, W]``); returns their per-frame ``{abs_rel, delta1, rmse,
+        coverage, valid_pixels, gt_pixels}`` (all frames, included or not)."""
+        values = depth_metrics(gt, pred, max_depth=self.max_depth, min_pred=self.min_pred, mask=valid)
+        has_gt = _as_frames(gt, "gt").clamp(0.0, self.max_depth) > EPS
+        kept = (has_gt & _as_frames(valid, "valid").to(torch.bool)).sum(dim=(-2, -1)).reshape(-1)
+        total = has_gt.sum(dim=(-2, -1)).reshape(-1)
+        inc = _include_mask(include, total.numel(), gt.device)
+        scored = inc & (kept > 0)
+        for k in self._values:
+            self._values[k].append(values[k].reshape(-1)[scored].detach().cpu())
+        self._kept.append(kept[inc].cpu())
+        self._total.append(total[inc].cpu())
+        out = {k: values[k].reshape(-1) for k in self._values}
+        out["coverage"] = kept.to(torch.float64) / total.clamp_min(1).to(torch.float64)
+        out["valid_pixels"], out["gt_pixels"] = kept, total
+        return out
+
+    def compute(self) -> dict[str, float]:
+        """``{valid_abs_rel, valid_delta1, valid_rmse, coverage, valid_frames}``; NaN where nothing was counted."""
+        out: dict[str, Any] = {}
+        for k, v in self._values.items():
+            t = torch.cat(v).to(torch.float64) if v else torch.zeros(0, dtype=torch.float64)
+            out[f"valid_{k}"] = float(t.mean()) if t.numel() else math.nan
+            if k == "abs_rel":
+                out["valid_frames"] = int(t.numel())
+        kept = int(torch.cat(self._kept).sum()) if self._kept else 0
+        total = int(torch.cat(self._total).sum()) if self._total else 0
+        out["coverage"] = kept / total if total else math.nan
         return out
 
 
@@ -547,5 +609,6 @@ def format_perfs(results: Mapping[str, Any]) -> str:
 __all__ = [
     "ALL_DEPTH_METRICS", "ConfusionMatrix", "DEPTH_METRICS", "DepthMetrics", "EVAL_MAX_DEPTH", "EVAL_MIN_PRED",
     "EvaluationMetrics", "LabelRangeError", "METRIC_MODES", "MIN_DEPTH_IMPROVED", "PERFS_ORDER", "depth_metrics",
-    "format_markdown_table", "format_perfs", "is_better", "is_better_by", "selection_rule",
+    "format_markdown_table", "format_perfs", "is_better", "is_better_by", "selection_rule", "VALID_DEPTH_METRICS",
+    "ValidDepthMetrics",
 ]

@@ -241,6 +241,13 @@ class Streamer:
         return out, new_state
 
 
+def policy_info(streamer: Streamer) -> dict:
+    """The settings of ``streamer`` as recorded in outputs (``predictions.json``, evaluation reports)."""
+    p = streamer.policy
+    return {"mode": p.mode, "min_baseline_m": streamer.min_baseline, "max_conditioning": p.max_conditioning,
+            "max_log_ratio": p.max_log_ratio}
+
+
 def inconsistent(depth: torch.Tensor, other: torch.Tensor, other_valid: torch.Tensor, max_log_ratio: float
                  ) -> torch.Tensor:
     """``[B, 1, H, W]`` bool: where ``depth`` and a valid ``other`` estimate of the same view (the reference frame's
@@ -251,4 +258,5 @@ def inconsistent(depth: torch.Tensor, other: torch.Tensor, other_valid: torch.Te
     return other_valid & ((a / o).log().abs() > max_log_ratio)
 
 
-__all__ = ["BASELINE", "EVERY_FRAME", "POLICIES", "StreamPolicy", "Streamer", "StreamerState", "default_min_baseline"]
+__all__ = ["BASELINE", "EVERY_FRAME", "POLICIES", "StreamPolicy", "Streamer", "StreamerState", "default_min_baseline",
+           "policy_info"]
