@@ -9,12 +9,14 @@ import torch
 
 from ..config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
 from ..data import open_dataset
-from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
+from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS, image_size
+from ..data.frames import as_size
 from ..data.registry import DATASETS, split_datasets
 from ..errors import ConfigError
 from ..devices import resolve_device
 from ..io.model_io import load_model
 from ..models import build_model
+from ..models.footprint import check_size
 
 #: The model config's defaults (``--arch/--levels/--classes`` read them: one home for defaults).
 MODEL_DEFAULTS = ModelConfig()
@@ -195,6 +197,27 @@ def open_split(args: argparse.Namespace, size):
                         jpeg_idct=args.jpeg_idct)
 
 
-__all__ = ["add_device_args", "add_model_args", "add_model_or_arch_args", "add_precision_arg", "add_reference_arg",
+def input_size(dataset) -> tuple[int, int] | None:
+    """``(H, W)`` of the frames ``dataset`` feeds the model: its loader's output size, else (native size) the first
+    image's, from its header; None if neither is known."""
+    size = as_size(getattr(dataset.load_frame, "size", None))
+    if size is None and dataset.trajectories and len(dataset.trajectories[0]):
+        rgb = getattr(dataset.trajectories[0].frame(0), "rgb", None)
+        if isinstance(rgb, (str, Path)):
+            size = image_size(rgb)
+    return size
+
+
+def check_run_size(model, dataset, device, batch: int = 1) -> None:
+    """The size check of the commands that stream a dataset (:func:`cosemdepth.models.footprint.check_size` at the
+    dataset's frame size, ``batch`` trajectories at once), before the first frame is read."""
+    size = input_size(dataset)
+    batch = max(min(batch, len(dataset.trajectories)), 1)  # a batch holds at most one lane per trajectory
+    if size is not None:
+        check_size(model, *size, device=device, batch=batch,
+                   what="--size" if batch == 1 else "--size/--trajectories-per-batch")
+
+
+__all__ = ["check_run_size", "input_size", "add_device_args", "add_model_args", "add_model_or_arch_args", "add_precision_arg", "add_reference_arg",
            "add_jpeg_idct_arg", "add_run_args", "add_split_args", "apply_threads", "load", "load_or_build", "open_split", "parse_size",
            "parse_size_pair", "positive_int"]

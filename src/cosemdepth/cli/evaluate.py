@@ -18,8 +18,8 @@ from ..data.registry import dataset_spec
 from ..evaluation.evaluator import evaluate
 from ..io.outdir import Input, model_inputs
 from ..io.staging import OutputFiles
-from ._shared import (add_model_args, add_run_args, add_split_args, apply_threads, load, open_split, parse_size,
-                      size_help)
+from ._shared import (add_model_args, add_run_args, add_split_args, apply_threads, check_run_size, load, open_split,
+                      parse_size, size_help)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -42,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
     with files_ctx as files:
         dataset = open_split(args, args.size)
         model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
+        check_run_size(model, dataset, device, args.lanes)
         result = evaluate(model, dataset, lanes=args.lanes, max_frames=args.max_frames, num_workers=args.workers,
                           progress=not args.no_progress and sys.stderr.isatty(), dataset_name=args.dataset)
         result.info["model"].update(path=str(args.model), name=Path(str(args.model)).name)

@@ -23,7 +23,8 @@ from ..io.outdir import Input, model_inputs
 from ..io.rerun_writer import check_rrd_path
 from ..io.staging import StagedDir
 from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
-from ._shared import add_model_args, apply_threads, add_run_args, add_split_args, load, parse_size, size_help
+from ._shared import (add_model_args, apply_threads, add_run_args, add_split_args, check_run_size, load, parse_size,
+                      size_help)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -104,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
     check_rrd_path(args.rerun, inputs=[*inputs, Input("--out", args.out)]) if args.rerun is not None else None
     dataset = _open(args)
     model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
+    check_run_size(model, dataset, device, args.lanes)
     info = {
         "model": {"path": str(args.model)},
         "dataset": {"root": str(args.bag if args.bag else args.images if args.flight else args.root),
