@@ -22,6 +22,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from ..errors import ConfigError, DatasetError
+from ..optional import require
 from .decode import DEFAULT_JPEG_IDCT, decode_rgb
 from .poses import interpolate_pose
 
@@ -37,10 +38,7 @@ EXACT_NS = 1000
 
 def require_rosbags():
     """The ``rosbags`` package, or a ConfigError saying how to install it."""
-    try:
-        import rosbags.highlevel  # noqa: F401  (lazy: an optional dependency, only needed for bags)
-    except ImportError:
-        raise ConfigError("reading and writing ROS bags needs the rosbags package: pip install cosemdepth[ros]") from None
+    require("rosbags.highlevel", "reading and writing ROS bags")  # lazy: an optional dependency, only for bags
     import rosbags
 
     return rosbags
