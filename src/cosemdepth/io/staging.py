@@ -102,6 +102,9 @@ class StagedDir:
         if exc_type is not None:
             shutil.rmtree(self.tmp, ignore_errors=True)
             remove_empty(self._created)
+            inside = _staged_name(exc, self.tmp, self.out)
+            if inside is not None:  # name the file as the user will know it, not by the hidden staging folder
+                raise OSError(exc.errno, exc.strerror, inside) from None
             return False
         try:
             self._commit()
@@ -118,7 +121,12 @@ class StagedDir:
         old = None
         if out.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
-            os.rename(out, old / "x")
+            try:
+                os.rename(out, old / "x")
+            except OSError as e:  # nothing moved: the previous output stays, and so must nothing else
+                old.rmdir()
+                raise ConfigError(f"{self.out}: cannot replace the {self.what} ({_why(e)}); it was left as it was "
+                                  "and nothing was written") from None
         try:
             os.rename(tmp, out)
         except BaseException:
@@ -129,6 +137,17 @@ class StagedDir:
         _fsync_dir(out.parent)
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
+
+
+def _staged_name(exc, tmp: Path, out: Path) -> str | None:
+    """For an OSError about a file inside the staging folder ``tmp``: that file's path under ``out``; else None."""
+    if not isinstance(exc, OSError) or exc.errno is None or exc.filename is None or exc.filename2 is not None:
+        return None
+    try:
+        rel = Path(os.fsdecode(exc.filename)).absolute().relative_to(tmp.absolute())
+    except (ValueError, TypeError):
+        return None
+    return str(out / rel)
 
 
 class OutputFiles:
