@@ -33,6 +33,7 @@ from typing import Callable, Iterable, Sequence
 from .. import __version__
 from ..errors import ConfigError
 from .atomic import atomic_write_text
+from .replaceable import check_replaceable
 
 MARKER = ".cosemdepth-output.json"
 MARKER_FORMAT = "cosemdepth-output"
@@ -217,6 +218,11 @@ def check_output_dir(
         probe_writable(out.absolute().parent, f"{out}: cannot write the {what} here")
     else:
         probe_writable(out, f"{out}: cannot write the {what}")
+    if mode == "replace":
+        check_replaceable(out, what)  # a previous output that cannot be renamed aside and deleted
+    elif mode == "into":
+        for f in files:
+            check_replaceable(out / f, what)
     return busy
 
 
@@ -277,6 +283,7 @@ def check_output_file(
         if recognize is None or not recognize(out):
             raise ConfigError(f"{out}: the {what} exists and was not written by cosemdepth; nothing was overwritten "
                               "(move it, or choose another file name)")
+        check_replaceable(out, what)
     probe_writable(parent, f"{out}: cannot write the {what}")
 
 
