@@ -193,8 +193,18 @@ def open_split(args: argparse.Namespace, size):
     """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1)."""
     if args.workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {args.workers}")
+    check_split_dir(args)
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size,
                         jpeg_idct=args.jpeg_idct)
+
+
+def check_split_dir(args: argparse.Namespace) -> None:
+    """A ConfigError naming ``--split-dir`` (and how to make one) when ``args.dataset`` has no default split folder
+    and none is given."""
+    spec = DATASETS.get(args.dataset)
+    if args.split_dir is None and spec is not None and spec.needs_split_dir and spec.split_dir is None:
+        raise ConfigError(f"--dataset {args.dataset} needs --split-dir D, the folder of its split files "
+                          f"(<split>_data/**/*.csv); write them with: cosemdepth splits {args.dataset} ROOT D")
 
 
 def input_size(dataset) -> tuple[int, int] | None:

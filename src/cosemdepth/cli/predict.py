@@ -23,8 +23,8 @@ from ..io.outdir import Input, model_inputs
 from ..io.rerun_writer import check_rrd_path
 from ..io.staging import StagedDir
 from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
-from ._shared import (add_model_args, apply_threads, add_run_args, add_split_args, check_run_size, load, parse_size,
-                      size_help)
+from ._shared import (add_model_args, apply_threads, add_run_args, add_split_args, check_run_size, check_split_dir,
+                      load, parse_size, size_help)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -86,6 +86,7 @@ def _open(args: argparse.Namespace):
         return open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
                             convention=args.convention or "opencv", frame_skip=args.frame_skip, seq_len=1, size=args.size,
                             jpeg_idct=args.jpeg_idct)
+    check_split_dir(args)
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
                         size=args.size, jpeg_idct=args.jpeg_idct)
 
