@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..data.bag_flight import DEFAULT_MAX_POSE_GAP, open_bag_flight
+from ..data.bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP, open_bag_flight
 from ..errors import ConfigError
 from ..evaluation.classes import class_info
 from ..evaluation.evaluator import _model_config
@@ -64,7 +64,7 @@ def open_bag(args: argparse.Namespace):
     check_args(args)
     flight = open_bag_flight(
         args.bag, args.image_topic, args.pose_topic, camera_info_topic=args.camera_info_topic,
-        intrinsics=args.intrinsics, fov=args.hfov, convention=args.convention or "flu",
+        intrinsics=args.intrinsics, fov=args.hfov, convention=args.convention or DEFAULT_BAG_CONVENTION,
         frame_skip=args.frame_skip, max_pose_gap=args.max_pose_gap, skip_unposed=args.skip_unposed,
         ignore_distortion=args.ignore_distortion, size=args.size, jpeg_idct=args.jpeg_idct,
     )

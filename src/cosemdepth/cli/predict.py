@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 from ..data import open_dataset
+from ..data.flight import DEFAULT_CONVENTION
 from ..data.poses import CONVENTIONS
 from ..errors import ConfigError
 from ..evaluation.predict import predict
@@ -22,9 +23,10 @@ from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
 from ..io.outdir import Input, model_inputs
 from ..io.rerun_writer import check_rrd_path
 from ..io.staging import StagedDir
+from ..data.bag_flight import DEFAULT_BAG_CONVENTION
 from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
 from ._shared import (add_model_args, apply_threads, add_run_args, add_split_args, check_run_size, check_split_dir,
-                      load, parse_size, size_help)
+                      input_size, load, parse_size, size_help)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -84,7 +86,7 @@ def _open(args: argparse.Namespace):
         return open_bag(args)
     if args.flight:
         return open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
-                            convention=args.convention or "opencv", frame_skip=args.frame_skip, seq_len=1, size=args.size,
+                            convention=args.convention or DEFAULT_CONVENTION, frame_skip=args.frame_skip, seq_len=1, size=args.size,
                             jpeg_idct=args.jpeg_idct)
     check_split_dir(args)
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
@@ -96,6 +98,29 @@ def command_inputs(args: argparse.Namespace) -> list:
     return [*model_inputs(args.model), *(Input(label, p) for label, p in (
         ("--root", args.root), ("--split-dir", args.split_dir), ("--images", args.images), ("--poses", args.poses),
         ("--bag", args.bag)) if p is not None)]
+
+
+def run_settings(args: argparse.Namespace, dataset) -> dict:
+    """What determines predict's outputs besides the frames: ``predictions.json``'s ``run`` entry. ``input_size``
+    ``[H, W]`` and ``intrinsics`` ``[fx, fy, cx, cy]`` (package convention: pixel centres at +0.5) are those the model
+    was fed; the pose settings are null for dataset splits (whose readers fix them)."""
+    own = bool(args.flight or args.bag)
+    size = input_size(dataset)
+    return {
+        "model": str(args.model),
+        "path": "reference" if args.reference else "fast",
+        "precision": args.precision,
+        "input_size": None if size is None else list(size),
+        "intrinsics": [float(v) for v in dataset.intrinsics.tolist()],
+        "intrinsics_given": None if args.intrinsics is None else [float(v) for v in args.intrinsics],
+        "hfov_deg": args.hfov,
+        "camera_info_topic": args.camera_info_topic,
+        "convention": (args.convention or (DEFAULT_BAG_CONVENTION if args.bag else DEFAULT_CONVENTION)) if own else None,
+        "frame_skip": args.frame_skip if own else None,
+        "poses": str(args.poses) if args.flight and args.poses is not None else None,
+        "pose_topic": args.pose_topic if args.bag else None,
+        "jpeg_idct": args.jpeg_idct,
+    }
 
 
 def run(args: argparse.Namespace) -> int:
@@ -112,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
         "dataset": {"root": str(args.bag if args.bag else args.images if args.flight else args.root),
                     "split": None if args.flight else args.split},
         "device": str(device),
+        "run": run_settings(args, dataset),
     }
     manifest = predict(model, dataset, args.out, video=args.video, fps=args.fps, max_frames=args.max_frames,
                        lanes=args.lanes, num_workers=args.workers, overwrite=args.overwrite,

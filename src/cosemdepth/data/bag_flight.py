@@ -48,6 +48,8 @@ from .sequence import SequenceDataset, Trajectory
 
 #: Interpolate an image's pose only between poses at most this many seconds apart (``--max-pose-gap``).
 DEFAULT_MAX_POSE_GAP = 0.05
+#: Axes of a bag's posed frame when none is given: the ROS body frame (REP 103).
+DEFAULT_BAG_CONVENTION = "flu"
 
 
 @dataclass
@@ -219,7 +221,7 @@ def open_bag_flight(
     camera_info_topic: str | None = None,
     intrinsics=None,
     fov: float | None = None,
-    convention="flu",
+    convention=DEFAULT_BAG_CONVENTION,
     frame_skip: int = 1,
     max_pose_gap: float = DEFAULT_MAX_POSE_GAP,
     skip_unposed: bool = False,
