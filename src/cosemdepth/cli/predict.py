@@ -86,8 +86,8 @@ def _open(args: argparse.Namespace):
         return open_bag(args)
     if args.flight:
         return open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
-                            convention=args.convention or DEFAULT_CONVENTION, frame_skip=args.frame_skip, seq_len=1, size=args.size,
-                            jpeg_idct=args.jpeg_idct)
+                            convention=args.convention or DEFAULT_CONVENTION, frame_skip=args.frame_skip, seq_len=1,
+                            size=args.size, jpeg_idct=args.jpeg_idct)
     check_split_dir(args)
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
                         size=args.size, jpeg_idct=args.jpeg_idct)
@@ -105,6 +105,7 @@ def run_settings(args: argparse.Namespace, dataset) -> dict:
     ``[H, W]`` and ``intrinsics`` ``[fx, fy, cx, cy]`` (package convention: pixel centres at +0.5) are those the model
     was fed; the pose settings are null for dataset splits (whose readers fix them)."""
     own = bool(args.flight or args.bag)
+    convention = args.convention or (DEFAULT_BAG_CONVENTION if args.bag else DEFAULT_CONVENTION)
     size = input_size(dataset)
     return {
         "model": str(args.model),
@@ -115,7 +116,7 @@ def run_settings(args: argparse.Namespace, dataset) -> dict:
         "intrinsics_given": None if args.intrinsics is None else [float(v) for v in args.intrinsics],
         "hfov_deg": args.hfov,
         "camera_info_topic": args.camera_info_topic,
-        "convention": (args.convention or (DEFAULT_BAG_CONVENTION if args.bag else DEFAULT_CONVENTION)) if own else None,
+        "convention": convention if own else None,
         "frame_skip": args.frame_skip if own else None,
         "poses": str(args.poses) if args.flight and args.poses is not None else None,
         "pose_topic": args.pose_topic if args.bag else None,

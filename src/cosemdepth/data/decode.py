@@ -38,7 +38,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, ImageFile, UnidentifiedImageError
+from PIL import Image, UnidentifiedImageError
 
 from ..errors import ConfigError, DatasetError
 
@@ -234,8 +234,8 @@ def read_rgb(path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.
 
 def decode_rgb(data: bytes, where: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.ndarray:
     """Encoded colour image bytes (JPEG through :func:`decode_jpeg`, PNG and other formats through Pillow) ->
-    ``[H, W, 3]`` uint8 or uint16 (16-bit PNGs), as :func:`read_rgb` (which reads files; this also serves images inside other containers,
-    e.g. a ROS ``CompressedImage``). Errors are DatasetErrors prefixed with ``where``."""
+    ``[H, W, 3]`` uint8 or uint16 (16-bit PNGs), as :func:`read_rgb` (which reads files; this also serves images
+    inside other containers, e.g. a ROS ``CompressedImage``). Errors are DatasetErrors prefixed with ``where``."""
     check_jpeg_idct(jpeg_idct)
     if data.startswith(_JPEG_SOI):
         return decode_jpeg(data, where, jpeg_idct)
@@ -282,7 +282,8 @@ def _decode_png16_colour(data: bytes, where) -> np.ndarray:
             name, extents, offset, args = tile[0]
             mode = img.mode
             args = (f"{mode};{rawmode}", *args[1:]) if isinstance(args, tuple) else f"{mode};{rawmode}"
-            img.tile = [ImageFile._Tile(name, extents, offset, args)]
+            # Pillow >= 11 holds tiles as named tuples, older versions as plain ones
+            img.tile = [tile[0]._replace(args=args) if hasattr(tile[0], "_replace") else (name, extents, offset, args)]
             img.load()
         except DatasetError:
             raise
