@@ -72,3 +72,63 @@ def bf16_cpu():
     else:
         with torch.backends.mkldnn.flags(enabled=False):
             yield False
+
+
+class _FullDiskFile:
+    """A file opened for writing on a simulated full disk: ``write`` raises ENOSPC once ``room`` bytes are used (a
+    partial write first, as a real full disk does)."""
+
+    def __init__(self, f, disk):
+        self._f, self._disk = f, disk
+
+    def write(self, data):
+        import errno
+
+        n = len(data)
+        if self._disk.room < n:
+            self._f.write(data[: max(self._disk.room, 0)])
+            self._disk.room = 0
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        self._disk.room -= n
+        return self._f.write(data)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._f.close()
+        return False
+
+    def __iter__(self):
+        return iter(self._f)
+
+    def __getattr__(self, name):
+        return getattr(self._f, name)
+
+
+class FullDisk:
+    """``builtins.open`` patched so that the files opened for writing under ``folder`` share ``room`` bytes, after
+    which every write raises ``OSError(ENOSPC)`` (what every Python-level writer of the package goes through)."""
+
+    def __init__(self, monkeypatch, folder: Path, room: int = 0):
+        import builtins
+
+        self.folder, self.room = Path(folder).resolve(), room
+        real_open = builtins.open
+
+        def patched(file, mode="r", *args, **kwargs):
+            f = real_open(file, mode, *args, **kwargs)
+            writing = any(c in mode for c in "wax+")
+            if writing and isinstance(file, (str, os.PathLike)):
+                path = Path(os.fsdecode(file)).resolve()
+                if path == self.folder or self.folder in path.parents:
+                    return _FullDiskFile(f, self)
+            return f
+
+        monkeypatch.setattr(builtins, "open", patched)
+
+
+@pytest.fixture
+def full_disk(monkeypatch):
+    """``full_disk(folder, room=0)``: simulate a disk with ``room`` bytes left for the writes under ``folder``."""
+    return lambda folder, room=0: FullDisk(monkeypatch, folder, room)

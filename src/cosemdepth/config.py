@@ -104,6 +104,7 @@ class DataConfig:
             self.val.check("data.val")
         if len(self.size) != 2 or any(not isinstance(v, int) or v < 8 for v in self.size):
             raise ConfigError(f"data.size must be an integer >= 8 or [H, W] of such integers, got {list(self.size)}")
+        _check_augment(self.augment)
         _positive_int("data.seq_len", self.seq_len, minimum=2)
         _positive_int("data.db_seq_len", self.db_seq_len, minimum=self.seq_len,
                       why=f" (a chunk must hold a window of data.seq_len = {self.seq_len})")
@@ -268,6 +269,20 @@ class RunConfig:
         """Build from a (partial) nested dict; missing keys take the defaults. Values are converted to the field
         types (so ``"3e-4"`` is a float); unknown keys and bad values raise :class:`ConfigError` naming the key."""
         return build_config(cls, d, "")
+
+
+def _check_augment(augment: Any) -> None:
+    """``data.augment`` through the data package's own reading of it (the presets live there), so that a config that
+    prints (``train --print-config``) is one that runs."""
+    try:
+        from .data.augment import resolve_augment  # deferred: the readers sit above the config
+    except ImportError:  # pragma: no cover - the data package is part of the distribution
+        return
+    try:
+        resolve_augment(augment)
+    except ConfigError as e:
+        text = str(e)
+        raise ConfigError(f"data.{text}" if text.startswith("augment ") else f"data.augment: {text}") from None
 
 
 def _positive_int(key: str, value: Any, minimum: int = 1, why: str = "") -> None:

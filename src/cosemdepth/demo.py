@@ -61,6 +61,7 @@ from .io.model_io import load_model, read_config_file
 from .operating_point import OperatingPoint
 from .io.outdir import Input, check_not_input, model_inputs
 from .io.staging import StagedDir
+from .models.footprint import check_size
 
 #: Where the shipped weights live, relative to the repository root (or the current folder).
 DEFAULT_MODEL = Path("weights") / "synthair-cosemdepth"
@@ -425,6 +426,7 @@ def run_demo(
     requested = size
     if size is None:
         size = flight_size(op)
+    check_size(net, size, size, device=dev)  # before a flight is rendered at that size
     timings["load_model"] = time.perf_counter() - t
     log(f"model: {model_path} ({cfg.arch}, {net.num_parameters():,} parameters)")
 

@@ -1,11 +1,15 @@
 """The one device-name check of the package: ``resolve_device`` (training's ``train.device``, the commands'
-``--device``); what a device can compute in (:func:`onednn_enabled`, :func:`bf16_convolutions`); and
-:func:`retain_freed_host_memory`, the host allocator setting of CPU training."""
+``--device``); what a device can compute in (:func:`onednn_enabled`, :func:`bf16_convolutions`); how much memory it
+has free (:func:`available_memory`); and :func:`retain_freed_host_memory`, the host allocator setting of CPU
+training."""
 
 from __future__ import annotations
 
 import ctypes
+import os
+import resource
 import sys
+from pathlib import Path
 
 import torch
 
@@ -76,6 +80,98 @@ def cpu_capability() -> str:
         return "unknown"
 
 
+#: Where Linux reports the memory a process may still take (module constants: tests point them at their own files).
+MEMINFO = Path("/proc/meminfo")
+PROC_STATUS = Path("/proc/self/status")
+CGROUP_ROOT = Path("/sys/fs/cgroup")
+
+
+def available_memory(device: torch.device | str = "cpu") -> tuple[int | None, str]:
+    """``(bytes, where)``: the memory a new allocation on ``device`` may still take, and where that figure comes
+    from (for messages); ``(None, "unknown")`` when the system does not say.
+
+    CUDA: the device's free memory (``cudaMemGetInfo``). Otherwise the host's: the smallest of the kernel's
+    ``MemAvailable``, the room left under the cgroup's memory limit (v2 ``memory.max`` or v1
+    ``memory.limit_in_bytes``; reclaimable page cache counted as free) and under the process's ``ulimit -v``
+    (``RLIMIT_AS``) and ``RLIMIT_DATA``.
+    """
+    device = torch.device(device)
+    if device.type == "cuda":
+        try:
+            free, _ = torch.cuda.mem_get_info(device)
+            return int(free), f"free memory of {device}"
+        except (RuntimeError, AssertionError):  # pragma: no cover - a CUDA build without a usable device
+            return None, "unknown"
+    candidates: list[tuple[int, str]] = []
+    kib = _kib_field(MEMINFO, "MemAvailable")
+    if kib is not None:
+        candidates.append((kib * 1024, "MemAvailable"))
+    cgroup = _cgroup_room()
+    if cgroup is not None:
+        candidates.append((cgroup, "the cgroup's memory limit"))
+    for limit, field, name in ((resource.RLIMIT_AS, "VmSize", "ulimit -v"), (resource.RLIMIT_DATA, "VmData",
+                                                                            "RLIMIT_DATA")):
+        soft = resource.getrlimit(limit)[0]
+        used = _kib_field(PROC_STATUS, field)
+        if soft != resource.RLIM_INFINITY and used is not None:
+            candidates.append((max(soft - used * 1024, 0), f"the process's {name}"))
+    if not candidates:
+        try:
+            pages = os.sysconf("SC_AVPHYS_PAGES") if hasattr(os, "sysconf") else -1
+            if pages > 0:
+                candidates.append((pages * os.sysconf("SC_PAGE_SIZE"), "free physical memory"))
+        except (ValueError, OSError):  # pragma: no cover - a system without these names
+            pass
+    if not candidates:
+        return None, "unknown"
+    return min(candidates)
+
+
+def _kib_field(path: Path, field: str) -> int | None:
+    """The kB value of ``field:`` in a ``/proc`` file (``MemAvailable:  20457596 kB``), or None."""
+    try:
+        for line in path.read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _read_int(path: Path) -> int | None:
+    try:
+        text = path.read_text().strip()
+    except OSError:
+        return None
+    return int(text) if text.isdigit() else None  # "max" (v2: no limit) is None
+
+
+def _stat_field(path: Path, names: tuple[str, ...]) -> int:
+    try:
+        for line in path.read_text().splitlines():
+            key, _, value = line.partition(" ")
+            if key in names and value.strip().isdigit():
+                return int(value)
+    except OSError:
+        pass
+    return 0
+
+
+def _cgroup_room() -> int | None:
+    """Bytes left under this process's cgroup memory limit (v2, else v1), or None without a limit."""
+    v2 = CGROUP_ROOT / "memory.max"
+    if v2.exists():
+        limit, usage = _read_int(v2), _read_int(CGROUP_ROOT / "memory.current")
+        cache = _stat_field(CGROUP_ROOT / "memory.stat", ("inactive_file",))
+    else:
+        v1 = CGROUP_ROOT / "memory"
+        limit, usage = _read_int(v1 / "memory.limit_in_bytes"), _read_int(v1 / "memory.usage_in_bytes")
+        cache = _stat_field(v1 / "memory.stat", ("total_inactive_file", "inactive_file"))
+    if limit is None or usage is None or limit >= 1 << 60:  # v1 writes "no limit" as a huge number
+        return None
+    return max(limit - max(usage - cache, 0), 0)
+
+
 #: glibc's ``mallopt`` parameters (``malloc.h``).
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3
 
@@ -105,5 +201,5 @@ def retain_freed_host_memory(limit_bytes: int = 1 << 30) -> bool:
     return ok
 
 
-__all__ = ["bf16_convolutions", "cpu_capability", "no_bf16_reason", "onednn_enabled", "resolve_device",
+__all__ = ["available_memory", "bf16_convolutions", "cpu_capability", "no_bf16_reason", "onednn_enabled", "resolve_device",
            "retain_freed_host_memory"]

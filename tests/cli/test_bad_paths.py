@@ -133,6 +133,15 @@ CASES = [
     (["export", "--onnx", "{T}/m.onnx", "--model", "{T}/nope"], "{T}/nope"),
     (["export", "--onnx", "{T}/m.onnx", "--model", "{T}/junk.bin"], "{T}/junk.bin"),
     (["export", "--onnx", "{T}/m.onnx", "--size", "4", "4"], "--size"),
+    # a size far beyond any image (10^10 pixels): refused before anything is allocated or written
+    (["predict", "--model", "{M}", *EVAL, "--size", "100000", "--out", "{T}/p"], "--size: 100000x100000"),
+    (["evaluate", "--model", "{M}", *EVAL, "--size", "100000"], "--size: 100000x100000"),
+    (["view", "--model", "{M}", *EVAL, "--size", "100000", "--rrd", "{T}/v.rrd"], "--size: 100000x100000"),
+    (["export", "--onnx", "{T}/m.onnx", "--size", "100000", "100000"], "--size: 100000x100000"),
+    (["benchmark", "--size", "100000", "100000", "--json", "{T}/b.json", "--md", "{T}/b.md"], "100000x100000"),
+    (["demo", "--model", "{M}", "--data-root", "{D}", "--out", "{T}/r", "--size", "100000"], "--size: 100000x100000"),
+    (["train", "--config", "synthair-small", "--data-root", "{D}", "--set", "data.size=100000", "--out", "{T}/run"],
+     "data.size: 100000x100000"),
 ]
 
 

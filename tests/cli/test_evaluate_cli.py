@@ -60,9 +60,13 @@ def test_missing_model_or_dataset_creates_nothing(model_dir, data, tmp_path, cap
     assert "model folder not found" in capsys.readouterr().err
     assert evaluate(model_dir, tmp_path / "nodata", "--out", out) == 2
     assert "not found" in capsys.readouterr().err
-    assert main(["evaluate", "--model", str(model_dir), "--dataset", "midair", "--root", str(data),
-                 "--out", str(out)]) == 2
-    assert "split_dir" in capsys.readouterr().err
+    for command in ("evaluate", "predict"):
+        assert main([command, "--model", str(model_dir), "--dataset", "midair", "--root", str(data),
+                     "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "split_dir" not in err  # one line naming the flag, not the Python argument
+        assert ("--dataset midair needs --split-dir D, the folder of its split files (<split>_data/**/*.csv); "
+                "write them with: cosemdepth splits midair ROOT D") in err
     assert list(tmp_path.iterdir()) == []
 
 

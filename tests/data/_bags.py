@@ -23,21 +23,26 @@ def _header(ts, ns: int, frame_id: str, ros1: bool):
     return t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
 
 
-def image_msg(ts, ns: int, rgb: np.ndarray, encoding: str = "rgb8", ros1: bool = False, frame_id: str = "cam"):
+def image_msg(ts, ns: int, rgb: np.ndarray, encoding: str = "rgb8", ros1: bool = False, frame_id: str = "cam",
+              bigendian: bool = False):
+    """``rgb``: uint8 (scaled by 257 for the 16-bit encodings) or uint16 (16-bit encodings, stored as is)."""
     h, w = rgb.shape[:2]
-    if encoding == "rgb8":
+    if encoding.endswith("16"):
+        rgb = rgb.astype(np.uint16) * (257 if rgb.dtype == np.uint8 else 1)
+    if encoding in ("rgb8", "rgb16"):
         px = rgb
-    elif encoding == "bgr8":
+    elif encoding in ("bgr8", "bgr16"):
         px = rgb[:, :, ::-1]
-    elif encoding == "mono8":
+    elif encoding in ("mono8", "mono16"):
         px = rgb[:, :, 0]
-    elif encoding == "rgb16":
-        px = rgb.astype("<u2") * 257
     else:
         raise ValueError(encoding)
+    if encoding.endswith("16"):
+        px = px.astype(">u2" if bigendian else "<u2")
     data = np.ascontiguousarray(px).view(np.uint8).reshape(-1)
     return ts.types["sensor_msgs/msg/Image"](header=_header(ts, ns, frame_id, ros1), height=h, width=w,
-                                             encoding=encoding, is_bigendian=0, step=data.size // h, data=data)
+                                             encoding=encoding, is_bigendian=int(bigendian), step=data.size // h,
+                                             data=data)
 
 
 def png_bytes(rgb: np.ndarray) -> bytes:

@@ -5,14 +5,17 @@ upsampling), checked against pixels decoded by an independent tool, libjpeg-turb
 from __future__ import annotations
 
 import shutil
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
+from PIL import Image, ImageOps
 
 from cosemdepth.data import open_dataset
-from cosemdepth.data.decode import decode_jpeg, read_rgb
+from cosemdepth.data.decode import decode_jpeg, decode_rgb, image_size, read_channel0, read_rgb
+from cosemdepth.data.frames import rgb_to_tensor
 from cosemdepth.errors import ConfigError, DatasetError
 
 FIXTURES = Path(__file__).parent / "fixtures" / "jpeg"
@@ -122,3 +125,164 @@ def test_dataset_readers_decode_jpegs_the_original_way_by_default(tmp_path):
         np.testing.assert_allclose(rgb * 255.0, expected.astype(np.float32), atol=1e-3)
     with pytest.raises(ConfigError, match="jpeg_idct"):
         open_dataset("synthair", root, split="test", jpeg_idct="slow")
+
+
+# ------------------------------------------------------------------------------------------ EXIF orientation
+
+
+def _photo(h=12, w=20):
+    """A picture whose rows and columns are all different (a transposition cannot go unnoticed)."""
+    y, x = np.mgrid[0:h, 0:w]
+    return np.stack([y * 20, x * 12, (x * 7 + y * 3) % 256], axis=2).astype(np.uint8)
+
+
+def _save_with_orientation(img: Image.Image, path: Path, orientation: int | None, **kw) -> Path:
+    exif = Image.Exif()
+    if orientation is not None:
+        exif[0x0112] = orientation
+    img.save(path, exif=exif.tobytes(), **kw)
+    return path
+
+
+def test_jpeg_orientation_6_gives_the_pixels_rotated_90_degrees_clockwise(tmp_path):
+    img = Image.fromarray(_photo())
+    plain = read_rgb(_save_with_orientation(img, tmp_path / "plain.jpg", None, quality=95))
+    tagged = _save_with_orientation(img, tmp_path / "tagged.jpg", 6, quality=95)
+    got = read_rgb(tagged)
+    assert plain.shape == (12, 20, 3) and got.shape == (20, 12, 3)
+    np.testing.assert_array_equal(got, np.rot90(plain, -1))  # rotate 90 clockwise: column 0 becomes the top row
+    np.testing.assert_array_equal(got[0, :, :], plain[::-1, 0, :])
+    assert image_size(tagged) == (20, 12)
+    assert image_size(tmp_path / "plain.jpg") == (12, 20)
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_every_orientation_matches_pillows_exif_transpose(tmp_path, orientation):
+    """JPEG (accurate IDCT, Pillow's) and PNG (eXIf chunk): the arrays equal Pillow's own transposition."""
+    img = Image.fromarray(_photo())
+    jpg = _save_with_orientation(img, tmp_path / "a.jpg", orientation, quality=95)
+    png = _save_with_orientation(img, tmp_path / "a.png", orientation)
+    for path, kw in ((jpg, {"jpeg_idct": "accurate"}), (png, {})):
+        want = np.asarray(ImageOps.exif_transpose(Image.open(path)).convert("RGB"))
+        got = read_rgb(path, **kw)
+        np.testing.assert_array_equal(got, want)
+        assert image_size(path) == want.shape[:2]
+    labels = Image.fromarray(_photo()[..., 0])
+    lab = _save_with_orientation(labels, tmp_path / "l.png", orientation)
+    np.testing.assert_array_equal(read_channel0(lab), np.asarray(ImageOps.exif_transpose(Image.open(lab))))
+
+
+def test_compressed_image_bytes_are_oriented_too(tmp_path):
+    path = _save_with_orientation(Image.fromarray(_photo()), tmp_path / "a.jpg", 8, quality=95)
+    plain = read_rgb(_save_with_orientation(Image.fromarray(_photo()), tmp_path / "b.jpg", 1, quality=95))
+    np.testing.assert_array_equal(decode_rgb(path.read_bytes(), "msg"), np.rot90(plain, 1))
+
+
+def test_flight_sees_the_displayed_size_for_intrinsics(tmp_path):
+    """A flight of portrait photos stored landscape with orientation 6: native size, intrinsics and tensors are
+    the portrait ones (hfov 90: fx = W/2 = 6, cx = 6, cy = 10)."""
+    folder = tmp_path / "f"
+    folder.mkdir()
+    for k in range(2):
+        _save_with_orientation(Image.fromarray(_photo()), folder / f"{k}.jpg", 6, quality=95)
+    (folder / "poses.txt").write_text("0 0 0 0 0 0 0 1\n1 0 0 1 0 0 0 1\n")
+    ds = open_dataset("flight", folder, fov=90.0)
+    it = ds[0]
+    assert it["rgb"].shape == (1, 3, 20, 12)
+    assert it["intrinsics"].tolist() == [6.0, 6.0, 6.0, 10.0]
+    np.testing.assert_allclose(it["rgb"][0].permute(1, 2, 0).numpy() * 255, read_rgb(folder / "0.jpg"), atol=1e-3)
+
+
+# ------------------------------------------------------------------------------------------ 16-bit images
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+
+def png16(arr: np.ndarray) -> bytes:
+    """A 16-bit PNG written by hand (the PNG spec: IHDR, zlib IDAT, each row filtered with filter type
+    ``row % 5``: None, Sub, Up, Average, Paeth), so that every unfilter path of the reader is exercised.
+    ``arr``: ``[H, W]`` gray, ``[H, W, 3]`` RGB or ``[H, W, 4]`` RGBA uint16."""
+    h, w = arr.shape[:2]
+    ch = 1 if arr.ndim == 2 else arr.shape[2]
+    colour_type = {1: 0, 2: 4, 3: 2, 4: 6}[ch]
+    bpp = 2 * ch
+    rows, prior = [], np.zeros(w * bpp, np.int64)
+    for i in range(h):
+        cur = np.frombuffer(np.ascontiguousarray(arr[i]).astype(">u2").tobytes(), np.uint8).astype(np.int64)
+        left = np.concatenate([np.zeros(bpp, np.int64), cur[:-bpp]])
+        upleft = np.concatenate([np.zeros(bpp, np.int64), prior[:-bpp]])
+        f = i % 5
+        if f == 0:
+            pred = np.zeros_like(cur)
+        elif f == 1:
+            pred = left
+        elif f == 2:
+            pred = prior
+        elif f == 3:
+            pred = (left + prior) // 2
+        else:
+            p = left + prior - upleft
+            pa, pb, pc = abs(p - left), abs(p - prior), abs(p - upleft)
+            pred = np.where((pa <= pb) & (pa <= pc), left, np.where(pb <= pc, prior, upleft))
+        rows.append(bytes([f]) + ((cur - pred) % 256).astype(np.uint8).tobytes())
+        prior = cur
+    ihdr = struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", zlib.compress(b"".join(rows)))
+            + _chunk(b"IEND", b""))
+
+
+RGB16 = np.random.default_rng(1).integers(0, 65536, (9, 11, 3), dtype=np.uint16)
+
+
+def test_16bit_rgb_png_keeps_every_bit_and_scales_by_65535(tmp_path):
+    p = tmp_path / "a.png"
+    p.write_bytes(png16(RGB16))
+    got = read_rgb(p)
+    assert got.dtype == np.uint16
+    np.testing.assert_array_equal(got, RGB16)
+    assert np.count_nonzero(got & 0xFF)  # the low bytes are there (Pillow alone keeps only the high ones)
+    np.testing.assert_allclose(rgb_to_tensor(got, None).numpy(), RGB16.transpose(2, 0, 1) / 65535.0, atol=1e-7)
+    rgba = np.concatenate([RGB16, np.full((9, 11, 1), 7, np.uint16)], axis=2)
+    p.write_bytes(png16(rgba))
+    np.testing.assert_array_equal(read_rgb(p), RGB16)  # alpha dropped
+
+
+def test_16bit_gray_png_is_read_with_full_precision(tmp_path):
+    gray = RGB16[..., 0]
+    p = tmp_path / "g.png"
+    p.write_bytes(png16(gray))
+    got = read_rgb(p)
+    assert got.dtype == np.uint16
+    np.testing.assert_array_equal(got, np.repeat(gray[..., None], 3, axis=2))
+
+
+def test_16bit_images_reach_the_model_input_at_full_precision(tmp_path):
+    """A flight of 16-bit RGB PNGs: the dataset's tensor is value / 65535 (not the 8-bit truncation)."""
+    folder = tmp_path / "f"
+    folder.mkdir()
+    for k in range(2):
+        (folder / f"{k}.png").write_bytes(png16(RGB16))
+    (folder / "poses.txt").write_text("0 0 0 0 0 0 0 1\n1 0 0 1 0 0 0 1\n")
+    rgb = open_dataset("flight", folder, fov=90.0)[0]["rgb"][0].numpy()
+    np.testing.assert_allclose(rgb, RGB16.transpose(2, 0, 1) / 65535.0, atol=1e-7)
+
+
+def test_16bit_gray_alpha_and_16bit_colour_maps_are_refused_naming_the_file(tmp_path):
+    p = tmp_path / "ga.png"
+    p.write_bytes(png16(RGB16[..., :2]))
+    with pytest.raises(DatasetError, match=r"ga\.png: 16-bit gray\+alpha PNGs are not supported"):
+        read_rgb(p)
+    p = tmp_path / "label.png"
+    p.write_bytes(png16(RGB16))
+    with pytest.raises(DatasetError, match=r"label\.png: 16-bit colour PNGs are not supported for label/depth"):
+        read_channel0(p)
+
+
+def test_corrupt_16bit_rgb_png_is_a_dataset_error(tmp_path):
+    data = png16(RGB16)
+    p = tmp_path / "c.png"
+    p.write_bytes(data[:60] + bytes(20) + data[80:])
+    with pytest.raises(DatasetError, match=r"c\.png: corrupt image"):
+        read_rgb(p)

@@ -85,13 +85,19 @@ def test_fuzz_rgb(tmp_path_factory, data, jpeg):
         path = folder / "000004.JPEG"
     else:
         good, samples, (bit_depth, colour) = data.draw(png_file(st.integers(0, 65535)))
-        truth = samples.astype(np.uint8) if (bit_depth, colour) == (8, RGB) else None
+        # what a valid file must give: its samples as written (16-bit ones with every bit, gray replicated)
+        truth = {(8, RGB): samples.astype(np.uint8), (16, RGB): samples.astype(np.uint16),
+                 (16, RGBA): samples[..., :3].astype(np.uint16),
+                 (16, GRAY): np.repeat(samples, 3, axis=2).astype(np.uint16)}.get((bit_depth, colour))
         path = folder / "000004.png"
     raw = data.draw(damaged(good, not jpeg))
     write(path, raw)
 
     def check(rgb) -> None:
-        assert isinstance(rgb, np.ndarray) and rgb.dtype == np.uint8 and rgb.ndim == 3 and rgb.shape[2] == 3
+        assert isinstance(rgb, np.ndarray) and rgb.ndim == 3 and rgb.shape[2] == 3
+        assert rgb.dtype in (np.uint8, np.uint16)
+        if raw == good:
+            assert rgb.dtype == (np.uint16 if not jpeg and bit_depth == 16 else np.uint8)
         assert rgb.shape[0] >= 1 and rgb.shape[1] >= 1
         if raw == good and truth is not None:
             if jpeg:  # lossy: close to what was written, same size

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from _bags import camera_info_msg, compressed_msg, image_msg, typestore, yaw_quat
+from cosemdepth.data.frames import rgb_to_tensor
 from cosemdepth.data.poses import interpolate_pose, slerp
 from cosemdepth.data.rosbag import camera_info_intrinsics, image_to_rgb, pose_at_images
 from cosemdepth.errors import DatasetError
@@ -84,10 +85,27 @@ def test_pairing_holds_two_poses_only():
 RGB = np.arange(4 * 5 * 3, dtype=np.uint8).reshape(4, 5, 3) * 4
 
 
-@pytest.mark.parametrize("encoding", ["rgb8", "bgr8", "rgb16"])
+@pytest.mark.parametrize("encoding", ["rgb8", "bgr8"])
 def test_raw_image_encodings(encoding):
     msg = image_msg(typestore(False), 0, RGB, encoding)
-    np.testing.assert_array_equal(image_to_rgb(msg.__msgtype__, msg, "x"), RGB)
+    got = image_to_rgb(msg.__msgtype__, msg, "x")
+    assert got.dtype == np.uint8
+    np.testing.assert_array_equal(got, RGB)
+
+
+RGB16 = (np.arange(4 * 5 * 3, dtype=np.uint16).reshape(4, 5, 3) * 1021 + 3)  # low bytes vary: not 8-bit * 257
+
+
+@pytest.mark.parametrize("bigendian", [False, True])
+@pytest.mark.parametrize("encoding", ["rgb16", "bgr16", "mono16"])
+def test_16bit_encodings_keep_every_bit_and_scale_by_65535(encoding, bigendian):
+    msg = image_msg(typestore(False), 0, RGB16, encoding, bigendian=bigendian)
+    got = image_to_rgb(msg.__msgtype__, msg, "x")
+    want = np.repeat(RGB16[:, :, :1], 3, axis=2) if encoding == "mono16" else RGB16
+    assert got.dtype == np.uint16
+    np.testing.assert_array_equal(got, want)
+    x = rgb_to_tensor(got, None)
+    np.testing.assert_allclose(x.numpy(), want.transpose(2, 0, 1) / 65535.0, rtol=0, atol=1e-7)
 
 
 def test_mono_padded_rows_and_compressed():

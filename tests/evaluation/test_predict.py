@@ -46,6 +46,10 @@ def test_predict_writes_every_artefact_and_they_read_back(model_dir, data, tmp_p
     assert predict("--model", model_dir, *split_args(data), "--out", out, "--reference") == 0
     man = json.loads((out / "predictions.json").read_text())
     assert man["frames_written"] == 6 and man["encodings"]["depth_png_scale"] == 256
+    run = man["run"]  # Mid-Air's 90-degree pinhole at the 32x32 input: f = c = 16; no pose settings of our own
+    assert run["input_size"] == [SIZE, SIZE] and run["intrinsics"] == [16.0, 16.0, 16.0, 16.0]
+    assert (run["path"], run["precision"], run["convention"], run["frame_skip"], run["poses"]) == (
+        "reference", "fp32", None, None, None)
     assert [t["name"] for t in man["trajectories"]] == ["Kite_training/sunny/traj_0000",
                                                         "Kite_training/sunny/traj_0001"]
     assert man["palette"] == PALETTE_7.tolist()
@@ -128,6 +132,13 @@ def test_own_flight_with_a_gif(model_dir, tmp_path):
                  "--size", "32x64", "--out", out, "--video", "gif")
     assert rc == 0
     man = json.loads((out / "predictions.json").read_text())
+    # the settings behind the outputs: hfov 90 on the 48x64 images gives fx = fy = 64 / 2 = 32, cx = 32, cy = 24,
+    # scaled to the 32x64 model input (rows x 2/3)
+    run = man["run"]
+    assert run["input_size"] == [32, 64] and run["hfov_deg"] == 90 and run["intrinsics_given"] is None
+    np.testing.assert_allclose(run["intrinsics"], [32, 32 * 2 / 3, 32, 16], rtol=1e-6)
+    assert (run["path"], run["precision"], run["convention"], run["frame_skip"]) == ("fast", "fp32", "opencv", 1)
+    assert run["poses"] == str(poses) and run["model"] == str(model_dir) and run["jpeg_idct"] == "fast"
     assert man["frames_written"] == 4 and len(man["trajectories"]) == 1
     traj = man["trajectories"][0]
     assert traj["name"] == "images" and traj["video"] == "images/video.gif"

@@ -154,6 +154,10 @@ def test_bag_depth_equals_flight_depth_and_output_bag_reads_back(model_dir, flig
     assert man["bag"]["messages"] == 4 * N
 
 
+def man_run(out: Path) -> dict:
+    return json.loads((out / "predictions.json").read_text())["run"]
+
+
 def test_out_namespace_frame_skip_and_hfov(model_dir, tmp_path):
     bag = make_bag(tmp_path / "in", info=False)
     out = tmp_path / "out"
@@ -164,6 +168,15 @@ def test_out_namespace_frame_skip_and_hfov(model_dir, tmp_path):
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in msgs["/uav1/cd/depth"]]
     assert stamps == image_stamps()[::2]
     np.testing.assert_allclose(msgs["/uav1/cd/camera_info"][0][1].k, [16, 0, 15.5, 0, 16, 15.5, 0, 0, 1])
+    run = man_run(out)
+    assert (run["convention"], run["frame_skip"], run["hfov_deg"], run["pose_topic"]) == ("flu", 2, 90, "/odom")
+    assert run["input_size"] == [32, 32] and run["intrinsics"] == [16.0, 16.0, 16.0, 16.0]  # hfov 90, 32 px
+    # every output is named by its image's full stamp (10-digit seconds, 9-digit nanoseconds): sortable, unique
+    man = json.loads((out / "predictions.json").read_text())
+    want = [f"{ns // 10**9:010d}.{ns % 10**9:09d}" for ns in image_stamps()[::2]]  # e.g. 0000000100.003000000
+    assert [f["files"]["depth"] for f in man["frames"]] == [f"cam_image/depth/image_{w}.npy" for w in want]
+    assert [f["source"] for f in man["frames"]] == [f"{bag}:/cam/image@{w}" for w in want]
+    assert sorted(p.name for p in (out / "cam_image" / "depth").iterdir()) == [f"image_{w}.npy" for w in want]
 
 
 def test_gap_in_the_poses_fails_naming_the_stamp_or_is_skipped(model_dir, tmp_path, capsys):

@@ -94,21 +94,17 @@ def test_mismatched_state_dict_writes_nothing(tmp_path):
     assert not (tmp_path / "a").exists()
 
 
-def test_failed_write_leaves_no_partial_output(tmp_path, monkeypatch):
-    import safetensors.torch
+def test_failed_write_leaves_no_partial_output(tmp_path, full_disk):
+    import errno
 
-    def boom(tensors, filename, metadata=None):
-        with open(filename, "wb") as f:
-            f.write(b"half a file")
-        raise OSError("disk full")
-
-    monkeypatch.setattr(safetensors.torch, "save_file", boom)
-    with pytest.raises(OSError, match="disk full"):
+    full_disk(tmp_path, room=1000)  # the weights run out of room part-way
+    with pytest.raises(OSError) as e:
         save_weights(_random_state(SMALL), SMALL, tmp_path / "new" / "model")
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(tmp_path / "new" / "model" / "model.safetensors")
     assert not (tmp_path / "new").exists()
     existing = tmp_path / "existing"
     existing.mkdir()
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(OSError, match="No space left"):
         save_weights(_random_state(SMALL), SMALL, existing)
     assert os.listdir(existing) == []
 

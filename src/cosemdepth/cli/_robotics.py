@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..data.bag_flight import DEFAULT_MAX_POSE_GAP, open_bag_flight
+from ..data.bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP, open_bag_flight
 from ..errors import ConfigError
 from ..evaluation.classes import class_info
 from ..evaluation.evaluator import _model_config
@@ -59,7 +59,7 @@ def open_bag(args: argparse.Namespace, size=None):
     check_args(args)
     flight = open_bag_flight(
         args.bag, args.image_topic, args.pose_topic, camera_info_topic=args.camera_info_topic,
-        intrinsics=args.intrinsics, fov=args.hfov, convention=args.convention or "flu",
+        intrinsics=args.intrinsics, fov=args.hfov, convention=args.convention or DEFAULT_BAG_CONVENTION,
         frame_skip=args.frame_skip, skip_unposed=args.skip_unposed,
         max_pose_gap=DEFAULT_MAX_POSE_GAP if args.max_pose_gap is None else args.max_pose_gap,
         ignore_distortion=args.ignore_distortion, size=size, jpeg_idct=args.jpeg_idct,

@@ -10,7 +10,7 @@ import torch
 
 from ..config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
 from ..data import open_dataset
-from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
+from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS, image_size
 from ..data.frames import FocalSize, as_size
 from ..data.registry import DATASETS, split_datasets
 from ..errors import CheckpointError, ConfigError
@@ -18,6 +18,7 @@ from ..devices import resolve_device
 from ..io.model_io import load_model, operating_point_of
 from ..models import build_model
 from ..operating_point import OperatingPoint
+from ..models.footprint import check_size
 
 #: The model config's defaults (``--arch/--levels/--classes`` read them: one home for defaults).
 MODEL_DEFAULTS = ModelConfig()
@@ -246,11 +247,42 @@ def open_split(args: argparse.Namespace, size):
     """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1)."""
     if args.workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {args.workers}")
+    check_split_dir(args)
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size,
                         jpeg_idct=args.jpeg_idct)
 
 
+def check_split_dir(args: argparse.Namespace) -> None:
+    """A ConfigError naming ``--split-dir`` (and how to make one) when ``args.dataset`` has no default split folder
+    and none is given."""
+    spec = DATASETS.get(args.dataset)
+    if args.split_dir is None and spec is not None and spec.needs_split_dir and spec.split_dir is None:
+        raise ConfigError(f"--dataset {args.dataset} needs --split-dir D, the folder of its split files "
+                          f"(<split>_data/**/*.csv); write them with: cosemdepth splits {args.dataset} ROOT D")
+
+
+def frame_size(dataset) -> tuple[int, int] | None:
+    """``(H, W)`` of the frames ``dataset`` feeds the model: its loader's output size, else (native size) the first
+    image's, from its header; None if neither is known."""
+    size = as_size(getattr(dataset.load_frame, "size", None))
+    if size is None and dataset.trajectories and len(dataset.trajectories[0]):
+        rgb = getattr(dataset.trajectories[0].frame(0), "rgb", None)
+        if isinstance(rgb, (str, Path)):
+            size = image_size(rgb)
+    return size
+
+
+def check_run_size(model, dataset, device, batch: int = 1) -> None:
+    """The size check of the commands that stream a dataset (:func:`cosemdepth.models.footprint.check_size` at the
+    dataset's frame size, ``batch`` trajectories at once), before the first frame is read."""
+    size = frame_size(dataset)
+    batch = max(min(batch, len(dataset.trajectories)), 1)  # a batch holds at most one lane per trajectory
+    if size is not None:
+        check_size(model, *size, device=device, batch=batch,
+                   what="--size" if batch == 1 else "--size/--trajectories-per-batch")
+
+
 __all__ = ["add_device_args", "add_model_args", "add_model_or_arch_args", "add_precision_arg", "add_reference_arg",
-           "add_jpeg_idct_arg", "add_run_args", "add_split_args", "apply_threads", "input_size", "load",
-           "load_or_build", "model_operating_point", "model_size_pair", "open_split", "parse_size", "parse_size_pair", "positive_int",
-           "warn_far_size"]
+           "add_jpeg_idct_arg", "add_run_args", "add_split_args", "apply_threads", "check_run_size", "check_split_dir",
+           "frame_size", "input_size", "load", "load_or_build", "model_operating_point", "model_size_pair", "open_split",
+           "parse_size", "parse_size_pair", "positive_int", "warn_far_size"]

@@ -30,10 +30,12 @@ from ..bench.runner import (
     run_separate,
     wait_for_idle,
 )
-from ..config import ARCHITECTURES
+from ..config import ARCHITECTURES, ModelConfig
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device
 from ..errors import ConfigError
 from ..io.outdir import check_output_file, model_inputs
+from ..models import build_model
+from ..models.footprint import check_size
 from ._shared import DEFAULT_SIZE_PAIR, load_or_build, model_size_pair, parse_size_pair
 
 #: The defaults of one measurement (size, levels, classes, warm-up and timed frames at batch 1).
@@ -127,6 +129,14 @@ def run(args: argparse.Namespace) -> int:
         weights = load_or_build(argparse.Namespace(model=args.model))
         models = [weights.config.arch]
         h, w = model_size_pair(args.size, weights, warn=False)
+    for arch in models:  # every case's size and largest batch against the memory, before any case runs
+        if weights is not None:
+            shapes = weights
+        else:
+            with torch.device("meta"):
+                shapes = build_model(ModelConfig(arch=arch, levels=args.levels))
+        check_size(shapes, h, w, device=device, batch=max(args.batch),
+                   what="--size" if max(args.batch) == 1 else "--size/--batch")
 
     def case(arch, batch, precision, path="fast"):
         big = batch > 1

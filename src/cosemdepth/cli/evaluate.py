@@ -22,7 +22,7 @@ from ..data.registry import dataset_spec
 from ..evaluation.evaluator import evaluate
 from ..io.outdir import Input, model_inputs
 from ..io.staging import OutputFiles
-from ._shared import (add_model_args, add_run_args, add_split_args, apply_threads, input_size, load,
+from ._shared import (add_model_args, add_run_args, add_split_args, apply_threads, check_run_size, input_size, load,
                       model_operating_point, open_split, parse_size, size_help, warn_far_size)
 
 
@@ -48,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
         dataset = open_split(args, input_size(args.size, op))
         warn_far_size(op, args.size, dataset)
         model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
+        check_run_size(model, dataset, device, args.lanes)
         result = evaluate(model, dataset, lanes=args.lanes, max_frames=args.max_frames, num_workers=args.workers,
                           progress=not args.no_progress and sys.stderr.isatty(), dataset_name=args.dataset)
         result.info["model"].update(path=str(args.model), name=Path(str(args.model)).name)

@@ -8,6 +8,8 @@ from ..errors import ConfigError
 from ..export.check import CHECK_FRAMES, NOISE_MULTIPLE, compare_onnx
 from ..export.onnx import DEFAULT_OPSET, MIN_OPSET, export_onnx, is_our_onnx
 from ..io.outdir import check_output_file, model_inputs
+from ..models.footprint import check_size
+from ..optional import require
 from ._shared import DEFAULT_SIZE_PAIR, add_model_or_arch_args, load_or_build, model_size_pair, parse_size_pair
 
 
@@ -37,8 +39,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--batch must be at least 1, got {args.batch}")
     # the output policy: not a folder, under an existing folder, not an input; an existing file only if we wrote it
     check_output_file(args.onnx, what="--onnx file", inputs=model_inputs(args.model), recognize=is_our_onnx)
+    require("onnx", "export")  # what the export and --check need, before anything is written
+    if args.check:
+        require("onnxruntime", "export --check")
     model = load_or_build(args)
     h, w = model_size_pair(args.size, model)
+    check_size(model, h, w, batch=args.batch)  # the export traces a step in float32 on the CPU
     path = export_onnx(
         model,
         args.onnx,

@@ -13,8 +13,8 @@ import importlib.util
 import os
 import sys
 
-from ..errors import CosemdepthError
 from . import flag_rules
+from ._boundary import error_line
 
 #: name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -46,9 +46,21 @@ def _available() -> dict[str, tuple[str, str]]:
     return out
 
 
+#: Argument destinations that name a command's outputs (the error boundary names them when an error names no file).
+OUTPUT_DESTS = ("out", "out_dir", "onnx", "rrd", "rerun", "json", "md", "data_dir")
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument error is one line, ``cosemdepth CMD: error: ... (see cosemdepth CMD --help)``, exit 2 (the usage
+    block stays for ``--help``)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The ``cosemdepth`` parser; ``only``: configure just this command's arguments ("": none; None: all)."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="cosemdepth",
         description="Joint monocular depth and semantic segmentation for aerial image sequences.",
     )
@@ -67,29 +79,36 @@ def main(argv: list[str] | None = None) -> int:
     first = next((a for a in argv if not a.startswith("-")), None)
     if first in PASSIVE_WAIT_COMMANDS and "torch" not in sys.modules:
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    # only the command being run gets its arguments (without one, `cosemdepth --help` lists the commands)
-    parser = build_parser(only=first if first in COMMANDS else "")
-    args = parser.parse_args(argv)
-    module = importlib.import_module(COMMANDS[args.command][0])
+    command = first if first in COMMANDS else None
+    parser = args = None
     try:
+        # only the command being run gets its arguments (without one, `cosemdepth --help` lists the commands)
+        parser = build_parser(only=command or "")
+        args = parser.parse_args(argv)
+        command = args.command
+        module = importlib.import_module(COMMANDS[command][0])
         flag_rules.check(args.command, args)  # a flag given that does not apply to the chosen input: exit 2
         return int(module.run(args) or 0)
-    except CosemdepthError as e:
-        # one line, whatever a wrapped library message holds (YAML and JSON parsers put line breaks in theirs)
-        text = "; ".join(part.strip() for part in str(e).splitlines() if part.strip())
-        print(f"cosemdepth {args.command}: error: {text}", file=sys.stderr)
-        return 2
-    except OSError as e:
-        # a file system error about a path the user gave (permissions, a file vanished, disk full): one line. An
-        # OSError that names no file is not about a user path; it stays a traceback (an internal bug to report).
-        if e.filename is None:
-            raise
-        where = e.filename if e.filename2 is None else f"{e.filename} -> {e.filename2}"
-        print(f"cosemdepth {args.command}: error: {where}: {e.strerror or e}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
-        print(f"cosemdepth {args.command}: interrupted", file=sys.stderr)
+        print(f"cosemdepth {command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # the error boundary: input and environment problems are one line, bugs a traceback
+        line = error_line(e, outputs(parser, args) if args is not None else [])
+        if line is None:
+            raise
+        print(f"cosemdepth{' ' + command if command else ''}: error: {line}", file=sys.stderr)
+        return 2
+
+
+def outputs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[str]:
+    """The command's output arguments as given (``--out runs/a``), for messages."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[args.command]
+    out = []
+    for action in sub._actions:
+        value = getattr(args, action.dest, None)
+        if action.dest in OUTPUT_DESTS and value is not None and action.help != argparse.SUPPRESS:
+            out.append(f"{action.option_strings[0]} {value}" if action.option_strings else str(value))
+    return out
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -20,7 +20,8 @@ import sys
 from pathlib import Path
 
 from ..data import open_dataset
-from ..data.bag_flight import DEFAULT_MAX_POSE_GAP
+from ..data.bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP
+from ..data.flight import DEFAULT_CONVENTION
 from ..data.pose_matching import DEFAULT_MAX_GAP, MATCHES
 from ..data.poses import CONVENTIONS
 from ..data.stamps import UNITS, parse_stamp_unit
@@ -31,8 +32,9 @@ from ..io.outdir import Input, model_inputs
 from ..io.rerun_writer import check_rrd_path
 from ..io.staging import StagedDir
 from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
-from ._shared import (add_model_args, apply_threads, add_run_args, add_split_args, input_size, load,
-                      model_operating_point, parse_size, positive_int, size_help, warn_far_size)
+from ._shared import (add_model_args, apply_threads, add_run_args, add_split_args, check_run_size, check_split_dir,
+                      frame_size, input_size, load, model_operating_point, parse_size, positive_int, size_help,
+                      warn_far_size)
 from .flag_rules import explicit
 
 
@@ -120,11 +122,12 @@ def _open(args: argparse.Namespace):
         dataset = open_bag(args, size)
     elif args.flight:
         dataset = open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
-                               convention=args.convention or "opencv", frame_skip=args.frame_skip, seq_len=1,
+                               convention=args.convention or DEFAULT_CONVENTION, frame_skip=args.frame_skip, seq_len=1,
                                size=size, jpeg_idct=args.jpeg_idct, match=args.match, stamp_unit=args.stamp_unit,
                                max_gap=DEFAULT_MAX_GAP if args.max_pose_gap is None else args.max_pose_gap,
                                skip_unposed=args.skip_unposed)
     else:
+        check_split_dir(args)
         dataset = open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
                                size=size, jpeg_idct=args.jpeg_idct)
     warn_far_size(op, args.size, dataset)
@@ -144,6 +147,34 @@ def flight_report(dataset) -> str:
     return f"; flight: {matching['describe']}" if matching else ""
 
 
+def run_settings(args: argparse.Namespace, dataset) -> dict:
+    """What determines predict's outputs besides the frames: ``predictions.json``'s ``run`` entry. ``input_size``
+    ``[H, W]`` and ``intrinsics`` ``[fx, fy, cx, cy]`` (package convention: pixel centres at +0.5) are those the model
+    was fed; the pose settings are null for dataset splits (whose readers fix them)."""
+    own = bool(args.flight or args.bag)
+    convention = args.convention or (DEFAULT_BAG_CONVENTION if args.bag else DEFAULT_CONVENTION)
+    size = frame_size(dataset)
+    return {
+        "model": str(args.model),
+        "path": "reference" if args.reference else "fast",
+        "precision": args.precision,
+        "input_size": None if size is None else list(size),
+        "intrinsics": [float(v) for v in dataset.intrinsics.tolist()],
+        "intrinsics_given": None if args.intrinsics is None else [float(v) for v in args.intrinsics],
+        "hfov_deg": args.hfov,
+        "camera_info_topic": args.camera_info_topic,
+        "convention": convention if own else None,
+        "frame_skip": args.frame_skip if own else None,
+        "poses": str(args.poses) if args.flight and args.poses is not None else None,
+        "pose_topic": args.pose_topic if args.bag else None,
+        "match": args.match if args.flight else None,
+        "stamp_unit": args.stamp_unit if args.flight else None,
+        "max_pose_gap": args.max_pose_gap if own else None,
+        "skip_unposed": args.skip_unposed if own else None,
+        "jpeg_idct": args.jpeg_idct,
+    }
+
+
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
     _validate(args)
@@ -152,12 +183,14 @@ def run(args: argparse.Namespace) -> int:
     check_rrd_path(args.rerun, inputs=[*inputs, Input("--out", args.out)]) if args.rerun is not None else None
     dataset = _open(args)
     model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
+    check_run_size(model, dataset, device, args.lanes)
     info = {
         "model": {"path": str(args.model)},
         "dataset": {"root": str(args.bag if args.bag else args.images if args.flight else args.root),
                     "split": None if args.flight else args.split,
                     **({"pose_matching": dataset.pose_matching} if hasattr(dataset, "pose_matching") else {})},
         "device": str(device),
+        "run": run_settings(args, dataset),
     }
     manifest = predict(model, dataset, args.out, video=args.video, fps=args.fps, max_frames=args.max_frames,
                        lanes=args.lanes, num_workers=args.workers, overwrite=args.overwrite,

@@ -21,7 +21,7 @@ from tqdm.auto import tqdm
 from ..evaluation.streaming import make_schedule, stream, trajectory_rows
 from ..io.rerun_writer import check_rrd_path, require_rerun
 from ._robotics import make_sinks
-from ._shared import apply_threads, load
+from ._shared import apply_threads, check_run_size, load
 from .predict import _open, _validate, command_inputs, flight_report
 from .predict import configure as configure_predict
 
@@ -46,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
     _validate(args)
     check_rrd_path(args.rrd, option="--rrd", inputs=command_inputs(args))
     dataset = _open(args)
-    model, _ = load(args.model, args.device, fast=not args.reference, precision=args.precision)
+    model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
+    check_run_size(model, dataset, device, args.lanes)
     args.rerun = args.rrd
     (writer,) = make_sinks(args, dataset, model, bag_output=False)
     schedule = make_schedule(trajectory_rows(dataset, args.max_frames), args.lanes)

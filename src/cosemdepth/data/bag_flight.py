@@ -48,6 +48,8 @@ from .sequence import SequenceDataset, Trajectory
 
 #: Interpolate an image's pose only between poses at most this many seconds apart (``--max-pose-gap``).
 DEFAULT_MAX_POSE_GAP = 0.05
+#: Axes of a bag's posed frame when none is given: the ROS body frame (REP 103).
+DEFAULT_BAG_CONVENTION = "flu"
 
 
 @dataclass
@@ -204,6 +206,13 @@ class BagFlight:
         self.loader.close()
 
 
+def frame_label(path: str | Path, topic: str, ns: int) -> str:
+    """``BAG:TOPIC@SSSSSSSSSS.NNNNNNNNN``: a bag frame's source as recorded by predict, its stamp in full (seconds
+    padded to 10 digits, nanoseconds to 9). Output files are named from the part after the topic's last ``/``
+    (``image_raw_1700000000.000001000.npy``), so that names sort as the stamps do."""
+    return f"{path}:{topic}@{ns // 1_000_000_000:010d}.{ns % 1_000_000_000:09d}"
+
+
 def open_bag_flight(
     path: str | Path,
     image_topic: str,
@@ -212,7 +221,7 @@ def open_bag_flight(
     camera_info_topic: str | None = None,
     intrinsics=None,
     fov: float | None = None,
-    convention="flu",
+    convention=DEFAULT_BAG_CONVENTION,
     frame_skip: int = 1,
     max_pose_gap: float = DEFAULT_MAX_POSE_GAP,
     skip_unposed: bool = False,
@@ -251,7 +260,7 @@ def open_bag_flight(
     name = image_topic.strip("/").replace("/", "_") or "images"
     traj = Trajectory(
         name if name != "bag" else "bag_images",  # predict's output bag is OUT/bag/: the frames go beside it
-        [f"{path}:{image_topic}@{format_stamp(int(t))}" for t in idx.stamps],
+        [frame_label(path, image_topic, int(t)) for t in idx.stamps],
         q_rel, t_rel, idx.indices, timestamps=idx.stamps / 1e9,
     )
     loader = BagFrameLoader(path, image_topic, out_size, native, jpeg_idct)
@@ -260,4 +269,5 @@ def open_bag_flight(
     return BagFlight(path, image_topic, dataset, idx, m, intr, out_size, loader)
 
 
-__all__ = ["BagFlight", "BagFrameLoader", "BagIndex", "index_bag", "open_bag_flight", "read_camera_info"]
+__all__ = ["BagFlight", "BagFrameLoader", "BagIndex", "frame_label", "index_bag", "open_bag_flight",
+           "read_camera_info"]

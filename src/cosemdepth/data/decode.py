@@ -14,8 +14,19 @@ JPEG (any file whose content starts with the JPEG SOI marker, whatever its name)
 
 PNG (and other formats) decode with Pillow (libpng). PNG flavours accepted for single-channel maps (labels, 8-bit
 depth): 8-bit gray (``L``), 16-bit gray (``I;16``), palette (``P``: the palette *indices* are the values), gray+alpha
-(``LA``) and 8-bit RGB/RGBA (channel 0 is kept). 16-bit colour PNGs are rejected: Pillow would silently keep only
-their high bytes.
+(``LA``) and 8-bit RGB/RGBA (channel 0 is kept). 16-bit colour PNGs are rejected for maps: a class ID or depth in
+channel 0 of a 16-bit colour PNG is not a layout any dataset uses.
+
+Colour images keep their precision: :func:`read_rgb` and :func:`decode_rgb` return uint8 for 8-bit images and uint16
+for 16-bit ones (16-bit gray, RGB or RGBA PNGs), and :func:`cosemdepth.data.frames.rgb_to_tensor` scales either to
+the model's 0..1 input (``/255`` or ``/65535``). Pillow holds 16-bit colour only as 8 bits, so a 16-bit RGB(A) PNG
+is decoded twice by libpng through Pillow, once unpacking the high byte of each sample and once the low byte
+(:func:`_decode_png16_colour`). 16-bit gray+alpha PNGs (which Pillow cannot unpack that way) are refused with an
+error naming the file.
+
+Orientation: an EXIF orientation tag (JPEG APP1, PNG eXIf) is applied to every image and map read here (as
+``PIL.ImageOps.exif_transpose`` does), so arrays, :func:`image_size` and the intrinsics derived from it describe the
+picture as it is meant to be seen.
 """
 
 from __future__ import annotations
@@ -40,6 +51,10 @@ _JPEG_SUFFIXES = (".jpg", ".jpeg", ".jpe", ".jfif")
 #: The JPEG IDCT choices (``jpeg_idct`` option, ``--jpeg-idct`` flag); the first is the default (the original's).
 JPEG_IDCTS = ("fast", "accurate")
 DEFAULT_JPEG_IDCT = "fast"
+#: EXIF tag 0x0112 (Orientation).
+_EXIF_ORIENTATION = 0x0112
+#: JPEG APP1 payload start of an EXIF segment.
+_EXIF_HEADER = b"Exif\0\0"
 #: Largest image the readers decode, in pixels (8192 x 8192). A header declaring more is refused before anything
 #: is allocated: it is corrupt, or an image far larger than any aerial dataset's (decoding it would take GBs).
 MAX_PIXELS = 1 << 26
@@ -71,6 +86,52 @@ def check_image_size(path: str | os.PathLike, width: int, height: int) -> None:
         )
 
 
+def orient(arr: np.ndarray, orientation: int) -> np.ndarray:
+    """``[H, W, ...]`` as stored -> as displayed for the EXIF ``orientation`` 1..8 (``[W, H, ...]`` for 5..8): the
+    transposition of ``PIL.ImageOps.exif_transpose`` (1 or an unknown value: unchanged)."""
+    if orientation == 2:
+        arr = arr[:, ::-1]
+    elif orientation == 3:
+        arr = arr[::-1, ::-1]
+    elif orientation == 4:
+        arr = arr[::-1]
+    elif orientation == 5:
+        arr = arr.swapaxes(0, 1)
+    elif orientation == 6:
+        arr = np.rot90(arr, -1)
+    elif orientation == 7:
+        arr = arr[::-1, ::-1].swapaxes(0, 1)
+    elif orientation == 8:
+        arr = np.rot90(arr, 1)
+    return np.ascontiguousarray(arr)
+
+
+def _orientation(img: Image.Image) -> int:
+    """The EXIF orientation of an opened Pillow image (1 when it has none or it cannot be read)."""
+    try:
+        value = img.getexif().get(_EXIF_ORIENTATION, 1)
+    except Exception:  # a damaged EXIF block does not make the pixels unreadable: they are used as stored
+        return 1
+    return int(value) if isinstance(value, int) else 1
+
+
+def _jpeg_orientation(data: bytes) -> int:
+    """The EXIF orientation of JPEG bytes (1 when none): read by Pillow from the header, only when an EXIF
+    segment is present."""
+    if _EXIF_HEADER not in data[:1 << 17]:  # APP segments precede the image data; 128 KiB covers any EXIF block
+        return 1
+    try:
+        with Image.open(io.BytesIO(data)) as img:
+            return _orientation(img)
+    except Exception:  # the decoder reports a damaged file; the tag is optional
+        return 1
+
+
+def _swapped(orientation: int, width: int, height: int) -> tuple[int, int]:
+    """``(width, height)`` as displayed for the EXIF ``orientation``."""
+    return (height, width) if orientation in (5, 6, 7, 8) else (width, height)
+
+
 def decode_jpeg(data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.ndarray:
     """JPEG bytes -> ``[H, W, 3]`` uint8 RGB (gray replicated), decoded by libjpeg-turbo with the IDCT ``jpeg_idct``
     (see the module docstring). Any decoding problem is a DatasetError naming ``path``."""
@@ -95,7 +156,7 @@ def decode_jpeg(data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_J
         raise DatasetError(f"{path}: corrupt JPEG ({_jpeg_message(e)})") from None
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.dtype != np.uint8:
         raise DatasetError(f"{path}: JPEG decoded to an unexpected array {arr.dtype} {list(arr.shape)}")
-    return np.ascontiguousarray(arr)
+    return orient(arr, _jpeg_orientation(data))
 
 
 def _jpeg_message(e: Exception) -> str:
@@ -159,9 +220,10 @@ def png_header(path: str | os.PathLike) -> tuple[int, int, int, int]:
 
 
 def read_rgb(path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.ndarray:
-    """Colour image -> ``[H, W, 3]`` uint8. JPEG content goes through :func:`decode_jpeg` with ``jpeg_idct``
-    (``"fast"``, the original's, by default; ``"accurate"``); other formats (PNG...) through Pillow. A file named
-    ``.jpg``/``.jpeg`` must hold a JPEG. Gray images are replicated, alpha is dropped."""
+    """Colour image -> ``[H, W, 3]`` uint8, or uint16 for a 16-bit PNG (full precision), as displayed (EXIF
+    orientation applied). JPEG content goes through :func:`decode_jpeg` with ``jpeg_idct`` (``"fast"``, the
+    original's, by default; ``"accurate"``); other formats (PNG...) through Pillow. A file named ``.jpg``/``.jpeg``
+    must hold a JPEG. Gray images are replicated, alpha is dropped."""
     path = Path(path)
     check_jpeg_idct(jpeg_idct)
     data = _read_bytes(path)
@@ -172,19 +234,65 @@ def read_rgb(path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.
 
 def decode_rgb(data: bytes, where: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.ndarray:
     """Encoded colour image bytes (JPEG through :func:`decode_jpeg`, PNG and other formats through Pillow) ->
-    ``[H, W, 3]`` uint8, as :func:`read_rgb` (which reads files; this also serves images inside other containers,
-    e.g. a ROS ``CompressedImage``). Errors are DatasetErrors prefixed with ``where``."""
+    ``[H, W, 3]`` uint8 or uint16 (16-bit PNGs), as :func:`read_rgb` (which reads files; this also serves images
+    inside other containers, e.g. a ROS ``CompressedImage``). Errors are DatasetErrors prefixed with ``where``."""
     check_jpeg_idct(jpeg_idct)
     if data.startswith(_JPEG_SOI):
         return decode_jpeg(data, where, jpeg_idct)
+    bit_depth, colour_type = _png_format(data)
+    if bit_depth == 16 and colour_type in (_PNG_RGB, _PNG_RGBA):
+        return _decode_png16_colour(data, where)
+    if bit_depth == 16 and colour_type == _PNG_GRAY_ALPHA:
+        raise DatasetError(f"{where}: 16-bit gray+alpha PNGs are not supported; write 16-bit gray, RGB or RGBA "
+                           "(or 8-bit)")
     img = _open(io.BytesIO(data), where)
     if img.mode == "RGB":
         arr = np.array(img)
     elif img.mode in ("L", "P", "RGBA", "LA", "CMYK", "YCbCr"):
         arr = np.array(img.convert("RGB"))
+    elif img.mode in ("I;16", "I;16B", "I;16L"):  # 16-bit gray: every bit kept
+        arr = np.repeat(np.asarray(img, dtype=np.uint16)[..., None], 3, axis=2)
     else:
-        raise DatasetError(f"{where}: unsupported colour image mode {img.mode!r} (expected 8-bit RGB or gray)")
-    return np.ascontiguousarray(arr)
+        raise DatasetError(f"{where}: unsupported colour image mode {img.mode!r} (expected 8- or 16-bit RGB or "
+                           "gray)")
+    return orient(arr, _orientation(img))
+
+
+def _png_format(data: bytes) -> tuple[int, int]:
+    """``(bit_depth, colour_type)`` of PNG bytes, ``(0, -1)`` for anything else."""
+    if len(data) < 26 or not data.startswith(_PNG_SIGNATURE) or data[12:16] != b"IHDR":
+        return 0, -1
+    return data[24], data[25]
+
+
+def _decode_png16_colour(data: bytes, where) -> np.ndarray:
+    """16-bit RGB or RGBA PNG bytes -> ``[H, W, 3]`` uint16, every bit kept (alpha dropped, orientation applied).
+
+    Pillow unpacks 16-bit colour PNGs to 8 bits (the high byte of each sample). Its unpackers for little-endian
+    16-bit samples (``RGB;16L``), applied to the PNG's big-endian samples, give the low bytes instead: the image is
+    decoded once with each and the bytes are joined. The unfiltering, de-interlacing and CRC checks stay libpng's
+    (through Pillow's ``zip`` decoder)."""
+    halves = []
+    for rawmode in ("16B", "16L"):
+        img = _open_header(io.BytesIO(data), where)
+        try:
+            tile = img.tile
+            if len(tile) != 1 or tile[0][0] != "zip" or img.mode not in ("RGB", "RGBA"):
+                raise DatasetError(f"{where}: unexpected 16-bit colour PNG layout {img.mode} {tile!r}")
+            name, extents, offset, args = tile[0]
+            mode = img.mode
+            args = (f"{mode};{rawmode}", *args[1:]) if isinstance(args, tuple) else f"{mode};{rawmode}"
+            # Pillow >= 11 holds tiles as named tuples, older versions as plain ones
+            img.tile = [tile[0]._replace(args=args) if hasattr(tile[0], "_replace") else (name, extents, offset, args)]
+            img.load()
+        except DatasetError:
+            raise
+        except (OSError, SyntaxError, ValueError) as e:
+            raise DatasetError(f"{where}: corrupt image ({e})") from None
+        halves.append(np.asarray(img)[..., :3])
+        orientation = _orientation(img)
+    hi, lo = halves
+    return orient((hi.astype(np.uint16) << 8) | lo, orientation)
 
 
 def read_channel0(path: str | os.PathLike) -> np.ndarray:
@@ -204,6 +312,7 @@ def read_channel0(path: str | os.PathLike) -> np.ndarray:
     arr = np.array(img)
     if arr.ndim == 3:
         arr = arr[..., 0]
+    arr = orient(arr, _orientation(img))
     if arr.ndim != 2:
         raise DatasetError(f"{path}: expected a 2-D map, got an array of shape {list(arr.shape)}")
     if arr.dtype == np.bool_:
@@ -227,7 +336,7 @@ def read_uint16_png(path: str | os.PathLike) -> np.ndarray:
         if arr.dtype.kind not in "ui" or arr.min(initial=0) < 0 or arr.max(initial=0) > 0xFFFF:
             raise DatasetError(f"{path}: unexpected decoded values ({arr.dtype}) for a 16-bit PNG")
         arr = arr.astype(np.uint16)
-    return np.ascontiguousarray(arr)
+    return orient(arr, _orientation(img))
 
 
 def check_labels(labels: np.ndarray, num_ids: int, path: str | os.PathLike) -> None:
@@ -252,11 +361,12 @@ def read_label_ids(path: str | os.PathLike, num_ids: int) -> np.ndarray:
 
 
 def image_size(path: str | os.PathLike) -> tuple[int, int]:
-    """``(H, W)`` of an image file, from its header (no full decoding)."""
+    """``(H, W)`` of an image file as displayed (EXIF orientation applied: what :func:`read_rgb` returns), from its
+    header (no full decoding)."""
     path = Path(path)
     try:
         with _open_header(path) as img:
-            w, h = img.size
+            w, h = _swapped(_orientation(img), *img.size)
     except FileNotFoundError:
         raise DatasetError(f"{path}: file not found") from None
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError, Image.DecompressionBombError) as e:

@@ -50,6 +50,8 @@ from .sequence import FrameRecord, SequenceDataset, Trajectory
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png")
 DEFAULT_POSE_FILES = ("poses.txt", "poses.tum", "poses.csv", "groundtruth.txt")
+#: Axes of a flight's posed frame when none is given (:data:`cosemdepth.data.poses.CONVENTIONS`).
+DEFAULT_CONVENTION = "opencv"
 
 
 def natural_key(name: str) -> list:
@@ -188,7 +190,7 @@ def open_flight(
     *,
     poses: str | Path | None = None,
     pose_format: str = "auto",
-    convention="opencv",
+    convention=DEFAULT_CONVENTION,
     intrinsics=None,
     fov: float | None = None,
     intrinsics_convention: str = "model",

@@ -72,9 +72,19 @@ def midair_intrinsics(size: Size) -> torch.Tensor:
     return torch.tensor([w / 2, h / 2, w / 2, h / 2], dtype=torch.float32)
 
 
+#: Full scale of the colour images the readers return, by dtype: 8-bit and 16-bit images map to the same 0..1.
+RGB_FULL_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}
+
+
 def rgb_to_tensor(rgb: np.ndarray, size: Size | None) -> torch.Tensor:
-    """``[H, W, 3]`` uint8 -> ``[3, H', W']`` float32 in [0, 1] (``/255`` then BL2 to ``size``)."""
-    x = torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).to(torch.float32).div_(255.0)
+    """``[H, W, 3]`` uint8 or uint16 -> ``[3, H', W']`` float32 in [0, 1] (``/255`` or ``/65535``, then BL2 to
+    ``size``)."""
+    rgb = np.ascontiguousarray(rgb)
+    scale = RGB_FULL_SCALE.get(rgb.dtype)
+    if scale is None:
+        raise TypeError(f"colour images must be uint8 or uint16, got {rgb.dtype}")
+    x = torch.from_numpy(rgb.astype(np.int32) if rgb.dtype == np.uint16 else rgb).permute(2, 0, 1)
+    x = x.to(torch.float32).div_(scale)
     if size is not None and tuple(x.shape[-2:]) != tuple(size):
         x = resize_bl2(x[None], size)[0]
     return x.contiguous()

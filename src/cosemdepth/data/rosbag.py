@@ -22,6 +22,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from ..errors import ConfigError, DatasetError
+from ..optional import require
 from .decode import DEFAULT_JPEG_IDCT, decode_rgb
 from .poses import interpolate_pose
 
@@ -29,7 +30,8 @@ IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped",
               "nav_msgs/msg/Odometry")
 CAMERA_INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
-#: Raw image encodings read (16-bit ones are scaled to 8 bits: value / 257, rounded).
+#: Raw image encodings read (16-bit ones keep every bit: uint16, scaled to 0..1 by ``value / 65535`` as 16-bit
+#: PNGs are).
 IMAGE_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8", "rgb16", "bgr16", "mono16")
 #: An image and a pose closer than this (ns) are the same instant (as ``poses_at``'s 1 us).
 EXACT_NS = 1000
@@ -37,10 +39,7 @@ EXACT_NS = 1000
 
 def require_rosbags():
     """The ``rosbags`` package, or a ConfigError saying how to install it."""
-    try:
-        import rosbags.highlevel  # noqa: F401  (lazy: an optional dependency, only needed for bags)
-    except ImportError:
-        raise ConfigError("reading and writing ROS bags needs the rosbags package: pip install cosemdepth[ros]") from None
+    require("rosbags.highlevel", "reading and writing ROS bags")  # lazy: an optional dependency, only for bags
     import rosbags
 
     return rosbags
@@ -129,7 +128,7 @@ def _reason(e: Exception) -> str:
 def image_to_rgb(msgtype: str, msg: Any, where: str, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.ndarray:
     """A ``sensor_msgs/Image`` (encodings :data:`IMAGE_ENCODINGS`) or ``CompressedImage`` (JPEG/PNG, decoded as the
     dataset readers decode files: :func:`cosemdepth.data.decode.decode_rgb` with ``jpeg_idct``) -> ``[H, W, 3]``
-    uint8. ``where`` (bag, topic, stamp) prefixes the error messages."""
+    uint8, or uint16 for the 16-bit encodings and 16-bit PNGs. ``where`` (bag, topic, stamp) prefixes the error messages."""
     if msgtype.endswith("CompressedImage"):
         return decode_rgb(bytes(msg.data), f"{where}: compressed image ({msg.format or 'no format'})", jpeg_idct)
     enc = str(msg.encoding).lower()
@@ -145,8 +144,7 @@ def image_to_rgb(msgtype: str, msg: Any, where: str, jpeg_idct: str = DEFAULT_JP
     rows = data[: row_bytes * h].reshape(h, row_bytes)[:, : w * channels * itemsize]
     if itemsize == 2:
         dt = np.dtype(">u2" if msg.is_bigendian else "<u2")
-        px = np.frombuffer(np.ascontiguousarray(rows).tobytes(), dtype=dt).reshape(h, w, channels)
-        px = np.round(px.astype(np.float32) / 257.0).astype(np.uint8)
+        px = np.frombuffer(np.ascontiguousarray(rows).tobytes(), dtype=dt).reshape(h, w, channels).astype(np.uint16)
     else:
         px = rows.reshape(h, w, channels)
     if channels == 1:
@@ -155,7 +153,7 @@ def image_to_rgb(msgtype: str, msg: Any, where: str, jpeg_idct: str = DEFAULT_JP
         px = px[:, :, 2::-1]
     else:
         px = px[:, :, :3]
-    return np.array(px, dtype=np.uint8, order="C")  # a writable copy (the message's buffer may be read-only)
+    return np.array(px, order="C")  # a writable copy (the message's buffer may be read-only)
 
 
 def pose_from_msg(msgtype: str, msg: Any) -> tuple[int, np.ndarray, np.ndarray]:

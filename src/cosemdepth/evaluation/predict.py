@@ -1,7 +1,8 @@
 """Run a model over a dataset split or your own flight and write every output (``cosemdepth predict``).
 
 Output folder (one sub-folder per trajectory; ``NNNNNN`` is the input image's file stem, so that a user can match
-outputs and inputs; the frame's row in its trajectory, 6 digits, when the dataset has no file names; a stem seen
+outputs and inputs (for a bag frame: ``<topic's last part>_<seconds, 10 digits>.<nanoseconds, 9 digits>``, the
+image's full stamp); the frame's row in its trajectory, 6 digits, when the dataset has no file names; a stem seen
 twice in one trajectory gets ``_<row>`` appended)::
 
     OUT/predictions.json                       what was run, the encodings below, and every frame's files
@@ -65,6 +66,17 @@ def safe_relpath(name: str) -> str:
     return "/".join(parts) or "trajectory"
 
 
+#: A file-type extension: a dot, a letter, up to 4 more letters or digits (``.png``, ``.JPEG``, ``.jp2``). A
+#: numeric tail is not one: a bag frame's stamp (``image_raw@1700000000.000001000``) keeps its fraction.
+_EXTENSION = re.compile(r"\.[A-Za-z][A-Za-z0-9]{0,4}$")
+
+
+def file_stem(source: str) -> str:
+    """The last part of a frame's source (a path, or a bag frame's ``bag:topic@stamp``) without its file-type
+    extension."""
+    return _EXTENSION.sub("", Path(source).name)
+
+
 class PredictionWriter:
     """Writes the files of every frame of a stream (a callback for :func:`stream` batches).
 
@@ -99,7 +111,7 @@ class PredictionWriter:
         """The input image's file stem (made file-name safe), else the row number; unique within the trajectory."""
         row = int(batch.frame[b])
         src = self.sources.get(int(batch.indices[b]))
-        stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(src).stem).strip(".") if src else ""
+        stem = re.sub(r"[^A-Za-z0-9._-]+", "_", file_stem(src)).strip(".") if src else ""
         stem = stem or f"{row:06d}"
         used = self._stems.setdefault(entry["folder"], set())
         if stem in used:

@@ -12,10 +12,15 @@ bar, legend) are drawn by :mod:`cosemdepth.evaluation.figures`, with one range p
 
 from __future__ import annotations
 
+import errno
 import functools
 import os
 import shutil
+import signal
+import subprocess
+import tempfile
 import warnings
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -106,8 +111,8 @@ DEFAULT_FPS = 8.0
 
 
 class VideoWriter:
-    """Stream frames (``[H, W, 3]`` uint8, all the same size) into an MP4 (H.264, imageio-ffmpeg's ``write_frames``)
-    or a GIF (Pillow).
+    """Stream frames (``[H, W, 3]`` uint8, all the same size) into an MP4 (H.264, imageio-ffmpeg's ffmpeg reading
+    them on a pipe) or a GIF (Pillow).
 
     ``fmt="mp4"`` falls back to GIF (with a warning) when no ffmpeg is available; :attr:`path` is the file finally
     written. The file is written under a temporary name and renamed on :meth:`close`; :meth:`abort` deletes it.
@@ -126,19 +131,34 @@ class VideoWriter:
         self.path = Path(path).with_suffix("." + fmt)
         self._ctx = atomic_path(self.path)
         self._tmp = self._ctx.__enter__()
-        self._proc = None  # imageio-ffmpeg's write_frames generator
+        self._proc: subprocess.Popen | None = None  # ffmpeg, for MP4
+        self._log = None
         self._gif: list = []
         self._size: tuple[int, int] | None = None
         self.frames = 0
 
     def _start_ffmpeg(self, w: int, h: int) -> None:
-        import imageio_ffmpeg  # deferred: only MP4 videos need it
+        """Start ffmpeg reading raw RGB frames on its stdin (its messages go to a temporary file, read if it fails:
+        a failed ffmpeg is an error naming the video, not lines on the console and a cut-short file)."""
+        fps = str(Fraction(self.fps).limit_denominator())
+        cmd = [self.exe, "-y", "-v", "error", "-f", "rawvideo", "-vcodec", "rawvideo", "-s", f"{w}x{h}",
+               "-pix_fmt", "rgb24", "-r", fps, "-i", "-", "-an", "-vcodec", "libx264", "-pix_fmt", "yuv420p",
+               "-crf", "20", "-preset", "veryfast", "-movflags", "+faststart", "-f", "mp4", str(self._tmp)]
+        self._log = tempfile.TemporaryFile()
+        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log)
 
-        self._proc = imageio_ffmpeg.write_frames(
-            str(self._tmp), (w, h), fps=self.fps, codec="libx264", quality=None, macro_block_size=2,
-            ffmpeg_log_level="error", output_params=["-crf", "20", "-preset", "veryfast", "-movflags", "+faststart"],
-        )
-        self._proc.send(None)  # start ffmpeg
+    def _ffmpeg_error(self, returncode: int | None) -> OSError:
+        """The OSError naming the video for an ffmpeg that failed (exit status ``returncode``)."""
+        self._log.seek(0)
+        text = self._log.read().decode("utf-8", "replace")
+        lines = [line.strip() for line in text.splitlines() if line.strip()]
+        if returncode is not None and returncode < 0 and -returncode == getattr(signal, "SIGXFSZ", None):
+            return OSError(errno.EFBIG, os.strerror(errno.EFBIG), str(self.path))
+        for code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EIO):
+            if os.strerror(code) in text:
+                return OSError(code, os.strerror(code), str(self.path))
+        return OSError(errno.EIO, f"ffmpeg failed (exit status {returncode}): {lines[-1] if lines else 'no message'}",
+                       str(self.path))
 
     def write(self, frame: np.ndarray) -> None:
         frame = np.asarray(frame, dtype=np.uint8)
@@ -154,7 +174,11 @@ class VideoWriter:
             raise ValueError(f"video frames must all have the same size: {size} after {self._size}")
         if self.fmt == "mp4":
             assert self._proc is not None
-            self._proc.send(np.ascontiguousarray(frame))
+            try:
+                self._proc.stdin.write(np.ascontiguousarray(frame).tobytes())
+            except OSError:  # ffmpeg stopped reading: it failed
+                self._proc.kill()
+                raise self._ffmpeg_error(self._proc.wait()) from None
         else:
             self._gif.append(Image.fromarray(frame).quantize(colors=255, method=Image.Quantize.MEDIANCUT))
         self.frames += 1
@@ -166,7 +190,14 @@ class VideoWriter:
                 raise ValueError(f"{self.path}: no frame was written")
             if self.fmt == "mp4":
                 assert self._proc is not None
-                self._proc.close()  # waits for ffmpeg; raises if it failed
+                try:
+                    self._proc.stdin.close()
+                except OSError:
+                    pass  # ffmpeg already exited: its status says why
+                code = self._proc.wait()
+                if code != 0:
+                    raise self._ffmpeg_error(code)
+                self._proc = None
             else:
                 first, rest = self._gif[0], self._gif[1:]
                 first.save(self._tmp, format="GIF", save_all=True, append_images=rest,
@@ -181,7 +212,8 @@ class VideoWriter:
     def abort(self) -> None:
         """Stop and delete the temporary file."""
         if self._proc is not None:
-            self._proc.close()
+            self._proc.kill()
+            self._proc.wait()
             self._proc = None
         err = RuntimeError("aborted")
         try:

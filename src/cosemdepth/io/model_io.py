@@ -20,6 +20,7 @@ checkpoint (converted on the fly).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -34,7 +35,7 @@ from ..config import ModelConfig
 from ..errors import CheckpointError, ConfigError
 from ..models import build_model
 from ..operating_point import OperatingPoint
-from .atomic import atomic_open, atomic_path
+from .atomic import atomic_open
 from .convert import MIDAIR_OPERATING_POINT, convert_checkpoint, expected_param_shapes
 from .manifest import MANIFEST_FILE, sha256_file, validate_manifest
 from .staging import missing_ancestors, remove_empty
@@ -130,12 +131,15 @@ def save_weights(
     }
     created = missing_ancestors(out)
     try:
-        with atomic_path(out / WEIGHTS_FILE) as tmp_weights, atomic_open(out / CONFIG_FILE, "w") as f:
-            # looked up at call time (module attribute): tests replace it to simulate a full disk
-            safetensors.torch.save_file(tensors, str(tmp_weights),
-                                        metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
-            meta[WEIGHTS_CHECKSUM] = sha256_file(Path(tmp_weights))  # verified on every load
-            f.write(json.dumps(meta, indent=2) + "\n")
+        # serialised in memory and written by Python: a failed write (a full disk) is an OSError naming the file,
+        # not the library's own error. Looked up at call time (module attribute): tests replace it.
+        data = safetensors.torch.save(tensors, metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
+        with atomic_open(out / WEIGHTS_FILE, "wb") as w:
+            w.write(data)
+            w.flush()  # a failed write is the weights' (the config's context below would name itself)
+            meta[WEIGHTS_CHECKSUM] = hashlib.sha256(data).hexdigest()  # verified on every load
+            with atomic_open(out / CONFIG_FILE, "w") as f:
+                f.write(json.dumps(meta, indent=2) + "\n")
     except BaseException:
         remove_empty(created)  # only folders we made and that are still empty
         raise

@@ -50,6 +50,7 @@ from ..errors import ConfigError
 from .atomic import atomic_write_text
 from .input_kinds import identify
 from .manifest import file_digest
+from .replaceable import check_replaceable
 
 MARKER = ".cosemdepth-output.json"
 MARKER_FORMAT = "cosemdepth-output"
@@ -385,6 +386,11 @@ def check_output_dir(
         probe_writable(target if target.is_dir() else target.parent, f"{out}: cannot write the {what} here")
     else:
         probe_writable(out, f"{out}: cannot write the {what}")
+    if mode == "replace":
+        check_replaceable(out, what)  # a previous output that cannot be renamed aside and deleted
+    elif mode == "into":
+        for f in files:
+            check_replaceable(out / f, what)
     return busy
 
 
@@ -461,6 +467,7 @@ def check_output_file(
         if recognize is None or not recognize(out):
             raise ConfigError(f"{out}: the {what} exists and was not written by cosemdepth; nothing was overwritten "
                               "(move it, or choose another file name)")
+        check_replaceable(out, what)
     probe_writable(parent, f"{out}: cannot write the {what}")
 
 

@@ -27,8 +27,10 @@ cosemdepth[viz]``) and imported only here, when a recording is made.
 
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any, Callable
 
@@ -37,6 +39,8 @@ import numpy as np
 from ..data.quaternion import qmatrix
 from ..errors import ConfigError
 from ..evaluation.metrics import depth_metrics
+from ..optional import require
+from .atomic import _default_mode
 from .outdir import check_output_file
 
 APPLICATION_ID = "cosemdepth"
@@ -44,11 +48,10 @@ APPLICATION_ID = "cosemdepth"
 
 def require_rerun():
     """The ``rerun`` module, or a ConfigError saying how to install it."""
-    try:
-        import rerun  # lazy: an optional dependency, only needed for .rrd recordings
-    except ImportError:
-        raise ConfigError("writing a rerun recording needs the rerun-sdk package: pip install cosemdepth[viz]") from None
-    return rerun
+    # rerun's own log would print a failed write as a second line: check_recording_written reports it (RUST_LOG set
+    # by the user wins)
+    os.environ.setdefault("RUST_LOG", "off")
+    return require("rerun", "writing a rerun recording")  # lazy: an optional dependency, only for .rrd recordings
 
 
 def _written_by_us(path: Path) -> bool:
@@ -70,6 +73,30 @@ def check_rrd_path(path: str | Path, option: str = "--rerun", inputs=()) -> Path
         raise ConfigError(f"{option} {path}: a rerun recording's name must end with .rrd")
     check_output_file(path, what=f"{option} recording", inputs=inputs, recognize=_written_by_us)
     return path
+
+
+def check_recording_written(tmp: Path, path: Path) -> None:
+    """Raise an OSError naming ``path`` if the recording written to ``tmp`` may have been cut short.
+
+    rerun's file sink writes from a thread of its own and reports a failed write (a full disk) only in its log; the
+    file it leaves reads as a shorter recording. A recording is taken as cut short when its file system has no free
+    block left once it is closed (where a write would have failed), or when it cannot be read back."""
+    try:
+        st = os.statvfs(tmp)
+        free = (st.f_bfree if hasattr(os, "geteuid") and os.geteuid() == 0 else st.f_bavail) * st.f_frsize
+    except (OSError, AttributeError):  # pragma: no cover - a system without statvfs
+        free = None
+    if free == 0:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    from rerun.chunk import RrdReader  # deferred: an optional dependency (cosemdepth[viz])
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            RrdReader(str(tmp)).recordings()
+    except Exception as e:  # noqa: BLE001 - whatever the reader says, the file is not a whole recording
+        raise OSError(errno.EIO, f"the recording does not read back ({str(e).splitlines()[0][:200]})",
+                      str(path)) from None
 
 
 def _chain(r_prev: np.ndarray, p_prev: np.ndarray, q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -169,9 +196,17 @@ class RerunWriter:
         rr, rec = self.rr, self._rec
         if self._paths:
             rec.log("world/trajectory", rr.LineStrips3D([np.asarray(s) for s in self._paths]), static=True)
-        rec.flush()
-        rec.disconnect()
+        try:
+            rec.flush()
+            rec.disconnect()
+        except Exception as e:  # noqa: BLE001 - rerun's writer thread died (its errors carry no errno)
+            self._rec = None
+            check_recording_written(self._tmp, self.path)  # a full disk says so
+            raise OSError(errno.EIO, f"rerun could not finish the recording ({str(e).splitlines()[0][:200]})",
+                          str(self.path)) from None
         self._rec = None
+        check_recording_written(self._tmp, self.path)
+        os.chmod(self._tmp, _default_mode())  # as every other output (mkstemp creates 0600)
         os.replace(self._tmp, self.path)
         self._tmp = None
         return {"rerun": {"path": str(self.path), "frames": self.frames}}
@@ -200,4 +235,4 @@ def label_metrics(gt: np.ndarray, pred: np.ndarray) -> dict[str, float]:
     return {"pixel_accuracy": float(np.mean(gt == pred)), "miou": float(np.mean(ious)) if ious else 0.0}
 
 
-__all__ = ["APPLICATION_ID", "RerunWriter", "check_rrd_path", "label_metrics", "require_rerun"]
+__all__ = ["APPLICATION_ID", "RerunWriter", "check_recording_written", "check_rrd_path", "label_metrics", "require_rerun"]

@@ -150,7 +150,11 @@ class StagedDir:
     def __exit__(self, exc_type, exc, tb) -> bool:
         assert self.tmp is not None
         if exc_type is not None:
+            tmp = self.tmp
             self._discard()
+            inside = _staged_name(exc, tmp, self.out)
+            if inside is not None:  # name the file as the user will know it, not by the hidden staging folder
+                raise OSError(exc.errno, exc.strerror, inside) from None
             return False
         try:
             self._commit()
@@ -202,6 +206,28 @@ class StagedDir:
         shutil.rmtree(done, ignore_errors=True)
         for p in leftovers:  # partial outputs of killed runs (the check found no live run and no half replacement)
             shutil.rmtree(p, ignore_errors=True)
+
+
+def _staged_name(exc, tmp: Path, out: Path) -> str | None:
+    """For an OSError about a file inside the staging folder ``tmp``: that file's path under ``out``; else None."""
+    if not isinstance(exc, OSError) or exc.errno is None or exc.filename is None or exc.filename2 is not None:
+        return None
+    try:
+        rel = Path(os.fsdecode(exc.filename)).absolute().relative_to(tmp.absolute())
+    except (ValueError, TypeError):
+        return None
+    return str(out / rel)
+
+
+def _staged_name(exc, tmp: Path, out: Path) -> str | None:
+    """For an OSError about a file inside the staging folder ``tmp``: that file's path under ``out``; else None."""
+    if not isinstance(exc, OSError) or exc.errno is None or exc.filename is None or exc.filename2 is not None:
+        return None
+    try:
+        rel = Path(os.fsdecode(exc.filename)).absolute().relative_to(tmp.absolute())
+    except (ValueError, TypeError):
+        return None
+    return str(out / rel)
 
 
 class OutputFiles:

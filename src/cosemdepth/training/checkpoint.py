@@ -23,6 +23,7 @@ tests use it to kill a run while a checkpoint is being written.
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import os
 import random
@@ -38,7 +39,7 @@ import torch
 
 from ..config import ModelConfig
 from ..errors import CheckpointError
-from ..io.atomic import _fsync_dir, atomic_open, atomic_write_text
+from ..io.atomic import _fsync_dir, atomic_write_bytes, atomic_write_text
 from ..io.manifest import MANIFEST_FILE, MANIFEST_FORMAT, MANIFEST_VERSION, sha256_file, validate_manifest
 from ..io.model_io import read_model_files, save_weights
 from ..operating_point import OperatingPoint
@@ -56,6 +57,14 @@ _NAME = re.compile(r"^ckpt-(\d{8,})$")
 
 def checkpoint_name(step: int) -> str:
     return f"ckpt-{step:08d}"
+
+
+def _torch_bytes(obj) -> bytes:
+    """``torch.save(obj)`` in memory: written by Python, a failed write (a full disk) is an OSError naming the file
+    (torch's own writer reports it as an internal assertion)."""
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    return buf.getvalue()
 
 
 def _debug_delay() -> None:
@@ -233,11 +242,9 @@ class CheckpointManager:
         try:
             save_model_files(model_state, model_config, tmp, dict(source or {}, step=step), operating_point)
             _debug_delay()
-            with atomic_open(tmp / OPTIMIZER_FILE, "wb") as f:
-                torch.save(optimizer_state, f)
+            atomic_write_bytes(tmp / OPTIMIZER_FILE, _torch_bytes(optimizer_state))
             _debug_delay()
-            with atomic_open(tmp / RNG_FILE, "wb") as f:
-                torch.save(dict(rng_state), f)
+            atomic_write_bytes(tmp / RNG_FILE, _torch_bytes(dict(rng_state)))
             _debug_delay()
             atomic_write_text(tmp / STATE_FILE, json.dumps(_jsonable(trainer_state), indent=2) + "\n")
             _debug_delay()
@@ -256,8 +263,11 @@ class CheckpointManager:
             else:
                 os.replace(tmp, final)
             _fsync_dir(self.folder)
-        except BaseException:
+        except BaseException as e:
             shutil.rmtree(tmp, ignore_errors=True)
+            if isinstance(e, OSError) and e.errno is not None and e.filename is not None and e.filename2 is None \
+                    and Path(os.fsdecode(e.filename)).parent == tmp:  # name the file the user will look for
+                raise OSError(e.errno, e.strerror, str(final / Path(os.fsdecode(e.filename)).name)) from None
             raise
         self.prune()
         return final

@@ -52,6 +52,7 @@ from ..evaluation.metrics import selection_rule
 from ..io.atomic import atomic_write_text
 from ..io.model_io import read_weights
 from ..models import build_model
+from ..models.footprint import check_size
 from ..ops.resample import resize_nn2
 from . import distributed as D
 from .board import Board
@@ -271,6 +272,11 @@ class Trainer:
         if self.dist.enabled and device.type == "cuda":
             device = torch.device("cuda", self.dist.local_rank)
         self.device = device
+        # the size against the memory here, before anything is read or written (an absurd data.size is one line)
+        with torch.device("meta"):
+            shapes_only = build_model(config.model)
+        check_size(shapes_only, *config.data.size, device=device, batch=tc.batch_size, frames=config.data.seq_len,
+                   training=True, what="data.size")
         # the run folder first (output policy): nothing is read or built for a run that cannot be written
         self.resuming = D.on_main(lambda: check_output_dir(self.run_dir, config), self.dist)
         if tc.num_threads:
