@@ -27,7 +27,10 @@ def data(tmp_path_factory):
 
 
 def check_schema(m):
-    assert set(m["model"]) == {"miou", "abs_rel", "rmse", "delta1"}
+    assert set(m["model"]) == {"miou", "abs_rel", "rmse", "delta1", "coverage", "valid_abs_rel", "valid_delta1"}
+    assert 0.0 <= m["model"]["coverage"] <= 1.0  # the fraction of the ground-truth pixels the mask keeps
+    counts = m["details"]["evaluation"]["protocol"]["frames_by_status"]
+    assert sum(counts.values()) == m["details"]["evaluation"]["protocol"]["frames_evaluated"]
     assert set(m["baselines"]) == {"majority_class", "constant_depth"}
     assert set(m["baselines"]["majority_class"]) == {"miou"}
     assert set(m["baselines"]["constant_depth"]) == {"abs_rel", "rmse", "delta1"}

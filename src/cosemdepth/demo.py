@@ -314,6 +314,9 @@ def report_markdown(m: dict[str, Any]) -> str:
     lines.append(f"| constant depth ({_num(cd.get('depth_m'), '.2f')} m everywhere) | – | {_num(const['abs_rel'])} | "
                  f"{_num(const['rmse'], '.3f')} | {_pct(const['delta1'])} | {_num(cd.get('sq_rel'))} | "
                  f"{_num(cd.get('rmse_log'))} | {_pct(cd.get('delta2'))} | {_pct(cd.get('delta3'))} |")
+    valid_line = _validity_line(ev)
+    if valid_line:
+        lines += ["", valid_line]
     ratios = m.get("comparison", {})
     lines += ["", "Against the baselines:", ""]
     if ratios.get("miou_ratio") is not None:
@@ -357,6 +360,19 @@ def _ratio(a, b) -> float | None:
     return a / b
 
 
+def _validity_line(ev: dict) -> str | None:
+    """The report's line on the depth's validity mask (coverage, metrics of the valid pixels, frame statuses)."""
+    em, proto = ev.get("metrics", {}), ev.get("protocol", {})
+    policy, counts = proto.get("policy") or {}, proto.get("frames_by_status")
+    if em.get("coverage") is None or not counts:
+        return None
+    mb = policy.get("min_baseline_m")
+    how = f"streaming policy {policy.get('mode')}" + (f", minimum baseline {mb:.2f} m" if mb else "")
+    return (f"Validity mask ({how}; docs/motion.md): {_pct(em['coverage'])} of the ground-truth pixels valid; on "
+            f"them AbsRel {_num(em.get('valid_abs_rel'))}, δ<1.25 {_pct(em.get('valid_delta1'))}. Evaluated frames: "
+            + ", ".join(f"{v} {k}" for k, v in counts.items()) + ".")
+
+
 def run_demo(
     out: str | os.PathLike,
     *,
@@ -374,6 +390,8 @@ def run_demo(
     progress: bool = True,
     fast: bool = True,
     jpeg_idct: str = DEFAULT_JPEG_IDCT,
+    policy: str | None = None,
+    min_baseline: float | None = None,
     log=print,
 ) -> dict[str, Any]:
     """Run the demo and write the report folder ``out``; returns the content of ``metrics.json``.
@@ -394,6 +412,10 @@ def run_demo(
         device: torch device. video: ``"mp4"``, ``"gif"`` or None. overwrite: replace a non-empty ``out``.
         progress: progress bar. fast: the fast fp32 inference path (default; False: the plain modules).
         jpeg_idct: JPEG decoding of the flight, ``"fast"`` (default, the original's) or ``"accurate"``.
+        policy, min_baseline: the streaming policy (:mod:`cosemdepth.inference.policy`; default: baseline when the
+            model records its training motion, else every-frame) and its minimum baseline (metres; default: the
+            model's). The paper's metrics count every pixel with ground truth; the report adds the coverage and the
+            metrics of the valid pixels.
         log: where to print progress lines.
     """
     t_start = time.perf_counter()
@@ -466,7 +488,8 @@ def run_demo(
                                           else None, palette=palette, video=writer, class_names=tuple(names))
                 t = time.perf_counter()
                 log(f"evaluating on {len(dataset)} frames ({split} split of {root}) ...")
-                evaluator = Evaluator(net, dataset, progress=progress, callbacks=[collector], dataset_name="synthair")
+                evaluator = Evaluator(net, dataset, progress=progress, callbacks=[collector], dataset_name="synthair",
+                                      policy=policy, min_baseline=min_baseline)
                 result = evaluator.run()
                 figure = collector.finish()
                 timings["evaluate"] = time.perf_counter() - t
@@ -480,7 +503,8 @@ def run_demo(
             const = collector.constant_depth()
             maj = collector.majority_class()
             model_block = {"miou": em.get("miou"), "abs_rel": em.get("abs_rel"), "rmse": em.get("rmse"),
-                           "delta1": em.get("delta1")}
+                           "delta1": em.get("delta1"), "coverage": em.get("coverage"),
+                           "valid_abs_rel": em.get("valid_abs_rel"), "valid_delta1": em.get("valid_delta1")}
             metrics: dict[str, Any] = {
                 "model": model_block,
                 "baselines": {

@@ -77,8 +77,13 @@ def test_predict_writes_every_artefact_and_they_read_back(model_dir, data, tmp_p
             np.testing.assert_allclose(depth, ref.depth[k, 0].numpy(), rtol=1e-5, atol=1e-5)
             png = read_png(files["depth_png"])
             assert png.dtype == np.uint16
-            # png / 256 is the depth to 1/512 m, saturated to [0, 65535 / 256]
-            assert np.abs(png / 256.0 - np.clip(depth, 0, 65535 / 256)).max() <= 1 / 512 + 1e-6
+            # png / 256 is the depth to 1/512 m, saturated to [1 / 256, 65535 / 256], where the mask says the
+            # depth is an estimate; 0 elsewhere (the reset frame: everywhere)
+            valid = read_png(files["depth_valid"]) == 255
+            assert (png[~valid] == 0).all() and (k > 0 or not valid.any())
+            assert np.abs(png / 256.0 - np.clip(depth, 1 / 256, 65535 / 256))[valid].max(initial=0) <= 1 / 512 + 1e-6
+            assert f["status"] == ("reset" if k == 0 else "estimated")
+            assert abs(f["valid_fraction"] - valid.mean()) <= 1e-6
             labels = read_png(files["labels"])
             assert labels.dtype == np.uint8 and np.array_equal(labels, ref.semantic[k].argmax(0).numpy())
             assert np.array_equal(read_png(files["labels_color"]), PALETTE_7[labels])

@@ -129,17 +129,25 @@ def test_bag_depth_equals_flight_depth_and_output_bag_reads_back(model_dir, flig
     assert not np.allclose(files[1], files[2])  # the frames differ (the comparison is not vacuous)
 
     msgs = read_bag(out / "bag")
-    assert sorted(msgs) == ["/cosemdepth/camera_info", "/cosemdepth/depth", "/cosemdepth/labels",
-                            "/cosemdepth/labels_color"]
+    assert sorted(msgs) == ["/cosemdepth/camera_info", "/cosemdepth/depth", "/cosemdepth/depth_status",
+                            "/cosemdepth/depth_valid", "/cosemdepth/labels", "/cosemdepth/labels_color"]
     assert (out / "bag" / "bag.mcap").is_file()
     stamps = image_stamps()
     for topic, items in msgs.items():
         assert [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in items] == stamps, topic
         assert [t for t, _ in items] == stamps
         assert {m.header.frame_id for _, m in items} == {"cam"}
-    for i, (_, m) in enumerate(msgs["/cosemdepth/depth"]):
+    masks = [np.array(__import__("PIL.Image", fromlist=["Image"]).open(out / f["files"]["depth_valid"])) == 255
+             for f in man["frames"]]
+    for i, ((_, m), (_, v), (_, st)) in enumerate(zip(msgs["/cosemdepth/depth"], msgs["/cosemdepth/depth_valid"],
+                                                      msgs["/cosemdepth/depth_status"])):
         assert m.encoding == "32FC1" and (m.height, m.width) == (16, 16)
-        np.testing.assert_array_equal(image_array(m), files[i])
+        # REP 118: NaN where the depth is not an estimate (the mask predict wrote), the .npy's values elsewhere
+        d = image_array(m)
+        assert (np.isnan(d) == ~masks[i]).all() and (image_array(v) == 255 * masks[i]).all()
+        np.testing.assert_array_equal(d[masks[i]], files[i][masks[i]])
+        assert st.status[0].message == man["frames"][i]["status"]
+    assert np.isnan(image_array(msgs["/cosemdepth/depth"][0][1])).all()  # the first frame: a reset
     labels = [np.array(__import__("PIL.Image", fromlist=["Image"]).open(out / f["files"]["labels"]))
               for f in man["frames"]]
     palette = np.asarray(man["palette"], np.uint8)
@@ -151,7 +159,7 @@ def test_bag_depth_equals_flight_depth_and_output_bag_reads_back(model_dir, flig
     assert (info.height, info.width) == (16, 16)
     # K scaled to 16x16: fx 16 -> 8; ROS cx 15.5 (32 px) -> (15.5 + 0.5) / 2 - 0.5 = 7.5
     np.testing.assert_allclose(info.k, [8, 0, 7.5, 0, 8, 7.5, 0, 0, 1])
-    assert man["bag"]["messages"] == 4 * N
+    assert man["bag"]["messages"] == 6 * N
 
 
 def man_run(out: Path) -> dict:
@@ -164,7 +172,8 @@ def test_out_namespace_frame_skip_and_hfov(model_dir, tmp_path):
     assert predict("--model", model_dir, *bag_args(bag, "--hfov", 90, "--frame-skip", 2, "--out-namespace", "/uav1/cd"),
                    "--out", out) == 0
     msgs = read_bag(out / "bag")
-    assert sorted(msgs) == ["/uav1/cd/camera_info", "/uav1/cd/depth", "/uav1/cd/labels", "/uav1/cd/labels_color"]
+    assert sorted(msgs) == ["/uav1/cd/camera_info", "/uav1/cd/depth", "/uav1/cd/depth_status", "/uav1/cd/depth_valid",
+                            "/uav1/cd/labels", "/uav1/cd/labels_color"]
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in msgs["/uav1/cd/depth"]]
     assert stamps == image_stamps()[::2]
     np.testing.assert_allclose(msgs["/uav1/cd/camera_info"][0][1].k, [16, 0, 15.5, 0, 16, 15.5, 0, 0, 1])

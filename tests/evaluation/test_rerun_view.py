@@ -44,12 +44,13 @@ def test_predict_bag_with_rerun(model_dir, tmp_path):
         assert rows(ent[e]) == N, e
     assert rows(ent["/world/camera/image"]) == 1  # the static pinhole
     assert column(ent["/world/camera/image"], "Pinhole:resolution")[0] == [[32, 32]]
-    # one depth value: frame 3, pixel (5, 7) equals the .npy predict wrote
+    # frame 3's depth equals the .npy predict wrote where its mask is valid, and is 0 (no point) elsewhere
     man = json.loads((out / "predictions.json").read_text())
     want = np.load(out / man["frames"][3]["files"]["depth"])
+    valid = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(out / man["frames"][3]["files"]["depth_valid"]))
     buf = column(ent["/world/camera/image/depth"], "DepthImage:buffer")[3]
     got = np.frombuffer(bytes(buf[0]), dtype=np.float32).reshape(32, 32)
-    assert got[5, 7] == want[5, 7]
+    assert np.array_equal(got, np.where(valid == 255, want, 0.0).astype(np.float32))
     assert column(ent["/world/camera/image/depth"], "DepthImage:meter")[3] == [1.0]
     # the trajectory: the bag's poses (ENU world, FLU body); one strip of N points; timeline 'time' = the stamps
     strip = column(ent["/world/trajectory"], "LineStrips3D:strips")[0][0]

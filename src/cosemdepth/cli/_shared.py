@@ -17,6 +17,7 @@ from ..errors import CheckpointError, ConfigError
 from ..devices import resolve_device
 from ..io.model_io import load_model, operating_point_of
 from ..models import build_model
+from ..inference.policy import BASELINE, EVERY_FRAME, POLICIES
 from ..operating_point import OperatingPoint
 from ..models.footprint import check_size
 
@@ -207,6 +208,35 @@ def warn_far_size(op: OperatingPoint | None, requested, dataset, what: str = "--
     return msg
 
 
+def add_policy_args(parser: argparse.ArgumentParser, default: str) -> None:
+    """``--policy`` and ``--min-baseline`` (:mod:`cosemdepth.inference.policy`); ``default`` describes the default in
+    the help (the flag's value stays None: :func:`stream_policy` resolves it per input)."""
+    g = parser.add_argument_group("streaming policy (docs/motion.md)")
+    g.add_argument("--policy", choices=POLICIES, default=None,
+                   help=f"which frame a depth is estimated against: {BASELINE} (a reference frame the camera has moved "
+                   f"far enough from; frames closer to it carry its depth, status held) or {EVERY_FRAME} (the "
+                   f"previous frame, the paper's protocol); default: {default}")
+    g.add_argument("--min-baseline", type=float, default=None, metavar="M",
+                   help=f"metres the camera must move from the reference frame before a frame is estimated "
+                   f"(--policy {BASELINE}; default: the 5th percentile of the per-step translations the model was "
+                   "trained with, from its folder)")
+
+
+def stream_policy(args: argparse.Namespace, default: str | None) -> tuple[str | None, float | None]:
+    """``(policy, min_baseline)`` for :class:`~cosemdepth.inference.policy.Streamer` from ``--policy`` /
+    ``--min-baseline``; ``default`` when ``--policy`` is not given (None: baseline when the model records its training
+    motion, else every-frame). A ConfigError for a negative or non-finite ``--min-baseline``, or one given with
+    ``--policy every-frame``."""
+    mb = args.min_baseline
+    if mb is not None and not 0 <= mb < float("inf"):
+        raise ConfigError(f"--min-baseline must be a number of metres >= 0, got {mb}")
+    policy = args.policy if args.policy is not None else (BASELINE if mb is not None else default)
+    if mb is not None and policy == EVERY_FRAME:
+        raise ConfigError(f"--min-baseline applies to --policy {BASELINE}, not {EVERY_FRAME} (which estimates every "
+                          "frame from the previous one)")
+    return policy, mb
+
+
 def add_run_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-frames", type=positive_int, default=None, metavar="N",
                         help="only the first N frames of the split (in order)")
@@ -283,6 +313,6 @@ def check_run_size(model, dataset, device, batch: int = 1) -> None:
 
 
 __all__ = ["add_device_args", "add_model_args", "add_model_or_arch_args", "add_precision_arg", "add_reference_arg",
-           "add_jpeg_idct_arg", "add_run_args", "add_split_args", "apply_threads", "check_run_size", "check_split_dir",
+           "add_jpeg_idct_arg", "add_policy_args", "add_run_args", "add_split_args", "apply_threads", "check_run_size", "check_split_dir",
            "frame_size", "input_size", "load", "load_or_build", "model_operating_point", "model_size_pair", "open_split",
-           "parse_size", "parse_size_pair", "positive_int", "warn_far_size"]
+           "parse_size", "parse_size_pair", "positive_int", "stream_policy", "warn_far_size"]

@@ -14,7 +14,9 @@ from ..data.synthair.writer import SUPERSAMPLES
 from ..demo import DEFAULT_CLIMATE, DEFAULT_FRAMES, DEFAULT_MODEL, DEFAULT_SEED, DEFAULT_SIZE, DEFAULT_SUPERSAMPLE, run_demo
 from ..errors import ConfigError
 from ..evaluation.visualize import DEFAULT_VIDEO, VIDEO_FORMATS
-from ._shared import add_device_args, add_jpeg_idct_arg, add_reference_arg, apply_threads, positive_int
+from ..inference.policy import BASELINE, EVERY_FRAME
+from ._shared import (add_device_args, add_jpeg_idct_arg, add_policy_args, add_reference_arg, apply_threads,
+                      positive_int, stream_policy)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -49,14 +51,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_reference_arg(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_jpeg_idct_arg(parser)
+    add_policy_args(parser, f"{BASELINE} (when the model records its training motion, else {EVERY_FRAME})")
 
 
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
     if args.data_root is not None and args.data_dir is not None:
         raise ConfigError("give at most one of --data-root (use an existing dataset) and --data-dir (generate here)")
+    policy, min_baseline = stream_policy(args, None)
     run_demo(args.out, model=args.model, size=args.size, frames=args.frames, seed=args.seed, climate=args.climate,
              supersample=args.supersample, data_root=args.data_root, data_dir=args.data_dir, device=args.device,
              video=None if args.video == "none" else args.video, overwrite=args.overwrite, fast=not args.reference,
-             jpeg_idct=args.jpeg_idct, progress=not args.no_progress and sys.stderr.isatty())
+             jpeg_idct=args.jpeg_idct, progress=not args.no_progress and sys.stderr.isatty(), policy=policy,
+             min_baseline=min_baseline)
     return 0

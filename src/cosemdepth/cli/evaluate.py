@@ -22,8 +22,9 @@ from ..data.registry import dataset_spec
 from ..evaluation.evaluator import evaluate
 from ..io.outdir import Input, model_inputs
 from ..io.staging import OutputFiles
-from ._shared import (add_model_args, add_run_args, add_split_args, apply_threads, check_run_size, input_size, load,
-                      model_operating_point, open_split, parse_size, size_help, warn_far_size)
+from ..inference.policy import EVERY_FRAME
+from ._shared import (add_model_args, add_policy_args, add_run_args, add_split_args, apply_threads, check_run_size, input_size, load,
+                      model_operating_point, open_split, parse_size, size_help, stream_policy, warn_far_size)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -34,11 +35,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="write metrics.json and metrics.md into DIR (created if needed; other files in DIR are "
                         "left alone, and files cosemdepth did not write are never replaced)")
+    add_policy_args(parser, f"{EVERY_FRAME} (the paper's protocol)")
     add_run_args(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
+    policy, min_baseline = stream_policy(args, EVERY_FRAME)
     inputs = [*model_inputs(args.model), Input("--root", args.root),
               Input("--split-dir", args.split_dir) if args.split_dir is not None else None]
     files_ctx = (OutputFiles(args.out, "--out folder", command="evaluate", names=("metrics.json", "metrics.md"),
@@ -50,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
         model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
         check_run_size(model, dataset, device, args.lanes)
         result = evaluate(model, dataset, lanes=args.lanes, max_frames=args.max_frames, num_workers=args.workers,
-                          progress=not args.no_progress and sys.stderr.isatty(), dataset_name=args.dataset)
+                          progress=not args.no_progress and sys.stderr.isatty(), dataset_name=args.dataset,
+                          policy=policy, min_baseline=min_baseline)
         result.info["model"].update(path=str(args.model), name=Path(str(args.model)).name)
         result.info["dataset"].update(root=str(args.root), split=args.split or dataset_spec(args.dataset).split,
                                       split_dir=None if args.split_dir is None else str(args.split_dir))

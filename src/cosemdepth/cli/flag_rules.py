@@ -104,7 +104,8 @@ RULES: dict[str, CommandRules] = {
     "view": CommandRules(_INPUTS, _INPUT_FLAGS, not_taken={
         "--out": _VIEW_WRITES, "--video": _VIEW_WRITES, "--fps": _VIEW_WRITES, "--rerun": _VIEW_WRITES + " (give the file as --rrd)",
         "--overwrite": _VIEW_WRITES + " (an existing one is replaced only if cosemdepth wrote it)",
-        "--out-namespace": _VIEW_WRITES + " (no output bag)"}),
+        "--out-namespace": _VIEW_WRITES + " (no output bag)",
+        "--invalid": _VIEW_WRITES + " (its depth images draw no point where the depth is not valid)"}),
     "demo": CommandRules(
         (Source(GENERATED), Source(DATA_ROOT, flag="--data-root")),
         {flag: (GENERATED,) for flag in ("--frames", "--seed", "--climate", "--supersample", "--data-dir")}),

@@ -26,15 +26,17 @@ from ..data.pose_matching import DEFAULT_MAX_GAP, MATCHES
 from ..data.poses import CONVENTIONS
 from ..data.stamps import UNITS, parse_stamp_unit
 from ..errors import ConfigError
-from ..evaluation.predict import predict
+from ..evaluation.predict import DEFAULT_INVALID, INVALID_MODES, predict
+from ..inference.policy import BASELINE, EVERY_FRAME
+from ..models.outputs import ESTIMATED, HELD, RESET
 from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
 from ..io.outdir import Input, model_inputs
 from ..io.rerun_writer import check_rrd_path
 from ..io.staging import StagedDir
 from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
-from ._shared import (add_model_args, apply_threads, add_run_args, add_split_args, check_run_size, check_split_dir,
+from ._shared import (add_model_args, add_policy_args, apply_threads, add_run_args, add_split_args, check_run_size, check_split_dir,
                       frame_size, input_size, load, model_operating_point, parse_size, positive_int, size_help,
-                      warn_far_size)
+                      stream_policy, warn_far_size)
 from .flag_rules import explicit
 
 
@@ -78,6 +80,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fps", type=float, default=DEFAULT_FPS, help=f"video frame rate (default {DEFAULT_FPS:g})")
     parser.add_argument("--overwrite", action="store_true", help="also replace the output of another cosemdepth "
                         "command (a folder cosemdepth did not write is never replaced)")
+    parser.add_argument("--invalid", choices=INVALID_MODES, default=DEFAULT_INVALID,
+                        help="what the depth .npy holds where depth_valid is 0: keep (the model's values; default) or "
+                        "nan (the PNG holds 0 there and the bag NaN either way)")
+    add_policy_args(parser, f"{BASELINE} for --flight and --bag (when the model records its training motion, else "
+                    f"{EVERY_FRAME}), {EVERY_FRAME} for --dataset")
     add_run_args(parser)
     add_robotics_args(parser)
 
@@ -178,6 +185,7 @@ def run_settings(args: argparse.Namespace, dataset) -> dict:
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
     _validate(args)
+    policy, min_baseline = input_policy(args)
     inputs = command_inputs(args)
     StagedDir(args.out, "predict", overwrite=args.overwrite, what="--out folder", inputs=inputs).check()  # first
     check_rrd_path(args.rerun, inputs=[*inputs, Input("--out", args.out)]) if args.rerun is not None else None
@@ -196,10 +204,49 @@ def run(args: argparse.Namespace) -> int:
                        lanes=args.lanes, num_workers=args.workers, overwrite=args.overwrite,
                        progress=not args.no_progress and sys.stderr.isatty(),
                        dataset_name="flight" if args.flight or args.bag else args.dataset, info=info,
-                       sinks=make_sinks(args, dataset, model), inputs=inputs)
+                       sinks=make_sinks(args, dataset, model), inputs=inputs, policy=policy,
+                       min_baseline=min_baseline, invalid=args.invalid)
     n = manifest["frames_written"]
     videos = [t["video"] for t in manifest["trajectories"] if "video" in t]
-    print(f"wrote {n} frames of {len(manifest['trajectories'])} trajectories to {args.out}"
+    nt = len(manifest["trajectories"])
+    print(f"wrote {n} frame{'s' * (n != 1)} of {nt} trajector{'ies' if nt != 1 else 'y'} to {args.out}"
           + (f"; videos: {', '.join(str(args.out / v) for v in videos)}" if videos else "") + bag_report(dataset) + flight_report(dataset)
           + (f"; rerun recording: {args.rerun}" if args.rerun else ""))
+    if manifest.get("frames_by_status") is not None:
+        print(depth_report(manifest["frames_by_status"], manifest["policy"],
+                           [f.get("valid_fraction", 0.0) for f in manifest["frames"]]))
+        if not manifest["frames_by_status"].get(ESTIMATED) and not manifest["frames_by_status"].get(HELD):
+            print(f"cosemdepth predict: warning: no depth was produced: {no_depth_reason(manifest['frames_by_status'])}",
+                  file=sys.stderr)
     return 0
+
+
+def input_policy(args: argparse.Namespace) -> tuple[str | None, float | None]:
+    """``(policy, min_baseline)`` of predict / view: ``--policy`` as given, else baseline for flights and bags
+    (every-frame for a model that records no training motion) and every-frame for dataset splits."""
+    return stream_policy(args, None if args.flight or args.bag is not None else EVERY_FRAME)
+
+
+def depth_report(statuses: dict, policy: dict, valid_fractions) -> str:
+    """The summary line of the depth's statuses, e.g. ``"depth (policy baseline): 137 frames estimated, 1 reset
+    (no depth); 12 frames held: the camera moved less than 0.99 m from its reference frame; 91.3 % of the pixels
+    valid"``."""
+    est, held, reset = (int(statuses.get(k, 0)) for k in (ESTIMATED, HELD, RESET))
+    parts = [f"{est} frame{'s' * (est != 1)} estimated, {reset} reset (no depth)"]
+    if held:
+        parts.append(f"{held} frame{'s' * (held != 1)} held: the camera moved less than "
+                     f"{policy['min_baseline_m']:.2f} m from its reference frame")
+    fractions = list(valid_fractions)
+    if fractions:
+        parts.append(f"{100.0 * sum(fractions) / len(fractions):.1f} % of the pixels valid")
+    return f"depth (policy {policy['mode']}): " + "; ".join(parts)
+
+
+def no_depth_reason(statuses: dict) -> str:
+    """Why no frame has depth (every frame a reset)."""
+    n = int(statuses.get(RESET, 0))
+    if n == 1:
+        return ("the input has 1 frame: the first frame of a flight is a reset, and depth needs the camera to move "
+                "between frames")
+    return (f"all {n} frames are resets (the first frame of each trajectory, and the frames until the camera had "
+            "moved the minimum baseline from it)")

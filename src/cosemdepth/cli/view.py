@@ -22,11 +22,12 @@ from ..evaluation.streaming import make_schedule, stream, trajectory_rows
 from ..io.rerun_writer import check_rrd_path, require_rerun
 from ._robotics import make_sinks
 from ._shared import apply_threads, check_run_size, load
-from .predict import _open, _validate, command_inputs, flight_report
+from ..inference.policy import Streamer, policy_info
+from .predict import _open, _validate, command_inputs, depth_report, flight_report, input_policy
 from .predict import configure as configure_predict
 
 #: predict's arguments that do not apply to view (hidden from its help; refused when given: cli.flag_rules).
-_PREDICT_ONLY = ("out", "video", "fps", "rerun", "out_namespace")
+_PREDICT_ONLY = ("out", "video", "fps", "rerun", "out_namespace", "invalid")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -44,10 +45,14 @@ def run(args: argparse.Namespace) -> int:
     args.rerun = None  # view writes --rrd only
     require_rerun()
     _validate(args)
+    policy, min_baseline = input_policy(args)
     check_rrd_path(args.rrd, option="--rrd", inputs=command_inputs(args))
     dataset = _open(args)
     model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
     check_run_size(model, dataset, device, args.lanes)
+    streamer = Streamer(model, policy, min_baseline=min_baseline)
+    statuses: dict[str, int] = {}
+    fractions: list[float] = []
     args.rerun = args.rrd
     (writer,) = make_sinks(args, dataset, model, bag_output=False)
     schedule = make_schedule(trajectory_rows(dataset, args.max_frames), args.lanes)
@@ -55,8 +60,11 @@ def run(args: argparse.Namespace) -> int:
                disable=args.no_progress or not sys.stderr.isatty(), leave=False)
     writer.open()
     try:
-        for batch in stream(model, dataset, schedule=schedule, num_workers=args.workers):
+        for batch in stream(streamer, dataset, schedule=schedule, num_workers=args.workers):
             writer(batch)
+            for b, st in enumerate(batch.status if batch.valid is not None else ()):
+                statuses[st] = statuses.get(st, 0) + 1
+                fractions.append(float(batch.valid[b].float().mean()))
             bar.update(len(batch))
         info = writer.close()
     except BaseException:
@@ -69,4 +77,6 @@ def run(args: argparse.Namespace) -> int:
             flight.close()
     print(f"wrote a rerun recording of {info['rerun']['frames']} frames to {args.rrd}; open it with: rerun {args.rrd}"
           + flight_report(dataset))
+    if statuses:
+        print(depth_report(statuses, policy_info(streamer), fractions))
     return 0

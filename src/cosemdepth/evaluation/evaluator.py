@@ -130,6 +130,19 @@ class EvaluationResult:
     def to_json(self) -> str:
         return to_json(self.to_dict())
 
+    def validity_line(self) -> str | None:
+        """The depth's validity under the streaming policy: coverage and the metrics of the valid pixels."""
+        m, proto = self.metrics, self.info.get("protocol", {})
+        policy, counts = proto.get("policy") or {}, proto.get("frames_by_status")
+        if "coverage" not in m or not counts:
+            return None
+        mb = policy.get("min_baseline_m")
+        how = f"policy {policy.get('mode')}" + (f", min baseline {mb:.2f} m" if mb else "")
+        return (f"Validity ({how}): {_fmt(100 * m['coverage'], '.1f')} % of the ground-truth pixels valid; on them "
+                f"AbsRel {_fmt(m['valid_abs_rel'], '.4f')}, RMSE {_fmt(m['valid_rmse'], '.3f')}, delta1 "
+                f"{_fmt(100 * m['valid_delta1'], '.1f')} %; evaluated frames: "
+                + ", ".join(f"{v} {k}" for k, v in counts.items()) + " (docs/motion.md)")
+
     def to_markdown(self, name: str | None = None) -> str:
         """A report: the paper-style tables (with SqRel and both RMSE_log variants), the confusion matrix, settings."""
         info = self.info
@@ -138,6 +151,9 @@ class EvaluationResult:
         proto = info.get("protocol", {})
         lines = [f"# Evaluation of {name} on {ds.get('name', '?')} ({ds.get('split', '?')})", ""]
         lines.append(format_markdown_table({name: self.table_row()}, self.class_names or None, extra_columns=True))
+        valid = self.validity_line()
+        if valid:
+            lines += ["", valid]
         if self.confusion_matrix is not None:
             names = list(self.class_names)
             lines += ["", "Confusion matrix (rows: ground truth, columns: prediction; pixels):", ""]
@@ -198,9 +214,11 @@ class Evaluator:
         callbacks: Iterable[FrameCallback] = (),
         dataset_name: str | None = None,
         policy=EVERY_FRAME,
+        min_baseline: float | None = None,
     ) -> None:
         self.model = model
         self.policy = policy
+        self.min_baseline = min_baseline
         self.dataset = dataset
         self.cfg = _model_config(model)
         self.lanes = lanes
@@ -244,7 +262,7 @@ class Evaluator:
     def run(self) -> EvaluationResult:
         metrics = EvaluationMetrics(self.cfg.num_classes if self.eval_semantic else None, depth=self.eval_depth)
         valid_metrics = ValidDepthMetrics() if self.eval_depth else None
-        streamer = Streamer(self.model, self.policy)
+        streamer = Streamer(self.model, self.policy, min_baseline=self.min_baseline)
         statuses = {s: 0 for s in STATUSES}
         device = next((p.device for p in self.model.parameters()), torch.device("cpu"))
         timed_seconds = 0.0
@@ -344,7 +362,8 @@ def evaluate(model, dataset, **options: Any) -> EvaluationResult:
         num_workers: DataLoader workers reading frames.
         exclude_resets: leave reset frames out of the metrics (default: yes, unless every frame is a reset).
         policy: the streaming policy (:class:`~cosemdepth.inference.StreamPolicy` or ``"every-frame"`` (default,
-            the paper's protocol) / ``"baseline"``); the paper's metrics use every pixel with ground truth, the
+            the paper's protocol) / ``"baseline"``); min_baseline: its minimum baseline (metres; default: the
+            model's); the paper's metrics use every pixel with ground truth, the
             ``valid_*`` metrics and ``coverage`` the pixels the prediction marks valid.
         warmup: streaming steps left out of the timing.
         progress: show a progress bar (tqdm, on stderr).

@@ -15,7 +15,9 @@ Panels that a flight does not have (no ground truth, a depth-only or labels-only
 the others is always :data:`PANELS`. Every panel is upscaled by an integer factor to at least :data:`MIN_PANEL` pixels
 on its shorter side: labels by nearest neighbour (class borders stay sharp), RGB and depth bilinearly. Depth is colour
 mapped linearly with matplotlib's ``turbo`` from ``near`` (red) to ``far`` (dark blue); depths beyond ``far`` (the
-sky, the far background) show in the colour of ``far``. The range is fixed for a whole flight (colours compare across
+sky, the far background) show in the colour of ``far``. Depth pixels the prediction does not estimate (its validity
+mask: reset frames, too little camera motion, ill-conditioned geometry) are drawn in :data:`INVALID_COLOR` (grey),
+and the frame's title says when it has no estimate (``reset``) or carries its reference frame's (``held``). The range is fixed for a whole flight (colours compare across
 frames) and chosen from its first frames by :func:`auto_depth_range` unless given; the colour bar states it.
 
 :class:`FlightFigure` draws frames of one flight (the caption strip and the footer are drawn once and reused);
@@ -58,6 +60,8 @@ AUTO_RANGE_PERCENTILE = 90.0
 WARMUP_FRAMES = 8
 
 BACKGROUND = (24, 24, 24)
+#: The colour of predicted-depth pixels without an estimate (the validity mask); no turbo colour is grey.
+INVALID_COLOR = (128, 128, 128)
 FOREGROUND = (235, 235, 235)
 GAP = 4
 
@@ -178,7 +182,9 @@ def upscale_bilinear(a: np.ndarray, k: int) -> np.ndarray:
 class FrameMaps:
     """The maps of one frame, at the model's resolution: ``rgb [H, W, 3]`` uint8; ``depth``/``gt_depth`` ``[H, W]``
     metres; ``labels``/``gt_labels`` ``[H, W]`` class indices; ``title``: drawn on the RGB panel (e.g. the frame);
-    ``reset``: the first frame of a trajectory (its depth is the initial value, not a prediction)."""
+    ``reset``: the first frame of a trajectory (its depth is the initial value, not a prediction); ``valid``:
+    ``[H, W]`` bool, the predicted depth pixels that are estimates (None: all); ``status``: ``"estimated"``,
+    ``"held"`` or ``"reset"`` (:mod:`cosemdepth.inference.policy`), or ``""``."""
 
     rgb: np.ndarray
     depth: np.ndarray | None = None
@@ -187,6 +193,8 @@ class FrameMaps:
     gt_labels: np.ndarray | None = None
     title: str = ""
     reset: bool = False
+    valid: np.ndarray | None = None
+    status: str = ""
 
     def keys(self) -> tuple[str, ...]:
         return tuple(k for k, _ in PANELS if getattr(self, k) is not None)
@@ -283,7 +291,8 @@ class FlightFigure:
             # the colour bar in a one-frame picture: column x0 is depth_range_m[0], column x1 - 1 depth_range_m[1]
             out["colorbar_box"] = list(self.colorbar_box) if self.colorbar_box else None
             out["depth_colormap"] = (f"{DEPTH_CMAP}, linear, {_fmt_m(self.depth_range[0])} m red to "
-                                     f"{_fmt_m(self.depth_range[1])} m dark blue; farther depths (sky) dark blue")
+                                     f"{_fmt_m(self.depth_range[1])} m dark blue; farther depths (sky) dark blue; "
+                                     f"predicted pixels without an estimate grey {list(INVALID_COLOR)}")
         if self.has_labels:
             out["classes"] = list(self.class_names)
         return out
@@ -365,9 +374,11 @@ class FlightFigure:
                       (x0, y0))
             self.colorbar_box = (x0, y0, x1, y1)  # in the footer; moved to frame coordinates below
             title = (f"depth in metres, {_fmt_m(near)} to {_fmt_m(far)} m (fixed for this flight; "
-                     f"farther, e.g. sky: dark blue)")
+                     f"farther, e.g. sky: dark blue; grey: no estimate)")
             if text_size(title, s)[0] > depth_span[1] - depth_span[0] - 8:
-                title = f"depth (m), {_fmt_m(near)}-{_fmt_m(far)} m, fixed for the flight"
+                title = f"depth (m), {_fmt_m(near)}-{_fmt_m(far)} m, fixed for the flight; grey: no estimate"
+            if text_size(title, s)[0] > depth_span[1] - depth_span[0] - 8:
+                title = f"depth (m), {_fmt_m(near)}-{_fmt_m(far)} m; grey: none"
             _draw_text(draw, ((depth_span[0] + depth_span[1]) / 2, y0 - round(s * 0.35)), title, s, anchor="md")
             ticks = depth_ticks(near, far)
             for t in ticks:
@@ -404,7 +415,10 @@ class FlightFigure:
         if key in DEPTH_KEYS:
             # colour first, then interpolate the colours: a near/far edge blends its two colours instead of showing
             # a band of every depth in between
-            return upscale_bilinear(positions_to_rgb(depth_positions(a, *self.depth_range)), k)
+            colors = positions_to_rgb(depth_positions(a, *self.depth_range))
+            if key == "depth" and maps.valid is not None:
+                colors[~np.asarray(maps.valid, dtype=bool)] = INVALID_COLOR
+            return upscale_bilinear(colors, k)
         lab = np.asarray(a).astype(np.intp)
         n = len(self.palette)
         # out-of-range classes (a corrupt ground truth) show black rather than failing
@@ -488,7 +502,8 @@ class FlightPictures:
         rng = self.depth_range
         if rng is None:
             gt = [m.gt_depth for _, m in self._held if m.gt_depth is not None]
-            pred = [m.depth for _, m in self._held if m.depth is not None and not m.reset]
+            pred = [m.depth if m.valid is None else m.depth[m.valid]
+                    for _, m in self._held if m.depth is not None and not m.reset]
             rng = auto_depth_range(gt or pred)
         self.figure = FlightFigure(first.keys(), first.rgb.shape[:2], depth_range=rng, class_names=self.class_names,
                                    palette=self.palette, min_panel=self.min_panel)
@@ -514,16 +529,25 @@ def frame_maps(batch, b: int, *, title: str = "", labels_ok: Callable[[np.ndarra
     depth = None if batch.depth is None else batch.depth[b, 0].detach().float().cpu().numpy()
     gt_depth = None if batch.gt_depth is None else batch.gt_depth[b, 0].detach().float().cpu().numpy()
     reset = bool(batch.reset[b])
-    if reset and title:
-        title += " (reset: no depth yet)" if depth is not None else " (reset)"
+    valid = getattr(batch, "valid", None)
+    valid = None if valid is None or depth is None else valid[b, 0].detach().cpu().numpy().astype(bool)
+    statuses = getattr(batch, "status", None) or []
+    status = statuses[b] if b < len(statuses) else ""
+    if title and depth is not None and (reset or status == "reset"):
+        title += " (reset: no depth yet)"
+    elif title and depth is not None and status == "held":
+        title += " (held: too little motion)"
+    elif reset and title:
+        title += " (reset)"
     return FrameMaps(rgb=rgb_to_uint8(batch.rgb[b].float().cpu().numpy()),
                      depth=None if depth is None else depth.astype(np.float32),
                      gt_depth=None if gt_depth is None else gt_depth.astype(np.float32),
-                     labels=arr(batch.labels, b), gt_labels=gt_labels, title=title, reset=reset)
+                     labels=arr(batch.labels, b), gt_labels=gt_labels, title=title, reset=reset, valid=valid,
+                     status=status)
 
 
 __all__ = [
-    "CAPTIONS", "FlightFigure", "FlightPictures", "FrameMaps", "MIN_PANEL", "PANELS", "WARMUP_FRAMES",
+    "CAPTIONS", "FlightFigure", "FlightPictures", "FrameMaps", "INVALID_COLOR", "MIN_PANEL", "PANELS", "WARMUP_FRAMES",
     "auto_depth_range", "depth_ticks", "frame_maps", "nice_ceil", "panel_scale",
     "upscale_bilinear", "upscale_nearest",
 ]

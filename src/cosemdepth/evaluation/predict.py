@@ -5,10 +5,12 @@ outputs and inputs (for a bag frame: ``<topic's last part>_<seconds, 10 digits>.
 image's full stamp); the frame's row in its trajectory, 6 digits, when the dataset has no file names; a stem seen
 twice in one trajectory gets ``_<row>`` appended)::
 
-    OUT/predictions.json                       what was run, the encodings below, and every frame's files
-    OUT/<trajectory>/depth/NNNNNN.npy          predicted depth, float32 [H, W], metres (the model's output as is)
-    OUT/<trajectory>/depth_png/NNNNNN.png      16-bit PNG, uint16 = round(depth_m * 256), saturated to [0, 65535]
-                                               (1/256 m steps up to 255.996 m; depth_m = png / 256)
+    OUT/predictions.json                       what was run, the encodings below, every frame's status and files
+    OUT/<trajectory>/depth/NNNNNN.npy          predicted depth, float32 [H, W], metres (the model's output as is;
+                                               with invalid="nan", NaN where depth_valid is 0)
+    OUT/<trajectory>/depth_valid/NNNNNN.png    8-bit PNG, 255 where the depth is an estimate, 0 where it is not
+    OUT/<trajectory>/depth_png/NNNNNN.png      16-bit PNG, uint16 = round(depth_m * 256), saturated to [1, 65535]
+                                               (1/256 m steps up to 255.996 m; depth_m = png / 256); 0: no depth
     OUT/<trajectory>/labels/NNNNNN.png         8-bit PNG of class indices (argmax)
     OUT/<trajectory>/labels_color/NNNNNN.png   RGB PNG, the dataset's palette (Mid-Air/SynthAir: design 10.5)
     OUT/<trajectory>/side_by_side/NNNNNN.png   RGB | depth | GT depth | labels | GT labels (GT when known), each
@@ -18,8 +20,11 @@ twice in one trajectory gets ``_<row>`` appended)::
 The pictures (:mod:`cosemdepth.evaluation.figures`) colour depth on a range fixed per trajectory, chosen from its
 first frames (recorded in ``predictions.json`` under the trajectory's ``pictures``) unless ``depth_range`` is given.
 
-Depth outputs are absent for M4Semantic, label outputs for M4Depth. The first frame of a trajectory is a reset:
-its depth is the initial value (1000 m), as in the original.
+Depth outputs are absent for M4Semantic, label outputs for M4Depth. A depth map says which pixels it could not
+estimate (:mod:`cosemdepth.inference.policy`): each frame's record in ``predictions.json`` has its ``status``
+(``reset``: the first frame of a trajectory or a frame held after it, no pixel valid, its depth the model's initial
+value; ``estimated``; ``held``: the reference frame's depth carried into this view because the camera moved less
+than the policy's minimum baseline), ``baseline_m`` and ``valid_fraction``; ``depth_valid`` is the per-pixel mask.
 
 The folder is written under a temporary name beside ``OUT`` and renamed to ``OUT`` at the end (each file is also
 written atomically): a run that fails leaves nothing behind; a previous output of ``predict`` in ``OUT`` is replaced.
@@ -40,6 +45,8 @@ from ..errors import ConfigError
 from ..io.atomic import atomic_write_text
 from ..io.outdir import Input
 from ..io.staging import StagedDir
+from ..inference.policy import StreamPolicy, Streamer, policy_info
+from ..models.outputs import ESTIMATED, RESET
 from .classes import class_info
 from .evaluator import _model_config, to_json
 from .figures import FlightPictures, frame_maps
@@ -57,6 +64,9 @@ from .visualize import (
 )
 
 MANIFEST = "predictions.json"
+#: What the ``.npy`` depth holds where the mask is 0 (``--invalid``): the model's values, or NaN.
+INVALID_MODES = ("keep", "nan")
+DEFAULT_INVALID = "keep"
 
 
 def safe_relpath(name: str) -> str:
@@ -86,11 +96,16 @@ class PredictionWriter:
             default: chosen per trajectory from its first frames).
         video: ``"mp4"``, ``"gif"`` or ``None``; fps: video frame rate.
         sources: dataset index -> source image path (recorded in the manifest).
+        invalid: ``"keep"`` (the ``.npy`` holds the model's values everywhere; the mask says which are estimates) or
+            ``"nan"`` (NaN in the ``.npy`` where the mask is 0).
     """
 
     def __init__(self, folder: Path, *, num_classes: int | None, dataset_name: str | None = None,
                  video: str | None = DEFAULT_VIDEO, fps: float = DEFAULT_FPS, depth_range: tuple[float, float] | None = None,
-                 sources: dict[int, str] | None = None) -> None:
+                 sources: dict[int, str] | None = None, invalid: str = DEFAULT_INVALID) -> None:
+        if invalid not in INVALID_MODES:
+            raise ConfigError(f"--invalid must be one of {', '.join(INVALID_MODES)}, got {invalid!r}")
+        self.invalid = invalid
         self.folder = Path(folder)
         self.video = video
         self.fps = fps
@@ -98,6 +113,7 @@ class PredictionWriter:
         self.names, self.palette = class_info(num_classes, dataset_name) if num_classes else ((), None)
         self.sources = sources or {}
         self.frames: list[dict[str, Any]] = []
+        self.statuses: dict[str, int] = {}
         self.trajectories: dict[str, dict[str, Any]] = {}
         self._stems: dict[str, set[str]] = {}
         self._videos: dict[str, VideoWriter] = {}
@@ -132,12 +148,17 @@ class PredictionWriter:
         base = self.folder / rel
         files: dict[str, str] = {}
         maps = frame_maps(batch, b, title=f"frame {int(batch.frame[b])}", labels_ok=self._labels_ok)
+        valid = None
         if batch.depth is not None:
             depth = maps.depth
+            valid = valid_mask(depth, maps.valid, bool(batch.reset[b]))
             files["depth"] = f"{rel}/depth/{stem}.npy"
-            save_npy(self.folder / files["depth"], depth)
+            save_npy(self.folder / files["depth"], np.where(valid, depth, np.float32(np.nan))
+                     if self.invalid == "nan" else depth)
+            files["depth_valid"] = f"{rel}/depth_valid/{stem}.png"
+            save_png(self.folder / files["depth_valid"], valid.astype(np.uint8) * np.uint8(255))
             files["depth_png"] = f"{rel}/depth_png/{stem}.png"
-            save_png(self.folder / files["depth_png"], depth_to_png16(depth))
+            save_png(self.folder / files["depth_png"], depth_to_png16(depth, valid))
         if batch.labels is not None:
             labels = maps.labels.astype(np.uint8)
             files["labels"] = f"{rel}/labels/{stem}.png"
@@ -152,7 +173,14 @@ class PredictionWriter:
                 lambda path, image, traj=traj, base=base: self._emit(traj, base, path, image),
                 class_names=self.names, palette=self.palette, depth_range=self.depth_range)
         pictures.add(maps, self.folder / files["side_by_side"])
-        record = {"trajectory": traj, "frame": int(batch.frame[b]), "reset": bool(batch.reset[b]), "files": files}
+        record = {"trajectory": traj, "frame": int(batch.frame[b]), "reset": bool(batch.reset[b])}
+        if valid is not None:
+            status = maps.status or (RESET if bool(batch.reset[b]) else ESTIMATED)
+            base = getattr(batch, "baseline", None)
+            record.update(status=status, baseline_m=None if base is None else round(float(base[b]), 6),
+                          valid_fraction=round(float(valid.mean()), 6))
+            self.statuses[status] = self.statuses.get(status, 0) + 1
+        record["files"] = files
         src = self.sources.get(batch.indices[b])
         if src is not None:
             record["source"] = src
@@ -190,6 +218,15 @@ class PredictionWriter:
         self._videos.clear()
 
 
+def valid_mask(depth: np.ndarray, valid: np.ndarray | None, reset: bool) -> np.ndarray:
+    """``[H, W]`` bool: the pixels of ``depth`` written as estimates: those the prediction marks valid (all, for a
+    stream without a mask, except on a reset frame), and only finite positive depths."""
+    ok = np.isfinite(depth) & (depth > 0)
+    if valid is not None:
+        return ok & np.asarray(valid, dtype=bool)
+    return ok & (not reset)
+
+
 def _sources(dataset, indices) -> dict[int, str]:
     out = {}
     windows = getattr(dataset, "windows", None)
@@ -219,6 +256,9 @@ def predict(
     depth_range: tuple[float, float] | None = None,
     sinks: tuple = (),
     inputs: Sequence[Input] = (),
+    policy: StreamPolicy | str | None = None,
+    min_baseline: float | None = None,
+    invalid: str = DEFAULT_INVALID,
 ) -> dict[str, Any]:
     """Stream ``model`` over ``dataset`` and write every output into ``out`` (see the module docstring).
 
@@ -235,6 +275,9 @@ def predict(
             :mod:`cosemdepth.io.rerun_writer`): objects with ``open(folder)``, ``__call__(batch)``, ``close() -> dict``
             (merged into the manifest) and ``abort()``.
         inputs: the command's input paths (model, pose file...); ``dataset.root`` is always one.
+        policy: the streaming policy (:mod:`cosemdepth.inference.policy`: ``"baseline"`` or ``"every-frame"``, the
+            paper's protocol; None: baseline when the model records its training motion); min_baseline: its minimum baseline in metres (default: the
+            model's). invalid: ``"keep"`` or ``"nan"`` (:class:`PredictionWriter`).
     Returns:
         the manifest (also written to ``out/predictions.json``).
     """
@@ -244,7 +287,10 @@ def predict(
         raise ConfigError(f"--video must be one of {(*VIDEO_FORMATS, 'none')}, got {video!r}")
     if not fps > 0:
         raise ConfigError(f"--fps must be positive, got {fps}")
+    if invalid not in INVALID_MODES:
+        raise ConfigError(f"--invalid must be one of {', '.join(INVALID_MODES)}, got {invalid!r}")
     cfg = _model_config(model)
+    streamer = Streamer(model, policy, min_baseline=min_baseline)
     name = dataset_name or getattr(dataset, "name", None) or ""
     inputs = list(inputs)
     if getattr(dataset, "root", None) is not None:
@@ -259,7 +305,7 @@ def predict(
     with staged as tmp:
         writer = PredictionWriter(tmp, num_classes=cfg.num_classes if cfg.has_semantic else None,
                                   dataset_name=name, video=video, fps=fps, depth_range=depth_range,
-                                  sources=_sources(dataset, [i for g in groups for i in g]))
+                                  sources=_sources(dataset, [i for g in groups for i in g]), invalid=invalid)
         bar = tqdm(total=sum(len(g) for g in groups), unit="frame", desc="predict", disable=not progress,
                    leave=False)
         model_seconds = 0.0
@@ -269,7 +315,7 @@ def predict(
             for sink in sinks:
                 sink.open(tmp)
                 opened.append(sink)
-            for batch in stream(model, dataset, schedule=schedule, num_workers=num_workers):
+            for batch in stream(streamer, dataset, schedule=schedule, num_workers=num_workers):
                 writer(batch)
                 for sink in sinks:
                     sink(batch)
@@ -290,10 +336,19 @@ def predict(
             **(info or {}),
             "model": {**(info or {}).get("model", {}), "arch": cfg.arch},
             "dataset": {**(info or {}).get("dataset", {}), "name": name},
+            "policy": policy_info(streamer) if streamer.has_depth else None,
+            "frames_by_status": writer.statuses if streamer.has_depth else None,
             "encodings": {
-                "depth": "depth/*.npy: float32 [H, W], metres, the model output as is",
+                "depth": "depth/*.npy: float32 [H, W], metres, the model output as is" + (
+                    "; NaN where depth_valid is 0" if invalid == "nan" else
+                    " (also where depth_valid is 0: use the mask)"),
+                "depth_valid": "depth_valid/*.png: uint8, 255 where the depth is an estimate, 0 where it is not "
+                "(a reset frame, a frame held without an earlier estimate, ill-conditioned geometry, depth <= 0)",
                 "depth_png": f"depth_png/*.png: uint16 = round(depth_m * {DEPTH_PNG_SCALE:g}) saturated to "
-                f"[0, 65535]; depth_m = value / {DEPTH_PNG_SCALE:g}",
+                f"[1, 65535]; depth_m = value / {DEPTH_PNG_SCALE:g}; 0 where depth_valid is 0",
+                "status": "frames[].status: estimated (from the camera's motion since its reference frame), held "
+                "(the reference frame's depth carried into this view: the camera moved less than "
+                "policy.min_baseline_m), reset (no depth); frames[].baseline_m: metres from the reference frame",
                 "depth_png_scale": DEPTH_PNG_SCALE,
                 "labels": "labels/*.png: uint8 class index (argmax of the probabilities)",
                 "labels_color": "labels_color/*.png: RGB, palette below",
@@ -316,4 +371,4 @@ def predict(
     return manifest
 
 
-__all__ = ["MANIFEST", "PredictionWriter", "predict", "safe_relpath"]
+__all__ = ["DEFAULT_INVALID", "INVALID_MODES", "MANIFEST", "PredictionWriter", "predict", "safe_relpath", "valid_mask"]

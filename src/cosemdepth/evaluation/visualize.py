@@ -33,10 +33,16 @@ DEPTH_PNG_SCALE = 256.0
 DEPTH_PNG_MAX_M = 65535 / DEPTH_PNG_SCALE
 
 
-def depth_to_png16(depth: np.ndarray) -> np.ndarray:
-    """``[H, W]`` metres -> ``[H, W]`` uint16 ``round(depth * 256)`` saturated to [0, 65535]; NaN -> 0."""
+def depth_to_png16(depth: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+    """``[H, W]`` metres -> ``[H, W]`` uint16 ``round(depth * 256)`` saturated to [0, 65535]; NaN -> 0.
+
+    With ``valid`` (``[H, W]`` bool): 0 is "no depth", written where ``valid`` is False, and the valid pixels are
+    saturated to [1, 65535] (a valid depth under 1/512 m is written as 1, not as "no depth")."""
     d = np.nan_to_num(np.asarray(depth, dtype=np.float64), nan=0.0, posinf=DEPTH_PNG_MAX_M, neginf=0.0)
-    return np.clip(np.rint(d * DEPTH_PNG_SCALE), 0, 65535).astype(np.uint16)
+    v = np.rint(d * DEPTH_PNG_SCALE)
+    if valid is None:
+        return np.clip(v, 0, 65535).astype(np.uint16)
+    return np.where(np.asarray(valid, dtype=bool), np.clip(v, 1, 65535), 0).astype(np.uint16)
 
 
 def png16_to_depth(png: np.ndarray) -> np.ndarray:

@@ -128,11 +128,15 @@ class Streamer:
 
     Args:
         model: a :class:`~cosemdepth.models.SceneModel` (any inference path), or anything with its ``step``.
-        policy: a :class:`StreamPolicy`, or a mode name (``"baseline"``, ``"every-frame"``).
+        policy: a :class:`StreamPolicy`, or a mode name (``"baseline"``, ``"every-frame"``); None: ``baseline``
+            when the model records the motion it was trained with (or ``min_baseline`` is given), else
+            ``every-frame`` (whose validity mask still marks the frames without parallax).
         min_baseline: overrides the policy's ``min_baseline`` (metres).
     """
 
-    def __init__(self, model, policy: StreamPolicy | str = BASELINE, *, min_baseline: float | None = None):
+    def __init__(self, model, policy: StreamPolicy | str | None = BASELINE, *, min_baseline: float | None = None):
+        if policy is None:
+            policy = BASELINE if min_baseline is not None or default_min_baseline(model) is not None else EVERY_FRAME
         if isinstance(policy, str):
             policy = StreamPolicy(mode=policy)
         if min_baseline is not None:

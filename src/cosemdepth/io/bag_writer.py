@@ -4,7 +4,14 @@ header stamp and frame_id (``cosemdepth predict --bag``):
 ==============================  ===============================  =====================================================
 topic (default namespace)       type                             content
 ==============================  ===============================  =====================================================
-``/cosemdepth/depth``           ``sensor_msgs/msg/Image``        ``32FC1``: metres along the optical axis (REP 118)
+``/cosemdepth/depth``           ``sensor_msgs/msg/Image``        ``32FC1``: metres along the optical axis; NaN where
+                                                                 the depth is not valid (REP 117/118)
+``/cosemdepth/depth_valid``     ``sensor_msgs/msg/Image``        ``mono8``: 255 where the depth is an estimate, 0 not
+``/cosemdepth/depth_status``    ``diagnostic_msgs/msg/           one status per frame: level OK ``estimated``, WARN
+                                DiagnosticArray``                ``held`` (the reference frame's depth carried: too
+                                                                 little motion), ERROR ``reset`` (no depth); message:
+                                                                 the status; values: ``status``, ``baseline_m``,
+                                                                 ``valid_fraction`` (the policy: predictions.json)
 ``/cosemdepth/labels``          ``sensor_msgs/msg/Image``        ``mono8``: class index
 ``/cosemdepth/labels_color``    ``sensor_msgs/msg/Image``        ``rgb8``: the class palette
 ``/cosemdepth/camera_info``     ``sensor_msgs/msg/CameraInfo``   the output size; K scaled to it (ROS pixel centres)
@@ -96,7 +103,15 @@ class BagWriter:
             h, w = batch.rgb.shape[-2:]
             if batch.depth is not None:
                 depth = batch.depth[b, 0].float().cpu().numpy().astype("<f4")
-                self._write("depth", self._image(hdr, depth, "32FC1"), stamp)
+                valid = np.isfinite(depth) & (depth > 0)
+                if getattr(batch, "valid", None) is not None:
+                    valid &= batch.valid[b, 0].cpu().numpy().astype(bool)
+                elif bool(batch.reset[b]):
+                    valid[...] = False
+                self._write("depth", self._image(hdr, np.where(valid, depth, np.float32(np.nan)).astype("<f4"),
+                                                 "32FC1"), stamp)
+                self._write("depth_valid", self._image(hdr, valid.astype(np.uint8) * np.uint8(255), "mono8"), stamp)
+                self._status(hdr, batch, b, float(valid.mean()), stamp)
             if batch.labels is not None:
                 labels = batch.labels[b].cpu().numpy().astype(np.uint8)
                 self._write("labels", self._image(hdr, labels, "mono8"), stamp)
@@ -113,6 +128,20 @@ class BagWriter:
                 roi=t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
             )
             self._write("camera_info", info, stamp)
+
+    def _status(self, hdr, batch, b: int, valid_fraction: float, stamp: int) -> None:
+        t = self.ts.types
+        statuses = getattr(batch, "status", None) or []
+        status = statuses[b] if b < len(statuses) else ("reset" if bool(batch.reset[b]) else "estimated")
+        base = getattr(batch, "baseline", None)
+        st = t["diagnostic_msgs/msg/DiagnosticStatus"]
+        level = {"estimated": st.OK, "held": st.WARN}.get(status, st.ERROR)
+        values = [("status", status), ("baseline_m", "" if base is None else f"{float(base[b]):.6f}"),
+                  ("valid_fraction", f"{valid_fraction:.6f}")]
+        msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=hdr, status=[st(
+            level=level, name="cosemdepth depth", message=status, hardware_id=hdr.frame_id,
+            values=[t["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values])])
+        self._write("depth_status", msg, stamp)
 
     def close(self) -> dict[str, Any]:
         """Finish the bag; the manifest entry describing it."""

@@ -11,8 +11,9 @@ entity                                content
 ``world/camera``                      ``Transform3D``: camera-to-world pose of every frame
 ``world/camera/image``                (static) ``Pinhole``: the intrinsics at the output size (RDF camera)
 ``world/camera/image/rgb``            ``Image``: the model's input
-``world/camera/image/depth``          ``DepthImage(meter=1)``: predicted metres; under the pinhole the viewer
-                                      back-projects it to a point cloud
+``world/camera/image/depth``          ``DepthImage(meter=1)``: predicted metres, 0 where the depth is not valid
+                                      (its mask); under the pinhole the viewer back-projects the others to a
+                                      point cloud (a depth of 0 is no point)
 ``world/camera/image/labels``         ``SegmentationImage``: class index, named and coloured by the static
                                       ``AnnotationContext`` on ``world``
 ``world/trajectory``                  (static) ``LineStrips3D``: the camera path, one strip per trajectory
@@ -176,8 +177,10 @@ class RerunWriter:
             rgb = (np.clip(batch.rgb[b].float().cpu().numpy().transpose(1, 2, 0), 0, 1) * 255 + 0.5).astype(np.uint8)
             rec.log("world/camera/image/rgb", rr.Image(rgb))
             if batch.depth is not None:
-                rec.log("world/camera/image/depth",
-                        rr.DepthImage(batch.depth[b, 0].float().cpu().numpy().astype(np.float32), meter=1.0))
+                depth = batch.depth[b, 0].float().cpu().numpy().astype(np.float32)
+                if getattr(batch, "valid", None) is not None:  # no point for a pixel without an estimate
+                    depth = np.where(batch.valid[b, 0].cpu().numpy(), depth, np.float32(0.0))
+                rec.log("world/camera/image/depth", rr.DepthImage(depth, meter=1.0))
             if batch.labels is not None:
                 rec.log("world/camera/image/labels",
                         rr.SegmentationImage(batch.labels[b].cpu().numpy().astype(np.uint8)))
