@@ -40,7 +40,7 @@ from .. import __version__
 from ..errors import ConfigError
 from .classes import class_info, dataset_classes
 from ..inference.policy import EVERY_FRAME, Streamer, policy_info
-from ..models.outputs import STATUSES
+from ..models.outputs import RESET, STATUSES
 from .metrics import ALL_DEPTH_METRICS, EvaluationMetrics, ValidDepthMetrics, format_markdown_table
 from .resources import PeakMemory, machine_info
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
@@ -264,6 +264,7 @@ class Evaluator:
         valid_metrics = ValidDepthMetrics() if self.eval_depth else None
         streamer = Streamer(self.model, self.policy, min_baseline=self.min_baseline)
         statuses = {s: 0 for s in STATUSES}
+        depth_frames = 0
         device = next((p.device for p in self.model.parameters()), torch.device("cpu"))
         timed_seconds = 0.0
         timed_frames = 0
@@ -274,15 +275,22 @@ class Evaluator:
             for k, batch in enumerate(stream(streamer, self.dataset, schedule=self.schedule,
                                              num_workers=self.num_workers)):
                 include = ~batch.reset if self.exclude_resets else torch.ones_like(batch.reset)
+                # a frame without depth (status reset: the first of a trajectory, or held before any estimate) is
+                # left out of the depth metrics as the paper's protocol leaves out resets; its labels count
+                no_depth = torch.tensor([st == RESET for st in batch.status], dtype=torch.bool,
+                                        device=include.device) if batch.status else torch.zeros_like(include)
+                depth_include = include & ~no_depth if self.exclude_resets else include
+                depth_frames += int(depth_include.sum())
                 metrics.update(
                     gt_depth=batch.gt_depth if self.eval_depth else None,
                     pred_depth=batch.depth if self.eval_depth else None,
                     gt_labels=batch.gt_labels if self.eval_semantic else None,
                     pred_semantic=batch.labels if self.eval_semantic else None,
                     include=include,
+                    depth_include=depth_include,
                 )
                 if valid_metrics is not None and batch.valid is not None:
-                    valid_metrics.update(batch.gt_depth, batch.depth, batch.valid, include)
+                    valid_metrics.update(batch.gt_depth, batch.depth, batch.valid, depth_include)
                 for st, inc in zip(batch.status, include.tolist()):
                     statuses[st] += int(inc)
                 for cb in self.callbacks:
@@ -322,6 +330,7 @@ class Evaluator:
                 "max_frames": self.max_frames,
                 "policy": policy_info(streamer),
                 "frames_by_status": statuses if self.eval_depth else None,
+                "depth_frames_evaluated": depth_frames if self.eval_depth else None,
             },
             "speed": {"timed_frames": timed_frames, "warmup_steps": min(self.warmup, len(self.schedule)),
                       "wall_seconds": wall},

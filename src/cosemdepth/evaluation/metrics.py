@@ -382,6 +382,7 @@ class EvaluationMetrics:
         gt_labels: torch.Tensor | None = None,
         pred_semantic: torch.Tensor | None = None,
         include: Any = None,
+        depth_include: Any = None,
     ) -> None:
         """Add a batch of frames.
 
@@ -391,11 +392,13 @@ class EvaluationMetrics:
             pred_semantic: ``[B, N, H, W]`` probabilities or logits (argmax is taken over dim 1), or integer labels
                 shaped like ``gt_labels``.
             include: optional boolean ``[B]``; excluded frames count in neither metric.
+            depth_include: optional boolean ``[B]`` for the depth metrics only (default: ``include``), e.g. frames
+                without depth (status ``reset``) whose labels still count.
         """
         if self.depth is not None:
             if gt_depth is None or pred_depth is None:
                 raise ValueError("EvaluationMetrics.update: a depth model needs gt_depth and pred_depth")
-            self.depth.update(gt_depth, pred_depth, include)
+            self.depth.update(gt_depth, pred_depth, include if depth_include is None else depth_include)
         if self.semantic is not None:
             if gt_labels is None or pred_semantic is None:
                 raise ValueError("EvaluationMetrics.update: a semantic model needs gt_labels and pred_semantic")
