@@ -218,8 +218,8 @@ def add_policy_args(parser: argparse.ArgumentParser, default: str) -> None:
                    f"previous frame, the paper's protocol); default: {default}")
     g.add_argument("--min-baseline", type=float, default=None, metavar="M",
                    help=f"metres the camera must move from the reference frame before a frame is estimated "
-                   f"(--policy {BASELINE}; default: the 5th percentile of the per-step translations the model was "
-                   "trained with, from its folder)")
+                   f"(--policy {BASELINE}; default: 0.75 x the 5th percentile of the per-step translations the model "
+                   "was trained with, from its folder)")
 
 
 def stream_policy(args: argparse.Namespace, default: str | None) -> tuple[str | None, float | None]:

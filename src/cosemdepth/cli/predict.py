@@ -229,7 +229,7 @@ def input_policy(args: argparse.Namespace) -> tuple[str | None, float | None]:
 
 def depth_report(statuses: dict, policy: dict, valid_fractions) -> str:
     """The summary line of the depth's statuses, e.g. ``"depth (policy baseline): 137 frames estimated, 1 reset
-    (no depth); 12 frames held: the camera moved less than 0.99 m from its reference frame; 91.3 % of the pixels
+    (no depth); 12 frames held: the camera moved less than 0.74 m from its reference frame; 91.3 % of the pixels
     valid"``."""
     est, held, reset = (int(statuses.get(k, 0)) for k in (ESTIMATED, HELD, RESET))
     parts = [f"{est} frame{'s' * (est != 1)} estimated, {reset} reset (no depth)"]

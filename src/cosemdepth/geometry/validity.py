@@ -23,7 +23,7 @@ from .parallax import epipolar_geometry
 
 #: Default largest ``eta`` (inverse-depth error in 1/m per pixel of parallax error, pixels of the network input) of a
 #: valid pixel; calibrated on held-out SynthAir flights with the shipped weights (``benchmarks/motion_robustness.py``).
-MAX_CONDITIONING = 0.09
+MAX_CONDITIONING = 0.11
 
 
 def parallax_conditioning(

@@ -15,8 +15,10 @@ previous one (policy ``every-frame``). Policy ``baseline`` keeps a *reference fr
 * a reset (first frame, new trajectory) starts a new reference without depth: it and the frames held after it have
   status ``reset`` and nothing valid, until the camera has moved far enough.
 
-The default ``min_baseline`` is the 5th percentile of the per-step translations the model was trained with (the model
-folder's operating point, :mod:`cosemdepth.operating_point`): the smallest baseline the model commonly saw. Every
+The default ``min_baseline`` is 0.75 x the 5th percentile of the per-step translations the model was trained with (the
+model folder's operating point, :mod:`cosemdepth.operating_point`): below the smallest baseline the model commonly saw,
+so that a flight at the training speed is estimated on every frame (its slowest steps too), while a flight at half
+that speed or slower is estimated against a reference frame (docs/motion.md). Every
 output carries ``valid`` (the depth pixels that are estimates), ``status`` and ``baseline`` (see
 :class:`~cosemdepth.models.outputs.StepOutput`). The state is explicit: a :class:`StreamerState` in, a new one out.
 """
@@ -37,8 +39,10 @@ from ..models.outputs import ESTIMATED, HELD, RESET, StepOutput, StreamState
 BASELINE, EVERY_FRAME = "baseline", "every-frame"
 #: Streaming policies (``--policy``).
 POLICIES = (BASELINE, EVERY_FRAME)
-#: Quantile of the training steps' translations used as the default ``min_baseline`` (the operating point's ``p05``).
+#: The default ``min_baseline``: ``MIN_BASELINE_FACTOR`` x this quantile of the training steps' translations (the
+#: operating point's ``p05``); calibrated on SynthAir (docs/motion.md).
 MIN_BASELINE_STATISTIC = "p05"
+MIN_BASELINE_FACTOR = 0.75
 #: An estimate more than ``exp(MAX_LOG_RATIO)`` (2x) from the reference's carried depth is not valid: two estimates of
 #: the same surface that far apart say that at least one of them is wrong; calibrated on SynthAir (docs/motion.md).
 MAX_LOG_RATIO = 0.7
@@ -79,11 +83,11 @@ class StreamPolicy:
 
 
 def default_min_baseline(model) -> float | None:
-    """The ``min_baseline`` (metres) of ``model``: the 5th percentile of its training steps' translations, from its
+    """The ``min_baseline`` (metres) of ``model``: 0.75 x the 5th percentile of its training steps' translations, from its
     ``operating_point``; None when the model folder does not record them."""
     op = getattr(model, "operating_point", None)
     stats = getattr(op, "step_translation", None)
-    return None if stats is None else float(getattr(stats, MIN_BASELINE_STATISTIC))
+    return None if stats is None else MIN_BASELINE_FACTOR * float(getattr(stats, MIN_BASELINE_STATISTIC))
 
 
 @dataclass
