@@ -96,3 +96,19 @@ def test_export_check_reports_what_it_compared_and_fails_a_broken_graph(tmp_path
     text = capsys.readouterr().out
     assert text.rstrip().endswith("MISMATCH")
     assert any(line.split()[:1] == ["semantic"] and "OVER on frame(s)" in line for line in text.splitlines())
+
+
+def test_benchmark_onnxruntime_backend_times_the_exported_graph(tmp_path, capsys):
+    js, md = tmp_path / "b.json", tmp_path / "b.md"
+    rc = main(["benchmark", "--backend", "onnxruntime", "--models", "m4depth", "--levels", "2", "--size", "16", "16",
+               "--batch", "1", "2", "--warmup", "1", "--iters", "2", "--batched-iters", "1", "--threads", "1",
+               "--json", str(js), "--md", str(md)])
+    assert rc == 0
+    rep = json.loads(js.read_text())
+    assert rep["meta"]["backend"] == "onnxruntime"
+    rows = rep["results"]
+    assert [(r["arch"], r["path"], r["precision"], r["batch"], r["device"]) for r in rows] == [
+        ("m4depth", "onnxruntime", "fp32", 1, "cpu"), ("m4depth", "onnxruntime", "fp32", 2, "cpu")]
+    assert [len(r["step_ms"]) for r in rows] == [2, 1] and all(t > 0 for r in rows for t in r["step_ms"])
+    assert rows[1]["median_ms_per_frame"] == round(rows[1]["median_ms_per_step"] / 2, 3)
+    assert main(["benchmark", "--backend", "onnxruntime", "--device", "cuda:0", "--json", "", "--md", ""]) == 2

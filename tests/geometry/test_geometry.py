@@ -190,3 +190,20 @@ def test_candidate_sample_points_match_flows():
     j = torch.arange(w, dtype=torch.float32).view(1, 1, 1, w)
     torch.testing.assert_close(pts[:, :, 0], j + flows[:, :, 0])
     torch.testing.assert_close(pts[:, :, 1], i + flows[:, :, 1])
+
+
+def test_row_gather_sampling_matches_grid_sample_on_every_edge_case():
+    from cosemdepth.geometry.warp import sample_bilinear, sample_bilinear_rows
+
+    # a linear image is reproduced exactly by bilinear sampling: value = 5 * row + column, positions clamped
+    img = (5 * torch.arange(4.0).view(4, 1) + torch.arange(5.0)).expand(2, 3, 4, 5).contiguous()
+    pts = torch.tensor([[0.25, 4.0, 9.0, -3.0], [0.5, 3.0, 1.0, 2.75]]).view(1, 2, 1, 4).expand(2, 2, 1, 4)
+    out = sample_bilinear_rows(img, pts)
+    assert out.shape == (2, 3, 1, 4)
+    assert out[0, 0, 0].tolist() == pytest.approx([5 * 0.5 + 0.25, 5 * 3 + 4, 5 * 1 + 4, 5 * 2.75 + 0])
+    torch.manual_seed(0)
+    for b, c, h, w, ho, wo in [(2, 5, 7, 9, 4, 6), (1, 3, 1, 5, 3, 3), (1, 2, 6, 1, 2, 2), (1, 1, 1, 1, 2, 2)]:
+        img = torch.randn(b, c, h, w, dtype=torch.float64)
+        pts = torch.stack([torch.rand(b, ho, wo) * (w + 4) - 2, torch.rand(b, ho, wo) * (h + 4) - 2], 1).double()
+        pts[0, :, 0, 0] = torch.tensor([w - 1.0, h - 1.0])  # the last pixel centre exactly
+        torch.testing.assert_close(sample_bilinear_rows(img, pts), sample_bilinear(img, pts), rtol=1e-12, atol=1e-12)

@@ -59,6 +59,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "convolutions, such as an AVX2-only one; fp32 fp16 bf16 on CUDA); int8 is CPU only "
         "(calibrated on synthetic frames before timing)",
     )
+    parser.add_argument("--backend", choices=["pytorch", "onnxruntime"], default="pytorch",
+                        help="pytorch (default: the fast path and the rows above) or onnxruntime: the model exported "
+                        "as by 'cosemdepth export --onnx' at --size and each --batch, run by ONNX Runtime's CPU "
+                        "provider with the state fed back (fp32; --threads intra-op threads)")
     parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default auto: CUDA when present)")
     parser.add_argument("--no-reference", action="store_true", help="skip the reference-path (fp32, batch 1) rows")
     parser.add_argument("--no-joint", action="store_true", help="skip the joint-vs-separate comparison")
@@ -97,6 +101,38 @@ def _is_our_md(path) -> bool:
     except (OSError, UnicodeDecodeError):
         return False
     return first.startswith("Measured ") and ", PyTorch " in first
+
+
+def _run_onnxruntime(args, models, weights, case, idle, record) -> None:
+    """Every architecture and batch as an exported graph run by ONNX Runtime (fp32, CPU provider)."""
+    import tempfile
+
+    from ..bench.runner import BenchResult, make_frames, time_stream
+    from ..export.onnx import export_onnx
+    from ..export.runtime import OnnxStep
+    from ..optional import require
+
+    require("onnx", "benchmark --backend onnxruntime")
+    require("onnxruntime", "benchmark --backend onnxruntime")
+    if args.device != "auto" and not str(args.device).startswith("cpu"):
+        raise ConfigError(f"--backend onnxruntime runs on the CPU provider, not --device {args.device}")
+    with tempfile.TemporaryDirectory(prefix="cosemdepth-bench-") as tmp:
+        for arch in models:
+            model = weights if weights is not None else None
+            if model is None:
+                torch.manual_seed(0)
+                model = build_model(ModelConfig(arch=arch, levels=args.levels))
+            for batch in args.batch:
+                c = case(arch, batch, "fp32", "onnxruntime")
+                c.device = "cpu"
+                graph = export_onnx(model, Path(tmp) / f"{arch}-b{batch}.onnx", c.height, c.width, batch=batch)
+                step = OnnxStep(graph, threads=args.threads)
+                busy = idle()
+                load = _loadavg()
+                wall, cpu, others = time_stream([step.step], c, make_frames(c))
+                res = BenchResult(c, model.num_parameters(), wall, cpu, mem_method="not measured", loadavg=load)
+                res.others = others
+                record(res, busy)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -173,6 +209,14 @@ def run(args: argparse.Namespace) -> int:
             flush=True,
         )
         return res
+
+    if args.backend == "onnxruntime":
+        report["meta"]["backend"] = "onnxruntime"
+        _run_onnxruntime(args, models, weights, case, idle, record)
+        report["meta"]["loadavg_end"] = _loadavg()
+        write_report(report, args.json, args.md)
+        print(f"wrote {args.json} and {args.md}")
+        return 0
 
     joint_precisions = []
     for arch in models:

@@ -1,0 +1,116 @@
+"""An exported streaming step run by ONNX Runtime behind the ``step`` contract of :class:`SceneModel`.
+
+:class:`OnnxStep` wraps an ``InferenceSession`` of a graph written by :func:`~cosemdepth.export.onnx.export_onnx`:
+``step(rgb, rot, trans, intrinsics, reset, state) -> (StepOutput, StreamState)`` with torch tensors in and out, the
+state fed back as the graph's ``state_*`` inputs (zeros when ``state`` is None). What the graph does not compute
+(the per-pixel validity, the per-sample status) is left empty in the :class:`StepOutput`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+import torch
+
+from ..errors import ConfigError
+from ..models.outputs import StepOutput, StreamState
+
+
+def _session_options(threads: Optional[int], profile_prefix: Optional[str]):
+    import onnxruntime as ort  # deferred: an optional dependency (cosemdepth[export])
+
+    so = ort.SessionOptions()
+    if threads:
+        so.intra_op_num_threads = threads
+        so.inter_op_num_threads = 1
+    if profile_prefix:
+        so.enable_profiling = True
+        so.profile_file_prefix = profile_prefix
+    return so
+
+
+class OnnxStep:
+    """``step`` over an exported ONNX streaming step (see the module docstring).
+
+    Args:
+        path: the ``.onnx`` file.
+        providers: ONNX Runtime execution providers in order of preference (default: the CPU one), each a name or a
+            ``(name, options)`` pair as ``InferenceSession`` takes them.
+        threads: intra-op threads (default: ONNX Runtime's choice).
+        profile_prefix: write ONNX Runtime's per-node profile (JSON) with this file prefix (:meth:`end_profiling`).
+    """
+
+    def __init__(self, path: str | Path, providers: Optional[Sequence] = None, threads: Optional[int] = None,
+                 profile_prefix: Optional[str] = None):
+        try:
+            import onnxruntime as ort  # deferred: an optional dependency (cosemdepth[export])
+        except ImportError:  # pragma: no cover - optional dependency
+            raise ConfigError("running an ONNX graph needs onnxruntime (pip install 'cosemdepth[export]')") from None
+        self.path = Path(path)
+        try:
+            self.session = ort.InferenceSession(str(self.path), _session_options(threads, profile_prefix),
+                                                providers=list(providers or ["CPUExecutionProvider"]))
+        except Exception as e:  # noqa: BLE001 - ONNX Runtime raises its own exception types for unreadable graphs
+            raise ConfigError(f"{self.path}: ONNX Runtime cannot load it: {str(e).splitlines()[0]}") from None
+        ins = self.session.get_inputs()
+        self.input_names = [i.name for i in ins]
+        self.state_inputs = [i.name for i in ins if i.name.startswith("state_")]
+        self.output_names = [o.name for o in self.session.get_outputs()]
+        self.reset_float = any(i.name == "reset" and i.type == "tensor(float)" for i in ins)
+        shape = ins[0].shape
+        self.shape = tuple(d if isinstance(d, int) else None for d in shape)  # [B, 3, H, W]; None: dynamic axis
+        self._state_shapes = [tuple(i.shape) for i in ins if i.name.startswith("state_")]
+        # components in the order of the state inputs: "state_feat_1" -> "feat"
+        comps: list[str] = []
+        for n in self.state_inputs:
+            c = n[len("state_"):].rsplit("_", 1)[0]
+            if c not in comps:
+                comps.append(c)
+        self.components = tuple(comps)
+
+    @property
+    def providers(self) -> list[str]:
+        """The execution providers the session actually uses."""
+        return list(self.session.get_providers())
+
+    def zero_state(self, batch: int) -> list[np.ndarray]:
+        return [np.zeros([d if isinstance(d, int) else batch for d in s], np.float32) for s in self._state_shapes]
+
+    def run(self, feeds: dict[str, np.ndarray], state: Sequence[np.ndarray]) -> tuple[dict[str, np.ndarray],
+                                                                                    list[np.ndarray]]:
+        """One call on numpy arrays: ``(outputs by name, next state)``."""
+        feeds = {k: v for k, v in feeds.items() if k in self.input_names}  # M4Semantic's graph takes the image only
+        if self.reset_float and "reset" in feeds:
+            feeds["reset"] = feeds["reset"].astype(np.float32)
+        feeds.update(zip(self.state_inputs, state))
+        res = dict(zip(self.output_names, self.session.run(None, feeds)))
+        return res, [res["next_" + n] for n in self.state_inputs]
+
+    def step(self, rgb: torch.Tensor, rot: torch.Tensor, trans: torch.Tensor, intrinsics: torch.Tensor,
+             reset: Optional[torch.Tensor] = None, state: Optional[StreamState] = None):
+        """One frame per sample, shapes as :meth:`SceneModel.step`; returns ``(StepOutput, StreamState)``."""
+        b = int(rgb.shape[0])
+        want = tuple(s if s is not None else d for s, d in zip(self.shape, rgb.shape))
+        if tuple(rgb.shape) != want:
+            raise ConfigError(f"{self.path}: the graph takes images of shape {list(want)}, got {list(rgb.shape)}")
+        if reset is None:
+            reset = torch.zeros(b, dtype=torch.bool)
+        f32 = lambda t: t.detach().to("cpu", torch.float32).contiguous().numpy()  # noqa: E731
+        feeds = {"rgb": f32(rgb), "rot": f32(rot), "trans": f32(trans), "intrinsics": f32(intrinsics),
+                 "reset": reset.detach().cpu().bool().numpy()}
+        st = [f32(t) for t in state.flatten()] if state is not None and state.flatten() else self.zero_state(b)
+        res, nxt = self.run(feeds, st)
+        dev = rgb.device
+        heads = {k: torch.from_numpy(v).to(dev) for k, v in res.items() if not k.startswith("next_")}
+        out = StepOutput(depth=heads.get("depth"), semantic=heads.get("semantic"), heads=heads)
+        new = StreamState.unflatten([torch.from_numpy(s).to(dev) for s in nxt], self.components) if nxt else StreamState()
+        return out, new
+
+    def end_profiling(self) -> str:
+        """Stop profiling; the path of the profile ONNX Runtime wrote."""
+        return self.session.end_profiling()
+
+
+__all__ = ["OnnxStep"]
