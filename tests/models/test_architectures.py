@@ -20,7 +20,7 @@ from cosemdepth.models.registry import DECODERS, register_architecture, register
 
 B, T, H, W = 2, 3, 32, 48
 LEVELS = 3
-BUILTIN = ("cosemdepth", "m4depth", "m4semantic")
+BUILTIN = ("cosemdepth", "m4depth", "m4semantic", "cosemdepth-t")
 
 
 @dataclass
