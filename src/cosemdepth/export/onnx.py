@@ -40,6 +40,16 @@ def state_names(levels: int, prefix: str = "state", components: tuple[str, ...] 
     return [f"{prefix}_{c}_{l}" for c in components for l in range(1, levels + 1)]
 
 
+def state_components(names) -> tuple[str, ...]:
+    """The state components of a graph's state input names, in their order: ``state_feat_1`` -> ``feat``."""
+    comps: list[str] = []
+    for n in names:
+        c = n[len("state_"):].rsplit("_", 1)[0]
+        if c not in comps:
+            comps.append(c)
+    return tuple(comps)
+
+
 def state_shapes(model, batch: int, height: int, width: int) -> list[tuple[int, ...]]:
     """Shapes of the flattened state for a ``batch x 3 x height x width`` input (empty for M4Semantic)."""
     return [s for comp in model.state_shapes(batch, height, width).values() for s in comp]
