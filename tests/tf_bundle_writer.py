@@ -246,8 +246,11 @@ def model_tensors(
     extras: bool = True,
     seed: int = 0,
     zeros: bool = False,
+    semantic_extra: int = 0,
 ) -> dict[str, object]:
     """TF checkpoint tensors of a model, keyed as the authors' code writes them, with random (or zero) values.
+
+    ``semantic_extra`` input channels are added to every semantic refiner (layouts the released code does not have).
 
     ``extras`` adds what a real training checkpoint also holds: Adam slots for two variables, optimizer scalars,
     metric variables, the step counter, inference state variables and the object graph.
@@ -288,8 +291,8 @@ def model_tensors(
             c_in = depth_refiner_inputs(j + 1, sncv, time_recurrence, level_memory, subdivision)
             refiner(f"{dec_d}/levels/{j}", "disp_refiner", "est_d_conv_layers", c_in, 5)
         if semantic:
-            refiner(f"{dec_s}/levels/{j}", "semantic_refiner", "est_s_conv_layers", classes + 4 + ENCODER_CHANNELS[j],
-                    classes + 4)
+            refiner(f"{dec_s}/levels/{j}", "semantic_refiner", "est_s_conv_layers", classes + 4 + ENCODER_CHANNELS[j]
+                    + semantic_extra, classes + 4)
     if extras:
         for key in list(t)[:2]:
             var = key[: -len(SUFFIX)]

@@ -8,14 +8,22 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Optional
 
 from .errors import ConfigError
 
 #: Architecture -> the decoders it puts on the shared encoder (names of :data:`cosemdepth.models.registry.DECODERS`;
 #: ``cosemdepth.models.registry.register_architecture`` adds entries).
 ARCHITECTURES: dict[str, tuple[str, ...]] = {"cosemdepth": ("depth", "semantic"), "m4depth": ("depth",),
-                                              "m4semantic": ("semantic",)}
+                                              "m4semantic": ("semantic",), "cosemdepth-t": ("depth", "semantic")}
+
+#: ``ModelConfig.semantic_time``: the semantic decoder's temporal input ``S^{t-1}`` (design 6.3): none (the released
+#: code), the previous frame's labels warped with the ground-truth depth (the paper's ablation; training and
+#: evaluation only) or with the model's own depth (Co-SemDepth-T).
+SEMANTIC_TIME_OFF, SEMANTIC_TIME_GT, SEMANTIC_TIME_OWN = "off", "gt", "own"
+SEMANTIC_TIMES = (SEMANTIC_TIME_OFF, SEMANTIC_TIME_GT, SEMANTIC_TIME_OWN)
+#: Architectures whose ``semantic_time`` is fixed (the default of every other one is "off").
+ARCH_SEMANTIC_TIME = {"cosemdepth-t": SEMANTIC_TIME_OWN}
 
 #: Encoder output channels per absolute level (design 4.1); a model with L levels uses the first L entries.
 ENCODER_CHANNELS = (16, 32, 64, 96, 128, 192)
@@ -33,8 +41,10 @@ MIDAIR_IMAGE_SIZE = 384
 class ModelConfig:
     """Architecture of a Co-SemDepth-family model.
 
-    ``arch`` selects the joint model or one of its single-task siblings. The boolean switches are the ablations
-    of the original code; all on is the paper's model.
+    ``arch`` selects the joint model or one of its single-task siblings, or Co-SemDepth-T (``"cosemdepth-t"``:
+    Co-SemDepth with ``semantic_time="own"``). The depth decoder's boolean switches are the ablations of the original
+    code; all on is the paper's model. ``semantic_sncv`` and ``semantic_time`` are the paper's two additions to the
+    semantic decoder (its architecture study; off in the released code and the paper's model, design 6.3).
     """
 
     arch: str = "cosemdepth"
@@ -49,10 +59,33 @@ class ModelConfig:
     #: Precision of the parallax-sweeping cost-volume products: "float32", or "float16" as the original computes
     #: them (converted official checkpoints use float16 so that they reproduce the original's numbers).
     pscv_dtype: str = "float32"
+    #: Semantic decoder: a spatial cost volume of the level's features (7x7, one group) beside them in the refiner
+    #: input (the paper's "+SNCV").
+    semantic_sncv: bool = False
+    #: Semantic decoder: the previous frame's class probabilities at each level, warped into the current frame, in
+    #: the refiner input: "off", "gt" (warped with the ground-truth depth: the paper's "+S^{t-1}"; the depth is an
+    #: input of every forward pass) or "own" (with the model's own depth: Co-SemDepth-T). None: the architecture's
+    #: (``ARCH_SEMANTIC_TIME``, else "off").
+    semantic_time: Optional[str] = None
 
     def __post_init__(self) -> None:
         if self.arch not in ARCHITECTURES:
             raise ConfigError(f"model arch must be one of {tuple(ARCHITECTURES)}, got {self.arch!r}")
+        fixed = ARCH_SEMANTIC_TIME.get(self.arch)
+        if self.semantic_time is None:
+            object.__setattr__(self, "semantic_time", fixed or SEMANTIC_TIME_OFF)
+        if self.semantic_time not in SEMANTIC_TIMES:
+            raise ConfigError(f"model semantic_time must be one of {', '.join(map(repr, SEMANTIC_TIMES))}, got "
+                              f"{self.semantic_time!r}")
+        if fixed is not None and self.semantic_time != fixed:
+            raise ConfigError(f"model arch {self.arch!r} has semantic_time {fixed!r}, got {self.semantic_time!r}; "
+                              f"use arch 'cosemdepth' for another semantic_time")
+        decoders = ARCHITECTURES[self.arch]
+        if "semantic" not in decoders and (self.semantic_sncv or self.semantic_time != SEMANTIC_TIME_OFF):
+            raise ConfigError(f"model semantic_sncv and semantic_time: the {self.arch} model has no semantic decoder")
+        if self.semantic_time == SEMANTIC_TIME_OWN and "depth" not in decoders:
+            raise ConfigError(f"model semantic_time 'own' warps with the model's own depth: the {self.arch} model has "
+                              "no depth decoder (use 'gt', or arch 'cosemdepth-t')")
         if not isinstance(self.levels, int) or not 1 <= self.levels <= len(ENCODER_CHANNELS):
             raise ConfigError(f"model levels must be an integer in 1..{len(ENCODER_CHANNELS)}, got {self.levels!r}")
         if not isinstance(self.num_classes, int) or self.num_classes < 2:
@@ -73,6 +106,11 @@ class ModelConfig:
     @property
     def has_semantic(self) -> bool:
         return "semantic" in self.decoders
+
+    @property
+    def needs_depth_input(self) -> bool:
+        """Whether every forward pass needs the ground-truth depth of its frames (``semantic_time="gt"``)."""
+        return self.semantic_time == SEMANTIC_TIME_GT
 
     @property
     def encoder_channels(self) -> tuple[int, ...]:
@@ -96,4 +134,5 @@ def _from_dict(cls, d: Mapping[str, Any], what: str):
     return cls(**dict(d))
 
 
-__all__ = ["ARCHITECTURES", "ENCODER_CHANNELS", "MIDAIR_IMAGE_SIZE", "ModelConfig", "ORIGINAL_PSCV_DTYPE", "PSCV_DTYPES"]
+__all__ = ["ARCH_SEMANTIC_TIME", "ARCHITECTURES", "SEMANTIC_TIMES", "SEMANTIC_TIME_GT", "SEMANTIC_TIME_OFF",
+           "SEMANTIC_TIME_OWN", "ENCODER_CHANNELS", "MIDAIR_IMAGE_SIZE", "ModelConfig", "ORIGINAL_PSCV_DTYPE", "PSCV_DTYPES"]

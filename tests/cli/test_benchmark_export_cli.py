@@ -27,6 +27,28 @@ def test_export_command_errors_name_the_argument(tmp_path, capsys):
     assert not (tmp_path / "a.onnx").exists()
 
 
+def test_export_refuses_the_ground_truth_depth_variant_in_one_line(tmp_path, capsys):
+    from cosemdepth.io.model_io import save_model
+    from cosemdepth.models import build_model
+
+    save_model(build_model(levels=2, semantic_time="gt"), tmp_path / "gt")
+    out = tmp_path / "gt.onnx"
+    assert main(["export", "--model", str(tmp_path / "gt"), "--onnx", str(out), "--size", "16", "16"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "ground-truth depth" in err and "not exported" in err
+    assert not out.exists() and not list(tmp_path.glob("*.onnx*"))
+
+
+def test_export_command_graph_of_cosemdepth_t_carries_the_semantic_state(tmp_path):
+    out = tmp_path / "t.onnx"
+    assert main(["export", "--onnx", str(out), "--arch", "cosemdepth-t", "--levels", "2", "--size", "16", "24"]) == 0
+    sess = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    ins = {i.name: i.shape for i in sess.get_inputs()}
+    assert ins["state_semantic_1"] == [1, 7, 8, 12] and ins["state_semantic_2"] == [1, 7, 4, 6]
+    outs = [o.name for o in sess.get_outputs()]
+    assert outs[:2] == ["depth", "semantic"] and outs[-2:] == ["next_state_semantic_1", "next_state_semantic_2"]
+
+
 def test_benchmark_command_writes_json_and_markdown(tmp_path, capsys, bf16_cpu):
     j, md = tmp_path / "b.json", tmp_path / "b.md"
     rc = main(

@@ -209,6 +209,15 @@ def test_every_depth_ablation_combination_is_recovered(switches):
     )
 
 
+def test_the_semantic_sncv_is_read_from_the_refiner_inputs_and_other_layouts_are_refused():
+    assert convert_tensors(model_tensors(levels=2, depth=False, zeros=True)).config.semantic_sncv is False
+    cfg = convert_tensors(model_tensors(levels=2, depth=False, zeros=True, semantic_extra=49)).config
+    assert cfg.semantic_sncv is True and cfg.semantic_time == "off"
+    # N + 1 more channels would be a previous-frame input, which the authors' code does not have
+    with pytest.raises(CheckpointError, match=r"semantic refiner input channels \[35, 51\].*S\^\{t-1\}"):
+        convert_tensors(model_tensors(levels=2, depth=False, zeros=True, semantic_extra=8))
+
+
 def test_one_level_model_subdivision_is_indistinguishable():
     """With one level K = 1 either way; the default (on) is kept."""
     cfg = convert_tensors(model_tensors(levels=1, semantic=False, subdivision=False, zeros=True)).config

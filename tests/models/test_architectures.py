@@ -1,6 +1,7 @@
 """Every registered architecture through the same checks: forward/backward, streaming == sequence, save/load round
 trip, ONNX export run by ONNX Runtime, fast path == reference; a toy third decoder registered at run time (temporal,
-with its own state) goes through them too."""
+with its own state) goes through them too, and so do the semantic decoder's switches (SNCV; S^{t-1} warped with the
+ground-truth depth, which every pass is given and which the export refuses)."""
 
 from dataclasses import dataclass
 
@@ -10,6 +11,7 @@ import pytest
 import torch
 
 from cosemdepth.config import ARCHITECTURES
+from cosemdepth.errors import ConfigError
 from cosemdepth.export import export_onnx
 from cosemdepth.export.check import run_onnx_stream, synthetic_sequence
 from cosemdepth.io.model_io import load_model, save_model
@@ -20,7 +22,7 @@ from cosemdepth.models.registry import DECODERS, register_architecture, register
 
 B, T, H, W = 2, 3, 32, 48
 LEVELS = 3
-BUILTIN = ("cosemdepth", "m4depth", "m4semantic")
+BUILTIN = ("cosemdepth", "m4depth", "m4semantic", "cosemdepth-t")
 
 
 @dataclass
@@ -72,7 +74,10 @@ def toy_registered():
     del ARCHITECTURES["cosemtoy"], DECODERS["toy"]
 
 
-ARCHS = [*BUILTIN, "cosemtoy"]
+#: Model-config variants that go through the same checks: name -> build_model keywords.
+SWITCHES = {"cosemdepth+sncv": dict(arch="cosemdepth", semantic_sncv=True),
+            "cosemdepth+s_prev_gt": dict(arch="cosemdepth", semantic_time="gt")}
+ARCHS = [*BUILTIN, "cosemtoy", *SWITCHES]
 
 
 def test_the_registry_lists_the_architectures_and_the_toy_one():
@@ -89,7 +94,7 @@ def models():
     out = {}
     for arch in ARCHS:
         torch.manual_seed(7)
-        m = build_model(arch=arch, levels=LEVELS).eval()
+        m = build_model(levels=LEVELS, **SWITCHES.get(arch, dict(arch=arch))).eval()
         if m.depth_decoder is not None:  # well-conditioned depth (see tests/inference/test_fast_engine.py::tame)
             with torch.no_grad():
                 for lvl in m.depth_decoder.levels:
@@ -106,11 +111,20 @@ def inputs(seed=3):
     return rgb, rot, trans, K, reset
 
 
-def stream(model, rgb, rot, trans, K, reset):
+def guide(model, rgb, seed=0):
+    """A ground-truth depth per frame ``[B, T, 1, H, W]`` (10-60 m) for a model that reads one, else None."""
+    if not model.config.needs_depth_input:
+        return None
+    g = torch.Generator().manual_seed(seed)
+    return 10.0 + 50.0 * torch.rand(*rgb.shape[:2], 1, *rgb.shape[-2:], generator=g)
+
+
+def stream(model, rgb, rot, trans, K, reset, depth=None):
     state, outs = None, []
     with torch.no_grad():
         for k in range(rgb.shape[1]):
-            out, state = model.step(rgb[:, k], rot[:, k], trans[:, k], K, reset[:, k], state)
+            kw = {} if depth is None else {"guide_depth": depth[:, k]}
+            out, state = model.step(rgb[:, k], rot[:, k], trans[:, k], K, reset[:, k], state, **kw)
             outs.append(out)
     return outs, state
 
@@ -121,7 +135,7 @@ def test_forward_backward_reaches_every_parameter(models, arch):
     rgb, rot, trans, K, reset = inputs()
     m.train()
     try:
-        seq = m.forward_sequence(rgb, rot, trans, K, reset)
+        seq = m.forward_sequence(rgb, rot, trans, K, reset, guide_depth=guide(m, rgb))
         maps = [seq.depth, seq.semantic, *seq.extra.values()]
         loss = sum(x.float().mean() for lvls in maps for x in lvls)
         m.zero_grad()
@@ -139,9 +153,10 @@ def test_forward_backward_reaches_every_parameter(models, arch):
 def test_streaming_equals_sequence(models, arch):
     m = models[arch]
     rgb, rot, trans, K, reset = inputs()
+    depth = guide(m, rgb)
     with torch.no_grad():
-        seq = m.forward_sequence(rgb, rot, trans, K, reset)
-    outs, _ = stream(m, rgb, rot, trans, K, reset)
+        seq = m.forward_sequence(rgb, rot, trans, K, reset, guide_depth=depth)
+    outs, _ = stream(m, rgb, rot, trans, K, reset, depth)
     keys = [k for dec in m.decoders.values() for k in dec.maps]
     for k, out in enumerate(outs):
         assert set(out.levels) == set(keys) and list(out.heads) == [d.head for d in m.decoders.values()]
@@ -162,8 +177,8 @@ def test_save_load_round_trip(models, arch, tmp_path):
     sd, sd2 = m.state_dict(), back.state_dict()
     assert sd.keys() == sd2.keys() and all(torch.equal(sd[k], sd2[k]) for k in sd)
     rgb, rot, trans, K, reset = inputs(seed=4)
-    a, _ = stream(m, rgb, rot, trans, K, reset)
-    b, _ = stream(back, rgb, rot, trans, K, reset)
+    a, _ = stream(m, rgb, rot, trans, K, reset, guide(m, rgb))
+    b, _ = stream(back, rgb, rot, trans, K, reset, guide(m, rgb))
     for x, y in zip(a, b):
         assert x.heads.keys() == y.heads.keys() and all(torch.equal(x.heads[h], y.heads[h]) for h in x.heads)
 
@@ -171,6 +186,11 @@ def test_save_load_round_trip(models, arch, tmp_path):
 @pytest.mark.parametrize("arch", ARCHS)
 def test_onnx_export_runs_in_onnxruntime_like_pytorch(models, arch, tmp_path):
     m = models[arch]
+    if m.config.needs_depth_input:  # a training- and evaluation-time variant: refused, nothing written
+        with pytest.raises(ConfigError, match="ground-truth depth.*not exported"):
+            export_onnx(m, tmp_path / f"{arch}.onnx", H, W, batch=B)
+        assert not list(tmp_path.iterdir())
+        return
     path = export_onnx(m, tmp_path / f"{arch}.onnx", H, W, batch=B)
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     heads = [d.head for d in m.decoders.values()]
@@ -194,9 +214,10 @@ def test_onnx_export_runs_in_onnxruntime_like_pytorch(models, arch, tmp_path):
 def test_fast_path_equals_reference(models, arch):
     m = models[arch]
     rgb, rot, trans, K, reset = inputs(seed=5)
-    ref, ref_state = stream(m, rgb, rot, trans, K, reset)
+    depth = guide(m, rgb)
+    ref, ref_state = stream(m, rgb, rot, trans, K, reset, depth)
     try:
-        fast, fast_state = stream(m.optimize("fast"), rgb, rot, trans, K, reset)
+        fast, fast_state = stream(m.optimize("fast"), rgb, rot, trans, K, reset, depth)
     finally:
         m.optimize("reference")
     for a, b in zip(fast, ref):

@@ -44,6 +44,7 @@ from ..models.outputs import RESET, STATUSES
 from .metrics import ALL_DEPTH_METRICS, EvaluationMetrics, ValidDepthMetrics, format_markdown_table
 from .resources import PeakMemory, machine_info
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
+from .temporal import TemporalConsistency
 
 #: Callback run after every streaming step: ``(batch, include [B] bool) -> None``.
 FrameCallback = Callable[[StreamBatch, torch.Tensor], None]
@@ -92,7 +93,9 @@ class EvaluationResult:
     Attributes:
         metrics: depth metrics (``abs_rel``, ``sq_rel``, ``rmse``, ``rmse_log`` (the original's quirky mask),
             ``rmse_log_fixed``, ``delta1..3`` as fractions, ``depth_frames``) and/or ``miou`` (fraction), ``iou``
-            (per-class list, NaN for a class absent from GT and prediction), ``semantic_frames``.
+            (per-class list, NaN for a class absent from GT and prediction), ``semantic_frames``; with labels and
+            depth in the dataset, the labels' temporal consistency (``flicker`` ... ``flicker_pairs``,
+            :mod:`cosemdepth.evaluation.temporal`).
         confusion_matrix: ``[N, N]`` int64 counts (rows ground truth, columns prediction) or None.
         class_names: names of the N classes (or empty).
         params: parameter count; ms_per_frame: see the module docstring; peak_memory_mb and memory_method.
@@ -143,6 +146,17 @@ class EvaluationResult:
                 f"{_fmt(100 * m['valid_delta1'], '.1f')} %; evaluated frames: "
                 + ", ".join(f"{v} {k}" for k, v in counts.items()) + " (docs/motion.md)")
 
+    def flicker_line(self) -> str | None:
+        """The labels' temporal consistency (``flicker`` and the other fields of docs/evaluation.md)."""
+        m = self.metrics
+        if "flicker" not in m:
+            return None
+        pct = lambda k: _fmt(None if m.get(k) is None else 100 * m[k], ".1f")  # noqa: E731
+        return (f"Temporal consistency over {m['flicker_pairs']} pairs of consecutive frames: flicker {pct('flicker')} % "
+                f"of the pixels whose ground truth does not change (per pair: median {pct('flicker_median')} %, max "
+                f"{pct('flicker_max')} %); real changes followed: {pct('change_recall')} % (the ground truth changes "
+                f"on {pct('gt_change')} %; docs/evaluation.md)")
+
     def to_markdown(self, name: str | None = None) -> str:
         """A report: the paper-style tables (with SqRel and both RMSE_log variants), the confusion matrix, settings."""
         info = self.info
@@ -154,6 +168,9 @@ class EvaluationResult:
         valid = self.validity_line()
         if valid:
             lines += ["", valid]
+        flicker = self.flicker_line()
+        if flicker:
+            lines += ["", flicker]
         if self.confusion_matrix is not None:
             names = list(self.class_names)
             lines += ["", "Confusion matrix (rows: ground truth, columns: prediction; pixels):", ""]
@@ -235,6 +252,7 @@ class Evaluator:
         has_depth, has_labels = dataset_modalities(dataset)
         self.eval_depth = self.cfg.has_depth and has_depth
         self.eval_semantic = self.cfg.has_semantic and has_labels
+        self.eval_flicker = self.eval_semantic and has_depth  # the pairs are followed with the true depth
         if not (self.eval_depth or self.eval_semantic):
             what = [w for w, has in (("depth", self.cfg.has_depth), ("class labels", self.cfg.has_semantic)) if has]
             raise ConfigError(
@@ -262,6 +280,7 @@ class Evaluator:
     def run(self) -> EvaluationResult:
         metrics = EvaluationMetrics(self.cfg.num_classes if self.eval_semantic else None, depth=self.eval_depth)
         valid_metrics = ValidDepthMetrics() if self.eval_depth else None
+        temporal = TemporalConsistency() if self.eval_flicker else None
         streamer = Streamer(self.model, self.policy, min_baseline=self.min_baseline)
         statuses = {s: 0 for s in STATUSES}
         depth_frames = 0
@@ -291,6 +310,9 @@ class Evaluator:
                 )
                 if valid_metrics is not None and batch.valid is not None:
                     valid_metrics.update(batch.gt_depth, batch.depth, batch.valid, depth_include)
+                if temporal is not None:
+                    temporal.update(batch.trajectory, batch.reset, batch.gt_labels, batch.labels, batch.gt_depth,
+                                    batch.rot, batch.trans, batch.intrinsics)
                 for st, inc in zip(batch.status, include.tolist()):
                     statuses[st] += int(inc)
                 for cb in self.callbacks:
@@ -310,6 +332,8 @@ class Evaluator:
         values = metrics.compute()
         if valid_metrics is not None:
             values.update(valid_metrics.compute())
+        if temporal is not None:
+            values.update(temporal.compute())
         confusion = metrics.semantic.matrix.clone() if metrics.semantic is not None else None
         params = sum(p.numel() for p in self.model.parameters())
         ms = 1000.0 * timed_seconds / timed_frames if timed_frames else math.nan

@@ -189,6 +189,29 @@ def check_finite_outputs(out, dataset, indices: list[int], trajectories: list[st
                 "the model weights or this input are broken; stopped, no output was written")
 
 
+class GroundTruthDepthGuide:
+    """A model whose semantic decoder warps with the ground-truth depth (``semantic_time="gt"``), seen through
+    ``step`` without that argument: :func:`stream` sets :attr:`depth` to each frame's ground truth before the step,
+    so that a :class:`~cosemdepth.inference.Streamer` (whose ``step`` has no such input) can drive it."""
+
+    def __init__(self, model) -> None:
+        self.model = model
+        self.depth: torch.Tensor | None = None
+
+    def step(self, *args, **kwargs):
+        return self.model.step(*args, guide_depth=self.depth, **kwargs)
+
+    def __getattr__(self, name):  # parameters(), config, decoders...: the model's
+        return getattr(self.model, name)
+
+
+def needs_depth_input(model) -> bool:
+    """Whether ``model`` (or the model a :class:`Streamer` drives) reads the ground-truth depth of every frame."""
+    inner = model.model if isinstance(model, Streamer) else model
+    cfg = getattr(inner, "config", None)
+    return bool(getattr(cfg, "needs_depth_input", False))
+
+
 def stream(
     model,
     dataset,
@@ -217,6 +240,10 @@ def stream(
     device = _model_device(model)
     dtype = _model_dtype(model)
     streamer = model if isinstance(model, Streamer) else Streamer(model, policy)
+    guide = None
+    if needs_depth_input(streamer):
+        guide = GroundTruthDepthGuide(streamer.model)
+        streamer = Streamer(guide, streamer.policy, min_baseline=streamer.min_baseline)
     loader = DataLoader(dataset, batch_sampler=[list(s.indices) for s in schedule], collate_fn=collate,
                         num_workers=num_workers)
     state = None
@@ -233,6 +260,11 @@ def stream(
             intr = batch["intrinsics"].to(device=device, dtype=dtype)
             reset = batch["reset"][:, 0] | torch.tensor(step.starts, dtype=torch.bool)
             reset_dev = reset.to(device)
+            if guide is not None:
+                if batch.get("depth") is None:
+                    raise ConfigError("the model's semantic decoder warps the previous labels with the ground-truth "
+                                      "depth (semantic_time 'gt'), and this dataset has no depth")
+                guide.depth = batch["depth"][:, 0].to(device=device, dtype=dtype)
             _sync(device)
             t0 = time.perf_counter()
             out, state = streamer.step(rgb, rot, trans, intr, reset_dev, state)
@@ -262,4 +294,5 @@ def stream(
             )
 
 
-__all__ = ["StepPlan", "StreamBatch", "check_finite_outputs", "frame_source", "make_schedule", "stream", "trajectory_rows"]
+__all__ = ["GroundTruthDepthGuide", "StepPlan", "StreamBatch", "check_finite_outputs", "frame_source", "make_schedule",
+           "needs_depth_input", "stream", "trajectory_rows"]

@@ -2,4 +2,4 @@
 
 from .onnx import StreamingStep, export_onnx, state_names
 
-__all__ = ["StreamingStep", "export_onnx", "state_names"]
+__all__ = ["StreamingStep", "export_onnx", "state_components", "state_names"]

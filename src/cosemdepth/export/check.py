@@ -37,6 +37,7 @@ from ..data.synthair.world import get_world
 from ..data.synthair.writer import SynthConfig, plan_flights
 from ..errors import ConfigError
 from ..models.outputs import StreamState
+from .onnx import state_components
 
 
 def synthetic_sequence(batch: int, frames: int, height: int, width: int, seed: int = 0):
@@ -324,6 +325,7 @@ def compare_onnx(model, path: str | Path, frames: int = CHECK_FRAMES, reset_at: 
     state_shapes = [[d if isinstance(d, int) else b for d in i.shape] for i in sess.get_inputs()
                     if i.name.startswith("state_")]
     ort_state = [np.zeros(s, np.float32) for s in state_shapes]
+    comps = state_components(i.name for i in sess.get_inputs() if i.name.startswith("state_"))
     mode, options = model.inference_mode, model.inference_options
     model.optimize("reference")
     p = next(model.parameters())
@@ -341,9 +343,9 @@ def compare_onnx(model, path: str | Path, frames: int = CHECK_FRAMES, reset_at: 
                 st_in = [torch.from_numpy(s).to(dev) for s in ort_state]
                 res, ort_state = run_onnx_stream(sess, feeds, ort_state)
                 args = tuple(a.to(dev) for a in (rgb[:, k], rot[:, k], trans[:, k], intr, reset[:, k]))
-                st = StreamState.unflatten(st_in) if st_in and k > 0 else None
+                st = StreamState.unflatten(st_in, comps) if st_in and k > 0 else None
                 out, new = reference.step(*args, st)
-                st_cl = StreamState.unflatten([_channels_last(s) for s in st_in]) if st is not None else None
+                st_cl = StreamState.unflatten([_channels_last(s) for s in st_in], comps) if st is not None else None
                 outn, newn = noisy.step(*(_channels_last(a) for a in args), st_cl)
                 if out.depth is not None:
                     d, dn, do = out.depth.cpu().numpy(), outn.depth.cpu().numpy(), res["depth"]

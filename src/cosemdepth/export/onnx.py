@@ -5,9 +5,11 @@ mask): ONNX Runtime and TensorRT are stateless, so the per-level state goes in a
 
 Inputs: ``rgb [B,3,H,W]`` float32 in [0, 1], ``rot [B,4]`` (w, x, y, z), ``trans [B,3]`` metres, ``intrinsics [B,4]``
 (fx, fy, cx, cy) in pixels of H x W, ``reset [B]`` bool, then ``state_feat_{1..L} [B,C_l,h_l,w_l]`` and
-``state_depth_{1..L} [B,1,h_l,w_l]`` (the flattened :class:`StreamState`; absent for M4Semantic).
+``state_depth_{1..L} [B,1,h_l,w_l]`` (the flattened :class:`StreamState`; absent for M4Semantic), and for
+Co-SemDepth-T ``state_semantic_{1..L} [B,N,h_l,w_l]`` (the previous probabilities, design 6.3).
 Outputs: ``depth [B,1,H,W]`` metres (not for M4Semantic), ``semantic [B,N,H,W]`` probabilities (not for M4Depth),
-then ``next_state_feat_{1..L}``, ``next_state_depth_{1..L}``: feed them back as the state of the next call.
+then ``next_state_feat_{1..L}``, ``next_state_depth_{1..L}`` (and ``next_state_semantic_{1..L}``): feed them back
+as the state of the next call. A model with ``semantic_time="gt"`` (it needs the ground-truth depth) is refused.
 
 First frame: zeros for every state input with ``reset=True``. M4Semantic has no temporal input: its graph takes
 ``rgb`` only (the exporter drops inputs a graph does not use).
@@ -36,6 +38,16 @@ MIN_OPSET = 16
 def state_names(levels: int, prefix: str = "state", components: tuple[str, ...] = ("feat", "depth")) -> list[str]:
     """``[prefix_feat_1, .., prefix_feat_L, prefix_depth_1, .., prefix_depth_L]`` (the order of StreamState.flatten)."""
     return [f"{prefix}_{c}_{l}" for c in components for l in range(1, levels + 1)]
+
+
+def state_components(names) -> tuple[str, ...]:
+    """The state components of a graph's state input names, in their order: ``state_feat_1`` -> ``feat``."""
+    comps: list[str] = []
+    for n in names:
+        c = n[len("state_"):].rsplit("_", 1)[0]
+        if c not in comps:
+            comps.append(c)
+    return tuple(comps)
 
 
 def state_shapes(model, batch: int, height: int, width: int) -> list[tuple[int, ...]]:
@@ -107,6 +119,12 @@ def export_onnx(
     Returns:
         the path written.
     """
+    cfg = getattr(model, "config", None)
+    if cfg is not None and cfg.needs_depth_input:
+        raise ConfigError(f"the model's semantic decoder warps the previous labels with the ground-truth depth "
+                          f"(semantic_time {cfg.semantic_time!r}): a training- and evaluation-time variant that a "
+                          "deployed graph cannot feed, so it is not exported; Co-SemDepth-T (arch cosemdepth-t, "
+                          "semantic_time 'own') warps with its own depth and exports")
     if opset < MIN_OPSET:
         raise ConfigError(f"--opset must be at least {MIN_OPSET} (GridSample), got {opset}")
     if height < 1 or width < 1 or batch < 1:

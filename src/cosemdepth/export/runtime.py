@@ -16,6 +16,7 @@ import torch
 
 from ..errors import ConfigError
 from ..models.outputs import StepOutput, StreamState
+from .onnx import state_components
 
 
 def _session_options(threads: Optional[int], profile_prefix: Optional[str]):
@@ -62,13 +63,7 @@ class OnnxStep:
         shape = ins[0].shape
         self.shape = tuple(d if isinstance(d, int) else None for d in shape)  # [B, 3, H, W]; None: dynamic axis
         self._state_shapes = [tuple(i.shape) for i in ins if i.name.startswith("state_")]
-        # components in the order of the state inputs: "state_feat_1" -> "feat"
-        comps: list[str] = []
-        for n in self.state_inputs:
-            c = n[len("state_"):].rsplit("_", 1)[0]
-            if c not in comps:
-                comps.append(c)
-        self.components = tuple(comps)
+        self.components = state_components(self.state_inputs)
 
     @property
     def providers(self) -> list[str]:

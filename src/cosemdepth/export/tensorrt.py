@@ -16,6 +16,7 @@ import torch
 from ..errors import ConfigError
 from ..io.atomic import atomic_path
 from ..models.outputs import StepOutput, StreamState
+from .onnx import state_components
 
 #: Builder workspace (bytes).
 WORKSPACE_BYTES = 4 << 30
@@ -81,12 +82,7 @@ class TrtStep:
             (self.inputs if is_input else self.outputs)[name] = buf
             self.context.set_tensor_address(name, buf.data_ptr())
         self.state_inputs = [n for n in self.inputs if n.startswith("state_")]
-        comps: list[str] = []
-        for n in self.state_inputs:
-            c = n[len("state_"):].rsplit("_", 1)[0]
-            if c not in comps:
-                comps.append(c)
-        self.components = tuple(comps)
+        self.components = state_components(self.state_inputs)
 
     def step(self, rgb, rot, trans, intrinsics, reset: Optional[torch.Tensor] = None,
              state: Optional[StreamState] = None):

@@ -48,8 +48,8 @@ def sample_bilinear_rows(image: torch.Tensor, points: torch.Tensor) -> torch.Ten
     y = points[:, 1].reshape(b, ho * wo).clamp(0, h - 1)
     x0 = x.floor().clamp(max=max(w - 2, 0))
     y0 = y.floor().clamp(max=max(h - 2, 0))
-    fx = (x - x0).unsqueeze(-1)  # [B, N, 1]
-    fy = (y - y0).unsqueeze(-1)
+    fx = (x - x0).unsqueeze(2)  # [B, N, 1]
+    fy = (y - y0).unsqueeze(2)
     xi, yi = x0.long(), y0.long()
     dx, dy = (1 if w > 1 else 0), (w if h > 1 else 0)
     base = yi * w + xi + (torch.arange(b, device=image.device) * (h * w)).unsqueeze(1)  # [B, N] rows of pixel (x0, y0)

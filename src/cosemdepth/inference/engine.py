@@ -112,21 +112,17 @@ def _nearest_nn1(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 
 def _fast_ops(level: PyramidLevel, refiner: _Refiner) -> LevelOps:
     """The fast operations of one level: packed refiner, channels-last concatenation, nearest resize by pixel
-    replication; for a depth level NCHW features (one layout change here instead of one per cost volume and per
-    frame) and the channel-loop SNCV (the PSCV is the reference's own function)."""
+    replication, the channel-loop SNCV; for a depth level NCHW features (one layout change here instead of one per
+    cost volume and per frame) and ``hypot`` (the PSCV is the reference's own function)."""
     ops = LevelOps(
         concat=functools.partial(write_blocks, dtype=refiner.dtype, memory_format=_CL),
         refiner=refiner,
         nearest=_nearest_nn1,
+        sncv=spatial_cost_volume_fast,
     )
     if not isinstance(level, DepthLevel):
         return ops
-    return dataclasses.replace(
-        ops,
-        layout=torch.Tensor.contiguous,
-        sncv=spatial_cost_volume_fast,
-        hypot=True,
-    )
+    return dataclasses.replace(ops, layout=torch.Tensor.contiguous, hypot=True)
 
 
 class FastEngine:
@@ -275,6 +271,7 @@ class FastEngine:
         reset: Optional[torch.Tensor] = None,
         state: Optional[StreamState] = None,
         decoders=None,
+        guide_depth: Optional[torch.Tensor] = None,
     ) -> tuple[StepOutput, StreamState]:
         """Same contract as :meth:`SceneModel.step` (inputs are moved to the engine's device)."""
         dev = self.device
@@ -288,6 +285,7 @@ class FastEngine:
         result = decode_step(
             self.decoders, feats, rot, trans, intrinsics, reset, state,
             lambda x: upsample_nearest(x, size, half_pixel=True), self.ops, self.static, only=decoders,
+            guide_depth=None if guide_depth is None else guide_depth.to(dev, torch.float32),
         )
         if self._calibrating:
             self._calibrating -= 1

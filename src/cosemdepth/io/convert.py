@@ -14,8 +14,9 @@ DINL ``[1,1,1,16]`` becomes ``[16]``. Optimizer slots and variables, metric vari
 inference state variables (``*prev_*``) and the object graph are ignored; any other weight tensor is an error.
 
 The model config is inferred from shapes: the architecture from which refiners exist, the number of levels from
-the encoder, the classes from the last semantic conv (``N + 4`` channels), DINL from its presence, and the depth
-ablations from the depth refiners' input channels ``9K + 1 + 4·[level memory] + 49K·[SNCV] + [time recurrence]``
+the encoder, the classes from the last semantic conv (``N + 4`` channels), DINL from its presence, the semantic
+decoder's SNCV from its refiners' input channels (design 6.3), and the depth ablations from the depth refiners' input
+channels ``9K + 1 + 4·[level memory] + 49K·[SNCV] + [time recurrence]``
 with ``K = 2^floor(l/2)`` (``1`` without feature subdivision) at absolute level ``l`` (design 5.1, 5.5). Feature
 normalization has no weights, so it cannot be read from a checkpoint: it is taken from the caller (default on), and
 so is the cost-volume precision (default float16, as the original computes it).
@@ -39,6 +40,7 @@ from ..model_config import MIDAIR_IMAGE_SIZE, ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
 from ..errors import CheckpointError, ConfigError
 from ..models.depth_decoder import refiner_in_channels
 from ..models.model import build_model
+from ..models.semantic_decoder import semantic_refiner_in_channels
 from ..operating_point import MotionStats, OperatingPoint
 from .tf_checkpoint import CheckpointReader
 
@@ -204,6 +206,28 @@ def _infer_depth_ablations(
     return matches[0]
 
 
+def _infer_semantic_sncv(shapes: Mapping[str, tuple[int, ...]], levels: int, num_classes: int, origin: str) -> bool:
+    """``semantic_sncv`` matching the semantic refiners' input channels (design 6.3). The authors' released code
+    has neither of the semantic decoder's additions (its SNCV is commented out, its ``S^{t-1}`` helper unused), so its
+    checkpoints all read as off; a layout with other channels is refused."""
+    c_ins = []
+    for j in range(levels):
+        first = shapes.get(f"semantic_decoder.levels.{j}.refiner.convs.0.weight")
+        if first is None or len(first) != 4:
+            raise CheckpointError(f"{origin}: the first conv of semantic refiner level {j} is missing or not a kernel")
+        c_ins.append(int(first[2]))
+    for sncv in (False, True):
+        cfg = ModelConfig(arch="m4semantic", levels=levels, num_classes=num_classes, semantic_sncv=sncv)
+        if all(semantic_refiner_in_channels(j + 1, c, cfg) == n
+               for j, (c, n) in enumerate(zip(cfg.encoder_channels, c_ins))):
+            return sncv
+    raise CheckpointError(
+        f"{origin}: semantic refiner input channels {c_ins} (finest level first) match neither the released semantic "
+        "decoder (classes + 4 + features) nor its SNCV variant (design 6.3); a previous-frame input (S^{t-1}) cannot "
+        "come from the authors' code, which has none"
+    )
+
+
 def infer_config(
     shapes: Mapping[str, tuple[int, ...]],
     *,
@@ -271,6 +295,8 @@ def infer_config(
             raise CheckpointError(f"{origin}: the last semantic conv has {last[3]} channels; expected classes + 4 >= 6")
         kw["num_classes"] = int(last[3] - 4)
         inferred.append("num_classes")
+        kw["semantic_sncv"] = _infer_semantic_sncv(shapes, levels, kw["num_classes"], origin)
+        inferred.append("semantic_sncv")
     if has["depth_decoder"] and want_depth:
         c_ins = []
         for j in range(levels):

@@ -144,7 +144,8 @@ class DepthDecoder(PyramidDecoder):
         super().__init__(cfg)
         self.pscv_half = False
 
-    def frame(self, rot: torch.Tensor, trans: torch.Tensor, intrinsics: torch.Tensor) -> DepthFrame:
+    def frame(self, rot: torch.Tensor, trans: torch.Tensor, intrinsics: torch.Tensor, fresh=None, guide=None
+              ) -> DepthFrame:
         return DepthFrame(quaternion_to_matrix(rot), trans, intrinsics, self.guard, self.pscv_half)
 
     def level_state_shapes(self, level: DepthLevel, batch: int, h: int, w: int) -> tuple[tuple[int, ...], ...]:

@@ -23,7 +23,7 @@ from ..config import ModelConfig
 from ..ops.resample import resize_nn2
 from .encoder import Encoder
 from .outputs import SequenceOutput, StepOutput, StreamState
-from .pyramid import PyramidDecoder, decode_step
+from .pyramid import PyramidDecoder, decode_step, decoder_guide, depth_pyramid
 from .registry import DECODERS
 
 #: Streaming implementations of :meth:`SceneModel.step` besides the reference modules, by :meth:`~SceneModel.optimize`
@@ -148,6 +148,7 @@ class SceneModel(nn.Module):
         intrinsics: torch.Tensor,
         reset: Optional[torch.Tensor] = None,
         first_frame: int = 0,
+        guide_depth: Optional[torch.Tensor] = None,
     ) -> SequenceOutput:
         """Run a whole sequence (training mode).
 
@@ -161,10 +162,13 @@ class SceneModel(nn.Module):
                 there; a temporal decoder (depth) runs every frame, as its later frames depend on the earlier ones.
                 The outputs from ``first_frame`` on, and the gradients of anything computed from them, are those of
                 a run with ``first_frame=0``: a quarter of the semantic decoder's work saved at ``T = 4``.
+            guide_depth: ``[B, T, 1, H, W]`` ground-truth depth (metres), for a model whose semantic decoder warps
+                with it (``config.needs_depth_input``, ``semantic_time="gt"``); refused otherwise.
         Returns:
             :class:`SequenceOutput` with per-level lists (finest first) of ``[B, T, ...]`` tensors.
         """
         _check_inputs(rgb, rot, trans, intrinsics, reset, sequence=True)
+        self._check_guide(rgb, guide_depth, sequence=True)
         b, t = rgb.shape[:2]
         if not 0 <= first_frame < t:
             raise ValueError(f"argument first_frame must be in [0, T-1] = [0, {t - 1}], got {first_frame}")
@@ -172,15 +176,21 @@ class SceneModel(nn.Module):
         # are one contiguous block of every level's features
         feats = self.encoder(rgb.transpose(0, 1).flatten(0, 1))
         out = SequenceOutput(features=[f.unflatten(0, (t, b)).transpose(0, 1) for f in feats])
+        frame_maps: list[dict[str, list[torch.Tensor]]] = [{} for _ in range(t)]  # the temporal decoders' maps
         for dec in self.decoders.values():
             if dec.temporal:  # frame by frame, the state carried along
                 per_frame, state = [], None
                 for k in range(t):
                     intr = intrinsics[:, k] if intrinsics.dim() == 3 else intrinsics
                     frame_reset = None if reset is None else reset[:, k]
-                    levels, state = dec([f[k * b : (k + 1) * b] for f in feats], rot[:, k], trans[:, k], intr, state,
-                                        frame_reset)
+                    frame_feats = [f[k * b : (k + 1) * b] for f in feats]
+                    guide = None
+                    if dec.reads:
+                        gt = None if guide_depth is None else depth_pyramid(guide_depth[:, k], frame_feats)
+                        guide = decoder_guide(dec, frame_maps[k], gt)
+                    levels, state = dec(frame_feats, rot[:, k], trans[:, k], intr, state, frame_reset, guide=guide)
                     per_frame.append(dec.level_maps(levels))
+                    frame_maps[k].update(per_frame[-1])
                 maps = {key: [torch.stack(per_level, 1) for per_level in zip(*(fr[key] for fr in per_frame))]
                         for key in dec.maps}
             else:  # every wanted frame at once
@@ -201,6 +211,7 @@ class SceneModel(nn.Module):
         reset: Optional[torch.Tensor] = None,
         state: Optional[StreamState] = None,
         decoders: Optional[Sequence[str]] = None,
+        guide_depth: Optional[torch.Tensor] = None,
     ) -> tuple[StepOutput, StreamState]:
         """Process one frame per sample, streaming.
 
@@ -212,7 +223,10 @@ class SceneModel(nn.Module):
             reset: ``[B]`` bool, True where a sample starts a new trajectory (None: no reset).
             state: the state returned by the previous call, or None for a fresh start (every sample resets).
             decoders: run only these decoders (names of :attr:`decoders`, e.g. ``("semantic",)``); the state of the
-                others passes through unchanged (default: all).
+                others passes through unchanged (default: all), and so does that of a temporal semantic decoder when
+                the depth decoder does not run (its state is of the frame the depth state holds; design 6.3).
+            guide_depth: ``[B, 1, H, W]`` the frame's ground-truth depth (metres), for a model whose semantic decoder
+                warps with it (``config.needs_depth_input``); refused otherwise.
         Returns:
             ``(out, new_state)``; ``out.depth [B,1,H,W]`` metres and ``out.semantic [B,N,H,W]`` probabilities at the
             input size (nearest upsampling of the finest level), ``out.levels`` the per-level maps; ``out.valid``
@@ -221,6 +235,7 @@ class SceneModel(nn.Module):
             :class:`~cosemdepth.inference.Streamer` also holds frames).
         """
         _check_inputs(rgb, rot, trans, intrinsics, reset, sequence=False)
+        self._check_guide(rgb, guide_depth, sequence=False)
         if decoders is not None:
             unknown = sorted(set(decoders) - set(self.decoders))
             if unknown:
@@ -229,11 +244,24 @@ class SceneModel(nn.Module):
                 return StepOutput(None, None), state if state is not None else StreamState()
         streamer = self._streamer()
         if streamer is not None:
-            return streamer.step(rgb, rot, trans, intrinsics, reset, state, decoders=decoders)
+            if guide_depth is None:
+                return streamer.step(rgb, rot, trans, intrinsics, reset, state, decoders=decoders)
+            return streamer.step(rgb, rot, trans, intrinsics, reset, state, decoders=decoders, guide_depth=guide_depth)
         size = tuple(rgb.shape[-2:])
         feats = self.encoder(rgb)
         return decode_step(self.decoders, feats, rot, trans, intrinsics, reset, state, lambda x: resize_nn2(x, size),
-                           only=decoders)
+                           only=decoders, guide_depth=guide_depth)
+
+    def _check_guide(self, rgb: torch.Tensor, guide_depth: Optional[torch.Tensor], sequence: bool) -> None:
+        """A ground-truth depth is given exactly when the model reads one, with one map per frame of ``rgb``."""
+        if guide_depth is None:
+            return  # a model that needs one says so when the decoder reads it (decoder_guide)
+        if not self.config.needs_depth_input:
+            raise ValueError(f"argument guide_depth: this model (semantic_time {self.config.semantic_time!r}) takes no "
+                             "ground-truth depth")
+        want = (*rgb.shape[: 1 + sequence], 1, *rgb.shape[-2:])
+        if tuple(guide_depth.shape) != want:
+            raise _shape_error("guide_depth", "[" + ", ".join(map(str, want)) + "]", guide_depth)
 
     @torch.no_grad()
     def infer(
@@ -242,6 +270,7 @@ class SceneModel(nn.Module):
         motions: torch.Tensor | Sequence[torch.Tensor],
         intrinsics: torch.Tensor,
         reset: Optional[torch.Tensor] = None,
+        guide_depth: Optional[torch.Tensor] = None,
     ) -> StepOutput:
         """Stream a whole sequence and return the full-resolution outputs of every frame.
 
@@ -251,6 +280,7 @@ class SceneModel(nn.Module):
                 the motion of frame 0 is ignored.
             intrinsics: ``[4]`` or ``[B, 4]`` (fx, fy, cx, cy) at the frame size.
             reset: optional ``[T]`` / ``[B, T]`` bool; frame 0 always resets.
+            guide_depth: ``[T, 1, H, W]`` / ``[B, T, 1, H, W]`` ground-truth depth (``config.needs_depth_input``).
         Returns:
             :class:`StepOutput` whose ``depth`` is ``[.., T, 1, H, W]`` and ``semantic`` ``[.., T, N, H, W]`` (and
             ``heads`` every decoder's output), without per-level maps.
@@ -274,9 +304,13 @@ class SceneModel(nn.Module):
         if reset is not None:
             rs |= torch.as_tensor(reset, dtype=torch.bool, device=p.device).view(-1, t).expand(b, t)
         rs[:, 0] = True
+        gd = None if guide_depth is None else torch.as_tensor(guide_depth, dtype=p.dtype, device=p.device)
+        if gd is not None and single:
+            gd = gd.unsqueeze(0)
         state, heads = None, []
         for k in range(t):
-            out, state = self.step(frames[:, k], rot[:, k], trans[:, k], intr, rs[:, k], state)
+            out, state = self.step(frames[:, k], rot[:, k], trans[:, k], intr, rs[:, k], state,
+                                   guide_depth=None if gd is None else gd[:, k])
             heads.append(out.heads)
         full = {h: torch.stack([o[h] for o in heads], 1)[0 if single else slice(None)] for h in heads[0]}
         return StepOutput(full.get("depth"), full.get("semantic"), heads=full)
@@ -303,7 +337,13 @@ class M4Semantic(SceneModel):
     default_arch = "m4semantic"
 
 
-MODELS = {"cosemdepth": CoSemDepth, "m4depth": M4Depth, "m4semantic": M4Semantic}
+class CoSemDepthT(SceneModel):
+    """Co-SemDepth whose semantic decoder reads the previous frame's labels, warped with its own depth (design 6.3)."""
+
+    default_arch = "cosemdepth-t"
+
+
+MODELS = {"cosemdepth": CoSemDepth, "m4depth": M4Depth, "m4semantic": M4Semantic, "cosemdepth-t": CoSemDepthT}
 
 
 def build_model(config: ModelConfig | None = None, **overrides) -> SceneModel:

@@ -19,7 +19,7 @@ import torch.nn as nn
 from ..ops.cost_volume import parallax_sweep_cost_volume, spatial_cost_volume
 from ..ops.concat import concat_into
 from ..ops.normalize import grouped_l2_normalize
-from ..ops.resample import resize_nn1
+from ..ops.resample import resize_nn1, resize_nn2
 from ..geometry.motion import baseline
 from ..geometry.validity import depth_validity
 from .outputs import ESTIMATED, RESET, StepOutput, StreamState
@@ -102,6 +102,15 @@ class PyramidDecoder(nn.Module):
     state_names: tuple[str, ...] = ()
     maps: Mapping[str, str] = {}
     head: str = ""
+    #: level maps of the same frame this decoder reads (``StepOutput.levels`` keys of the decoders before it, or
+    #: ``"gt_depth"``: the ground-truth depth resized to the levels), handed to :meth:`frame` as ``guide``
+    reads: tuple[str, ...] = ()
+    #: the decoder whose state this one's follows: on a frame that decoder does not run (``decode_step(only=...)``),
+    #: this one's state passes through unchanged
+    state_follows: Optional[str] = None
+    #: a temporal decoder whose resetting samples still refine, with ``fresh`` set in the frame context (their
+    #: temporal input is empty), instead of returning the coarse inputs and the reset state
+    refines_resets: bool = False
 
     def __init__(self, cfg):
         super().__init__()
@@ -113,8 +122,11 @@ class PyramidDecoder(nn.Module):
     def temporal(self) -> bool:
         return bool(self.state_names)
 
-    def frame(self, rot: Tensor, trans: Tensor, intrinsics: Tensor) -> Any:
-        """Per-frame context handed to every level's ``refine`` (e.g. the rotation matrix)."""
+    def frame(self, rot: Tensor, trans: Tensor, intrinsics: Tensor, fresh: Optional[Tensor] = None,
+              guide: Optional[Mapping[str, Sequence[Tensor]]] = None) -> Any:
+        """Per-frame context handed to every level's ``refine`` (e.g. the rotation matrix); ``fresh`` ``[B]`` the
+        samples without a previous frame (``refines_resets`` decoders; None: none), ``guide`` the maps of ``reads``
+        that are available on this frame, per level (finest first)."""
 
     def level_state_shapes(self, level: PyramidLevel, batch: int, h: int, w: int) -> tuple[tuple[int, ...], ...]:
         """Shape of each state component at ``level`` for an ``h x w`` level map (temporal decoders)."""
@@ -133,6 +145,7 @@ class PyramidDecoder(nn.Module):
         self, feats: Sequence[Tensor], rot: Optional[Tensor] = None, trans: Optional[Tensor] = None,
         intrinsics: Optional[Tensor] = None, prev: Optional[Sequence[Sequence[Tensor]]] = None,
         reset: Optional[Tensor] = None, ops: Optional[Sequence[LevelOps]] = None, static: Optional[bool] = None,
+        guide: Optional[Mapping[str, Sequence[Tensor]]] = None,
     ) -> tuple[list[Any], tuple[tuple[Tensor, ...], ...]]:
         """Decode one frame.
 
@@ -144,13 +157,23 @@ class PyramidDecoder(nn.Module):
                 every sample resets).
             reset: ``[B]`` bool, samples that start a new trajectory (None: no sample resets).
             ops: per-level operations (default: the reference ones); static: overrides ``self.static``.
+            guide: the maps of ``reads`` available on this frame (see :meth:`frame`).
         Returns:
             per-level outputs (finest first) and the new state (one per-level tuple per state component).
         """
         n = len(self.levels)
         ops = ops or [REFERENCE_OPS] * n
         static = self.static if static is None else static
-        if not self.temporal or (prev is not None and reset is None):
+        fresh = None
+        if self.temporal and self.refines_resets:  # a reset empties the temporal input; every sample refines
+            all_reset = any_reset = False
+            if prev is not None and reset is not None and not static and bool(reset.all()):
+                prev = None  # a state of another batch size or resolution is fine when every sample resets
+            if prev is None:
+                fresh = torch.ones(feats[0].shape[0], dtype=torch.bool, device=feats[0].device)
+            else:
+                fresh = reset
+        elif not self.temporal or (prev is not None and reset is None):
             all_reset = any_reset = False
         elif prev is None:
             all_reset = any_reset = True
@@ -160,7 +183,7 @@ class PyramidDecoder(nn.Module):
             all_reset, any_reset = bool(reset.all()), bool(reset.any())
         if prev is not None and self.temporal and not all_reset:
             check_state(prev, feats)
-        frame = self.frame(rot, trans, intrinsics) if self.temporal else None
+        frame = self.frame(rot, trans, intrinsics, fresh, guide) if self.temporal else None
         mask = reset.view(-1, 1, 1, 1) if any_reset and not all_reset else None
         outs: list[Any] = [None] * n
         states: list[tuple[Tensor, ...]] = [()] * n
@@ -206,20 +229,45 @@ def check_state(prev: Sequence[Sequence[Tensor]], feats: Sequence[Tensor]) -> No
                 )
 
 
+#: The ``reads`` key of the ground-truth depth resized to the levels (``guide_depth`` of :func:`decode_step`).
+GT_DEPTH = "gt_depth"
+
+
+def depth_pyramid(depth: Tensor, feats: Sequence[Tensor]) -> list[Tensor]:
+    """A depth map ``[B, 1, H, W]`` at the size of every level of ``feats`` (finest first), NN2 as the label pyramids
+    (design 3.4: depths are not blended across edges)."""
+    return [resize_nn2(depth.to(feats[0].dtype), tuple(f.shape[-2:])) for f in feats]
+
+
+def decoder_guide(dec: PyramidDecoder, levels: Mapping[str, Sequence[Tensor]],
+                  gt_levels: Optional[Sequence[Tensor]]) -> dict[str, Sequence[Tensor]]:
+    """The maps of ``dec.reads`` available on a frame: those of the decoders that ran before it (``levels``) and the
+    ground-truth depth pyramid ``gt_levels``. Raises ValueError when ``dec`` reads the ground truth and none is
+    given."""
+    if GT_DEPTH in dec.reads and gt_levels is None:
+        raise ValueError(f"argument guide_depth: the {dec.head} decoder warps its previous output with the ground-truth "
+                         "depth (semantic_time 'gt'), so every frame needs its depth map [B, 1, H, W]")
+    found = {**levels, GT_DEPTH: gt_levels}
+    return {k: found[k] for k in dec.reads if found.get(k) is not None}
+
+
 def decode_step(
     decoders: Mapping[str, PyramidDecoder], feats: Sequence[Tensor], rot: Tensor, trans: Tensor, intrinsics: Tensor,
     reset: Optional[Tensor], state: Optional[StreamState], upsample: Callable[[Tensor], Tensor],
     ops: Optional[Mapping[str, Sequence[LevelOps]]] = None, static: Optional[bool] = None,
-    only: Optional[Collection[str]] = None,
+    only: Optional[Collection[str]] = None, guide_depth: Optional[Tensor] = None,
 ) -> tuple[StepOutput, StreamState]:
     """One streaming step of every decoder on the encoder features of a frame (the reference path and the fast
     engine both run this): the per-level maps, each decoder's head (its finest map passed through ``upsample``, to
     the input size), the depth's validity and status (:func:`depth_status`; not in static mode, which must not
     read values on the host) and the new state. With ``only``, just
-    the decoders named there run; the state components of the others pass through unchanged."""
+    the decoders named there run; the state components of the others pass through unchanged, and so do those of a
+    decoder whose ``state_follows`` one did not run. ``guide_depth`` ``[B, 1, H, W]``: the frame's ground-truth depth,
+    for the decoders that read it."""
     levels: dict[str, list[Tensor]] = {}
     components: dict[str, tuple[Tensor, ...]] = {}
-    ran = []
+    ran, ran_names = [], []
+    gt_levels = None if guide_depth is None else depth_pyramid(guide_depth, feats)
     for name, dec in decoders.items():
         if only is not None and name not in only:
             if state is not None:
@@ -228,10 +276,14 @@ def decode_step(
         prev = None
         if dec.temporal and state is not None and all(state.components.get(c) for c in dec.state_names):
             prev = [state.components[c] for c in dec.state_names]
-        outs, new = dec(feats, rot, trans, intrinsics, prev, reset, None if ops is None else ops[name], static)
+        guide = decoder_guide(dec, levels, gt_levels) if dec.reads else None
+        outs, new = dec(feats, rot, trans, intrinsics, prev, reset, None if ops is None else ops[name], static, guide)
         levels.update(dec.level_maps(outs))
+        if prev is not None and dec.state_follows in decoders and dec.state_follows not in ran_names:
+            new = prev  # the decoder it follows held its state: so does this one
         components.update(zip(dec.state_names, new))
         ran.append(dec)
+        ran_names.append(name)
     heads = {dec.head: upsample(levels[dec.head][0]) for dec in ran}
     out = StepOutput(heads.get("depth"), heads.get("semantic"), levels, heads)
     is_static = static if static is not None else any(dec.static for dec in ran)

@@ -139,6 +139,9 @@ def check_modalities(dataset: Dataset, model: ModelConfig, what: str) -> None:
     item = dataset[0]
     missing = [k for k, need in (("depth", model.has_depth), ("semantic", model.has_semantic))
                if need and item.get(k) is None]
+    if model.needs_depth_input and not model.has_depth and item.get("depth") is None:
+        raise DatasetError(f"{what} has no depth ground truth, which the {model.arch} model with semantic_time 'gt' "
+                           "warps its previous labels with (choose a dataset with depth, or semantic_time 'off')")
     if missing:
         other = "m4semantic" if "depth" in missing else "m4depth"
         raise DatasetError(f"{what} has no {' and no '.join(missing)} ground truth, which the {model.arch} model "

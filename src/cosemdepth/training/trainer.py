@@ -166,9 +166,11 @@ def compute_loss(out, batch: dict, cfg: RunConfig) -> LossTerms:
 def forward_batch(net: torch.nn.Module, batch: dict):
     """The training forward of a batch (run it inside :func:`bf16_autocast`): the model's
     :meth:`~cosemdepth.models.SceneModel.forward_sequence` with the outputs wanted from the loss's first supervised
-    frame on (the semantic decoder skips frame 0, which no loss term reads)."""
+    frame on (the semantic decoder skips frame 0, which no loss term reads); a model whose semantic decoder warps with
+    the ground-truth depth (``semantic_time="gt"``) is given the batch's depth."""
+    guide = batch["depth"] if getattr(net, "module", net).config.needs_depth_input else None
     return net(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch.get("reset"),
-               first_frame=FIRST_SUPERVISED_FRAME)
+               first_frame=FIRST_SUPERVISED_FRAME, guide_depth=guide)
 
 
 def _float32(levels):

@@ -23,7 +23,8 @@ def run_window(model: torch.nn.Module, batch: Mapping[str, Any]):
 
     Args:
         batch: ``rgb [B,T,3,H,W]``, ``rot [B,T,4]``, ``trans [B,T,3]``, ``intrinsics [B,4]`` and optionally
-            ``reset [B,T]`` (frame 0 always resets).
+            ``reset [B,T]`` (frame 0 always resets); ``depth [B,T,1,H,W]`` for a model that reads the ground-truth
+            depth (``config.needs_depth_input``).
     """
     rgb, rot, trans, intr = batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"]
     b, t = rgb.shape[:2]
@@ -32,8 +33,10 @@ def run_window(model: torch.nn.Module, batch: Mapping[str, Any]):
     reset[:, 0] = True
     state = None
     out = None
+    guide = batch["depth"] if model.config.needs_depth_input else None
     for k in range(t):
-        out, state = model.step(rgb[:, k], rot[:, k], trans[:, k], intr, reset[:, k], state)
+        out, state = model.step(rgb[:, k], rot[:, k], trans[:, k], intr, reset[:, k], state,
+                                guide_depth=None if guide is None else guide[:, k])
     return out
 
 

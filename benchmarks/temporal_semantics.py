@@ -1,0 +1,384 @@
+"""The semantic decoder's temporal variants side by side: Co-SemDepth, +SNCV, +S^{t-1} warped with the ground-truth
+depth, and Co-SemDepth-T (S^{t-1} warped with the model's own depth), each trained with the same recipe and budget
+for several seeds on SynthAir and evaluated on held-out flights (other world seeds).
+
+    PYTHONPATH=src python benchmarks/temporal_semantics.py [--work DIR] [--seeds 0 1 2] [--steps 60]
+        [--test-worlds 21 22] [--variants cosemdepth sncv s_prev_gt cosemdepth_t] [--threads 1] [--rounds 3]
+        [--out benchmarks/results/temporal_semantics] [--strip docs/images/temporal_strip.png]
+
+Data (generated with ``cosemdepth synth`` into ``--work`` and reused by a later run): training world 5, trajectories
+0 and 1 of the sunny and cloudy climates (128 px, 200 frames at the default frame step: 48 training windows), every
+trajectory in training; the held-out flights are one sunny trajectory of each ``--test-worlds`` seed (100 frames, 25
+rows). Training: ``cosemdepth train --config synthair-small`` (4 levels, batch 2, lr 3e-4, augmentation) for
+``--steps`` steps with ``train.num_threads`` ``--threads``; the model evaluated is the one of the last step (one
+validation at the end writes it to ``best/``). A run folder that already holds ``best/`` is not trained again.
+
+Evaluation: ``evaluate`` (fast engine, float32, the default every-frame policy, reset frames left out) on each
+held-out flight with ``--threads`` threads; per run the mean over the flights of ``miou`` and of the labels' temporal
+consistency (``flicker``, ``change_recall``, ``gt_change``: docs/evaluation.md). Per variant: the mean and the
+sample standard deviation (and min, max) over the seeds. Time per frame: the seed-0 models of every variant streamed
+over the first held-out flight in ``--rounds`` interleaved rounds (variant order rotated each round), the median of
+the rounds' ``ms_per_frame``. Writes ``OUT.json``, ``OUT.md`` and ``OUT.png`` (mIoU and flicker per seed, ms per
+frame) and the picture strip (labels over consecutive frames of the first held-out flight, seed-0 models).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import math
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
+
+#: Variant -> (label, ``cosemdepth train`` overrides). Everything else is the synthair-small recipe.
+VARIANTS = {
+    "cosemdepth": ("Co-SemDepth", ["model.arch=cosemdepth"]),
+    "sncv": ("+SNCV", ["model.arch=cosemdepth", "model.semantic_sncv=true"]),
+    "s_prev_gt": ("+S^{t-1} (GT depth)", ["model.arch=cosemdepth", "model.semantic_time=gt"]),
+    "cosemdepth_t": ("Co-SemDepth-T", ["model.arch=cosemdepth-t"]),
+}
+TRAIN_WORLD = 5
+TRAIN_CLIMATES = ("sunny", "cloudy")
+SIZE = 128
+#: Issue targets for Co-SemDepth-T against Co-SemDepth (mean over seeds).
+TARGETS = {"miou_gain_points": 2.0, "flicker_reduction": 0.30, "time_increase_max": 0.10}
+STRIP_FRAMES = 6
+#: A killed training run is resumed this many times in all, after a pause.
+TRAIN_ATTEMPTS, RETRY_WAIT_S = 4, 60
+
+
+def cli(*args: str, log: Path | None = None, threads: int = 1) -> None:
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": str(threads),
+           "MKL_NUM_THREADS": str(threads)}
+    cmd = [sys.executable, "-m", "cosemdepth", *args]
+    with open(log, "a") if log else open(os.devnull, "w") as f:
+        f.write(" ".join(cmd) + "\n")
+        f.flush()
+        subprocess.run(cmd, check=True, env=env, stdout=f, stderr=subprocess.STDOUT)
+
+
+def make_data(work: Path, test_worlds: list[int], log: Path) -> tuple[Path, Path, dict[int, tuple[Path, Path]]]:
+    """Generate (or reuse) the training world and the held-out flights; returns the training root and split folder
+    and, per test world, its root and split folder."""
+    train = work / f"train-s{TRAIN_WORLD}"
+    if not (train / "synthair.json").exists():
+        cli("synth", "--out", str(train), "--trajectories", "2", "--frames", "200", "--size", str(SIZE), "--seed",
+            str(TRAIN_WORLD), "--climates", *TRAIN_CLIMATES, "--no-progress", log=log)
+    splits = work / f"splits-train-s{TRAIN_WORLD}"
+    if not (splits / "train_data").exists():
+        cli("splits", "synthair", str(train), str(splits), "--rule", "train", log=log)
+        # the trainer validates once, at the end, to write the last step's model to best/: a training flight will do
+        val = splits / "val_data" / "SynthAir" / "sunny"
+        val.mkdir(parents=True, exist_ok=True)
+        shutil.copy(splits / "train_data" / "SynthAir" / "sunny" / "traj_0000.csv", val / "traj_0000.csv")
+    tests = {}
+    for w in test_worlds:
+        root, sp = work / f"test-s{w}", work / f"splits-test-s{w}"
+        if not (root / "synthair.json").exists():
+            cli("synth", "--out", str(root), "--trajectories", "1", "--frames", "100", "--size", str(SIZE), "--seed",
+                str(w), "--climates", "sunny", "--no-progress", log=log)
+        if not (sp / "test_data").exists():
+            cli("splits", "synthair", str(root), str(sp), "--rule", "test", log=log)
+        tests[w] = (root, sp)
+    return train, splits, tests
+
+
+def train_run(run: Path, variant: str, seed: int, steps: int, train: Path, splits: Path, threads: int, log: Path
+              ) -> float:
+    """Train one run (unless its ``best/`` exists); returns the training wall time in seconds (NaN when reused)."""
+    if (run / "best" / "model.safetensors").exists():
+        return math.nan
+    sets = [*VARIANTS[variant][1], f"train.num_threads={threads}", "train.validate_every_epochs=0",
+            f"train.validate_every_steps={steps}", "train.val_max_batches=1"]
+    t0 = time.perf_counter()
+    for attempt in range(TRAIN_ATTEMPTS):
+        try:
+            cli("train", "--config", "synthair-small", "--data-root", str(train), "--split-dir", str(splits),
+                "--max-steps", str(steps), "--seed", str(seed), "--no-progress", "--out", str(run),
+                *sum((["--set", s] for s in sets), []), log=log, threads=threads)
+            break
+        except subprocess.CalledProcessError:
+            # killed (e.g. out of memory on a shared machine): the run folder resumes from its last checkpoint,
+            # with the weights an uninterrupted run has at that step
+            if attempt == TRAIN_ATTEMPTS - 1:
+                raise
+            time.sleep(RETRY_WAIT_S)
+    return time.perf_counter() - t0
+
+
+def evaluate_run(model_dir: Path, tests: dict, callbacks_for=None) -> dict:
+    from cosemdepth.data import open_dataset
+    from cosemdepth.evaluation.evaluator import evaluate
+    from cosemdepth.io.model_io import load_model
+
+    model = load_model(model_dir, mode="fast")
+    per_flight = {}
+    for w, (root, sp) in tests.items():
+        ds = open_dataset("synthair", root, split_dir=sp, split="test", seq_len=1, size=SIZE)
+        cbs = callbacks_for(w) if callbacks_for else []
+        res = evaluate(model, ds, warmup=2, callbacks=cbs)
+        m = res.metrics
+        per_flight[w] = {k: _num(m.get(k)) for k in ("miou", "flicker", "flicker_median", "flicker_max",
+                                                     "change_recall", "gt_change", "flicker_pairs", "abs_rel")}
+        per_flight[w]["ms_per_frame"] = res.ms_per_frame
+    mean = {k: _mean([f[k] for f in per_flight.values()]) for k in ("miou", "flicker", "change_recall", "gt_change",
+                                                                    "abs_rel")}
+    return {"per_flight": {str(k): v for k, v in per_flight.items()}, **mean,
+            "params": sum(p.numel() for p in model.parameters())}
+
+
+def time_variants(models: dict[str, Path], tests: dict, rounds: int) -> dict[str, dict]:
+    """Interleaved rounds on the first held-out flight: per variant every round's ms per frame and their median."""
+    from cosemdepth.data import open_dataset
+    from cosemdepth.evaluation.evaluator import evaluate
+    from cosemdepth.io.model_io import load_model
+
+    w = next(iter(tests))
+    root, sp = tests[w]
+    ds = open_dataset("synthair", root, split_dir=sp, split="test", seq_len=1, size=SIZE)
+    loaded = {v: load_model(p, mode="fast") for v, p in models.items()}
+    names = list(loaded)
+    times = {v: [] for v in names}
+    for r in range(rounds):
+        order = names[r % len(names):] + names[: r % len(names)]
+        for v in order:
+            times[v].append(evaluate(loaded[v], ds, warmup=2).ms_per_frame)
+    return {v: {"rounds": t, "median": statistics.median(t)} for v, t in times.items()}
+
+
+def _num(x):
+    return None if x is None or (isinstance(x, float) and math.isnan(x)) else x
+
+
+def _mean(xs):
+    xs = [x for x in xs if x is not None]
+    return sum(xs) / len(xs) if xs else None
+
+
+def summarize(values: list) -> dict:
+    xs = [x for x in values if x is not None]
+    if not xs:
+        return {"mean": None, "std": None, "min": None, "max": None, "n": 0}
+    return {"mean": statistics.fmean(xs), "std": statistics.stdev(xs) if len(xs) > 1 else 0.0, "min": min(xs),
+            "max": max(xs), "n": len(xs)}
+
+
+def acceptance(summary: dict) -> dict:
+    """The issue's targets for Co-SemDepth-T against Co-SemDepth, with what was measured."""
+    base, t = summary.get("cosemdepth"), summary.get("cosemdepth_t")
+    if not base or not t:
+        return {}
+    gain = 100 * (t["miou"]["mean"] - base["miou"]["mean"])
+    red = 1 - t["flicker"]["mean"] / base["flicker"]["mean"] if base["flicker"]["mean"] else None
+    inc = t["ms_per_frame"] / base["ms_per_frame"] - 1
+    out = {
+        "miou_gain_points": {"target": f">= +{TARGETS['miou_gain_points']}", "measured": gain,
+                             "met": gain >= TARGETS["miou_gain_points"]},
+        "flicker_reduction": {"target": f">= {TARGETS['flicker_reduction']:.0%}", "measured": red,
+                              "met": red is not None and red >= TARGETS["flicker_reduction"]},
+        "time_increase": {"target": f"<= {TARGETS['time_increase_max']:.0%}", "measured": inc,
+                          "met": inc <= TARGETS["time_increase_max"]},
+    }
+    gt = summary.get("s_prev_gt")
+    if gt:
+        out["s_prev_gt_miou_gain_points"] = {"paper": 1.56, "measured": 100 * (gt["miou"]["mean"]
+                                                                                - base["miou"]["mean"])}
+    return out
+
+
+def markdown(report: dict) -> str:
+    s = report["summary"]
+    lines = [
+        "# The semantic decoder's temporal variants (SynthAir)",
+        "",
+        f"`{report['command']}` on {report['machine']['cpu']} ({report['machine']['threads']} thread), "
+        f"{report['date']}. Recipe: {report['recipe']}. Held-out flights: worlds {report['test_worlds']} "
+        f"(sunny, 25 rows each). Seeds {report['seeds']}.",
+        "",
+        "| variant | mIoU % (mean ± sd, min-max) | flicker % (mean ± sd) | change recall % | ms/frame | params |",
+        "|---|---|---|---|---|---|",
+    ]
+    for v, row in s.items():
+        mi, fl, cr = row["miou"], row["flicker"], row["change_recall"]
+        lines.append(
+            f"| {VARIANTS[v][0]} | {100 * mi['mean']:.2f} ± {100 * mi['std']:.2f} ({100 * mi['min']:.2f}-"
+            f"{100 * mi['max']:.2f}) | {100 * fl['mean']:.2f} ± {100 * fl['std']:.2f} | {100 * cr['mean']:.1f} | "
+            f"{row['ms_per_frame']:.1f} | {row['params']:,} |")
+    gt_change = [r["gt_change"] for r in report["runs"] if r.get("gt_change") is not None]
+    if gt_change:
+        lines += ["", f"The ground truth itself changes (warped with the true depth and motion) on "
+                      f"{100 * statistics.fmean(gt_change):.1f} % of the compared pixels."]
+    acc = report.get("acceptance") or {}
+    if acc:
+        lines += ["", "Acceptance (Co-SemDepth-T against Co-SemDepth, means over the seeds):", ""]
+        for k, a in acc.items():
+            meas = a["measured"]
+            txt = "n/a" if meas is None else (f"{meas:+.2f} points" if "points" in k else f"{100 * meas:+.1f} %")
+            target = a.get("target", f"paper +{a.get('paper')} points")
+            met = "" if "met" not in a else (" (met)" if a["met"] else " (missed)")
+            lines.append(f"* {k}: target {target}, measured {txt}{met}")
+    lines += ["", "Per run (mean over the held-out flights):", "", "| variant | seed | mIoU % | flicker % | train s |",
+              "|---|---|---|---|---|"]
+    for r in report["runs"]:
+        ts = "reused" if r["train_seconds"] is None else f"{r['train_seconds']:.0f}"
+        lines.append(f"| {VARIANTS[r['variant']][0]} | {r['seed']} | {100 * r['miou']:.2f} | "
+                     f"{100 * r['flicker']:.2f} | {ts} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(report: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    for k, v in enumerate(report["summary"]):
+        runs = [r for r in report["runs"] if r["variant"] == v]
+        a.scatter([100 * r["flicker"] for r in runs], [100 * r["miou"] for r in runs], label=VARIANTS[v][0],
+                  color=f"C{k}")
+        b.bar(k, report["summary"][v]["ms_per_frame"], color=f"C{k}")
+    a.set_xlabel("flicker % (lower is better)")
+    a.set_ylabel("mIoU %")
+    a.legend(fontsize=8)
+    a.set_title("per seed, held-out flights")
+    b.set_xticks(range(len(report["summary"])), [VARIANTS[v][0] for v in report["summary"]], rotation=20, fontsize=8)
+    b.set_ylabel("ms per frame (CPU, 1 thread)")
+    fig.tight_layout()
+    tmp = path.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+class StripCollector:
+    """An evaluate callback keeping the RGB, ground-truth and predicted labels of frames ``first..first+n-1``."""
+
+    def __init__(self, first: int, n: int):
+        self.first, self.n = first, n
+        self.rgb, self.gt, self.pred = {}, {}, {}
+
+    def __call__(self, batch, include) -> None:
+        for b, fr in enumerate(batch.frame.tolist()):
+            if self.first <= fr < self.first + self.n:
+                self.rgb[fr] = batch.rgb[b].float().cpu().numpy()
+                self.gt[fr] = batch.gt_labels[b].cpu().numpy()
+                self.pred[fr] = batch.labels[b].cpu().numpy()
+
+
+def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: int) -> None:
+    from PIL import Image, ImageDraw
+
+    from cosemdepth.evaluation.classes import class_info
+    from cosemdepth.evaluation.visualize import colorize_labels, rgb_to_uint8
+
+    _, palette = class_info(num_classes, "synthair")
+    any_c = next(iter(collectors.values()))
+    frames = sorted(any_c.pred)
+    rows = [("RGB", [rgb_to_uint8(any_c.rgb[f]) for f in frames]),
+            ("ground truth", [colorize_labels(any_c.gt[f], palette) for f in frames])]
+    rows += [(VARIANTS[v][0], [colorize_labels(c.pred[f], palette) for f in frames]) for v, c in collectors.items()]
+    h, w = rows[0][1][0].shape[:2]
+    label_w, gap = 150, 2
+    canvas = Image.new("RGB", (label_w + len(frames) * (w + gap), len(rows) * (h + gap) + 16), "white")
+    draw = ImageDraw.Draw(canvas)
+    for j, f in enumerate(frames):
+        draw.text((label_w + j * (w + gap) + 4, 2), f"frame {f}", fill="black")
+    for i, (name, tiles) in enumerate(rows):
+        y = 16 + i * (h + gap)
+        draw.text((4, y + h // 2 - 6), name, fill="black")
+        for j, tile in enumerate(tiles):
+            canvas.paste(Image.fromarray(tile), (label_w + j * (w + gap), y))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.png")
+    canvas.save(tmp)
+    os.replace(tmp, path)
+
+
+def cpu_name() -> str:
+    try:
+        out = subprocess.run(["lscpu"], capture_output=True, text=True).stdout
+        for line in out.splitlines():
+            if line.startswith("Model name:"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--work", type=Path, default=Path("runs/temporal_semantics"))
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--steps", type=int, default=60)
+    ap.add_argument("--test-worlds", type=int, nargs="+", default=[21, 22])
+    ap.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "temporal_semantics")
+    ap.add_argument("--strip", type=Path, default=ROOT / "docs" / "images" / "temporal_strip.png")
+    a = ap.parse_args()
+    torch.set_num_threads(a.threads)
+    a.work.mkdir(parents=True, exist_ok=True)
+    log = a.work / "log.txt"
+    train, splits, tests = make_data(a.work, a.test_worlds, log)
+    runs = []
+    first_world = a.test_worlds[0]
+    collectors: dict[str, StripCollector] = {}
+    for seed in a.seeds:  # seed-major: every variant has some seeds done if the study is cut short
+        for v in a.variants:
+            run = a.work / "runs" / f"{v}-s{seed}"
+            secs = train_run(run, v, seed, a.steps, train, splits, a.threads, log)
+            cb = None
+            if seed == a.seeds[0]:
+                collectors[v] = StripCollector(1, STRIP_FRAMES)
+                cb = lambda w, c=collectors[v]: [c] if w == first_world else []  # noqa: E731
+            res = evaluate_run(run / "best", tests, cb)
+            runs.append({"variant": v, "seed": seed, "train_seconds": None if math.isnan(secs) else secs, **res})
+            print(f"{v} seed {seed}: miou {res['miou']:.4f} flicker {res['flicker']:.4f} ({secs:.0f} s training)",
+                  flush=True)
+    timing = time_variants({v: a.work / "runs" / f"{v}-s{a.seeds[0]}" / "best" for v in a.variants}, tests, a.rounds)
+    summary = {}
+    for v in a.variants:
+        rs = [r for r in runs if r["variant"] == v]
+        summary[v] = {"label": VARIANTS[v][0], "overrides": VARIANTS[v][1],
+                      **{k: summarize([r[k] for r in rs]) for k in ("miou", "flicker", "change_recall", "abs_rel")},
+                      "ms_per_frame": timing[v]["median"], "ms_per_frame_rounds": timing[v]["rounds"],
+                      "params": rs[0]["params"]}
+    report = {
+        "command": "python benchmarks/temporal_semantics.py " + " ".join(sys.argv[1:]),
+        "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": {"cpu": cpu_name(), "threads": a.threads, "torch": torch.__version__},
+        "recipe": f"cosemdepth train --config synthair-small (4 levels, 128 px, batch 2, lr 3e-4), {a.steps} steps, "
+                  f"training world {TRAIN_WORLD} ({' + '.join(TRAIN_CLIMATES)}, 2 trajectories each)",
+        "steps": a.steps, "seeds": a.seeds, "test_worlds": a.test_worlds, "policy": "every-frame",
+        "summary": summary, "acceptance": None, "runs": runs,
+    }
+    report["acceptance"] = acceptance(summary)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(a.out.with_suffix(".json"), json.dumps(report, indent=2) + "\n")
+    atomic_write_text(a.out.with_suffix(".md"), markdown(report))
+    plot(report, a.out.with_suffix(".png"))
+    if collectors and all(c.pred for c in collectors.values()):
+        write_strip(collectors, a.strip, 7)
+    print(markdown(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
