@@ -63,6 +63,7 @@ def test_config_json_content(tmp_path):
     assert meta["model"] == {
         "arch": "m4depth", "levels": 3, "num_classes": 7, "dinl": True, "sncv": False, "time_recurrence": True,
         "feature_normalization": True, "feature_subdivision": True, "level_memory": True, "pscv_dtype": "float32",
+        "semantic_sncv": False, "semantic_time": "off",
     }
     assert meta["source"] == {}
     assert meta["num_parameters"] == sum(s.numel() for s in _random_state(cfg).values())
