@@ -40,7 +40,6 @@ import contextlib
 import fcntl
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
@@ -50,7 +49,7 @@ from ..errors import ConfigError
 from .atomic import atomic_write_text
 from .input_kinds import identify
 from .manifest import file_digest
-from .replaceable import check_replaceable
+from .replaceable import check_replaceable, probe_folder
 
 MARKER = ".cosemdepth-output.json"
 MARKER_FORMAT = "cosemdepth-output"
@@ -174,10 +173,9 @@ def probe_writable(folder: Path, message: str) -> None:
     p = folder.absolute()
     while not p.exists() and p != p.parent:
         p = p.parent
-    try:
-        os.rmdir(tempfile.mkdtemp(prefix=".probe.", dir=p))
-    except OSError as e:
-        raise ConfigError(f"{message} ({p}: {_why(e)})") from None
+    why = probe_folder(p)
+    if why is not None:
+        raise ConfigError(f"{message} ({p}: {why})")
 
 
 # ----------------------------------------------------------------------------------------------------------------
