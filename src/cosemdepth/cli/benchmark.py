@@ -33,7 +33,7 @@ from ..bench.runner import (
 from ..config import ARCHITECTURES, ModelConfig
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device
 from ..errors import ConfigError
-from ..io.outdir import check_output_file, model_inputs
+from ..io.outdir import check_output_file, model_inputs, record_output_file
 from ..models import build_model
 from ..models.footprint import check_size
 from ._shared import DEFAULT_SIZE_PAIR, load_or_build, model_size_pair, parse_size_pair
@@ -207,6 +207,9 @@ def run(args: argparse.Namespace) -> int:
             record(sep, busy)
     report["meta"]["loadavg_end"] = _loadavg()
     write_report(report, args.json, args.md)
+    for path in (args.json, args.md):
+        if path:
+            record_output_file(path, "benchmark")  # replaced by a later run only while unchanged
     print(f"wrote {args.json} and {args.md}")
     if report["joint_vs_separate"]:
         print(markdown({**report, "results": []}).split("Joint vs separate", 1)[-1])
