@@ -23,6 +23,7 @@ from torch.utils.data import DataLoader
 
 from ..data.loader import collate
 from ..errors import ConfigError, NonFiniteOutputError
+from ..workers import check_workers
 from ..inference.policy import EVERY_FRAME, Streamer
 
 
@@ -218,7 +219,7 @@ def stream(
     dtype = _model_dtype(model)
     streamer = model if isinstance(model, Streamer) else Streamer(model, policy)
     loader = DataLoader(dataset, batch_sampler=[list(s.indices) for s in schedule], collate_fn=collate,
-                        num_workers=num_workers)
+                        num_workers=check_workers(num_workers, "num_workers"))
     state = None
     prev_lanes: tuple[int, ...] = ()
     with torch.inference_mode():

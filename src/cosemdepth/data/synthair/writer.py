@@ -33,6 +33,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from ...errors import ConfigError
+from ...workers import check_workers
 from ...io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ...io.outdir import check_output_dir
 from ...model_config import MIDAIR_IMAGE_SIZE
@@ -125,8 +126,7 @@ class SynthConfig:
                               f"{self.supersample!r}")
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError(f"--jpeg-quality must be in [1, 100], got {self.jpeg_quality!r}")
-        if not isinstance(self.workers, int) or self.workers < 1:
-            raise ConfigError(f"--workers must be a positive integer, got {self.workers!r}")
+        check_workers(self.workers, minimum=1)
 
     def metadata(self) -> dict:
         """Everything that determines the output bytes (what ``synthair.json`` records). ``motion`` and
