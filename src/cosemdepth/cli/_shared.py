@@ -14,7 +14,7 @@ from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS, image_size
 from ..data.frames import FocalSize, as_size
 from ..data.registry import DATASETS, split_datasets
 from ..errors import CheckpointError, ConfigError
-from ..workers import check_workers
+from ..workers import WORKERS_PER_CORE, check_workers
 from ..devices import resolve_device
 from ..io.model_io import load_model, operating_point_of
 from ..models import build_model
@@ -245,7 +245,8 @@ def add_run_args(parser: argparse.ArgumentParser) -> None:
                         help="stream B trajectories at once as one batch, with per-sample resets (default 1, as "
                         "the original)")
     parser.add_argument("--workers", type=int, default=0, metavar="N",
-                        help="data-loading worker processes (default 0: in the main process; at most 4 per CPU core)")
+                        help="data-loading worker processes (default 0: in the main process; at most "
+                        f"{WORKERS_PER_CORE} per CPU core)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_jpeg_idct_arg(parser)
 
