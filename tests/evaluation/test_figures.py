@@ -55,6 +55,20 @@ def test_auto_depth_range_by_hand():
     assert auto_depth_range([np.array([np.nan, 0.0, -1.0, np.inf])]) == (0.0, 80.0)
 
 
+@pytest.mark.parametrize("h, w, k", [(8, 100000, 2), (100000, 8, 2), (8, 8192, 8), (16, 200000, 1), (8, 2 ** 20, 1)])
+def test_a_map_of_an_extreme_aspect_ratio_is_upscaled_less(h, w, k):
+    """48x (384 / 8) would make a 100000x8 map's panel 4.8 million pixels long: 15 GB of canvas for one picture.
+    The factor is the largest whose panel keeps to MAX_UPSCALED_PANEL (2048^2) pixels, and never below 1."""
+    from cosemdepth.evaluation.figures import MAX_UPSCALED_PANEL
+
+    assert panel_scale(h, w) == k
+    assert h * w * k * k <= MAX_UPSCALED_PANEL or k == 1
+    assert k == 1 or h * w * (k + 1) ** 2 > MAX_UPSCALED_PANEL  # the largest such factor
+    m = maps(min(h, 8), min(w, 8), keys=("rgb", "depth"))
+    f = figure(m)  # the 8x8 case draws normally: 48x
+    assert f.panel_size == (384, 384)
+
+
 @pytest.mark.parametrize("h, w, k", [(128, 128, 3), (32, 64, 12), (96, 128, 4), (384, 384, 1), (500, 700, 1)])
 def test_every_panel_is_at_least_384_px_and_the_frame_size_adds_up(h, w, k):
     assert panel_scale(h, w) == k
