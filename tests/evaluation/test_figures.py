@@ -64,9 +64,13 @@ def test_a_map_of_an_extreme_aspect_ratio_is_upscaled_less(h, w, k):
     assert panel_scale(h, w) == k
     assert h * w * k * k <= MAX_UPSCALED_PANEL or k == 1
     assert k == 1 or h * w * (k + 1) ** 2 > MAX_UPSCALED_PANEL  # the largest such factor
-    m = maps(min(h, 8), min(w, 8), keys=("rgb", "depth"))
-    f = figure(m)  # the 8x8 case draws normally: 48x
-    assert f.panel_size == (384, 384)
+    if h > w and h * w <= 800_000:  # draw a tall one: every panel at k x the map, the colour bar and legend under panels 16 px wide
+        m = maps(h, w)
+        f = figure(m)
+        img = f.frame(m)
+        assert f.panel_size == (h * k, w * k) and img.shape == (*f.frame_size, 3)
+        x0, y0, x1, y1 = f.colorbar_box
+        assert x1 > x0 and y1 > y0
 
 
 @pytest.mark.parametrize("h, w, k", [(128, 128, 3), (32, 64, 12), (96, 128, 4), (384, 384, 1), (500, 700, 1)])

@@ -348,7 +348,7 @@ class FlightFigure:
 
     def _colorbar_geometry(self, x0: int, x1: int) -> dict[str, int]:
         s = self.small_size
-        margin = round(s * 1.6)
+        margin = min(round(s * 1.6), max(0, (x1 - x0 - 1) // 2))  # narrow panels: a bar of at least one pixel
         top = round(s * 0.5)
         title_h = round(s * 1.5)
         bar_h = round(s * 1.1)
