@@ -36,7 +36,7 @@ from ..errors import ConfigError
 from ..io.outdir import check_output_file, model_inputs, record_output_file
 from ..models import build_model
 from ..models.footprint import check_size
-from ._shared import DEFAULT_SIZE_PAIR, load_or_build, model_size_pair, parse_size_pair
+from ._shared import DEFAULT_SIZE_PAIR, load_or_build, model_size_pair, parse_size_pair, positive_int
 
 #: The defaults of one measurement (size, levels, classes, warm-up and timed frames at batch 1).
 CASE = BenchCase()
@@ -68,7 +68,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--iters", type=int, default=CASE.iters, help=f"timed frames at batch 1 (default {CASE.iters})")
     parser.add_argument("--batched-warmup", type=int, default=1, help="warm-up steps at batch > 1 (default 1)")
     parser.add_argument("--batched-iters", type=int, default=2, help="timed steps at batch > 1 (default 2)")
-    parser.add_argument("--threads", type=int, help="torch CPU threads (default: PyTorch's choice)")
+    parser.add_argument("--threads", type=positive_int, help="torch CPU threads (default: PyTorch's choice)")
     parser.add_argument(
         "--wait-idle",
         type=float,
