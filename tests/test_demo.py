@@ -169,6 +169,10 @@ def test_bad_outputs_and_arguments(model_dir, data, tmp_path, capsys):
                    f"frame is a reset; the flight is rendered by cosemdepth synth, at most {MAX_FRAMES} camera "
                    f"frames), got {10**9}\n")
     assert not (tmp_path / "r").exists()
+    assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--climate", "martian"]) == 2
+    assert capsys.readouterr().err == ("cosemdepth demo: error: --climate must be one of sunny, cloudy, foggy, sunset, "
+                                       "got 'martian'\n")
+    assert not (tmp_path / "r").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
 
 

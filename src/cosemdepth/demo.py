@@ -49,6 +49,7 @@ from .cli import main as cli
 from .data import open_dataset
 from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from .data.frames import FocalSize, midair_intrinsics
+from .data.synthair.climate import CLIMATES
 from .data.synthair.writer import MAX_FRAMES
 from .errors import CheckpointError, ConfigError, DatasetError
 from .evaluation.classes import class_info
@@ -434,6 +435,8 @@ def run_demo(
         raise ConfigError(f"--frames must be an integer in [2, {MAX_DEMO_FRAMES}] (the first frame is a reset; the "
                           f"flight is rendered by cosemdepth synth, at most {MAX_FRAMES} camera frames), got "
                           f"{frames!r}")
+    if data_root is None and climate not in CLIMATES:  # said here in one line, not by the synth it runs
+        raise ConfigError(f"--climate must be one of {', '.join(CLIMATES)}, got {climate!r}")
     if size is not None and (not isinstance(size, int) or size < 32):
         raise ConfigError(f"--size must be an integer >= 32, got {size!r}")
     if video is not None and video not in VIDEO_FORMATS:
