@@ -160,6 +160,19 @@ def test_bad_outputs_and_arguments(model_dir, data, tmp_path, capsys):
     assert "--data-dir does not apply to --data-root (only to a generated flight" in capsys.readouterr().err
     assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--frames", "1"]) == 2
     assert "--frames" in capsys.readouterr().err
+    # more frames than synth renders: the demo's own one line, before the flight is built (not synth's error too)
+    from cosemdepth.data.synthair.writer import MAX_FRAMES
+
+    assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--frames", str(10**9)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"cosemdepth demo: error: --frames must be an integer in [2, {MAX_FRAMES // 4 - 1}] (the first "
+                   f"frame is a reset; the flight is rendered by cosemdepth synth, at most {MAX_FRAMES} camera "
+                   f"frames), got {10**9}\n")
+    assert not (tmp_path / "r").exists()
+    assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--climate", "martian"]) == 2
+    assert capsys.readouterr().err == ("cosemdepth demo: error: --climate must be one of sunny, cloudy, foggy, sunset, "
+                                       "got 'martian'\n")
+    assert not (tmp_path / "r").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
 
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Union
 
 from .errors import ConfigError
+from .workers import check_workers
 from .model_config import ARCHITECTURES, ENCODER_CHANNELS, MIDAIR_IMAGE_SIZE, ModelConfig
 
 
@@ -109,7 +110,7 @@ class DataConfig:
         _positive_int("data.db_seq_len", self.db_seq_len, minimum=self.seq_len,
                       why=f" (a chunk must hold a window of data.seq_len = {self.seq_len})")
         _positive_int("data.val_seq_len", self.val_seq_len)
-        _positive_int("data.num_workers", self.num_workers, minimum=0)
+        check_workers(self.num_workers, "data.num_workers")
         if self.mix_length is not None:
             _positive_int("data.mix_length", self.mix_length)
 

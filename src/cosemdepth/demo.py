@@ -49,6 +49,8 @@ from .cli import main as cli
 from .data import open_dataset
 from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from .data.frames import FocalSize, midair_intrinsics
+from .data.synthair.climate import CLIMATES
+from .data.synthair.writer import MAX_FRAMES
 from .errors import CheckpointError, ConfigError, DatasetError
 from .evaluation.classes import class_info
 from .evaluation.evaluator import Evaluator, to_json
@@ -122,13 +124,22 @@ def synth_available() -> bool:
     return importlib.util.find_spec("cosemdepth.cli.synth") is not None
 
 
+def synth_frames(frames: int) -> int:
+    """The 25 Hz camera frames ``cosemdepth synth`` renders for a demo flight of ``frames`` CSV rows (every 4th)."""
+    return 4 * (frames + 1)
+
+
+#: Longest demo flight, in CSV rows: what ``cosemdepth synth`` can render.
+MAX_DEMO_FRAMES = MAX_FRAMES // 4 - 1
+
+
 def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climate: str,
                     supersample: int = DEFAULT_SUPERSAMPLE, quiet: bool = True) -> Path:
     """Render one SynthAir trajectory of ``frames`` CSV rows with ``cosemdepth synth``; returns the dataset root."""
     if not synth_available():
         raise ConfigError("this installation has no `cosemdepth synth` command to build the SynthAir flight; pass "
                           "--data-root ROOT to evaluate on an existing Mid-Air-format dataset (splits in ROOT/splits)")
-    argv = ["synth", "--out", str(data_dir), "--trajectories", "1", "--frames", str(4 * (frames + 1)),
+    argv = ["synth", "--out", str(data_dir), "--trajectories", "1", "--frames", str(synth_frames(frames)),
             "--size", str(size), "--seed", str(seed), "--climates", climate, "--supersample", str(supersample),
             "--no-progress"]
     sink = io.StringIO()
@@ -420,8 +431,12 @@ def run_demo(
     """
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
-    if not isinstance(frames, int) or frames < 2:
-        raise ConfigError(f"--frames must be an integer >= 2 (the first frame is a reset), got {frames!r}")
+    if not isinstance(frames, int) or not 2 <= frames <= MAX_DEMO_FRAMES:
+        raise ConfigError(f"--frames must be an integer in [2, {MAX_DEMO_FRAMES}] (the first frame is a reset; the "
+                          f"flight is rendered by cosemdepth synth, at most {MAX_FRAMES} camera frames), got "
+                          f"{frames!r}")
+    if data_root is None and climate not in CLIMATES:  # said here in one line, not by the synth it runs
+        raise ConfigError(f"--climate must be one of {', '.join(CLIMATES)}, got {climate!r}")
     if size is not None and (not isinstance(size, int) or size < 32):
         raise ConfigError(f"--size must be an integer >= 32, got {size!r}")
     if video is not None and video not in VIDEO_FORMATS:

@@ -24,6 +24,11 @@ def test_export_command_errors_name_the_argument(tmp_path, capsys):
     assert "--size" in capsys.readouterr().err
     assert main(["export", "--onnx", str(tmp_path / "a.onnx"), "--opset", "13", "--arch", "m4semantic"]) == 2
     assert "--opset" in capsys.readouterr().err
+    from cosemdepth.export.onnx import max_opset  # newer than the exporter writes: one line, not torch's traceback
+
+    assert main(["export", "--onnx", str(tmp_path / "a.onnx"), "--opset", "99", "--arch", "m4semantic"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"cosemdepth export: error: --opset must be in [16, {max_opset()}]") and "Traceback" not in err
     assert not (tmp_path / "a.onnx").exists()
 
 
@@ -72,6 +77,15 @@ def test_benchmark_command_writes_json_and_markdown(tmp_path, capsys, bf16_cpu):
     assert len(rows) == 7
     assert all(re.search(r"\(min [\d.]+, IQR [\d.]+-[\d.]+, max [\d.]+\)", r) for r in rows), rows
     assert all(re.search(r"\(machine busy: (\d{1,3} %|unknown)\)$", r) for r in rows), rows
+
+
+def test_benchmark_threads_must_be_positive(capsys):
+    import pytest
+
+    with pytest.raises(SystemExit) as exit_:  # an argument error (argparse exits): 0 was taken as "not given"
+        main(["benchmark", "--threads", "0", "--json", "", "--md", ""])
+    assert exit_.value.code == 2
+    assert "--threads: expected a positive integer, got '0'" in capsys.readouterr().err
 
 
 def test_benchmark_command_rejects_fp16_on_cpu(capsys):

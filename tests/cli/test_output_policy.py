@@ -428,7 +428,31 @@ def test_export_replaces_only_its_own_onnx_file(tmp_path, capsys):
     onnx.save(onnx.load(str(out)).__class__(), str(mine))  # an ONNX file cosemdepth did not write
     before = mine.read_bytes()
     assert main(["export", "--onnx", str(mine), *argv[3:]]) == 2
-    assert "was not written by cosemdepth" in err_line(capsys) and mine.read_bytes() == before
+    assert "not written by cosemdepth" in err_line(capsys) and mine.read_bytes() == before
+    edited = onnx.load(str(out))  # the user edits cosemdepth's graph with onnx's tools: its metadata mark stays
+    edited.doc_string = "my edited graph"
+    onnx.save(edited, str(out))
+    before = out.read_bytes()
+    assert main(argv) == 2
+    assert "changed since cosemdepth export wrote it" in err_line(capsys) and out.read_bytes() == before
+
+
+def test_benchmark_replaces_its_reports_only_while_unchanged(tmp_path, capsys):
+    j, md = tmp_path / "b.json", tmp_path / "b.md"
+    argv = ["benchmark", "--models", "m4semantic", "--levels", "1", "--size", "16", "16", "--batch", "1",
+            "--iters", "1", "--batched-iters", "1", "--warmup", "0", "--batched-warmup", "0", "--no-reference",
+            "--no-joint", "--precision", "fp32", "--json", str(j), "--md", str(md)]
+    assert main(argv) == 0 and main(argv) == 0  # the second run replaces the reports the first one wrote
+    capsys.readouterr()
+    for path, edit in ((md, lambda t: t + "My note: checked by hand.\n"),  # the header line stays
+                       (j, lambda t: json.dumps({**json.loads(t), "note": "mine"}))):  # still a benchmark report
+        path.write_text(edit(path.read_text()))
+        before = path.read_bytes()
+        assert main(argv) == 2
+        assert err_line(capsys).startswith(f"cosemdepth benchmark: error: {path}: the --{path.suffix[1:]} file exists "
+                                           "and cannot be replaced: changed since cosemdepth benchmark wrote it")
+        assert path.read_bytes() == before
+        path.unlink()  # moved away: the next run writes it again
 
 
 def test_tensorflow_checkpoint_inputs(tmp_path, capsys):

@@ -124,6 +124,20 @@ def test_nanoseconds_from_zero_need_the_unit_and_the_error_says_so(tmp_path):
     np.testing.assert_allclose(rows(m), [0.5, 4.5, 8.5])
 
 
+def test_a_given_stamp_unit_is_never_ignored_by_auto(tmp_path):
+    """One pose per image, but the names in ns and the poses declared in s: auto would take the order and the
+    unit would change nothing; given, the unit means stamps, and the mismatch is the error."""
+    t0 = 1700000000 * 10**9
+    images = names(*(t0 + k * 40_000_000 for k in range(3)))
+    track = read_poses(tum(tmp_path / "p.txt", [t0 + k * 40_000_000 for k in range(3)]))  # ns, as the names
+    assert match_images(images, track).match == "stamp"  # auto reads both as ns
+    assert match_images(images, track, stamp_unit="ns").match == "stamp"
+    with pytest.raises(DatasetError, match=r"no pose for timestamp"):
+        match_images(images, track, stamp_unit=("ns", "s"))  # poses read as 1.7e18 s: no image fits
+    m = match_images(images, track, stamp_unit=("ns", "s"), match="order")  # the rule given: the unit is moot
+    assert m.match == "order" and rows(m) == [0.0, 1.0, 2.0]
+
+
 def test_open_flight_keeps_what_was_matched(tmp_path):
     from PIL import Image
 

@@ -55,6 +55,24 @@ def test_auto_depth_range_by_hand():
     assert auto_depth_range([np.array([np.nan, 0.0, -1.0, np.inf])]) == (0.0, 80.0)
 
 
+@pytest.mark.parametrize("h, w, k", [(8, 100000, 2), (100000, 8, 2), (8, 8192, 8), (16, 200000, 1), (8, 2 ** 20, 1)])
+def test_a_map_of_an_extreme_aspect_ratio_is_upscaled_less(h, w, k):
+    """48x (384 / 8) would make a 100000x8 map's panel 4.8 million pixels long: 15 GB of canvas for one picture.
+    The factor is the largest whose panel keeps to MAX_UPSCALED_PANEL (2048^2) pixels, and never below 1."""
+    from cosemdepth.evaluation.figures import MAX_UPSCALED_PANEL
+
+    assert panel_scale(h, w) == k
+    assert h * w * k * k <= MAX_UPSCALED_PANEL or k == 1
+    assert k == 1 or h * w * (k + 1) ** 2 > MAX_UPSCALED_PANEL  # the largest such factor
+    if h > w and h * w <= 800_000:  # draw a tall one: every panel at k x the map, the colour bar and legend under panels 16 px wide
+        m = maps(h, w)
+        f = figure(m)
+        img = f.frame(m)
+        assert f.panel_size == (h * k, w * k) and img.shape == (*f.frame_size, 3)
+        x0, y0, x1, y1 = f.colorbar_box
+        assert x1 > x0 and y1 > y0
+
+
 @pytest.mark.parametrize("h, w, k", [(128, 128, 3), (32, 64, 12), (96, 128, 4), (384, 384, 1), (500, 700, 1)])
 def test_every_panel_is_at_least_384_px_and_the_frame_size_adds_up(h, w, k):
     assert panel_scale(h, w) == k

@@ -90,7 +90,8 @@ def test_view_a_dataset_with_metrics(model_dir, data, tmp_path, capsys):
     assert main(argv) == 0
     capsys.readouterr()
     rrd.write_bytes(b"my own notes")
-    for extra, message in (([], f"{rrd}: the --rrd recording exists and was not written by cosemdepth"),
+    for extra, message in (([], f"{rrd}: the --rrd recording exists and cannot be replaced: changed since "
+                                "cosemdepth view wrote it"),
                            (["--overwrite"], "--overwrite does not apply to view")):  # view has no --overwrite
         assert main([*argv, *extra]) == 2
         err = capsys.readouterr().err.strip()

@@ -148,3 +148,45 @@ def test_another_commands_output_never_takes_an_input_folder_with_it(tmp_path, f
     assert check_output_dir(out, command="predict") is True  # predict replaces its own output, bag and all
     with pytest.raises(ConfigError, match=f"holds {out / 'bag'}, a ROS 2 bag"):
         check_output_dir(out, command="demo", overwrite=True)
+
+
+def test_a_single_output_file_is_replaced_only_while_its_recorded_content_is_unchanged(tmp_path):
+    """``export --onnx``, ``benchmark --json/--md``, ``--rrd``: the file's checksum is recorded in its folder's marker
+    when written; an edit that keeps the file recognisable (a note added under a report's header) makes it the
+    user's."""
+    from cosemdepth.io.outdir import record_output_file
+
+    report = tmp_path / "benchmark.md"
+    report.write_text("Measured on a CPU, PyTorch 2\n| a | b |\n")
+    looks_ours = lambda p: p.read_text().startswith("Measured ")  # noqa: E731 - what the command recognises
+    with pytest.raises(ConfigError, match=rf"^{report}: the --md file exists and cannot be replaced: not written by "
+                                          rf"cosemdepth \(no {MARKER} in {tmp_path}\); nothing was overwritten"):
+        check_output_file(report, what="--md file", recognize=looks_ours)  # written by nobody we know of
+    record_output_file(report, "benchmark")
+    assert read_marker(tmp_path)["files"]["benchmark.md"] == {
+        "size": report.stat().st_size, "sha256": hashlib.sha256(report.read_bytes()).hexdigest()}
+    check_output_file(report, what="--md file", recognize=looks_ours)  # ours and unchanged: may be replaced
+    with open(report, "a") as f:
+        f.write("My note: checked by hand.\n")  # still starts as the command's reports do
+    with pytest.raises(ConfigError, match=rf"{report}: the --md file exists and cannot be replaced: changed since "
+                                          "cosemdepth benchmark wrote it"):
+        check_output_file(report, what="--md file", recognize=looks_ours)
+    link = tmp_path / "link.md"  # a symlink names where to write: its target's record decides
+    os.symlink(report, link)
+    with pytest.raises(ConfigError, match="changed since"):
+        check_output_file(link, what="--md file")
+    with pytest.raises(ConfigError, match=f"{MARKER} is the name of cosemdepth's output record"):
+        check_output_file(tmp_path / MARKER, what="--json file")
+
+
+def test_recording_a_file_keeps_the_folders_marker_and_its_other_entries(tmp_path):
+    from cosemdepth.io.outdir import record_output_file
+
+    (tmp_path / "predictions.json").write_text("{}")
+    write_marker(tmp_path, "predict", ["predictions.json"])
+    (tmp_path / "m.onnx").write_bytes(b"graph")
+    record_output_file(tmp_path / "m.onnx", "export")
+    marker = read_marker(tmp_path)
+    assert marker["command"] == "predict"  # the folder stays predict's output
+    assert sorted(marker["files"]) == ["m.onnx", "predictions.json"]
+    assert file_problem(tmp_path, "m.onnx", marker) is None

@@ -62,3 +62,48 @@ def test_a_folder_that_cannot_change_is_named(tmp_path, immutable):
     with pytest.raises(ConfigError, match=rf"{out / 'traj'}: cannot replace the --out folder"):
         check_replaceable(out, "--out folder")
     assert folder.is_dir()
+
+
+@pytest.fixture
+def append_only():
+    """``chattr +a`` on a folder for the test."""
+    made = []
+
+    def make(path: Path) -> Path:
+        r = subprocess.run(["chattr", "+a", str(path)], capture_output=True, text=True)
+        assert r.returncode == 0, f"chattr +a {path}: {r.stderr}"
+        made.append(path)
+        return path
+
+    yield make
+    for path in reversed(made):
+        subprocess.run(["chattr", "-a", str(path)], check=True)
+
+
+def test_an_append_only_folder_is_refused_without_leaving_a_probe_in_it(tmp_path, append_only):
+    """An append-only folder takes a new entry but never lets it go: the probe must not try."""
+    from cosemdepth.io.outdir import probe_writable
+    from cosemdepth.io.replaceable import FS_APPEND_FL, probe_folder
+    from cosemdepth.io.staging import OutputFiles
+
+    (tmp_path / "q").mkdir()
+    folder = append_only(tmp_path / "q")
+    assert fs_flags(folder) & FS_APPEND_FL
+    assert probe_folder(folder) == ("the folder is append-only: entries can be added but not removed "
+                                    "(chattr -a removes that)")
+    with pytest.raises(ConfigError, match=rf"^{folder}: cannot write the --out folder \({folder}: the folder is "
+                                          "append-only"):
+        probe_writable(folder, f"{folder}: cannot write the --out folder")
+    with pytest.raises(ConfigError, match="append-only"):
+        with OutputFiles(folder, "--out folder", command="evaluate") as out:
+            out.add_text("metrics.json", "{}")
+    assert list(folder.iterdir()) == []  # no probe, no temporary file
+
+
+def test_an_immutable_folder_is_named_by_the_probe(tmp_path, immutable):
+    from cosemdepth.io.replaceable import probe_folder
+
+    (tmp_path / "q").mkdir()
+    folder = immutable(tmp_path / "q")
+    assert probe_folder(folder).startswith("the folder is immutable: entries cannot be added or removed")
+    assert probe_folder(tmp_path) is None

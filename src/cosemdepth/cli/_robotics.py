@@ -83,7 +83,8 @@ def make_sinks(args: argparse.Namespace, dataset, model, *, bag_output: bool = T
         sinks.append(BagWriter(header, flight.intrinsics.tolist(), palette, args.out_namespace))
     if getattr(args, "rerun", None) is not None:
         to_world = (lambda i: flight.camera_to_world(flight.row(i))) if flight is not None else None
-        sinks.append(RerunWriter(args.rerun, dataset, class_names=names, palette=palette, camera_to_world=to_world))
+        sinks.append(RerunWriter(args.rerun, dataset, class_names=names, palette=palette, camera_to_world=to_world,
+                                 command=getattr(args, "command", None) or "view"))
     return tuple(sinks)
 
 

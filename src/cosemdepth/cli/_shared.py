@@ -14,6 +14,7 @@ from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS, image_size
 from ..data.frames import FocalSize, as_size
 from ..data.registry import DATASETS, split_datasets
 from ..errors import CheckpointError, ConfigError
+from ..workers import WORKERS_PER_CORE, check_workers
 from ..devices import resolve_device
 from ..io.model_io import load_model, operating_point_of
 from ..models import build_model
@@ -244,7 +245,8 @@ def add_run_args(parser: argparse.ArgumentParser) -> None:
                         help="stream B trajectories at once as one batch, with per-sample resets (default 1, as "
                         "the original)")
     parser.add_argument("--workers", type=int, default=0, metavar="N",
-                        help="data-loading worker processes (default 0: in the main process)")
+                        help="data-loading worker processes (default 0: in the main process; at most "
+                        f"{WORKERS_PER_CORE} per CPU core)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_jpeg_idct_arg(parser)
 
@@ -275,8 +277,7 @@ def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32
 
 def open_split(args: argparse.Namespace, size):
     """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1)."""
-    if args.workers < 0:
-        raise ConfigError(f"--workers must be >= 0, got {args.workers}")
+    check_workers(args.workers)
     check_split_dir(args)
     return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size,
                         jpeg_idct=args.jpeg_idct)

@@ -33,10 +33,10 @@ from ..bench.runner import (
 from ..config import ARCHITECTURES, ModelConfig
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device
 from ..errors import ConfigError
-from ..io.outdir import check_output_file, model_inputs
+from ..io.outdir import check_output_file, model_inputs, record_output_file
 from ..models import build_model
 from ..models.footprint import check_size
-from ._shared import DEFAULT_SIZE_PAIR, load_or_build, model_size_pair, parse_size_pair
+from ._shared import DEFAULT_SIZE_PAIR, load_or_build, model_size_pair, parse_size_pair, positive_int
 
 #: The defaults of one measurement (size, levels, classes, warm-up and timed frames at batch 1).
 CASE = BenchCase()
@@ -72,7 +72,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--iters", type=int, default=CASE.iters, help=f"timed frames at batch 1 (default {CASE.iters})")
     parser.add_argument("--batched-warmup", type=int, default=1, help="warm-up steps at batch > 1 (default 1)")
     parser.add_argument("--batched-iters", type=int, default=2, help="timed steps at batch > 1 (default 2)")
-    parser.add_argument("--threads", type=int, help="torch CPU threads (default: PyTorch's choice)")
+    parser.add_argument("--threads", type=positive_int, help="torch CPU threads (default: PyTorch's choice)")
     parser.add_argument(
         "--wait-idle",
         type=float,
@@ -251,6 +251,9 @@ def run(args: argparse.Namespace) -> int:
             record(sep, busy)
     report["meta"]["loadavg_end"] = _loadavg()
     write_report(report, args.json, args.md)
+    for path in (args.json, args.md):
+        if path:
+            record_output_file(path, "benchmark")  # replaced by a later run only while unchanged
     print(f"wrote {args.json} and {args.md}")
     if report["joint_vs_separate"]:
         print(markdown({**report, "results": []}).split("Joint vs separate", 1)[-1])

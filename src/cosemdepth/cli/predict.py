@@ -26,6 +26,7 @@ from ..data.pose_matching import DEFAULT_MAX_GAP, MATCHES
 from ..data.poses import CONVENTIONS
 from ..data.stamps import UNITS, parse_stamp_unit
 from ..errors import ConfigError
+from ..workers import check_workers
 from ..evaluation.predict import DEFAULT_INVALID, INVALID_MODES, predict
 from ..inference.policy import BASELINE, EVERY_FRAME
 from ..models.outputs import ESTIMATED, HELD, RESET
@@ -91,8 +92,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def _validate(args: argparse.Namespace) -> None:
     """The argument checks that need no file."""
-    if args.workers < 0:
-        raise ConfigError(f"--workers must be >= 0, got {args.workers}")
+    check_workers(args.workers)
     if args.max_pose_gap is not None and not args.max_pose_gap >= 0:
         raise ConfigError(f"--max-pose-gap must be >= 0 seconds, got {args.max_pose_gap}")
     check_args(args)

@@ -17,6 +17,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from ..errors import ConfigError
+from ..workers import check_workers
 from .sequence import item_seed
 
 
@@ -86,8 +87,7 @@ def make_loader(
     """
     if not isinstance(batch_size, int) or batch_size < 1:
         raise ConfigError(f"batch_size must be a positive integer, got {batch_size!r}")
-    if not isinstance(num_workers, int) or num_workers < 0:
-        raise ConfigError(f"num_workers must be a non-negative integer, got {num_workers!r}")
+    check_workers(num_workers, "num_workers")
     kwargs = {}
     if num_workers > 0:
         kwargs["worker_init_fn"] = _worker_init

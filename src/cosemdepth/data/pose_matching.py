@@ -11,7 +11,8 @@
 * ``"auto"`` (default): ``"stamp"`` when every image stem is a number, the stems are not zero-padded frame numbers
   (``000042``), the pose file has timestamps and *every* image stamp lies within the poses' time range (``max_gap``
   beyond either end); else ``"order"`` when there are as many poses as images; else a DatasetError saying what was
-  found and which rule might fit. ``"index"`` is never guessed: frame numbers do not say at which rate the poses
+  found and which rule might fit; with a ``stamp_unit`` given (the names are meant as stamps), ``"stamp"`` even when the
+  stamps do not fit, so that the error says so instead of the order being taken. ``"index"`` is never guessed: frame numbers do not say at which rate the poses
   were written (frame k is row 4k of a 100 Hz track for a 25 Hz camera). The choice and its reason are kept in
   :attr:`PoseMatch.reason` (``predict`` writes them into ``predictions.json`` and its summary line).
 
@@ -107,6 +108,9 @@ def match_images(images: Sequence[Path], track: PoseTrack, *, match: str = "auto
     reason = None
     if match == "auto":
         match, reason = _choose(images, stems, track, image_side, pose_side, max_gap)
+        if match == "order" and stamp_unit != "auto" and image_side is not None and pose_side is not None:
+            # a stamp unit was given, so the names are meant as stamps: a mismatch is reported, not matched by order
+            match, reason = "stamp", f"--stamp-unit {_unit_text(stamp_unit)} given (image names and poses both stamps)"
     if match == "stamp":
         return _by_stamp(images, raw, track, image_side, pose_side, max_gap, skip_unposed, reason)
     times = pose_side.seconds if pose_side is not None else None
@@ -118,6 +122,10 @@ def match_images(images: Sequence[Path], track: PoseTrack, *, match: str = "auto
         return PoseMatch("order", reason, images, np.arange(len(images)), track.positions, track.quaternions,
                          times, len(images))
     return _by_index(images, stems, track, times, skip_unposed, reason)
+
+
+def _unit_text(stamp_unit) -> str:
+    return stamp_unit if isinstance(stamp_unit, str) else ",".join(stamp_unit)
 
 
 def _choose(images: list[Path], stems: list[str], track: PoseTrack, image_side: StampSide | None,

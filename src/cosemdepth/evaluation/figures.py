@@ -13,7 +13,8 @@ A frame is drawn as::
 
 Panels that a flight does not have (no ground truth, a depth-only or labels-only model) are left out; the order of
 the others is always :data:`PANELS`. Every panel is upscaled by an integer factor to at least :data:`MIN_PANEL` pixels
-on its shorter side: labels by nearest neighbour (class borders stay sharp), RGB and depth bilinearly. Depth is colour
+on its shorter side (less for maps of extreme aspect ratios: at most :data:`MAX_UPSCALED_PANEL` pixels a panel, never
+smaller than the map): labels by nearest neighbour (class borders stay sharp), RGB and depth bilinearly. Depth is colour
 mapped linearly with matplotlib's ``turbo`` from ``near`` (red) to ``far`` (dark blue); depths beyond ``far`` (the
 sky, the far background) show in the colour of ``far``. Depth pixels the prediction does not estimate (its validity
 mask: reset frames, too little camera motion, ill-conditioned geometry) are drawn in :data:`INVALID_COLOR` (grey),
@@ -50,6 +51,9 @@ DEPTH_KEYS = ("depth", "gt_depth")
 LABEL_KEYS = ("labels", "gt_labels")
 #: Smallest side of a drawn panel, pixels.
 MIN_PANEL = 384
+#: Most pixels the upscaling makes of one panel: a map of an extreme aspect ratio (100000x8) is upscaled less (down to
+#: not at all), so that its pictures stay the size of its maps instead of growing by the square of the factor.
+MAX_UPSCALED_PANEL = 2048 * 2048
 #: Depth colour map (reversed: near is red, far is dark blue).
 DEPTH_CMAP = "turbo"
 #: Depths above this are left out when choosing a flight's range (the evaluation cap: sky and far background).
@@ -150,9 +154,13 @@ def _fmt_m(v: float) -> str:
 # ---------------------------------------------------------------------------------------------------- resizing
 
 
-def panel_scale(height: int, width: int, min_panel: int = MIN_PANEL) -> int:
-    """The integer upscaling factor that brings the shorter side of a ``height x width`` map to >= ``min_panel``."""
-    return max(1, math.ceil(min_panel / max(1, min(height, width))))
+def panel_scale(height: int, width: int, min_panel: int = MIN_PANEL, max_pixels: int = MAX_UPSCALED_PANEL) -> int:
+    """The integer upscaling factor that brings the shorter side of a ``height x width`` map to >= ``min_panel``,
+    reduced (to 1 at least) while the upscaled panel would have more than ``max_pixels`` pixels."""
+    k = max(1, math.ceil(min_panel / max(1, min(height, width))))
+    if k > 1 and height * width * k * k > max_pixels:
+        k = max(1, math.isqrt(max_pixels // max(1, height * width)))
+    return k
 
 
 def upscale_nearest(a: np.ndarray, k: int) -> np.ndarray:
@@ -340,7 +348,7 @@ class FlightFigure:
 
     def _colorbar_geometry(self, x0: int, x1: int) -> dict[str, int]:
         s = self.small_size
-        margin = round(s * 1.6)
+        margin = min(round(s * 1.6), max(0, (x1 - x0 - 1) // 2))  # narrow panels: a bar of at least one pixel
         top = round(s * 0.5)
         title_h = round(s * 1.5)
         bar_h = round(s * 1.1)
@@ -547,7 +555,8 @@ def frame_maps(batch, b: int, *, title: str = "", labels_ok: Callable[[np.ndarra
 
 
 __all__ = [
-    "CAPTIONS", "FlightFigure", "FlightPictures", "FrameMaps", "INVALID_COLOR", "MIN_PANEL", "PANELS", "WARMUP_FRAMES",
+    "CAPTIONS", "FlightFigure", "FlightPictures", "FrameMaps", "INVALID_COLOR", "MAX_UPSCALED_PANEL", "MIN_PANEL",
+    "PANELS", "WARMUP_FRAMES",
     "auto_depth_range", "depth_ticks", "frame_maps", "nice_ceil", "panel_scale",
     "upscale_bilinear", "upscale_nearest",
 ]

@@ -23,6 +23,7 @@ from torch.utils.data import DataLoader
 
 from ..data.loader import collate
 from ..errors import ConfigError, NonFiniteOutputError
+from ..workers import check_workers
 from ..inference.policy import EVERY_FRAME, Streamer
 
 
@@ -245,7 +246,7 @@ def stream(
         guide = GroundTruthDepthGuide(streamer.model)
         streamer = Streamer(guide, streamer.policy, min_baseline=streamer.min_baseline)
     loader = DataLoader(dataset, batch_sampler=[list(s.indices) for s in schedule], collate_fn=collate,
-                        num_workers=num_workers)
+                        num_workers=check_workers(num_workers, "num_workers"))
     state = None
     prev_lanes: tuple[int, ...] = ()
     with torch.inference_mode():

@@ -35,6 +35,13 @@ DEFAULT_OPSET = 17
 MIN_OPSET = 16
 
 
+def max_opset() -> int:
+    """The newest ONNX opset the installed torch's (TorchScript-based) exporter writes."""
+    from torch.onnx import _constants  # deferred: the exporter's own table
+
+    return int(getattr(_constants, "ONNX_TORCHSCRIPT_EXPORTER_MAX_OPSET", _constants.ONNX_MAX_OPSET))
+
+
 def state_names(levels: int, prefix: str = "state", components: tuple[str, ...] = ("feat", "depth")) -> list[str]:
     """``[prefix_feat_1, .., prefix_feat_L, prefix_depth_1, .., prefix_depth_L]`` (the order of StreamState.flatten)."""
     return [f"{prefix}_{c}_{l}" for c in components for l in range(1, levels + 1)]
@@ -125,8 +132,10 @@ def export_onnx(
                           f"(semantic_time {cfg.semantic_time!r}): a training- and evaluation-time variant that a "
                           "deployed graph cannot feed, so it is not exported; Co-SemDepth-T (arch cosemdepth-t, "
                           "semantic_time 'own') warps with its own depth and exports")
-    if opset < MIN_OPSET:
-        raise ConfigError(f"--opset must be at least {MIN_OPSET} (GridSample), got {opset}")
+    top = max_opset()
+    if not MIN_OPSET <= opset <= top:
+        raise ConfigError(f"--opset must be in [{MIN_OPSET}, {top}] (GridSample needs {MIN_OPSET}; {top} is the newest "
+                          f"this torch {torch.__version__} exports), got {opset}")
     if height < 1 or width < 1 or batch < 1:
         raise ConfigError(f"--size and --batch must be positive, got size {height}x{width}, batch {batch}")
     path = Path(path)

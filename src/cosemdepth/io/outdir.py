@@ -27,8 +27,10 @@ export, benchmark, view):
 * Folders recognised by a command's own manifest (``recognize``: a training run's ``config.yaml``, a SynthAir
   dataset's ``synthair.json``) are resumed, never replaced (``mode="resume"``).
 * A single output file (``export --onnx``, ``benchmark --json``, ``--rerun``) must not be a folder, its parent
-  folder must exist, be a folder, be writable and lie in no input folder of any command, and an existing file is
-  replaced only if ``recognize`` says cosemdepth wrote it.
+  folder must exist, be a folder, be writable and lie in no input folder of any command. Once written it is
+  recorded with its size and SHA-256 in its folder's marker (:func:`record_output_file`); an existing file is
+  replaced only if that record lists it with the same content (and ``recognize``, where given, says it is the
+  kind of file the command writes).
 
 Anything else is a :class:`~cosemdepth.errors.ConfigError` naming the output and why; the caller checks before
 writing anything, so nothing is touched.
@@ -40,7 +42,6 @@ import contextlib
 import fcntl
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
@@ -50,7 +51,7 @@ from ..errors import ConfigError
 from .atomic import atomic_write_text
 from .input_kinds import identify
 from .manifest import file_digest
-from .replaceable import check_replaceable
+from .replaceable import check_replaceable, probe_folder
 
 MARKER = ".cosemdepth-output.json"
 MARKER_FORMAT = "cosemdepth-output"
@@ -174,10 +175,9 @@ def probe_writable(folder: Path, message: str) -> None:
     p = folder.absolute()
     while not p.exists() and p != p.parent:
         p = p.parent
-    try:
-        os.rmdir(tempfile.mkdtemp(prefix=".probe.", dir=p))
-    except OSError as e:
-        raise ConfigError(f"{message} ({p}: {_why(e)})") from None
+    why = probe_folder(p)
+    if why is not None:
+        raise ConfigError(f"{message} ({p}: {why})")
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -461,17 +461,34 @@ def check_output_file(
         raise ConfigError(f"{out}: cannot write the {what}: the folder {parent} does not exist")
     check_not_input(out, inputs, what)
     check_not_other_input(out, command=None, what=what)
+    if out.name == MARKER:
+        raise ConfigError(f"{out}: {MARKER} is the name of cosemdepth's output record; choose another file name")
     if out.exists() or out.is_symlink():
         if not out.is_file():
             raise ConfigError(f"{out}: the {what} exists and is not a regular file")
-        if recognize is None or not recognize(out):
-            raise ConfigError(f"{out}: the {what} exists and was not written by cosemdepth; nothing was overwritten "
+        target = real(out)  # a symlink names where to write: its target is what is replaced
+        problem = file_problem(target.parent, target.name, read_marker(target.parent))
+        if problem is None and recognize is not None and not recognize(out):
+            problem = "not written by cosemdepth"
+        if problem is not None:
+            raise ConfigError(f"{out}: the {what} exists and cannot be replaced: {problem}; nothing was overwritten "
                               "(move it, or choose another file name)")
         check_replaceable(out, what)
     probe_writable(parent, f"{out}: cannot write the {what}")
 
 
+def record_output_file(path: str | os.PathLike, command: str) -> Path:
+    """Record the single output file ``path`` that ``command`` has just put in place (``export --onnx``,
+    ``benchmark --json/--md``, ``view --rrd``...) with its size and SHA-256 in its folder's marker, so that
+    :func:`check_output_file` replaces it later only while its content is unchanged. An existing marker keeps its
+    command (the folder's other outputs stay those of their command); the marker of a symlink's target's folder is
+    the one written."""
+    target = real(path)
+    old = read_marker(target.parent)
+    return write_marker(target.parent, old["command"] if old is not None else command, [target.name], merge=True)
+
+
 __all__ = ["DONE_PREFIX", "Input", "LOCK_NAME", "MARKER", "OLD_PREFIX", "STAGING_PREFIX", "check_files_replaceable",
            "check_not_input", "check_not_other_input", "check_not_under_file", "check_output_dir",
            "check_output_file", "file_problem", "is_locked", "list_files", "model_inputs", "probe_writable",
-           "read_marker", "real", "work_folders", "write_marker"]
+           "read_marker", "real", "record_output_file", "work_folders", "write_marker"]

@@ -53,14 +53,24 @@ def _locked(path: Path) -> str | None:
     return None
 
 
-def _probe_folder(folder: Path) -> str | None:
-    """Why ``folder`` cannot take a new entry (and lose it again), or None. The folder's times are put back: a check
-    that passes leaves the output as it found it."""
+def probe_folder(folder: str | os.PathLike) -> str | None:
+    """Why ``folder`` cannot take a new entry (and lose it again), or None. An immutable or append-only folder is
+    reported from its flags, without trying (an append-only folder takes the probe but never lets it go). The
+    folder's times are put back: a check that passes leaves the folder as it found it."""
+    folder = Path(folder)
+    why = _locked(folder)
+    if why:
+        return (f"the folder is {why}: entries can{'not be added or' if why == 'immutable' else ' be added but not'} "
+                f"removed (chattr -{'i' if why == 'immutable' else 'a'} removes that)")
     try:
         st = os.stat(folder)
-        os.rmdir(tempfile.mkdtemp(prefix=".probe.", dir=folder))
+        probe = tempfile.mkdtemp(prefix=".probe.", dir=folder)
     except OSError as e:
         return e.strerror or str(e)
+    try:
+        os.rmdir(probe)
+    except OSError as e:
+        return f"a new entry could not be removed again ({e.strerror or e}): {probe} is left"
     try:
         os.utime(folder, ns=(st.st_atime_ns, st.st_mtime_ns))
     except OSError:
@@ -82,7 +92,7 @@ def check_replaceable(path: str | os.PathLike, what: str) -> None:
         return
     for dirpath, dirnames, filenames in os.walk(path):
         base = Path(dirpath)
-        reason = _probe_folder(base)
+        reason = probe_folder(base)
         if reason:
             raise ConfigError(f"{base}: cannot replace the {what}: this folder in it cannot be changed ({reason}); "
                               "nothing was written")
@@ -94,4 +104,4 @@ def check_replaceable(path: str | os.PathLike, what: str) -> None:
                                   f"{'i' if why == 'immutable' else 'a'} removes that); nothing was written")
 
 
-__all__ = ["FS_APPEND_FL", "FS_IMMUTABLE_FL", "check_replaceable", "fs_flags"]
+__all__ = ["FS_APPEND_FL", "FS_IMMUTABLE_FL", "check_replaceable", "fs_flags", "probe_folder"]

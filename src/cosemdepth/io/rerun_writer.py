@@ -42,7 +42,7 @@ from ..errors import ConfigError
 from ..evaluation.metrics import depth_metrics
 from ..optional import require
 from .atomic import _default_mode
-from .outdir import check_output_file
+from .outdir import check_output_file, record_output_file
 
 APPLICATION_ID = "cosemdepth"
 
@@ -115,12 +115,15 @@ class RerunWriter:
         class_names, palette: the class table (None: a model without labels).
         camera_to_world: ``dataset index -> (R [3, 3], p [3])``, absolute camera poses in a z-up world (bags);
             default: the chain of relative motions in the first camera's frame.
+        command: the command writing it (recorded with the file's checksum in its folder's output marker).
     """
 
     def __init__(self, path: str | Path, dataset, *, class_names=None, palette=None,
-                 camera_to_world: Callable[[int], tuple[np.ndarray, np.ndarray]] | None = None) -> None:
+                 camera_to_world: Callable[[int], tuple[np.ndarray, np.ndarray]] | None = None,
+                 command: str = "view") -> None:
         self.rr = require_rerun()
         self.path = Path(path)
+        self.command = command
         self.dataset = dataset
         self.names = list(class_names or [])
         self.palette = None if palette is None else np.asarray(palette, dtype=np.uint8)
@@ -212,6 +215,7 @@ class RerunWriter:
         os.chmod(self._tmp, _default_mode())  # as every other output (mkstemp creates 0600)
         os.replace(self._tmp, self.path)
         self._tmp = None
+        record_output_file(self.path, self.command)  # replaced by a later run only while unchanged
         return {"rerun": {"path": str(self.path), "frames": self.frames}}
 
     def abort(self) -> None:

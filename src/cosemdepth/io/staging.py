@@ -34,6 +34,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from .atomic import _default_mode, _fsync_dir
+from .replaceable import probe_folder
 from .outdir import (DONE_PREFIX, LOCK_NAME, MARKER, OLD_PREFIX, STAGING_PREFIX, Input, check_files_replaceable,
                      check_not_input, check_not_other_input, check_not_under_file, check_output_dir, is_locked,
                      list_files, real, work_folders, write_marker)
@@ -256,12 +257,13 @@ class OutputFiles:
         self._created = missing_ancestors(target)
         try:
             target.mkdir(parents=True, exist_ok=True)
-            fd, probe = tempfile.mkstemp(prefix=".probe.", dir=target)
-            os.close(fd)
-            os.unlink(probe)
         except OSError as e:
             remove_empty(self._created)
             raise ConfigError(f"{self.folder}: cannot write the {self.what} ({_why(e)})") from None
+        why = probe_folder(target)
+        if why is not None:
+            remove_empty(self._created)
+            raise ConfigError(f"{self.folder}: cannot write the {self.what} ({why})")
         return self
 
     def add_bytes(self, name: str, data: bytes) -> Path:

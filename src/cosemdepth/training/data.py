@@ -27,6 +27,7 @@ from torch.utils.data import DataLoader, Dataset, DistributedSampler, Sampler
 from ..config import DataConfig, DatasetSource, ModelConfig, key_path
 from ..data import MixedDataset, dataset_spec, open_dataset
 from ..errors import ConfigError, DatasetError
+from ..workers import check_workers
 from ..operating_point import MotionStats, OperatingPoint
 from .toy import ToyDataset
 
@@ -186,7 +187,7 @@ def collate(items: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 
 def _loader(dataset: Dataset, num_workers: int, seed: int, pin_memory: bool, **kwargs) -> DataLoader:
     """A DataLoader with our collation and its worker seeds from ``seed`` (without touching the global RNG)."""
-    return DataLoader(dataset, num_workers=num_workers, collate_fn=collate, pin_memory=pin_memory,
+    return DataLoader(dataset, num_workers=check_workers(num_workers, "data.num_workers"), collate_fn=collate, pin_memory=pin_memory,
                       generator=torch.Generator().manual_seed(seed), **kwargs)
 
 

@@ -30,7 +30,9 @@ def test_synth_writes_a_dataset_and_says_where_the_splits_are(world, tmp_path, c
     "argv, message",
     [
         (["--size", "8"], "--size must be an integer in [16, 4096]"),
-        (["--frames", "7"], "--frames must be at least 8"),
+        (["--frames", "7"], "--frames must be an integer in [8, 1000000]"),
+        (["--frames", str(10**12)], "--frames must be an integer in [8, 1000000]"),  # the message states both ends
+        (["--workers", "100000"], "--workers 100000: more worker processes than this machine can run"),
         (["--trajectories", "0"], "--trajectories must be in [1, 1000]"),
         (["--climates", "rainy"], "unknown climate(s) ['rainy']"),
         (["--seed", "-3"], "--seed must be a non-negative integer"),
@@ -38,7 +40,7 @@ def test_synth_writes_a_dataset_and_says_where_the_splits_are(world, tmp_path, c
         (["--motion", "fly*0:10"], "--motion: bad segment 'fly*0:10'"),
         (["--frames", "20", "--motion", "fly:10,hover:4"], "--frames 20 does not match --motion 'fly:10,hover:4'"),
         (["--frame-step", "0"], "--frame-step must be an integer in [1, 250]"),
-        (["--frames", "12", "--frame-step", "8"], "--frames must be at least 16"),
+        (["--frames", "12", "--frame-step", "8"], "--frames must be an integer in [16, 1000000]"),
     ],
 )
 def test_bad_arguments_give_a_clear_error_and_exit_status_2(tmp_path, capsys, argv, message):

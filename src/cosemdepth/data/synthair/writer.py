@@ -33,6 +33,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from ...errors import ConfigError
+from ...workers import check_workers
 from ...io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ...io.outdir import check_output_dir
 from ...model_config import MIDAIR_IMAGE_SIZE
@@ -59,6 +60,8 @@ MAX_SIZE = 4096
 SUPERSAMPLES = (1, 3, 5)
 #: Largest ``--frame-step`` (camera frames between two CSV rows: 25 / K Hz).
 MAX_FRAME_STEP = 250
+#: Most 25 Hz camera frames per trajectory (11 hours of flight).
+MAX_FRAMES = 1_000_000
 MIN_SIZE = 16
 #: Camera frames per flight when neither ``frames`` nor a motion profile says otherwise.
 DEFAULT_FRAMES = 200
@@ -106,10 +109,10 @@ class SynthConfig:
             raise ConfigError(f"--frame-step must be an integer in [1, {MAX_FRAME_STEP}] (25 Hz camera frames between "
                               f"two CSV rows), got {self.frame_step!r}")
         min_frames = 2 * self.frame_step
-        if not isinstance(self.frames, int) or not min_frames <= self.frames <= 1_000_000:
+        if not isinstance(self.frames, int) or not min_frames <= self.frames <= MAX_FRAMES:
             raise ConfigError(
-                f"--frames must be at least {min_frames} (25 Hz camera frames per trajectory; the split CSVs need "
-                f"frames 0 and {self.frame_step} at least), got {self.frames!r}"
+                f"--frames must be an integer in [{min_frames}, {MAX_FRAMES}] (25 Hz camera frames per trajectory; "
+                f"the split CSVs need frames 0 and {self.frame_step} at least), got {self.frames!r}"
             )
         if not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
             raise ConfigError(f"--seed must be a non-negative integer, got {self.seed!r}")
@@ -125,8 +128,7 @@ class SynthConfig:
                               f"{self.supersample!r}")
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError(f"--jpeg-quality must be in [1, 100], got {self.jpeg_quality!r}")
-        if not isinstance(self.workers, int) or self.workers < 1:
-            raise ConfigError(f"--workers must be a positive integer, got {self.workers!r}")
+        check_workers(self.workers, minimum=1)
 
     def metadata(self) -> dict:
         """Everything that determines the output bytes (what ``synthair.json`` records). ``motion`` and
