@@ -128,3 +128,17 @@ def test_a_previous_output_in_a_read_only_folder_is_replaced_in_place(tmp_path, 
 def _split(data):
     return ["--dataset", "midair", "--root", str(data), "--split-dir", str(data / "splits"), "--size", str(SIZE),
             "--no-progress", "--video", "none", "--max-frames", "2"]
+
+
+def test_a_library_os_error_with_line_breaks_is_one_line():
+    """h5py's full-disk OSError carries the HDF5 error stack over several lines: the boundary prints one."""
+    import errno
+
+    from cosemdepth.cli._boundary import error_line
+
+    e = OSError(errno.ENOSPC, "Unable to synchronously create file (file write failed: time = Wed Dec  3 2026\n"
+                ", filename = 'out/.sensor_records.tmp.hdf5', errno = 28, error message = 'No space left on device')",
+                "out/.sensor_records.tmp.hdf5")
+    line = error_line(e)
+    assert "\n" not in line and line.startswith("out/.sensor_records.tmp.hdf5: Unable to synchronously create file")
+    assert line.endswith("the disk is full: free some space, or write the output to another disk")

@@ -56,8 +56,8 @@ def error_line(e: BaseException, outputs: list[str] = ()) -> str | None:
     if missing is not None:
         return missing
     os_error = os_error_in(e)
-    if os_error is not None:
-        return _os_error_line(os_error, outputs)
+    if os_error is not None:  # libraries put line breaks in theirs (h5py: the HDF5 error stack)
+        return _one_line(_os_error_line(os_error, outputs))
     if out_of_memory(e):
         advice = ENVIRONMENT_ERRNOS[errno.ENOMEM]
         return f"{_one_line(_worker_message(str(e)) or type(e).__name__)[:300]}; {advice}"
