@@ -60,7 +60,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "(calibrated on synthetic frames before timing)",
     )
     parser.add_argument("--backend", choices=["pytorch", "onnxruntime"], default="pytorch",
-                        help="pytorch (default: the fast path and the rows above) or onnxruntime: the model exported "
+                        help="pytorch (default pytorch: the fast path and the rows above) or onnxruntime: the model exported "
                         "as by 'cosemdepth export --onnx' at --size and each --batch, run by ONNX Runtime's CPU "
                         "provider with the state fed back (fp32; --threads intra-op threads)")
     parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default auto: CUDA when present)")
