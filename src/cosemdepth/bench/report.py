@@ -17,11 +17,11 @@ def _fmt_params(n: int) -> str:
 def markdown(report: dict) -> str:
     """A Markdown rendering of a benchmark report (``meta``, ``results``, ``joint_vs_separate``)."""
     meta = report["meta"]
-    hw = meta.get("gpu") or f"{meta['cpu']} ({meta['cpu_count']} cores, {meta['torch_threads']} threads)"
+    hw = meta.get("gpu") or f"{meta['cpu_model']} ({meta['cpu_count']} cores, {meta['threads']} threads)"
     lines = [
-        f"Measured {meta['date']} on {hw}, PyTorch {meta['torch']}"
+        f"Measured {meta['date_utc']} on {hw}, PyTorch {meta['torch']}"
         + (f", CUDA {meta['cuda']}" if meta.get("cuda") else "")
-        + f"; load average at start {meta.get('loadavg_start')}, at end {meta.get('loadavg_end')}.",
+        + f"; load average at start {meta.get('loadavg')}, at end {meta.get('loadavg_end')}.",
         "",
         f"Command: `{meta.get('command', '')}`",
         "",
