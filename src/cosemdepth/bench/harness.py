@@ -16,7 +16,6 @@ A tool may add further top-level sections of its own (``cosemdepth benchmark``: 
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import os
 import platform
 import shlex
@@ -30,6 +29,7 @@ from typing import Any, Callable, Mapping, Optional
 
 import torch
 
+from ..evaluation.evaluator import to_json
 from ..io.atomic import atomic_write_text
 
 #: Version of the report shape below; a change of the shape raises it.
@@ -252,12 +252,12 @@ def validate(report: Any) -> list[str]:
     return problems
 
 
-def write_report(path: str | os.PathLike, report: Mapping[str, Any], indent: int = 1) -> Path:
-    """Write ``report`` as JSON to ``path`` (temp file + rename); a ValueError, nothing written, when it does not
-    have the shape above."""
+def write_report(path: str | os.PathLike, report: Mapping[str, Any]) -> Path:
+    """Write ``report`` as strict JSON (NaN and infinities as null) to ``path`` (temp file + rename); a ValueError,
+    nothing written, when it does not have the shape above."""
     problems = validate(report)
     if problems:
         raise ValueError(f"not a valid benchmark report: {'; '.join(problems)}")
     path = Path(path)
-    atomic_write_text(path, json.dumps(report, indent=indent) + "\n")
+    atomic_write_text(path, to_json(report))
     return path
