@@ -92,12 +92,3 @@ def write_report(report: dict, json_path: str | Path | None, md_path: str | Path
         atomic_write_text(json_path, json.dumps(report, indent=1) + "\n")
     if md_path:
         atomic_write_text(md_path, markdown(report))
-
-
-def print_json(result: dict, out: str | Path | None = None, indent: int = 2) -> None:
-    """Print ``result`` as JSON (a ``benchmarks/`` script's result) and, if ``out`` is given, write the same text
-    there too (atomically, with a final newline)."""
-    text = json.dumps(result, indent=indent)
-    print(text)
-    if out:
-        atomic_write_text(out, text + "\n")
