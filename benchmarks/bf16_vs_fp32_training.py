@@ -1,10 +1,10 @@
 """Does bf16 training learn like fp32 training? Same tree, same steps, same seeds; the spread of fp32 over the seeds.
 
-    PYTHONPATH=src python benchmarks/bf16_vs_fp32_training.py --data TREE --out OUT [--steps 600] [--seeds 0 1 2]
-    PYTHONPATH=src python benchmarks/bf16_vs_fp32_training.py --fp32-dir A --bf16-dir B --out OUT   # compare only
+    python benchmarks/bf16_vs_fp32_training.py --data TREE --out OUT [--steps 600] [--seeds 0 1 2]
+    python benchmarks/bf16_vs_fp32_training.py --fp32-dir A --bf16-dir B --out OUT   # compare only
 
 Trains ours with ``cosemdepth train`` in fp32 and with ``train.bf16=true`` (autocast bf16, fp32 master weights and
-losses) through ``convergence_vs_original.py --ours-only`` (the issue-12 protocol: 128 px, batch 3, sequences of 4,
+losses) through ``convergence_vs_original.py --ours-only`` (its protocol: 128 px, batch 3, sequences of 4,
 Adam 1e-4, the paper's augmentations, ``--threads`` threads per run, one run after the other), into ``OUT/fp32`` and
 ``OUT/bf16`` (finished runs are reused), evaluates each on the test split, and compares: the fp32 runs' min-max band
 of the loss curve (mean over blocks of ``--every`` steps) and of the test metrics over the seeds, and whether the
@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -27,8 +26,10 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve()
-sys.path.insert(0, str(HERE.parent))
-from convergence_vs_original import METRICS, blocks, metrics_panel, save_figure  # noqa: E402
+from cosemdepth.bench.harness import make_report, write_report
+
+# the sibling script (benchmarks/ is the script's folder, first on sys.path)
+from convergence_vs_original import METRICS, blocks, metrics_panel, read_comparison, save_figure
 
 MODES = ("fp32", "bf16")
 
@@ -50,7 +51,7 @@ def read_runs(folder: Path, seeds: list[int] | None) -> dict:
     p = folder / "convergence.json"
     if not p.exists():
         raise SystemExit(f"{p}: not found (run convergence_vs_original.py --ours-only there first)")
-    r = json.loads(p.read_text())
+    r = read_comparison(p)
     runs = {int(s): v["ours"] for s, v in r["per_seed"].items() if "ours" in v}
     if seeds is not None:
         missing = [s for s in seeds if s not in runs]
@@ -140,13 +141,14 @@ def main(argv=None) -> int:
     if any("train.bf16=true" in o for o in got["fp32"]["overrides"]) or \
             "train.bf16=true" not in got["bf16"]["overrides"]:
         raise SystemExit("--fp32-dir must hold fp32 runs and --bf16-dir runs with train.bf16=true")
-    res = {"benchmark": "bf16_vs_fp32_training", "folders": {m: str(d) for m, d in dirs.items()},
+    res = {"folders": {m: str(d) for m, d in dirs.items()},
            "steps": got["fp32"]["steps"], "every": a.every, "size": got["fp32"]["size"],
            "threads_each": {m: got[m]["threads_each"] for m in MODES}, "data": got["fp32"]["data"]}
     res.update(compare(got["fp32"], got["bf16"], a.every))
-    tmp = out / "bf16_vs_fp32.json.tmp"
-    tmp.write_text(json.dumps(res, indent=1))
-    os.replace(tmp, out / "bf16_vs_fp32.json")
+    params = {k: res[k] for k in ("folders", "steps", "every", "size", "threads_each", "data")}
+    params["seeds"] = a.seeds
+    write_report(out / "bf16_vs_fp32.json", make_report("bf16_vs_fp32_training", params,
+                                                        {m: res[m] for m in (*MODES, "comparison")}))
     plot(res, out / "bf16_vs_fp32.png",
          f"ours, fp32 vs bf16 training: {res['steps']} steps, {res['size']} px, seeds {a.seeds}")
     c = res["comparison"]

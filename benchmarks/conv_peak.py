@@ -1,6 +1,6 @@
 """How fast can this machine convolve? The floor under any direct-convolution frame time.
 
-    PYTHONPATH=src python benchmarks/conv_peak.py [--threads 1 2] [--out FILE]
+    python benchmarks/conv_peak.py [--threads 1 2] [--out FILE]
 
 Times the largest convolution of the model (3x3, 128 -> 128 channels at 192x192, 10.9 GFLOP, channels-last, fused
 LeakyReLU, the fast path's kernel) in fp32 and bf16, and as the int8 path runs it (uint8 activations, oneDNN
@@ -12,22 +12,16 @@ runs here. Writes JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
-import time
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-
-from cosemdepth.bench.runner import hardware_info  # noqa: E402
-from cosemdepth.devices import bf16_convolutions  # noqa: E402
-from cosemdepth.inference.convs import PackedConv  # noqa: E402
-from cosemdepth.inference.int8 import QuantConv, Range, has_int8, quantize  # noqa: E402
-from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
-from cosemdepth.ops.padding import Conv2dSame  # noqa: E402
+from cosemdepth.bench.harness import make_report, time_calls, write_report
+from cosemdepth.devices import bf16_convolutions
+from cosemdepth.inference.convs import PackedConv
+from cosemdepth.inference.int8 import QuantConv, Range, has_int8, quantize
+from cosemdepth.ops.padding import Conv2dSame
 
 FRAME_GFLOP = 81.0
 
@@ -36,12 +30,7 @@ FRAME_GFLOP = 81.0
 def timed_row(run, dtype: str, threads: int, iters: int, gflop: float) -> dict:
     """Time ``run()`` (one warm-up call, then ``iters`` calls) on ``threads`` threads: one row of the table."""
     torch.set_num_threads(threads)
-    run()
-    ts = []
-    for _ in range(iters):
-        t0 = time.perf_counter()
-        run()
-        ts.append((time.perf_counter() - t0) * 1e3)
+    ts = [t * 1e3 for t in time_calls(run, warmup=1, iters=iters)]
     best = min(ts)
     row = {"dtype": dtype, "threads": threads, "min_ms": round(best, 2), "median_ms": round(statistics.median(ts), 2),
            "gflops_at_min": round(gflop / best * 1e3, 1),
@@ -86,10 +75,9 @@ def main(argv=None) -> int:
         except RuntimeError as e:
             nnpack["shapes"][key] = str(e).splitlines()[0]
     print("nnpack", nnpack)
-    report = {"conv": "3x3 128->128 at 192x192, batch 1", "gflop": round(gflop, 2), "rows": rows, "nnpack": nnpack,
-              "bf16": "measured" if bf16_convolutions("cpu") else "left out: this CPU has no bf16 convolutions",
-              "machine": hardware_info("cpu")}
-    atomic_write_text(a.out, json.dumps(report, indent=1) + "\n")
+    results = {"conv": "3x3 128->128 at 192x192, batch 1", "gflop": round(gflop, 2), "rows": rows, "nnpack": nnpack,
+               "bf16": "measured" if bf16_convolutions("cpu") else "left out: this CPU has no bf16 convolutions"}
+    write_report(a.out, make_report("conv_peak", {"threads": a.threads, "iters": a.iters}, results))
     print(f"wrote {a.out}")
     return 0
 

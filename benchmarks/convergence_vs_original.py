@@ -1,6 +1,6 @@
 """Convergence side by side: the original (TensorFlow) and ours trained on the same tree and split CSVs.
 
-    TFREF_PY=... COSEM_AUTHORS=... PYTHONPATH=src python benchmarks/convergence_vs_original.py \
+    TFREF_PY=... COSEM_AUTHORS=... python benchmarks/convergence_vs_original.py \
         --data TREE [--split-dir TREE/splits] --out OUT [--steps 600] [--seeds 0 1 2] [--size 128] [--threads 1]
 
 For every seed, trains the original (the tfref harness ``train_reference.py --stages train eval``: the authors'
@@ -8,13 +8,14 @@ dataloader, augmentation, model, ``train_step`` and Keras Adam, imported unmodif
 --config midair``) for ``--steps`` steps with the same recipe (``--size``, batch 3, sequences of 4, Adam 1e-4, the
 paper's augmentations), by default both at the same time with ``--threads`` threads each, then evaluates each on the
 test split (the original's own test protocol; ``cosemdepth evaluate``). The original reads the tree through a
-prepared folder (``tfref_prep.py``: its loader's CSV layout and label files; the disparities are Mid-Air's
-``512 / z`` at every size, so both sides read the same depths).
+prepared folder (the tfref harness' ``prepare`` stage, :func:`prepare_for_original`: its loader's CSV layout and
+label files; both loaders compute ``depth = 512 / disparity``, Mid-Air's convention at every size, so both sides read
+the same depths; a SynthAir tree that records another depth encoding is refused).
 
-Writes ``OUT/convergence.json``: per implementation and seed the loss of every step and its means over consecutive
+Writes ``OUT/convergence.json`` (the benchmark report shape): per implementation and seed the loss of every step and its means over consecutive
 blocks of ``--every`` steps (the loss is ``L_depth + 0.1 L_sem`` on both sides), the test metrics; per
 implementation the mean, standard deviation, min and max over the seeds at every block; and the acceptance checks
-of issue 12 (our mean curve inside the original's min-max band at every block, our mean test metrics inside the
+(our mean curve inside the original's min-max band at every block, our mean test metrics inside the
 original's seed range). ``OUT/convergence.png``: the curves (thin: seeds, thick: means, band: the original's
 min-max) and the test metrics. Runs already finished in ``OUT`` are reused (``--overwrite`` to redo them), so an
 interrupted comparison can be resumed; ``--previous OLD/convergence.json`` reuses the seeds of an earlier
@@ -38,13 +39,44 @@ from pathlib import Path
 
 import numpy as np
 
+from cosemdepth.bench.harness import make_report, write_report
+from cosemdepth.data.synthair.writer import DEPTH_ENCODING
+
 HERE = Path(__file__).resolve()
 REPO = HERE.parents[1]
-sys.path.insert(0, str(HERE.parent))
-from tfref_prep import TFREF_TOOLS, prepare_for_original  # noqa: E402
+TFREF_TOOLS = Path(os.environ.get("TFREF_TOOLS", REPO.parent / "shared" / "tools" / "tfref"))
 
 METRICS = {"miou": "mIoU", "abs_rel": "AbsRel", "delta1": "delta1"}   # ours -> the original's names
 HIGHER_IS_BETTER = {"miou": True, "abs_rel": False, "delta1": True}
+
+
+def check_depth_encoding(data: str) -> None:
+    """Refuse a SynthAir tree whose disparities are not ``512 / z``: the original would read other depths (a tree
+    written with ``(W / 2) / z`` reads ``1024 / W`` times too far)."""
+    meta = Path(data) / "synthair.json"
+    if meta.exists():
+        enc = json.loads(meta.read_text()).get("depth_encoding")
+        if enc != DEPTH_ENCODING:
+            raise SystemExit(f"{meta}: depth_encoding {enc!r}, expected {DEPTH_ENCODING!r}: regenerate the tree "
+                             "(cosemdepth synth) so that the original reads the same depths")
+
+
+def prepare_for_original(tfpy: str, authors: str, data: str, split_dir: str, prep: str) -> dict:
+    """The tfref prepare stage (``train_reference.py --stages prepare``) into ``prep`` when not done yet; returns its
+    record. Nothing is written into the source tree."""
+    check_depth_encoding(data)
+    prep_p = Path(prep)
+    if not (prep_p / "prepare.json").exists():
+        sets = sorted(p.name for p in (Path(split_dir) / "train_data").iterdir() if p.is_dir())
+        subprocess.run([tfpy, str(TFREF_TOOLS / "train_reference.py"), authors, "--data", data, "--prep", prep,
+                        "--stages", "prepare", "--sets", *sets, "--splits", split_dir], check=True)
+    return json.loads((prep_p / "prepare.json").read_text())
+
+
+def read_comparison(path: Path) -> dict:
+    """A ``convergence.json`` as one flat dict (its params and results)."""
+    r = json.loads(Path(path).read_text())
+    return {**r["params"], **r["results"]} if "schema" in r else r
 
 
 def log(*a):
@@ -81,7 +113,6 @@ def ours_eval_cmd(a, ckpt: Path, out: Path) -> list[str]:
 def env_for(threads: int) -> dict:
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads),
                TF_CPP_MIN_LOG_LEVEL="2", TF_USE_LEGACY_KERAS="1")
-    env["PYTHONPATH"] = str(REPO / "src") + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env
 
 
@@ -122,8 +153,8 @@ def load_previous(a, with_original: bool) -> dict:
         raise SystemExit(2)
 
     try:
-        prev = json.loads(Path(a.previous).read_text())
-    except (OSError, ValueError) as e:
+        prev = read_comparison(Path(a.previous))
+    except (OSError, ValueError, KeyError) as e:
         bad(f"cannot read it ({e})")
     mine = {"data": a.data, "steps": a.steps, "every": a.every, "size": a.size, "batch": a.batch,
             "seq_len": a.seq_len, "lr": a.lr, "threads_each": a.threads, "ours_overrides": a.ours_set}
@@ -232,7 +263,7 @@ def summarize(per_seed: dict, every: int) -> dict:
             "passed": bool(all(inside) and all(met_in.values()) and len(per_seed) >= 3),
         }
         if len(per_seed) < 3:
-            out["acceptance"]["note"] = "issue 12 asks for at least 3 seeds; with one seed the band is a single curve"
+            out["acceptance"]["note"] = "the comparison needs at least 3 seeds; with one seed the band is a single curve"
     return out
 
 
@@ -343,14 +374,12 @@ def main() -> int:
             continue
         per_seed[seed] = run_seed(a, seed, out, orig)
     summary = summarize(per_seed, a.every)
-    res = {"benchmark": "convergence_vs_original", "data": a.data, "split_dir": a.split_dir, "steps": a.steps,
-           "seeds": a.seeds, "every": a.every, "size": a.size, "batch": a.batch, "seq_len": a.seq_len, "lr": a.lr,
-           "threads_each": a.threads, "simultaneous": not a.sequential, "ours_overrides": a.ours_set,
-           "original_ran": orig is not None, "load_average_end": os.getloadavg(),
-           "summary": summary, "per_seed": {str(s): r for s, r in per_seed.items()}}
-    tmp = out / "convergence.json.tmp"
-    tmp.write_text(json.dumps(res, indent=1))
-    os.replace(tmp, out / "convergence.json")
+    params = {"data": a.data, "split_dir": a.split_dir, "steps": a.steps, "seeds": a.seeds, "every": a.every,
+              "size": a.size, "batch": a.batch, "seq_len": a.seq_len, "lr": a.lr, "threads_each": a.threads,
+              "simultaneous": not a.sequential, "ours_overrides": a.ours_set}
+    results = {"original_ran": orig is not None, "load_average_end": os.getloadavg(), "summary": summary,
+               "per_seed": {str(s): r for s, r in per_seed.items()}}
+    write_report(out / "convergence.json", make_report("convergence_vs_original", params, results))
     plot(per_seed, summary, a.every, out / "convergence.png",
          f"{a.steps} steps, seeds {a.seeds}, {a.size} px, batch {a.batch}, seq {a.seq_len}, lr {a.lr:g}; "
          f"{Path(a.data).name}" + (f"; ours: {' '.join(a.ours_set)}" if a.ours_set else ""))

@@ -1,8 +1,8 @@
 """Which float32 rounding differences move the outputs as far as ONNX Runtime does: the figures behind the noise run
 of ``cosemdepth export --check`` (docs/deploy.md, "What --check compares").
 
-    PYTHONPATH=src python benchmarks/export_check_noise.py [--size 384] [--frames 6]
-        [--model weights/synthair-cosemdepth] [--out benchmarks/results/export_check_noise_384]
+    python benchmarks/export_check_noise.py [--size 384] [--frames 6]
+        [--model weights/synthair-cosemdepth] [--out benchmarks/results/export_check_noise]
 
 Exports the model at ``--size`` (batch 1), then streams the check's SynthAir flight (resets at frame 0 and in the
 middle) through ONNX Runtime and, on the same inputs and ONNX Runtime's incoming state, through the PyTorch reference
@@ -23,19 +23,15 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-
-from cosemdepth import load_model  # noqa: E402
-from cosemdepth.bench.runner import hardware_info  # noqa: E402
-from cosemdepth.export.check import (  # noqa: E402
+from cosemdepth import load_model
+from cosemdepth.bench.harness import make_report, write_report
+from cosemdepth.export.check import (
     CHECK_FRAMES,
     flight_sequence,
     noise_model,
@@ -45,9 +41,9 @@ from cosemdepth.export.check import (  # noqa: E402
     sequential_spatial_mean,
     valid_depth,
 )
-from cosemdepth.export.onnx import export_onnx  # noqa: E402
-from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
-from cosemdepth.models.outputs import StreamState  # noqa: E402
+from cosemdepth.export.onnx import export_onnx
+from cosemdepth.io.atomic import atomic_write_text
+from cosemdepth.models.outputs import StreamState
 
 
 def _cl(x):
@@ -88,7 +84,7 @@ def main() -> None:
     args = ap.parse_args()
     import onnxruntime as ort
 
-    out = Path(args.out or f"benchmarks/results/export_check_noise_{args.size}")
+    out = Path(args.out or "benchmarks/results/export_check_noise")
     model = load_model(args.model, mode="reference")
     with tempfile.TemporaryDirectory() as tmp:
         path = export_onnx(model, Path(tmp) / "step.onnx", args.size, args.size)
@@ -121,9 +117,8 @@ def main() -> None:
                              "state_nrms": max(nrms(x, y) for x, y in zip(ost, ref_st))})
             print(f"frame {k} done", flush=True)
     out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out.with_suffix(".json"), json.dumps(
-        {"size": args.size, "frames": args.frames, "model": args.model, "hardware": hardware_info(), "rows": rows},
-        indent=1))
+    params = {"size": args.size, "frames": args.frames, "model": args.model}
+    write_report(out.with_suffix(".json"), make_report("export_check_noise", params, rows))
     md = [f"# Distance to the PyTorch float32 reference, {args.size} px, {args.model}", "",
           "| frame | run | depth nRMS | depth p99 rel. | semantic nRMS | state nRMS |", "|---|---|---|---|---|---|"]
     fmt = lambda x: "-" if x is None else f"{x:.2e}"  # noqa: E731

@@ -13,17 +13,12 @@ probabilities and encoder features) to FILE; ``--update`` writes it to the track
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
-import platform
 import tempfile
 from pathlib import Path
 
-import torch
-
+from cosemdepth.bench.harness import make_report, write_report
 from cosemdepth.evaluation.fidelity import compare_with_reference
 from cosemdepth.evaluation.tfref_fixture import open_fixture
-from cosemdepth.io.atomic import atomic_write_text
 from cosemdepth.io.model_io import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,12 +58,7 @@ def main(argv: list[str] | None = None) -> None:
 def run(args: argparse.Namespace, fixture: Path, folder: Path) -> None:
     """Compare on ``folder`` (the fixture ``fixture``, rebuilt if it is in compact form)."""
     model = load_model(folder / "ckpt", mode="reference")  # the modules: what the fidelity bar is about
-    result = {
-        "fixture": str(fixture),
-        "date": datetime.date.today().isoformat(),
-        "torch": torch.__version__,
-        "machine": platform.processor() or platform.machine(),
-    }
+    result = {}
     for dtype in ("float16", "float32"):
         model.set_numerics(pscv_half=dtype == "float16")
         result[f"pscv_{dtype}"] = compare_with_reference(model, folder)
@@ -83,7 +73,7 @@ def run(args: argparse.Namespace, fixture: Path, folder: Path) -> None:
             )
     out = output_path(args)
     if out is not None:
-        atomic_write_text(out, json.dumps(result, indent=1))
+        write_report(out, make_report("fidelity", {"fixture": str(fixture)}, result))
         print(f"wrote {out}")
 
 

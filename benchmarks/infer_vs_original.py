@@ -1,8 +1,8 @@
-"""Our inference paths against the original TensorFlow Co-SemDepth, on the same machine, in one run (issue 13).
+"""Our inference paths against the original TensorFlow Co-SemDepth, on the same machine, in one run.
 
-    TFREF_PY=... COSEM_AUTHORS=... PYTHONPATH=src python benchmarks/infer_vs_original.py \
+    TFREF_PY=... COSEM_AUTHORS=... python benchmarks/infer_vs_original.py \
         [--sizes 384 192] [--warmup 3] [--frames 20] [--threads N] [--paths reference fast-fp32 fast-bf16 fast-int8] \
-        [--out-dir benchmarks/results]
+        [--graphs NAME=FILE.onnx ...] [--out benchmarks/results/infer_vs_original]
 
 For each size (square, batch 1, streaming: one frame per call, the first one resets, the state carried): the
 original's median seconds per frame (``shared/tools/tfref/make_reference.py --bench``, the authors' code imported
@@ -10,7 +10,9 @@ unmodified, random weights of the same architecture: 5 levels, 7 classes), then 
 the same architecture. Also runs ``benchmarks/conv_peak.py`` at the same thread count: the machine's convolution
 floor (the frame's 81 GFLOP at 384x384, a quarter of it at 192x192, at the measured rate of the model's largest
 convolution) in fp32, bf16 and int8, and the fraction of that floor each path reaches (floor / time: 1.0 = the frame
-costs no more than its convolutions at peak). Writes ``infer_vs_original-<sizes>.json`` and ``.md``.
+costs no more than its convolutions at peak). ``--graphs`` adds exported graphs (``cosemdepth export --onnx`` at the
+one ``--sizes`` given) run by ONNX Runtime's CPU provider with ``--threads`` intra-op threads, the state fed back:
+rows ``onnx:NAME``. Writes ``OUT.json`` (the benchmark report shape) and ``OUT.md``.
 
 Without ``TFREF_PY`` / ``COSEM_AUTHORS`` (see ``shared/tools/tfref/README.md``) it says so, measures ours only and
 writes no ratio. Timings on a shared machine are indicative: the report records the load average before and after.
@@ -21,23 +23,19 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 import torch
 
+from cosemdepth.bench.harness import make_report, write_report
+from cosemdepth.io.atomic import atomic_write_text
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
-
-from cosemdepth.bench.runner import hardware_info  # noqa: E402
-from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
-
 TFREF_DIR = ROOT.parent / "shared" / "tools" / "tfref"
 #: our paths: name -> (optimize mode, dtype, precision whose conv floor applies)
 PATHS = {
@@ -112,25 +110,41 @@ def conv_floors(threads: int, iters: int) -> dict:
         out = Path(tmp) / "conv_peak.json"
         cmd = [sys.executable, str(ROOT / "benchmarks" / "conv_peak.py"), "--threads", str(threads), "--iters",
                str(iters), "--out", str(out)]
-        subprocess.run(cmd, check=True, capture_output=True, env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+        subprocess.run(cmd, check=True, capture_output=True)
         rep = json.loads(out.read_text())
     prec = {"float32": "fp32", "bfloat16": "bf16", "int8": "int8"}
-    return {prec[r["dtype"]]: r for r in rep["rows"] if r["threads"] == threads} | {"command": " ".join(cmd[1:])}
+    return {prec[r["dtype"]]: r for r in rep["results"]["rows"] if r["threads"] == threads} | {"command": " ".join(cmd[1:])}
+
+
+def time_graph(path: Path, size: int, warmup: int, frames: int, threads: int) -> dict:
+    """An exported graph run by ONNX Runtime (CPU provider), streamed like :func:`time_ours`."""
+    from cosemdepth.export.runtime import OnnxStep
+
+    step = OnnxStep(path, threads=threads)
+    times, state = [], None
+    for i, frame in enumerate(_inputs(warmup + frames, size)):
+        t0 = time.perf_counter()
+        out, state = step.step(*frame, state)
+        out.depth.numpy(), out.semantic.numpy()
+        if i >= warmup:
+            times.append(time.perf_counter() - t0)
+    return {"median_s": statistics.median(times), "min_s": min(times), "timed_frames": len(times),
+            "warmup_frames": warmup}
 
 
 def markdown(rep: dict) -> str:
-    m = rep["machine"]
-    lines = [f"# Inference vs the original, side by side ({rep['date']})", "",
-             f"Machine: {m.get('cpu', '?')} ({m.get('cpu_capability', '?')}); {rep['threads']} threads; batch 1 streaming; "
-             f"{rep['warmup']} warm-up + {rep['frames']} timed frames; load average before {rep['loadavg_before']}, "
-             f"after {rep['loadavg_after']}. {rep['note']}", ""]
-    if rep["original"] is None:
-        lines += [f"**Original not measured**: {rep['original_missing']}", ""]
-    floors = rep["conv_floor_ms_384"]
+    m, prm, res = rep["meta"], rep["params"], rep["results"]
+    lines = [f"# Inference vs the original, side by side ({m['date_utc']})", "",
+             f"Machine: {m.get('cpu_model', '?')} ({m.get('cpu_capability', '?')}); {prm['threads']} threads; batch 1 "
+             f"streaming; {prm['warmup']} warm-up + {prm['frames']} timed frames; load average before {m['loadavg']}, "
+             f"after {res['loadavg_after']}. Indicative when the load average exceeds the thread count.", ""]
+    if res["original"] is None:
+        lines += [f"**Original not measured**: {res['original_missing']}", ""]
+    floors = res["conv_floor_ms_384"]
     lines += ["Convolution floor of a 384x384 frame at this machine's measured peak (`conv_peak.py`): "
               + ", ".join(f"{k} {v} ms" for k, v in floors.items()), "",
               "| size | path | median s/frame | x original | fraction of floor |", "|---|---|---|---|---|"]
-    for size, rows in rep["results"].items():
+    for size, rows in res["by_size"].items():
         for name, r in rows.items():
             ratio = "" if r.get("ratio_to_original") is None else f"{r['ratio_to_original']:.2f}x"
             frac = "" if r.get("floor_fraction") is None else f"{100 * r['floor_fraction']:.0f} %"
@@ -146,8 +160,19 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     p.add_argument("--paths", nargs="+", choices=list(PATHS), default=list(PATHS))
     p.add_argument("--conv-iters", type=int, default=10)
-    p.add_argument("--out-dir", default=str(ROOT / "benchmarks" / "results"))
+    p.add_argument("--graphs", nargs="+", default=[], metavar="NAME=FILE",
+                   help="exported ONNX graphs (at the one --sizes given) timed in ONNX Runtime as rows onnx:NAME")
+    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "infer_vs_original"),
+                   help="output path without extension: OUT.json, OUT.md")
     a = p.parse_args(argv)
+    graphs = {}
+    for g in a.graphs:
+        name, sep, path = g.partition("=")
+        if not sep or not Path(path).is_file():
+            p.error(f"--graphs {g}: give NAME=FILE with an existing exported graph")
+        graphs[name] = path
+    if graphs and len(a.sizes) != 1:
+        p.error("--graphs: give the one --sizes the graphs were exported at")
     for k in ("warmup", "frames", "threads", "conv_iters"):
         if getattr(a, k) < (0 if k == "warmup" else 1):
             p.error(f"--{k.replace('_', '-')} must be at least {0 if k == 'warmup' else 1}")
@@ -182,20 +207,23 @@ def main(argv=None) -> int:
                 r["ratio_to_original"] = r["median_s"] / original["by_size"][size]["median_s"]
             rows[name] = r
             print(size, name, round(r["median_s"], 4), {k: round(v, 3) for k, v in r.items() if k.endswith(("_to_original", "fraction"))})
+        for name, path in graphs.items():
+            r = time_graph(Path(path), size, a.warmup, a.frames, a.threads)
+            if original is not None:
+                r["ratio_to_original"] = r["median_s"] / original["by_size"][size]["median_s"]
+            rows[f"onnx:{name}"] = r
+            print(size, f"onnx:{name}", round(r["median_s"], 4))
         results[size] = rows
-    rep = {
-        "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        "machine": hardware_info("cpu"), "platform": platform.platform(), "torch": torch.__version__,
-        "threads": a.threads, "batch": 1, "warmup": a.warmup, "frames": a.frames,
-        "loadavg_before": [round(x, 2) for x in load_before], "loadavg_after": [round(x, 2) for x in os.getloadavg()],
-        "note": "Indicative when the load average exceeds the thread count (shared machine).",
-        "original": original, "original_missing": missing,
-        "conv_floors": floors, "conv_floor_ms_384": floor_384,
-        "results": results,
-    }
-    out = Path(a.out_dir) / f"infer_vs_original-{'-'.join(map(str, a.sizes))}"
-    atomic_write_text(out.with_suffix(".json"), json.dumps(rep, indent=1) + "\n")
-    atomic_write_text(out.with_suffix(".md"), markdown(rep))
+    params = {"sizes": a.sizes, "warmup": a.warmup, "frames": a.frames, "threads": a.threads, "paths": a.paths,
+              "graphs": graphs, "conv_iters": a.conv_iters, "batch": 1,
+              "model": "cosemdepth, 5 levels, 7 classes, random weights (seed 0)"}
+    results = {"by_size": results, "original": original, "original_missing": missing, "conv_floors": floors,
+               "conv_floor_ms_384": floor_384, "loadavg_after": [round(x, 2) for x in os.getloadavg()]}
+    rep = make_report("infer_vs_original", params, results)
+    rep["meta"]["loadavg"] = [round(x, 2) for x in load_before]
+    out = Path(a.out)
+    write_report(out.with_suffix(".json"), rep)
+    atomic_write_text(out.with_suffix(".md"), markdown(json.loads(json.dumps(rep))))
     print(f"wrote {out}.json and .md")
     return 0
 

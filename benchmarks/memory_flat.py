@@ -1,6 +1,6 @@
 """Stream many frames and check that memory stays flat (no growth beyond warm-up), in every inference mode.
 
-    PYTHONPATH=src python benchmarks/memory_flat.py [--frames 10000] [--size 64 64]
+    python benchmarks/memory_flat.py [--frames 10000] [--size 64 64]
         [--modes reference fast-fp32 fast-bf16 fast-int8] [--jobs 2] [--out FILE]
 
 Each mode runs in a fresh process (``--jobs`` at a time, one thread each), so every mode's RSS starts from a clean
@@ -27,13 +27,10 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-
-from cosemdepth.bench.memory import rss_bytes, trim, use_mmap_for_large_allocations  # noqa: E402
-from cosemdepth.bench.runner import _cpu_name, hardware_info  # noqa: E402
-from cosemdepth.export.check import synthetic_sequence  # noqa: E402
-from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
-from cosemdepth.models import build_model  # noqa: E402
+from cosemdepth.bench.harness import make_report, write_report
+from cosemdepth.bench.memory import rss_bytes, trim, use_mmap_for_large_allocations
+from cosemdepth.export.check import synthetic_sequence
+from cosemdepth.models import build_model
 
 
 MODES = {"reference": ("reference", None), "fast-fp32": ("fast", "fp32"), "fast-bf16": ("fast", "bf16"),
@@ -58,11 +55,13 @@ def run_modes(a, argv) -> int:
             for item in [x for x in procs if x[2].poll() is not None]:
                 procs.remove(item)
                 mode, out, proc = item
-                results[mode] = json.loads(Path(out).read_text()) if Path(out).exists() else {"ok": False,
-                                                                                            "error": proc.returncode}
+                results[mode] = (json.loads(Path(out).read_text())["results"] if Path(out).exists()
+                                 else {"ok": False, "error": proc.returncode})
     ok = all(r["ok"] for r in results.values())
-    summary = {"ok": ok, "frames": a.frames, "size": a.size, "modes": {m: results[m] for m in a.modes}}
-    atomic_write_text(a.out, json.dumps(summary, indent=1) + "\n")
+    params = {"frames": a.frames, "size": a.size, "modes": list(a.modes), "jobs": a.jobs, "arch": a.arch,
+              "threads_each": a.threads, "warmup": a.warmup, "reset_every": a.reset_every, "every": a.every,
+              "tolerance_mb": a.tolerance_mb, "device": a.device}
+    write_report(a.out, make_report("memory_flat", params, {"ok": ok, "modes": {m: results[m] for m in a.modes}}))
     for m in a.modes:
         r = results[m]
         print(f"{m:>10}: {'FLAT' if r['ok'] else 'GROWING'} RSS start {r.get('rss_start_mb')} MB, after warm-up "
@@ -182,9 +181,8 @@ def report(a, samples, start, done, elapsed, cuda, final) -> int:
         "ms_per_frame": round(elapsed / done * 1e3, 2),
         "method": "torch.cuda.memory_allocated" if cuda else "VmRSS (/proc/self/status) after malloc_trim",
         "samples_mb": [[f, round(b / 2**20, 2)] for f, b in samples],
-        "machine": {**hardware_info(a.device), "cpu": _cpu_name()},
     }
-    atomic_write_text(a.out, json.dumps(result, indent=1) + "\n")
+    write_report(a.out, make_report("memory_flat", {k: v for k, v in vars(a).items() if k != "out"}, result))
     if not final:
         return 0
     print(

@@ -1,7 +1,7 @@
 """Depth under unusual camera motion: hover, yaw in place, slow and fast flight, other frame rates; both streaming
 policies, with the shipped weights on held-out SynthAir worlds.
 
-    PYTHONPATH=src python benchmarks/motion_robustness.py [--model weights/synthair-cosemdepth] [--seeds 21 77]
+    python benchmarks/motion_robustness.py [--model weights/synthair-cosemdepth] [--seeds 21 77]
         [--data DIR | --cache DIR] [--demo DIR] [--regimes normal hover ...] [--policies every-frame baseline]
         [--min-baseline M] [--max-conditioning C] [--max-log-ratio R] [--threads N]
         [--out benchmarks/results/motion_robustness]
@@ -33,7 +33,6 @@ segments are in neither). ``acceptance`` checks the calibration targets of docs/
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import json
 import math
 import os
@@ -46,11 +45,11 @@ from typing import Callable
 
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
+from cosemdepth.bench.harness import command_line, make_report, run_meta, write_report
+from cosemdepth.evaluation.metrics import EVAL_MAX_DEPTH, EPS, DepthMetrics, ValidDepthMetrics
+from cosemdepth.io.atomic import atomic_write_bytes, atomic_write_text
 
-from cosemdepth.evaluation.metrics import EVAL_MAX_DEPTH, EPS, DepthMetrics, ValidDepthMetrics  # noqa: E402
-from cosemdepth.io.atomic import atomic_write_bytes, atomic_write_text  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 #: Regime -> (``cosemdepth synth --motion`` spec, ``--frame-step``). Every regime flies the normal flight's path (200
 #: rendered frames at the normal speed), so that the regimes compare on the same scenes.
@@ -271,9 +270,8 @@ def synth_argv(out: Path, seed: int, spec: str | None, step: int, frames: int | 
 
 
 def generate(out: Path, argv: list[str]) -> float:
-    """Run ``cosemdepth <argv>`` in a subprocess (this checkout's package); returns its wall seconds."""
+    """Run ``cosemdepth <argv>`` in a subprocess (the package this interpreter imports); returns its wall seconds."""
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT / "src") + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     t0 = time.perf_counter()
     print("generating", out, flush=True)
     subprocess.run([sys.executable, "-m", "cosemdepth", *argv], env=env, check=True, stdout=subprocess.DEVNULL)
@@ -317,14 +315,14 @@ def _f(v, spec=".4f") -> str:
 def markdown(report: dict) -> str:
     res = report["results"]
     s = report["settings"]
-    m = report["machine"]
+    m = report["meta"]
     lines = [
         "# Depth under unusual camera motion (both streaming policies)", "",
         f"Model {s['model']}, SynthAir seeds {', '.join(map(str, s['seeds']))} ({s['resolution']}x{s['resolution']} "
         f"px, batch {s['batch']}, {s['precision']}), policies: "
         + "; ".join(f"{k}: {json.dumps(v)}" for k, v in s["policies"].items()) + ".", "",
-        f"{m['cpu']}, {m['torch_threads']} torch threads, torch {m['torch']}, {report['date']}; "
-        f"{report['wall_seconds']:.0f} s of streaming. Command: `{report['command']}`.", "",
+        f"{m['cpu_model']}, {m['threads']} torch threads, torch {m['torch']}, {m['date_utc']}; "
+        f"{report['wall_seconds']:.0f} s of streaming. Command: `{m['command']}`.", "",
         "| regime | rows | policy | AbsRel | δ1 | valid AbsRel | valid δ1 | coverage | estimated / held / reset "
         "| valid depth <= 0 | too near removed |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
@@ -423,6 +421,13 @@ def plot(report: dict, path: Path) -> None:
 # ---------------------------------------------------------------------------------------------------------------
 
 
+def to_report(report: dict) -> dict:
+    """The JSON written (the benchmark report shape) from the run's ``report`` (what the Markdown reads)."""
+    results = {"regimes": report["results"], "acceptance": report["acceptance"], "per_flight": report["per_flight"],
+               "flights": report["flights"], "wall_seconds": report["wall_seconds"]}
+    return make_report("motion_robustness", report["settings"], results, meta=report["meta"])
+
+
 def main(argv=None) -> int:
     from cosemdepth.inference.policy import MAX_LOG_RATIO, POLICIES, StreamPolicy
     from cosemdepth.geometry.validity import MAX_CONDITIONING
@@ -449,7 +454,6 @@ def main(argv=None) -> int:
 
     from cosemdepth.data import open_dataset
     from cosemdepth.evaluation.evaluator import evaluate
-    from cosemdepth.evaluation.resources import machine_info
     from cosemdepth.inference.policy import Streamer, policy_info
     from cosemdepth.io.model_io import load_model
 
@@ -488,9 +492,8 @@ def main(argv=None) -> int:
         results.setdefault(regime, {}).setdefault(pol, {})[sub] = t.result()
     report = {
         "benchmark": "motion_robustness",
-        "command": "python benchmarks/motion_robustness.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-        "date": dt.datetime.now().astimezone().isoformat(timespec="seconds"),
-        "machine": machine_info("cpu"),
+        "meta": run_meta(command=command_line(["benchmarks/motion_robustness.py",
+                                               *(argv if argv is not None else sys.argv[1:])])),
         "settings": {
             "model": os.path.relpath(a.model, ROOT) if Path(a.model).is_relative_to(ROOT) else a.model,
             "seeds": a.seeds, "regimes": {r: {"motion": REGIMES[r][0], "frame_step": REGIMES[r][1]}
@@ -510,9 +513,7 @@ def main(argv=None) -> int:
     report["acceptance"] = acceptance(results)
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    from cosemdepth.evaluation.evaluator import to_json
-
-    atomic_write_text(Path(f"{out}.json"), to_json(report))
+    write_report(Path(f"{out}.json"), to_report(report))
     atomic_write_text(Path(f"{out}.md"), markdown(report))
     plot(report, Path(f"{out}.png"))
     print(markdown(report))

@@ -1,6 +1,6 @@
 """SynthAir rendering speed: milliseconds per 384x384 frame on this machine, written as JSON.
 
-    PYTHONPATH=src python benchmarks/synthair_speed.py [--size 384] [--frames-per-flight 3] [--threads 1]
+    python benchmarks/synthair_speed.py [--size 384] [--frames-per-flight 3] [--threads 1]
                                                        [--out benchmarks/results/synthair_speed.json]
 
 What is timed: the frames of the default set's flights (4 trajectories x 4 climates, seed 0), a few per flight,
@@ -14,12 +14,9 @@ says how busy it was.
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import json
 import os
-import platform
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -27,12 +24,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-
-from cosemdepth.data.synthair.climate import get_climate  # noqa: E402
-from cosemdepth.data.synthair.render import render_frames  # noqa: E402
-from cosemdepth.data.synthair.world import build_world  # noqa: E402
-from cosemdepth.data.synthair.writer import (  # noqa: E402
+from cosemdepth.bench.harness import make_report, write_report
+from cosemdepth.data.synthair.climate import get_climate
+from cosemdepth.data.synthair.render import render_frames
+from cosemdepth.data.synthair.world import build_world
+from cosemdepth.data.synthair.writer import (
     SynthConfig,
     batch_size,
     depth_to_png_disparity,
@@ -41,27 +37,6 @@ from cosemdepth.data.synthair.writer import (  # noqa: E402
     plan_flights,
     rendered_frames,
 )
-from cosemdepth.evaluation.resources import cpu_model  # noqa: E402
-from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
-
-
-def machine_info(threads: int) -> dict:
-    cpu = cpu_model(platform.processor() or platform.machine())
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                cwd=Path(__file__).parent, check=False).stdout.strip()
-    except OSError:
-        commit = ""
-    return {
-        "cpu": cpu,
-        "logical_cpus": os.cpu_count(),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "torch": torch.__version__,
-        "numpy": np.__version__,
-        "torch_threads": threads,
-        "git_commit": commit,
-    }
 
 
 def _stats(values_s: list[float]) -> dict:
@@ -120,9 +95,6 @@ def main(argv=None) -> int:
                 total_wall += [(w2 - w0) / n] * n
 
     result = {
-        "benchmark": "synthair_speed",
-        "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
-        "size": a.size,
         "frames": len(render_wall),
         "batch_size": bs,
         "ms_per_frame_render_wall": _stats(render_wall),
@@ -131,9 +103,9 @@ def main(argv=None) -> int:
         "world_build_s": round(world_s, 2),
         "load_average_before": [round(v, 2) for v in load_before],
         "load_average_after": [round(v, 2) for v in os.getloadavg()],
-        "machine": machine_info(a.threads),
     }
-    atomic_write_text(a.out, json.dumps(result, indent=2) + "\n")
+    params = {"size": a.size, "frames_per_flight": a.frames_per_flight, "threads": a.threads, "seed": a.seed}
+    write_report(a.out, make_report("synthair_speed", params, result))
     print(json.dumps(result, indent=2))
     return 0
 

@@ -2,7 +2,7 @@
 depth, and Co-SemDepth-T (S^{t-1} warped with the model's own depth), each trained with the same recipe and budget
 for several seeds on SynthAir and evaluated on held-out flights (other world seeds).
 
-    PYTHONPATH=src python benchmarks/temporal_semantics.py [--work DIR] [--seeds 0 1 2] [--steps 60]
+    python benchmarks/temporal_semantics.py [--work DIR] [--seeds 0 1 2] [--steps 60]
         [--test-worlds 21 22] [--variants cosemdepth sncv s_prev_gt cosemdepth_t] [--threads 1] [--rounds 3]
         [--out benchmarks/results/temporal_semantics] [--strip docs/images/temporal_strip.png]
 
@@ -25,11 +25,8 @@ frame) and the picture strip (labels over consecutive frames of the first held-o
 from __future__ import annotations
 
 import argparse
-import datetime as dt
-import json
 import math
 import os
-import platform
 import shutil
 import statistics
 import subprocess
@@ -37,13 +34,12 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
+from cosemdepth.bench.harness import make_report, run_meta, write_report
+from cosemdepth.io.atomic import atomic_write_text
 
-from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 #: Variant -> (label, ``cosemdepth train`` overrides). Everything else is the synthair-small recipe.
 VARIANTS = {
@@ -63,7 +59,7 @@ TRAIN_ATTEMPTS, RETRY_WAIT_S = 4, 60
 
 
 def cli(*args: str, log: Path | None = None, threads: int = 1) -> None:
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": str(threads),
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads),
            "MKL_NUM_THREADS": str(threads)}
     cmd = [sys.executable, "-m", "cosemdepth", *args]
     with open(log, "a") if log else open(os.devnull, "w") as f:
@@ -179,7 +175,7 @@ def summarize(values: list) -> dict:
 
 
 def acceptance(summary: dict) -> dict:
-    """The issue's targets for Co-SemDepth-T against Co-SemDepth, with what was measured."""
+    """The targets for Co-SemDepth-T against Co-SemDepth, with what was measured."""
     base, t = summary.get("cosemdepth"), summary.get("cosemdepth_t")
     if not base or not t:
         return {}
@@ -310,17 +306,6 @@ def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: 
     os.replace(tmp, path)
 
 
-def cpu_name() -> str:
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True).stdout
-        for line in out.splitlines():
-            if line.startswith("Model name:"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, default=Path("runs/temporal_semantics"))
@@ -360,10 +345,11 @@ def main() -> int:
                       **{k: summarize([r[k] for r in rs]) for k in ("miou", "flicker", "change_recall", "abs_rel")},
                       "ms_per_frame": timing[v]["median"], "ms_per_frame_rounds": timing[v]["rounds"],
                       "params": rs[0]["params"]}
+    meta = run_meta()
     report = {
-        "command": "python benchmarks/temporal_semantics.py " + " ".join(sys.argv[1:]),
-        "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        "machine": {"cpu": cpu_name(), "threads": a.threads, "torch": torch.__version__},
+        "command": meta["command"],
+        "date": meta["date_utc"],
+        "machine": {"cpu": meta["cpu_model"], "threads": a.threads, "torch": torch.__version__},
         "recipe": f"cosemdepth train --config synthair-small (4 levels, 128 px, batch 2, lr 3e-4), {a.steps} steps, "
                   f"training world {TRAIN_WORLD} ({' + '.join(TRAIN_CLIMATES)}, 2 trajectories each)",
         "steps": a.steps, "seeds": a.seeds, "test_worlds": a.test_worlds, "policy": "every-frame",
@@ -371,7 +357,10 @@ def main() -> int:
     }
     report["acceptance"] = acceptance(summary)
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(a.out.with_suffix(".json"), json.dumps(report, indent=2) + "\n")
+    params = {k: report[k] for k in ("recipe", "steps", "seeds", "test_worlds", "policy")}
+    params.update(variants=a.variants, threads=a.threads, rounds=a.rounds)
+    write_report(a.out.with_suffix(".json"), make_report(
+        "temporal_semantics", params, {k: report[k] for k in ("summary", "acceptance", "runs")}, meta=meta))
     atomic_write_text(a.out.with_suffix(".md"), markdown(report))
     plot(report, a.out.with_suffix(".png"))
     if collectors and all(c.pred for c in collectors.values()):

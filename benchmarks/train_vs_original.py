@@ -1,6 +1,6 @@
 """Training speed side by side: the authors' original TensorFlow trainer and ours, on one tree, one machine.
 
-    PYTHONPATH=src python benchmarks/train_vs_original.py [--tree DIR] [--steps 30] [--warmup 5] [--size 128]
+    python benchmarks/train_vs_original.py [--tree DIR] [--steps 30] [--warmup 5] [--size 128]
         [--batch 3] [--seq-len 4] [--threads 2] [--precision fp32 bf16] [--workers N] [--rounds R]
         [--order rotate|fixed] [--no-original] [--work DIR] [--out benchmarks/results/train_vs_original]
 
@@ -44,12 +44,11 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
+from cosemdepth.bench.harness import make_report, write_report
+from cosemdepth.devices import bf16_convolutions, no_bf16_reason
+from cosemdepth.io.atomic import atomic_write_text
 
-from cosemdepth.bench.runner import hardware_info  # noqa: E402
-from cosemdepth.devices import bf16_convolutions, no_bf16_reason  # noqa: E402
-from cosemdepth.io.atomic import atomic_write_text  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 TFREF = ROOT.parent / "shared" / "tools" / "tfref"
 #: Forward multiply-accumulates of the Co-SemDepth network per frame at 384x384 (design 12.2: 81 GFLOP = 40.5 GMAC).
@@ -58,7 +57,6 @@ FRAME_GFLOP_384 = 81.0
 
 def _env() -> dict:
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT / "src") + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env
 
 
@@ -163,7 +161,7 @@ def conv_floor(a, work: Path) -> dict:
     out = work / "conv_peak.json"
     _run([sys.executable, ROOT / "benchmarks" / "conv_peak.py", "--threads", a.threads, "--out", out],
          work / "conv_peak.log")
-    rows = json.loads(out.read_text())["rows"]
+    rows = json.loads(out.read_text())["results"]["rows"]
     gflops = {r["dtype"]: r["gflops_at_min"] for r in rows if r["threads"] == a.threads}
     frame_gflop = FRAME_GFLOP_384 * (a.size / 384) ** 2
     step_gflop = 3 * frame_gflop * a.batch * a.seq_len
@@ -302,19 +300,16 @@ def main(argv=None) -> int:
     for rnd in rounds:
         finish_round(rnd, floor)
     original, ours = combine_rounds(rounds)
-    report = {
-        "config": {"size": a.size, "batch": a.batch, "seq_len": a.seq_len, "threads": a.threads, "steps": a.steps,
-                   "warmup": a.warmup, "rounds": a.rounds, "tree": str(a.tree) if a.tree else "SynthAir, 2 climates "
-                   "x 3 flights, 80 frames, 256 px (built by this script)", "splits": "the original's prepare"
-                   if original else "the tree's own"},
-        "original": original, "original_missing": why, "ours": ours, "rounds": rounds, "conv_floor": floor,
-        "precisions_left_out": left_out,
-        "machine": hardware_info("cpu"),
-    }
+    params = {"size": a.size, "batch": a.batch, "seq_len": a.seq_len, "threads": a.threads, "steps": a.steps,
+              "warmup": a.warmup, "rounds": a.rounds, "order": a.order, "precision": a.precision,
+              "tree": str(a.tree) if a.tree else "SynthAir, 2 climates x 3 flights, 80 frames, 256 px (built by this "
+              "script)", "splits": "the original's prepare" if original else "the tree's own"}
+    results = {"original": original, "original_missing": why, "ours": ours, "rounds": rounds, "conv_floor": floor,
+               "precisions_left_out": left_out}
+    report = make_report("train_vs_original", params, results)
     out = Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out.with_suffix(".json"), json.dumps(report, indent=1) + "\n")
-    m = report["machine"]
+    write_report(out.with_suffix(".json"), report)
+    m = report["meta"]
     def order(rnd: dict) -> str:
         return ", ".join(job if job == "original" else f"ours {job}" for job in rnd["order"])
 
@@ -326,7 +321,7 @@ def main(argv=None) -> int:
                 f"round {k + 1}: {order(rnd)}" for k, rnd in enumerate(rounds)) + ")"
         setup += ", each ratio taken within its round"
     md = [f"# Training speed, side by side ({a.size} px, batch {a.batch}, seq {a.seq_len}, {a.threads} threads)", "",
-          f"{m['date']}, {m['cpu']} ({m['cpu_count']} CPUs, {m['cpu_capability']}), torch {m['torch']}; {setup}.", "",
+          f"{m['date_utc']}, {m['cpu_model']} ({m['cpu_count']} CPUs, {m['cpu_capability']}), torch {m['torch']}; {setup}.", "",
           "| trainer | steps/s | s/step (median) | vs original | of its conv floor | load before |",
           "|---|---:|---:|---:|---:|---|"]
     runs = []  # (label, our run) of every round, for the notes below the table

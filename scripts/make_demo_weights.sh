@@ -28,7 +28,7 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 # The renders run several processes at once: their OpenMP threads sleep rather than spin while waiting. Training does
 # not: with sleeping threads our trainer made 0.74-0.80 steps/s instead of 0.88-0.89 (0.86x; 2026-12-03, 2-core AMD EPYC,
-# 128 px, batch 3, seq 4, bf16, benchmarks/results/train_env_ab-amd.md); this script used to set it for all.
+# 128 px, batch 3, seq 4, bf16, docs/log.md); this script used to set it for all.
 CLI=.venv/bin/cosemdepth
 RUN=${RUN:-runs/synthair-demo}
 # The recipe trains with bf16 autocast; a CPU without bf16 convolutions (AVX2 only) trains in float32 instead (fp32

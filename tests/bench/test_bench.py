@@ -49,7 +49,7 @@ def test_run_case_joint_vs_separate_and_reports(tmp_path):
     cmp = joint_vs_separate(res, sep)
     assert cmp["joint_fewer_params"] and cmp["joint_params"] == s["params"]
     report = {
-        "meta": {"date": "d", "cpu": "c", "cpu_count": 2, "torch_threads": 2, "torch": "t", "command": "x"},
+        "meta": {"date_utc": "d", "cpu_model": "c", "cpu_count": 2, "threads": 2, "torch": "t", "command": "x"},
         "results": [s, sep.summary()],
         "joint_vs_separate": [cmp],
     }
@@ -102,7 +102,7 @@ def test_joint_vs_separate_verdict_uses_the_spread():
     assert close["joint_spread_ms_per_frame"]["q75"] == 13 and close["separate_spread_ms_per_frame"]["q25"] == 12.5
     apart = joint_vs_separate(result([10, 11, 12, 13, 14]), result([20, 21, 22, 23, 24], "m4depth+m4semantic"))
     assert apart["joint_faster"] == "yes"
-    md = markdown({"meta": {"date": "d", "cpu": "c", "cpu_count": 2, "torch_threads": 2, "torch": "t"},
+    md = markdown({"meta": {"date_utc": "d", "cpu_model": "c", "cpu_count": 2, "threads": 2, "torch": "t"},
                    "results": [], "joint_vs_separate": [close, {**apart, "joint_faster": True}]})
     assert "| 12.0 (11.0-13.0) | 13.5 (12.5-15.0) |" in md and "| within noise |" in md and "| yes |" in md
 

@@ -38,6 +38,7 @@ def env(tmp_path_factory, data, model_dir):
 
 S = str(SIZE)
 EVAL = ["--dataset", "midair", "--root", "{D}", "--split-dir", "{D}/splits", "--size", S, "--no-progress"]
+FA = EVAL[:-1]  # fast-accuracy has no progress bar
 
 #: (argv, what the error line must name); {T} = sandbox, {D} = dataset, {M} = model folder
 CASES = [
@@ -124,6 +125,13 @@ CASES = [
     (["benchmark", "--json", "{T}/b.json", "--md", "{T}/notes.txt"], "{T}/notes.txt"),
     (["benchmark", "--json", "{T}/nope/b.json", "--md", "{T}/b.md"], "{T}/nope"),
     (["benchmark", "--model", "{T}/nope", "--json", "{T}/b.json", "--md", "{T}/b.md"], "{T}/nope"),
+    # fast-accuracy
+    (["fast-accuracy", "--model", "{M}", *FA, "--out", "{T}/bench.json"], "{T}/bench.json"),
+    (["fast-accuracy", "--model", "{M}", *FA, "--out", "{T}/nope/fa.json"], "{T}/nope"),
+    (["fast-accuracy", "--model", "{M}", *FA, "--out", "{D}/fa.json"], "{D}"),
+    (["fast-accuracy", "--model", "{T}/nope", *FA, "--out", "{T}/fa.json"], "{T}/nope"),
+    (["fast-accuracy", "--model", "{M}", "--dataset", "midair", "--root", "{T}/nope", "--split-dir", "{T}/nope/splits",
+      "--size", S, "--out", "{T}/fa.json"], "{T}/nope"),
     # export
     (["export", "--onnx", "{T}/mine"], "{T}/mine"),
     (["export", "--onnx", "{T}/notes.txt/m.onnx"], "{T}/notes.txt"),

@@ -301,10 +301,10 @@ class Check:
         return self.report()
 
     def report(self) -> dict:
-        from .runner import hardware_info
+        from .harness import run_meta
 
-        meta = hardware_info(self.plan.device)
-        meta.update({"command": "gpu_check " + " ".join(sys.argv[1:]), "dry_run": self.plan.dry_run,
+        meta = run_meta(self.plan.device, command="gpu_check " + " ".join(sys.argv[1:]))
+        meta.update({"dry_run": self.plan.dry_run,
                      "device": self.plan.device, "size": [self.plan.size, self.plan.size],
                      "weights": self.plan.weights if self.plan.weights and Path(self.plan.weights).is_dir() else None,
                      "budget_s": self.plan.budget_s, "elapsed_s": round(time.monotonic() - self.t0, 1),

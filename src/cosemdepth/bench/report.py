@@ -17,11 +17,11 @@ def _fmt_params(n: int) -> str:
 def markdown(report: dict) -> str:
     """A Markdown rendering of a benchmark report (``meta``, ``results``, ``joint_vs_separate``)."""
     meta = report["meta"]
-    hw = meta.get("gpu") or f"{meta['cpu']} ({meta['cpu_count']} cores, {meta['torch_threads']} threads)"
+    hw = meta.get("gpu") or f"{meta['cpu_model']} ({meta['cpu_count']} cores, {meta['threads']} threads)"
     lines = [
-        f"Measured {meta['date']} on {hw}, PyTorch {meta['torch']}"
+        f"Measured {meta['date_utc']} on {hw}, PyTorch {meta['torch']}"
         + (f", CUDA {meta['cuda']}" if meta.get("cuda") else "")
-        + f"; load average at start {meta.get('loadavg_start')}, at end {meta.get('loadavg_end')}.",
+        + f"; load average at start {meta.get('loadavg')}, at end {meta.get('loadavg_end')}.",
         "",
         f"Command: `{meta.get('command', '')}`",
         "",
@@ -92,12 +92,3 @@ def write_report(report: dict, json_path: str | Path | None, md_path: str | Path
         atomic_write_text(json_path, json.dumps(report, indent=1) + "\n")
     if md_path:
         atomic_write_text(md_path, markdown(report))
-
-
-def print_json(result: dict, out: str | Path | None = None, indent: int = 2) -> None:
-    """Print ``result`` as JSON (a ``benchmarks/`` script's result) and, if ``out`` is given, write the same text
-    there too (atomically, with a final newline)."""
-    text = json.dumps(result, indent=indent)
-    print(text)
-    if out:
-        atomic_write_text(out, text + "\n")

@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import datetime as _dt
 import os
-import platform
 import statistics
 import time
 from dataclasses import asdict, dataclass, field
@@ -21,8 +19,6 @@ from typing import Callable, Optional
 import torch
 
 from ..config import MIDAIR_IMAGE_SIZE, ModelConfig
-from ..devices import cpu_capability
-from ..evaluation.resources import cpu_model
 from ..export.check import synthetic_sequence
 from ..inference.graphs import make_streamer
 from ..models import build_model
@@ -293,29 +289,6 @@ def joint_vs_separate(joint: BenchResult, separate: BenchResult, min_quiet: int 
         "joint_smaller_memory": j["peak_mem_mb"] < s["peak_mem_mb"],
         "joint_fewer_params": j["params"] < s["params"],
     }
-
-
-def hardware_info(device: str = "cpu") -> dict:
-    """What the numbers were measured on."""
-    info = {
-        "date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        "cpu": _cpu_name(),
-        "cpu_count": os.cpu_count(),
-        "torch_threads": torch.get_num_threads(),
-        "torch": torch.__version__,
-        "python": platform.python_version(),
-        "platform": platform.platform(),
-        "cpu_capability": cpu_capability(),
-        "loadavg_start": _loadavg(),
-    }
-    if torch.device(device).type == "cuda" and torch.cuda.is_available():
-        info["gpu"] = torch.cuda.get_device_name(torch.device(device))
-        info["cuda"] = torch.version.cuda
-    return info
-
-
-def _cpu_name() -> str:
-    return cpu_model(platform.processor() or "unknown")
 
 
 def _loadavg() -> Optional[list[float]]:

@@ -79,7 +79,7 @@ def add_precision_arg(parser: argparse.ArgumentParser) -> None:
                         help="precision of the fast path's refiners: fp32 (default; the reference results up to float "
                         "rounding), bf16, or int8 (CPU; oneDNN int8 convolutions in the semantic refiners, activation "
                         "ranges calibrated on the first 8 frames, which run in fp32); check the accuracy of your "
-                        "weights with benchmarks/fast_accuracy.py before using bf16 or int8")
+                        "weights with 'cosemdepth fast-accuracy' before using bf16 or int8")
 
 
 def add_model_or_arch_args(parser: argparse.ArgumentParser) -> None:

@@ -12,19 +12,18 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-import shlex
 import sys
 from dataclasses import asdict
 
 import torch
 
+from ..bench.harness import SCHEMA, command_line, run_meta
 from ..bench.noise import format_busy, format_spread, spread
 from ..bench.report import markdown, write_report
 from ..bench.runner import (
     BenchCase,
     _loadavg,
     cpu_busy_fraction,
-    hardware_info,
     joint_vs_separate,
     run_case,
     run_separate,
@@ -38,6 +37,8 @@ from ..models import build_model
 from ..models.footprint import check_size
 from ._shared import DEFAULT_SIZE_PAIR, load_or_build, model_size_pair, parse_size_pair, positive_int
 
+#: The report's ``tool`` (and the start of its ``meta.command``).
+TOOL = "cosemdepth benchmark"
 #: The defaults of one measurement (size, levels, classes, warm-up and timed frames at batch 1).
 CASE = BenchCase()
 
@@ -91,7 +92,7 @@ def _is_our_json(path) -> bool:
     except (OSError, UnicodeDecodeError, ValueError):
         return False
     return (isinstance(data, dict) and isinstance(data.get("meta"), dict)
-            and str(data["meta"].get("command", "")).startswith("cosemdepth benchmark"))
+            and str(data["meta"].get("command", "")).startswith(TOOL))
 
 
 def _is_our_md(path) -> bool:
@@ -191,8 +192,11 @@ def run(args: argparse.Namespace) -> int:
             num_classes=cfg.num_classes if cfg else CASE.num_classes,
         )
 
-    report = {"meta": hardware_info(device), "results": [], "joint_vs_separate": []}
-    report["meta"]["command"] = "cosemdepth benchmark " + " ".join(shlex.quote(a) for a in sys.argv[2:])
+    params = {k: v for k, v in vars(args).items() if k not in ("command", "func") and not k.startswith("_")}
+    params.update(size=[h, w], precision=precisions, models=models)
+    report = {"tool": TOOL, "schema": SCHEMA,
+              "meta": run_meta(device, command=command_line(["cosemdepth", "benchmark", *sys.argv[2:]])),
+              "params": params, "results": [], "joint_vs_separate": []}
     report["meta"]["resolution"] = [h, w]
 
     def idle():

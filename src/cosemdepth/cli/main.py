@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "view": ("cosemdepth.cli.view", "run a model over a flight and write a rerun recording (.rrd) of it"),
     "demo": ("cosemdepth.cli.demo", "the end-to-end demo on SynthAir"),
     "benchmark": ("cosemdepth.cli.benchmark", "measure speed and memory"),
+    "fast-accuracy": ("cosemdepth.cli.fast_accuracy", "check the fast inference modes' accuracy against the reference"),
     "export": ("cosemdepth.cli.export", "export the streaming model to ONNX"),
 }
 

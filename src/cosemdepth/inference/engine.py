@@ -55,7 +55,7 @@ INT8_KEEP_FLOAT: dict[str, tuple[int, ...]] = {"depth": (0, 1, 2, 3, 4, 5)}
 #: reduced precision (bf16, fp16, int8): per decoder, the first level (1 = half resolution) from which the coarser
 #: levels keep float32 refiners. The coarse depth estimates seed every finer level and, through the state, the next
 #: frames: in bfloat16 they moved AbsRel by -1.4 % to +2.6 % on three SynthAir flights, float32 there by -0.2 % to
-#: +0.1 % for 3.9 % of the refiners' multiply-accumulates (``benchmarks/fast_accuracy.py``, docs/benchmarks.md).
+#: +0.1 % for 3.9 % of the refiners' multiply-accumulates (``cosemdepth fast-accuracy``, docs/benchmarks.md).
 FLOAT32_FROM_LEVEL: dict[str, int] = {"depth": 3}
 
 
@@ -144,7 +144,7 @@ class FastEngine:
         int8_keep_float: with int8, per decoder the hidden refiner convolutions that stay float (default
             :data:`INT8_KEEP_FLOAT`: the depth refiners).
         int8_float_dtype: with int8, the dtype of those float convolutions (default bfloat16 on a CPU with native
-            bf16, else float32; measured within the accuracy bounds, ``benchmarks/fast_accuracy.py``).
+            bf16, else float32; measured within the accuracy bounds, ``cosemdepth fast-accuracy``).
         float32_levels: with a reduced precision (bf16, fp16, int8), per decoder the level numbers (1 = finest) whose
             refiners run entirely in float32 (default: :data:`FLOAT32_FROM_LEVEL`, the depth levels at 1/8 of the
             resolution and coarser: 3, 4 and 5 of the 5-level model); ``{}`` runs every level reduced.

@@ -77,7 +77,7 @@ class SceneModel(nn.Module):
           gives the reference results up to float rounding (the *safe* setting, which the inference commands use by
           default). ``dtype=torch.bfloat16`` (CPU or GPU) or ``torch.float16`` (GPU) runs the refiners' hidden
           convolutions in that precision, faster and less exact: opt in after checking the accuracy of your weights
-          (``benchmarks/fast_accuracy.py``). ``dtype="int8"`` (CPU) runs the refiners' hidden convolutions as oneDNN
+          (``cosemdepth fast-accuracy``). ``dtype="int8"`` (CPU) runs the refiners' hidden convolutions as oneDNN
           int8 convolutions with statically calibrated activations (:mod:`cosemdepth.inference.int8`): pass
           ``calibration=`` (an iterable of ``(rgb, rot, trans, intrinsics, reset)`` frames), or the first
           ``calibration_frames`` (default 8) streamed frames calibrate, in float32.
