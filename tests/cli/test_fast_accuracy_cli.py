@@ -83,3 +83,12 @@ def test_verdicts_by_hand():
     assert v["abs_rel_rel_diff"] == pytest.approx(-0.0105) and not v["abs_rel_ok"] and not v["ok"]
     assert accuracy.verdict({"abs_rel": 0.2}, {"abs_rel": 0.2}) == {"abs_rel_rel_diff": 0.0, "abs_rel_ok": True,
                                                                      "ok": True}
+
+
+def test_a_report_changed_since_is_kept(model_dir, data, tmp_path, capsys):
+    out = tmp_path / "fa.json"
+    assert fast_accuracy(model_dir, data, out, "--modes", "fast-fp32", "--max-frames", 2) == 0
+    edited = out.read_text().replace('"schema": 1', '"schema": 1, "note": "mine"')
+    out.write_text(edited)
+    assert fast_accuracy(model_dir, data, out, "--modes", "fast-fp32", "--max-frames", 2) == 2
+    assert str(out) in capsys.readouterr().err and out.read_text() == edited

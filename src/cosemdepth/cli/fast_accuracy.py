@@ -26,7 +26,7 @@ from ..data import open_dataset
 from ..data.registry import dataset_spec
 from ..devices import resolve_device
 from ..io.model_io import load_model
-from ..io.outdir import Input, check_output_file, model_inputs
+from ..io.outdir import Input, check_output_file, model_inputs, record_output_file
 from ._shared import (add_device_args, add_split_args, apply_threads, check_split_dir, input_size,
                       model_operating_point, parse_size, positive_int, size_help)
 
@@ -54,7 +54,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help=f"fast-int8: calibration frames (default {CALIBRATION_FRAMES})")
     parser.add_argument("--out", default=DEFAULT_OUT, metavar="FILE",
                         help=f"the JSON report (default {DEFAULT_OUT}; an existing file is replaced only if "
-                        "cosemdepth fast-accuracy wrote it)")
+                        "cosemdepth fast-accuracy wrote it and it is unchanged since)")
 
 
 def _is_ours(path: Path) -> bool:
@@ -95,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     report = make_report(TOOL, params, compared,
                          meta=run_meta(str(device), command=command_line(["cosemdepth", "fast-accuracy", *sys.argv[2:]])))
     write_report(args.out, report)
+    record_output_file(args.out, "fast-accuracy")  # replaced by a later run only while unchanged
     ok = all_ok(compared["verdicts"].values())
     print(f"wrote {args.out}: {'every mode within' if ok else 'a mode outside'} the tolerances")
     return 0 if ok else 1
