@@ -73,7 +73,7 @@ def _with_iqr(median: float, sp: dict | None) -> str:
 
 
 def _verdict(v) -> str:
-    """``joint_faster``: "yes" / "no" / "within noise" (reports before issue 9 hold a bool)."""
+    """``joint_faster``: "yes" / "no" / "within noise" (older reports hold a bool)."""
     return ("yes" if v else "no") if isinstance(v, bool) else str(v)
 
 
