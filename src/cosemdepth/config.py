@@ -69,6 +69,10 @@ def key_path(key: str) -> str:
     return key.replace("[", ".").replace("]", "")
 
 
+#: The ``data.train_decode`` choices (the first is the default).
+TRAIN_DECODES = ("exact", "reduced")
+
+
 @dataclass(frozen=True)
 class DataConfig:
     """What a run trains and validates on (design 9.2, 7.3).
@@ -93,6 +97,12 @@ class DataConfig:
     #: Items per epoch of a mix (default: the sum of the datasets' lengths).
     mix_length: Optional[int] = None
     num_workers: int = 2
+    #: JPEG decoding of the training datasets, one of :data:`TRAIN_DECODES` (validation always decodes exactly):
+    #: ``"exact"`` decodes at full size and resizes with BL2, the original's pixels; ``"reduced"`` decodes at the
+    #: smallest libjpeg DCT scale M/8 at least ``size`` (a 1024 px frame at 3/8 for 384) and BL2 resizes the rest:
+    #: a fraction of the decoding work, a low-pass picture instead of the original's (readers of the Mid-Air
+    #: format; others decode exactly).
+    train_decode: str = "exact"
 
     def __post_init__(self) -> None:
         if not self.train:
@@ -111,6 +121,9 @@ class DataConfig:
                       why=f" (a chunk must hold a window of data.seq_len = {self.seq_len})")
         _positive_int("data.val_seq_len", self.val_seq_len)
         check_workers(self.num_workers, "data.num_workers")
+        if self.train_decode not in TRAIN_DECODES:
+            raise ConfigError(f"data.train_decode must be one of {', '.join(map(repr, TRAIN_DECODES))}, got "
+                              f"{self.train_decode!r}")
         if self.mix_length is not None:
             _positive_int("data.mix_length", self.mix_length)
 

@@ -253,13 +253,17 @@ def hsv_to_rgb(hsv: torch.Tensor) -> torch.Tensor:
 _CHANNEL_OFFSETS = (5.0, 3.0, 1.0)
 
 
-def _hue_chroma_to_rgb(h: torch.Tensor, c: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+def _hue_chroma_to_rgb(h: torch.Tensor, c: torch.Tensor, m: torch.Tensor, inverted: bool = False) -> torch.Tensor:
     """Hue ``h`` in [0, 1), chroma ``c = max - min`` and ``m = min`` -> ``[..., 3, H, W]`` RGB, in closed form: channel
     ``n`` is ``m + c (1 - clip(min(k, 4 - k), 0, 1))`` with ``k = (n + 6 h) mod 6`` (the six-sector table of the TF
-    kernel: one channel at the max, one at the min, the third interpolated)."""
+    kernel: one channel at the max, one at the min, the third interpolated). ``inverted``: ``1 -`` that, in the
+    same pass."""
     k = torch.remainder(h.unsqueeze(-3) * 6 + h.new_tensor(_CHANNEL_OFFSETS).view(3, 1, 1), 6)
     t = torch.minimum(k, 4 - k).clamp_(0.0, 1.0)
-    return (m + c).unsqueeze(-3) - c.unsqueeze(-3) * t
+    top = m + c
+    if inverted:
+        return torch.addcmul(1.0 - top.unsqueeze(-3), c.unsqueeze(-3), t)
+    return torch.addcmul(top.unsqueeze(-3), c.unsqueeze(-3), t, value=-1.0)
 
 
 def adjust_saturation(rgb: torch.Tensor, factor: float) -> torch.Tensor:
@@ -286,6 +290,46 @@ def invert(rgb: torch.Tensor) -> torch.Tensor:
     return 1.0 - rgb
 
 
+def adjust_colour(rgb: torch.Tensor, p: AugmentParams) -> torch.Tensor:
+    """The colour operations of ``p`` in order (brightness, contrast, saturation, hue, inversion), as the functions
+    above applied one after the other, up to float rounding, in fewer passes over the pixels:
+
+    * brightness and contrast are one affine map per frame and channel, ``f x + (1 - f) mean(x) + delta`` (the
+      mean of ``x + delta`` is ``mean(x) + delta``);
+    * saturation keeps each pixel's hue and max, so saturation and hue share one hue computation: the new chroma
+      is ``clip(S f, 0, 1) V`` (``max - min`` when saturation is off: the hue kernel keeps max and min, also for
+      pixels with every channel <= 0), the hue is shifted, and the picture is rebuilt once;
+    * the inversion ``1 - x`` is folded into the last of these (the affine map, or the rebuild).
+    """
+    colour = p.saturation != 1.0 or p.hue != 0.0
+    invert_now = p.invert and not colour
+    x = rgb
+    if p.contrast != 1.0:
+        f = p.contrast
+        shift = rgb.mean(dim=(-2, -1), keepdim=True) * (1.0 - f) + p.brightness
+        if invert_now:  # 1 - (f x + shift)
+            x = torch.add(1.0 - shift, rgb, alpha=-f)
+        else:
+            x = torch.add(shift, rgb, alpha=f)
+    elif p.brightness != 0.0:
+        x = (1.0 - p.brightness) - rgb if invert_now else rgb + p.brightness
+    elif invert_now:
+        x = 1.0 - rgb
+    if not colour:
+        return x
+    mx = torch.amax(x, dim=-3)
+    mn = torch.amin(x, dim=-3)
+    h = _hue(x, mx, mn)
+    if p.saturation != 1.0:
+        c = (_saturation(mx, mn) * p.saturation).clamp_(0.0, 1.0) * mx
+        m = mx - c
+    else:
+        c, m = mx - mn, mn
+    if p.hue != 0.0:
+        h = torch.remainder(h + p.hue, 1.0)
+    return _hue_chroma_to_rgb(h, c, m, inverted=p.invert)
+
+
 # --------------------------------------------------------------------------------------------------------------
 
 
@@ -300,18 +344,7 @@ def apply_params(sample: Mapping[str, torch.Tensor], p: AugmentParams) -> Sample
         if out["rgb"].shape[-1] != out["rgb"].shape[-2]:
             raise ValueError("transpose augmentation needs square images")
         out = transpose(out)
-    rgb = out["rgb"]
-    if p.brightness != 0.0:
-        rgb = adjust_brightness(rgb, p.brightness)
-    if p.contrast != 1.0:
-        rgb = adjust_contrast(rgb, p.contrast)
-    if p.saturation != 1.0:
-        rgb = adjust_saturation(rgb, p.saturation)
-    if p.hue != 0.0:
-        rgb = adjust_hue(rgb, p.hue)
-    if p.invert:
-        rgb = invert(rgb)
-    out["rgb"] = rgb
+    out["rgb"] = adjust_colour(out["rgb"], p)
     return out
 
 

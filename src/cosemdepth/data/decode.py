@@ -12,6 +12,15 @@ JPEG (any file whose content starts with the JPEG SOI marker, whatever its name)
   it differs from the accurate IDCT on about 60 % of the values, by up to 12 levels.
 * ``"accurate"``: the accurate integer IDCT (ISLOW; ``djpeg -dct int``), what Pillow and most image tools give.
 
+Reduced-size decoding (``min_size``, training's ``data.train_decode: reduced`` only): libjpeg-turbo can decode a JPEG
+at a scale ``M/8`` of its size (``M = 1..8``) by running a smaller IDCT on each block's low frequencies, for a
+fraction of the IDCT, upsampling and colour-conversion work. :func:`decode_jpeg` with ``min_size = (h, w)`` picks the
+smallest such scale whose picture is at least ``h x w`` (full size when none is smaller), e.g. a 1024 px frame for a
+384 px input at 3/8, exactly 384 px. The pixels are a low-pass picture of that size, not the full-size decode: the
+original's pipeline (and every evaluation here) decodes at full size and resizes with BL2 afterwards, so the exact
+path is the default everywhere, and :func:`cosemdepth.data.frames.rgb_to_tensor` resizes what remains to the output
+size either way.
+
 PNG (and other formats) decode with Pillow (libpng). PNG flavours accepted for single-channel maps (labels, 8-bit
 depth): 8-bit gray (``L``), 16-bit gray (``I;16``), palette (``P``: the palette *indices* are the values), gray+alpha
 (``LA``) and 8-bit RGB/RGBA (channel 0 is kept). 16-bit colour PNGs are rejected for maps: a class ID or depth in
@@ -132,9 +141,12 @@ def _swapped(orientation: int, width: int, height: int) -> tuple[int, int]:
     return (height, width) if orientation in (5, 6, 7, 8) else (width, height)
 
 
-def decode_jpeg(data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.ndarray:
+def decode_jpeg(data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT,
+                min_size: tuple[int, int] | None = None) -> np.ndarray:
     """JPEG bytes -> ``[H, W, 3]`` uint8 RGB (gray replicated), decoded by libjpeg-turbo with the IDCT ``jpeg_idct``
-    (see the module docstring). Any decoding problem is a DatasetError naming ``path``."""
+    (see the module docstring). ``min_size = (h, w)`` (as displayed): decode at the smallest DCT scale ``M/8`` whose
+    picture is at least that size (reduced-size decoding, see the module docstring; ``None``: full size). Any
+    decoding problem is a DatasetError naming ``path``."""
     import simplejpeg  # deferred: a compiled extension only the JPEG readers need
 
     check_jpeg_idct(jpeg_idct)
@@ -147,16 +159,21 @@ def decode_jpeg(data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_J
     check_image_size(path, w, h)
     if colorspace not in ("Gray", "YCbCr", "RGB"):
         raise DatasetError(f"{path}: unsupported JPEG colour space {colorspace} (expected RGB/YCbCr or gray)")
+    orientation = _jpeg_orientation(data)
+    scale = {}
+    if min_size is not None:  # (the scale is chosen on the stored picture: the displayed one may be transposed)
+        mw, mh = _swapped(orientation, int(min_size[1]), int(min_size[0]))
+        scale = {"min_height": max(mh, 1), "min_width": max(mw, 1)}
     try:
         arr = simplejpeg.decode_jpeg(data, colorspace="RGB", fastdct=jpeg_idct == "fast", fastupsample=False,
-                                     strict=True)
+                                     strict=True, **scale)
     except MemoryError:
         raise DatasetError(f"{path}: JPEG too large to decode in memory") from None
     except Exception as e:
         raise DatasetError(f"{path}: corrupt JPEG ({_jpeg_message(e)})") from None
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.dtype != np.uint8:
         raise DatasetError(f"{path}: JPEG decoded to an unexpected array {arr.dtype} {list(arr.shape)}")
-    return orient(arr, _jpeg_orientation(data))
+    return orient(arr, orientation)
 
 
 def _jpeg_message(e: Exception) -> str:
@@ -219,16 +236,18 @@ def png_header(path: str | os.PathLike) -> tuple[int, int, int, int]:
     return width, height, bit_depth, colour_type
 
 
-def read_rgb(path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> np.ndarray:
+def read_rgb(path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT,
+             min_size: tuple[int, int] | None = None) -> np.ndarray:
     """Colour image -> ``[H, W, 3]`` uint8, or uint16 for a 16-bit PNG (full precision), as displayed (EXIF
     orientation applied). JPEG content goes through :func:`decode_jpeg` with ``jpeg_idct`` (``"fast"``, the
-    original's, by default; ``"accurate"``); other formats (PNG...) through Pillow. A file named ``.jpg``/``.jpeg``
-    must hold a JPEG. Gray images are replicated, alpha is dropped."""
+    original's, by default; ``"accurate"``) and ``min_size`` (reduced-size decoding; other formats ignore it);
+    other formats (PNG...) through Pillow. A file named ``.jpg``/``.jpeg`` must hold a JPEG. Gray images are
+    replicated, alpha is dropped."""
     path = Path(path)
     check_jpeg_idct(jpeg_idct)
     data = _read_bytes(path)
-    if path.suffix.lower() in _JPEG_SUFFIXES:
-        return decode_jpeg(data, path, jpeg_idct)
+    if path.suffix.lower() in _JPEG_SUFFIXES or data.startswith(_JPEG_SOI):
+        return decode_jpeg(data, path, jpeg_idct, min_size)
     return decode_rgb(data, path, jpeg_idct)
 
 

@@ -90,17 +90,29 @@ def rgb_to_tensor(rgb: np.ndarray, size: Size | None) -> torch.Tensor:
     return x.contiguous()
 
 
-def depth_to_tensor(depth: np.ndarray, size: Size | None, rule: str = "bl2") -> torch.Tensor:
-    """``[H, W]`` float depth (metres) -> ``[1, H', W']`` float32, resized with BL2 (or ``"nn1"``/``"nn2"``)."""
-    x = torch.from_numpy(np.ascontiguousarray(depth, dtype=np.float32))[None]
+def depth_to_tensor(depth: np.ndarray | torch.Tensor, size: Size | None, rule: str = "bl2") -> torch.Tensor:
+    """``[H, W]`` float depth (metres; an array or a tensor) -> ``[1, H', W']`` float32, resized with BL2 (or
+    ``"nn1"``/``"nn2"``)."""
+    if isinstance(depth, torch.Tensor):
+        x = depth.to(torch.float32).contiguous()[None]
+    else:
+        x = torch.from_numpy(np.ascontiguousarray(depth, dtype=np.float32))[None]
     if size is not None and tuple(x.shape[-2:]) != tuple(size):
         x = resize_bl2(x[None], size)[0] if rule == "bl2" else NEAREST[rule](x, size)
     return x.contiguous()
 
 
+#: Label dtypes the nearest resize gathers as they are (torch has them); others are widened first.
+_GATHER_DTYPES = (np.dtype(np.uint8), np.dtype(np.int16), np.dtype(np.int32), np.dtype(np.int64))
+
+
 def labels_to_tensor(labels: np.ndarray, size: Size | None, rule: str) -> torch.Tensor:
-    """``[H, W]`` integer labels -> ``[H', W']`` int64, nearest-resized with ``rule`` (``"nn1"`` or ``"nn2"``)."""
-    x = torch.from_numpy(np.ascontiguousarray(labels).astype(np.int64, copy=False))
+    """``[H, W]`` integer labels -> ``[H', W']`` int64, nearest-resized with ``rule`` (``"nn1"`` or ``"nn2"``).
+    The resize picks pixels, so it runs on the stored integers and only its output is widened to int64."""
+    labels = np.ascontiguousarray(labels)
+    if labels.dtype not in _GATHER_DTYPES:
+        labels = labels.astype(np.int32 if labels.dtype.itemsize <= 2 else np.int64)
+    x = torch.from_numpy(labels)
     if size is not None and tuple(x.shape) != tuple(size):
         x = NEAREST[rule](x, size)
-    return x.contiguous()
+    return x.to(torch.int64).contiguous()

@@ -18,6 +18,7 @@ of one loader per epoch (``ResumableSampler.set_position`` + the dataset's ``set
 
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
@@ -47,8 +48,11 @@ def open_source(
     db_seq_len: int | None,
     seed: int,
     num_classes: int,
+    decode: str = "exact",
 ) -> Dataset:
-    """Open one configured dataset. ``key`` (e.g. ``data.train[0]``) names it in error messages.
+    """Open one configured dataset. ``key`` (e.g. ``data.train[0]``) names it in error messages. ``decode``
+    (``data.train_decode``, given for the training datasets only): ``"reduced"`` opens a reader that has the
+    ``reduced_decode`` option with it on (:mod:`cosemdepth.data.decode`); other readers decode exactly.
 
     Raises:
         DatasetError: the dataset folder (or split folder) is missing.
@@ -75,7 +79,12 @@ def open_source(
     kwargs: dict[str, Any] = {"seed": seed}
     if dataset_spec(src.name).windows:  # (not for single images)
         kwargs.update(mode=mode, db_seq_len=db_seq_len)
+    if "reduced_decode" in src.options:
+        raise ConfigError(f"{key}.options.reduced_decode: set data.train_decode instead (it applies to the training "
+                          "datasets only, never to validation)")
     kwargs.update(src.options)
+    if decode == "reduced" and "reduced_decode" in inspect.signature(dataset_spec(src.name).opener).parameters:
+        kwargs["reduced_decode"] = True
     try:
         return open_dataset(src.name, src.root, split_dir=src.split_dir, split=split, seq_len=seq_len, size=size,
                             augment=augment, **kwargs)
@@ -88,7 +97,7 @@ def build_train_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Data
     sets = [
         open_source(src, f"data.train[{i}]", split=data.train_split, seq_len=data.seq_len, size=data.size,
                     augment=data.augment, mode="train", db_seq_len=data.db_seq_len, seed=seed,
-                    num_classes=model.num_classes)
+                    num_classes=model.num_classes, decode=data.train_decode)
         for i, src in enumerate(data.train)
     ]
     for i, ds in enumerate(sets):

@@ -2,7 +2,10 @@
 
 Decoding of one row (design 10.2, 10.6):
 
-* colour: ``camera_l`` JPEG -> uint8 (libjpeg-turbo, fast integer IDCT like the original by default; ``jpeg_idct``) -> ``/255`` -> BL2 resize to the output size;
+* colour: ``camera_l`` JPEG -> uint8 (libjpeg-turbo, fast integer IDCT like the original by default; ``jpeg_idct``)
+  -> ``/255`` -> BL2 resize to the output size. With ``reduced_decode`` (training only, ``data.train_decode:
+  reduced``) the JPEG is decoded at the smallest DCT scale ``M/8`` at least the output size
+  (:mod:`cosemdepth.data.decode`) and BL2 resizes the rest;
 * depth: ``disp`` 16-bit PNG whose values are float16 bit patterns -> disparity -> z-depth ``512 / disparity``
   whatever the PNG's size (Mid-Air's convention, design 10.2: resizing a PNG never rescales its values) at the native
   size -> BL2 resize (in the depth domain). A zero disparity (infinitely far) is read as the smallest positive float16
@@ -46,11 +49,19 @@ def read_disparity(path: str | Path) -> np.ndarray:
 
 def read_depth(path: str | Path) -> np.ndarray:
     """Mid-Air disparity PNG -> ``[H, W]`` float32 z-depth in metres at the file's native size."""
+    return _depth_tensor(path).numpy()
+
+
+def _depth_tensor(path: str | Path) -> torch.Tensor:
+    """:func:`read_depth` as a tensor. The float16 -> float32 conversion, the clamp and the division run as torch
+    ops (vectorised; numpy converts float16 element by element): exact conversions and IEEE divisions, the same
+    values as ``512 / max(disparity, MIN_DISPARITY)`` in numpy."""
     path = Path(path)
-    disp = read_disparity(path)
-    check_nonnegative(path, disp, "disparity")
-    disp = np.maximum(disp, np.float32(MIN_DISPARITY))
-    return fmt.disparity_to_depth(disp).astype(np.float32, copy=False)
+    raw = np.ascontiguousarray(read_uint16_png(path))
+    disp = torch.from_numpy(raw.view(np.int16)).view(torch.float16).float()
+    check_nonnegative(path, disp.numpy(), "disparity")
+    # a true division (a Python number over a tensor would be a reciprocal and a product)
+    return torch.div(torch.tensor(fmt.DISPARITY_SCALE, dtype=torch.float32), disp.clamp_min_(MIN_DISPARITY))
 
 
 def read_labels(path: str | Path, labels: str = "midair") -> np.ndarray:
@@ -64,17 +75,22 @@ _MAP_14_TO_7 = torch.from_numpy(fmt.MIDAIR_TO_7.astype(np.int64))
 class MidAirFrameLoader:
     """Loads one row at the output size (see the module docstring). Picklable, for DataLoader workers."""
 
-    def __init__(self, size: Size, labels: str = "midair", jpeg_idct: str = DEFAULT_JPEG_IDCT) -> None:
+    def __init__(self, size: Size, labels: str = "midair", jpeg_idct: str = DEFAULT_JPEG_IDCT,
+                 reduced_decode: bool = False) -> None:
         if labels not in LABEL_MODES:
             raise ConfigError(f"labels must be one of {sorted(LABEL_MODES)}, got {labels!r}")
+        if not isinstance(reduced_decode, bool):
+            raise ConfigError(f"reduced_decode must be true or false, got {reduced_decode!r}")
         self.size = size
         self.labels = labels
         self.jpeg_idct = check_jpeg_idct(jpeg_idct)
+        self.reduced_decode = reduced_decode
 
     def __call__(self, rec: FrameRecord) -> dict[str, torch.Tensor]:
-        out = {"rgb": rgb_to_tensor(read_rgb(rec.rgb, self.jpeg_idct), self.size)}
+        min_size = self.size if self.reduced_decode else None
+        out = {"rgb": rgb_to_tensor(read_rgb(rec.rgb, self.jpeg_idct, min_size), self.size)}
         if rec.depth is not None:
-            out["depth"] = depth_to_tensor(read_depth(rec.depth), self.size)
+            out["depth"] = depth_to_tensor(_depth_tensor(rec.depth), self.size)
         if rec.semantic is not None:
             sem = labels_to_tensor(read_labels(rec.semantic, self.labels), self.size, "nn1")
             if self.labels == "midair":
@@ -108,6 +124,7 @@ def open_midair(
     seed: int = 0,
     name: str = "midair",
     jpeg_idct: str = DEFAULT_JPEG_IDCT,
+    reduced_decode: bool = False,
 ) -> SequenceDataset:
     """Open a split of a Mid-Air-format dataset (Mid-Air itself or SynthAir).
 
@@ -129,6 +146,9 @@ def open_midair(
         name: stored as ``dataset.name``.
         jpeg_idct: JPEG decoding, ``"fast"`` (default: libjpeg-turbo's fast integer IDCT, bit-exact with the
             original's ``tf.io.decode_jpeg``) or ``"accurate"`` (see :mod:`cosemdepth.data.decode`).
+        reduced_decode: decode each JPEG at the smallest DCT scale ``M/8`` at least the output size, then BL2 the
+            rest (faster, a low-pass picture; not the original's pixels). Off by default (the exact path); training
+            turns it on for its training datasets with ``data.train_decode: reduced``.
     """
     check_jpeg_idct(jpeg_idct)
     return open_csv_split(
@@ -141,7 +161,7 @@ def open_midair(
         columns={"rgb": "camera_l", "depth": "disp", "semantic": "semantic"},
         reset_rule=lambda ids: ids == 0,
         derive={"semantic": _derive_semantic},
-        make_loader=lambda out_size: MidAirFrameLoader(out_size, labels, jpeg_idct),
+        make_loader=lambda out_size: MidAirFrameLoader(out_size, labels, jpeg_idct, reduced_decode),
         mode=mode,
         db_seq_len=db_seq_len,
         modalities=modalities,
