@@ -28,7 +28,7 @@ from cosemdepth.bench.harness import make_report, write_report
 from cosemdepth.config import RunConfig
 from cosemdepth.devices import retain_freed_host_memory
 from cosemdepth.export.check import synthetic_sequence
-from cosemdepth.io.atomic import atomic_write_text
+from cosemdepth.output_safety.atomic import atomic_write_text
 from cosemdepth.models import build_model
 from cosemdepth.training.data import collate, to_device
 from cosemdepth.training.optim import make_optimizer

@@ -17,7 +17,7 @@ import sys
 import torch
 
 from cosemdepth.errors import ConfigError, CosemdepthError
-from cosemdepth.io.atomic import atomic_write_text
+from cosemdepth.output_safety.atomic import atomic_write_text
 from cosemdepth.training.data import open_source
 from cosemdepth.training.losses import FIRST_SUPERVISED_FRAME, median_frequency_weights
 from cosemdepth.training.run_config import resolve_config

@@ -1,6 +1,6 @@
 """The model config, the lowest layer of the configuration: the architecture's choices and the paper's image size.
 
-Everything here depends on nothing but :mod:`cosemdepth.errors`, so that any layer (``models``, ``data``, ``io``)
+Everything here depends on nothing but :mod:`cosemdepth.errors`, so that any layer (``models``, ``data``, ``checkpoints``)
 may read it; the run recipe (:mod:`cosemdepth.config`) sits above it and re-exports these names.
 """
 

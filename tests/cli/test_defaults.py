@@ -11,10 +11,10 @@ from cosemdepth.bench.runner import BenchCase
 from cosemdepth.cli._shared import MODEL_SIZE_RULE, parse_size_pair
 from cosemdepth.cli.main import COMMANDS, build_parser
 from cosemdepth.config import DataConfig, ModelConfig, RunConfig
-from cosemdepth.data.bag_flight import open_bag_flight
+from cosemdepth.robotics.bag_flight import open_bag_flight
 from cosemdepth.data.flight import open_flight
 from cosemdepth.data.registry import DATASETS, split_datasets
-from cosemdepth.data.synthair.writer import SynthConfig
+from cosemdepth.synthair.writer import SynthConfig
 from cosemdepth.demo import run_demo
 from cosemdepth.evaluation.predict import predict
 from cosemdepth.export.onnx import export_onnx

@@ -18,7 +18,7 @@ import torch
 
 from cosemdepth.evaluation.fidelity import inputs_from_reference
 from cosemdepth.evaluation.tfref_fixture import seeded_weight
-from cosemdepth.io.convert import convert_tensors
+from cosemdepth.checkpoints.convert import convert_tensors
 from cosemdepth.models import build_model
 from cosemdepth.training.trainer import compute_loss, forward_batch, prepare_for_training
 

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from cosemdepth.errors import CheckpointError
-from cosemdepth.io.convert import convert_checkpoint
+from cosemdepth.checkpoints.convert import convert_checkpoint
 from cosemdepth.training.checkpoint import load_checkpoint, read_model_state, validate_checkpoint
 from cosemdepth.training.events import read_events
 from cosemdepth.training.toy import ToyDataset
@@ -423,7 +423,7 @@ def test_every_model_folder_of_a_run_records_the_motion_of_its_training_windows(
     from _writers import read_split_rows, write_midair
 
     from cosemdepth.data.midair.splits import generate_splits
-    from cosemdepth.io.model_io import load_model, operating_point_of
+    from cosemdepth.checkpoints.model_io import load_model, operating_point_of
 
     root, splits = tmp_path / "midair", tmp_path / "splits"
     write_midair(root, {("Kite_training", "sunny"): [0, 1, 2]}, frames=36, size=32)  # 8 CSV rows per trajectory

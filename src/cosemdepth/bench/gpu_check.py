@@ -217,7 +217,7 @@ class Check:
 
             w = self.plan.weights
             if w and Path(w).is_dir():
-                from ..io.model_io import load_model
+                from ..checkpoints.model_io import load_model
 
                 self._model = load_model(w, "cpu", mode="reference")
             else:

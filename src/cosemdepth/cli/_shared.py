@@ -16,7 +16,7 @@ from ..data.registry import DATASETS, split_datasets
 from ..errors import CheckpointError, ConfigError
 from ..workers import WORKERS_PER_CORE, check_workers
 from ..devices import resolve_device
-from ..io.model_io import load_model, operating_point_of
+from ..checkpoints.model_io import load_model, operating_point_of
 from ..models import build_model
 from ..inference.policy import BASELINE, EVERY_FRAME, POLICIES
 from ..operating_point import OperatingPoint

@@ -26,7 +26,7 @@ import torch.nn as nn
 
 from .. import __version__
 from ..errors import ConfigError
-from ..io.atomic import atomic_path
+from ..output_safety.atomic import atomic_path
 from ..model_config import MIDAIR_IMAGE_SIZE
 from ..models.outputs import StreamState
 

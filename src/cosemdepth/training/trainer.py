@@ -49,8 +49,8 @@ from ..config import ModelConfig, RunConfig
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device, retain_freed_host_memory
 from ..errors import CheckpointError, ConfigError, CosemdepthError, DatasetError
 from ..evaluation.metrics import selection_rule
-from ..io.atomic import atomic_write_text
-from ..io.model_io import read_weights
+from ..output_safety.atomic import atomic_write_text
+from ..checkpoints.model_io import read_weights
 from ..models import build_model
 from ..models.footprint import check_size
 from ..ops.resample import resize_nn2
