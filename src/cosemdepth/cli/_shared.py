@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from ..config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
+from ..models.config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
 from ..data import open_dataset
 from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS, image_size
 from ..data.frames import FocalSize, as_size
