@@ -66,8 +66,7 @@ def add_model_args(parser: argparse.ArgumentParser, required: bool = True) -> No
 def add_reference_arg(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reference", action="store_true",
                         help="run the plain PyTorch modules instead of the fast inference path (the default: fp32, "
-                        "the same results up to float rounding, 1.1-1.4x faster on the CPUs measured in "
-                        "docs/benchmarks.md)")
+                        "the same results up to float rounding, faster: docs/benchmarks.md)")
 
 
 #: ``--precision`` -> ``SceneModel.optimize("fast", dtype)``
