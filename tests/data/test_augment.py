@@ -302,3 +302,48 @@ def test_resolve_augment():
         resolve_augment("sometimes")
     with pytest.raises(ConfigError):
         AugmentConfig(p_vflip=1.5)
+
+
+# ------------------------------------------------------------------------------------------ fused colour pass
+
+
+def _sequential(rgb: torch.Tensor, p: AugmentParams) -> torch.Tensor:
+    """The colour operations one after the other: the reference the fused pass must reproduce."""
+    if p.brightness != 0.0:
+        rgb = adjust_brightness(rgb, p.brightness)
+    if p.contrast != 1.0:
+        rgb = adjust_contrast(rgb, p.contrast)
+    if p.saturation != 1.0:
+        rgb = adjust_saturation(rgb, p.saturation)
+    if p.hue != 0.0:
+        rgb = adjust_hue(rgb, p.hue)
+    if p.invert:
+        rgb = invert(rgb)
+    return rgb
+
+
+@pytest.mark.parametrize("on", list(itertools.product([False, True], repeat=5)))
+def test_fused_colour_pass_equals_the_sequential_operations(on):
+    """Every subset of (brightness, contrast, saturation, hue, inversion), on pixels in [-0.3, 1.3] (brightness and
+    contrast leave [0, 1]): the fused pass is the sequential one within float32 rounding (2e-6)."""
+    g = torch.Generator().manual_seed(sum(b << i for i, b in enumerate(on)))
+    rgb = torch.rand(2, 3, 9, 7, generator=g) * 1.6 - 0.3
+    rgb[0, :, 0, 0] = -0.2  # a pixel with every channel negative
+    rgb[1, :, 1, 1] = 0.5  # a grey pixel (no hue)
+    p = AugmentParams(brightness=0.13 if on[0] else 0.0, contrast=1.21 if on[1] else 1.0,
+                      saturation=0.8 if on[2] else 1.0, hue=-0.37 if on[3] else 0.0, invert=on[4])
+    out = apply_params({"rgb": rgb}, p)["rgb"]
+    torch.testing.assert_close(out, _sequential(rgb, p), rtol=0, atol=2e-6)
+
+
+def test_fused_affine_with_inversion_by_hand():
+    # channel 0 = (0.2, 0.6): + 0.1 -> (0.3, 0.7), mean 0.5, contrast 2 -> (0.1, 0.9), inverted -> (0.9, 0.1);
+    # channel 1: constant 0.6 after brightness, kept by contrast, inverted 0.4; channel 2: (0.1, 1.1) -> (-0.4, 1.6)
+    x = torch.tensor([[[0.2, 0.6]], [[0.5, 0.5]], [[0.0, 1.0]]])
+    out = apply_params({"rgb": x}, AugmentParams(brightness=0.1, contrast=2.0, invert=True))["rgb"]
+    close(out, torch.tensor([[[0.9, 0.1]], [[0.4, 0.4]], [[1.4, -0.6]]]))
+    # hue +1/3 alone turns red into green: (0.7, 0.3, 0.1) -> (0.1, 0.7, 0.3); inverted in the rebuild -> (0.9, 0.3, 0.7)
+    close(apply_params({"rgb": px(0.7, 0.3, 0.1)}, AugmentParams(hue=1 / 3, invert=True))["rgb"], px(0.9, 0.3, 0.7))
+    # no colour operation: the pixels are unchanged
+    x = torch.rand(3, 4, 5)
+    assert torch.equal(apply_params({"rgb": x}, AugmentParams())["rgb"], x)

@@ -286,3 +286,93 @@ def test_corrupt_16bit_rgb_png_is_a_dataset_error(tmp_path):
     p.write_bytes(data[:60] + bytes(20) + data[80:])
     with pytest.raises(DatasetError, match=r"c\.png: corrupt image"):
         read_rgb(p)
+
+
+# ------------------------------------------------------------------------------------------ reduced-size decoding
+
+
+def _smooth_jpeg(h=48, w=64) -> bytes:
+    import io
+
+    y, x = np.mgrid[0:h, 0:w]
+    img = np.stack([y * 5, x * 4, (x * 2 + y * 3) % 256], axis=2).astype(np.uint8)
+    buf = io.BytesIO()
+    Image.fromarray(img).save(buf, "JPEG", quality=95)
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("min_size,shape", [((16, 16), (18, 24)), ((18, 24), (18, 24)), ((19, 24), (24, 32)),
+                                            ((1, 1), (6, 8)), ((40, 10), (42, 56)), ((48, 64), (48, 64)),
+                                            ((100, 100), (48, 64))])
+def test_reduced_decoding_picks_the_smallest_eighth_scale_at_least_the_size(min_size, shape):
+    """48 x 64 at M/8 is ceil(6 M) x 8 M: the smallest M with both sides at least ``min_size`` (full size when none
+    is smaller)."""
+    got = decode_jpeg(_smooth_jpeg(), "x.jpg", min_size=min_size)
+    assert got.shape == (*shape, 3) and got.dtype == np.uint8
+
+
+def test_reduced_decoding_at_full_scale_is_the_plain_decode_and_smaller_is_close_to_it():
+    data = _smooth_jpeg()
+    plain = decode_jpeg(data, "x.jpg")
+    np.testing.assert_array_equal(decode_jpeg(data, "x.jpg", min_size=(48, 64)), plain)
+    np.testing.assert_array_equal(decode_jpeg(data, "x.jpg", min_size=(60, 1)), plain)
+    # at 1/2 a pixel is about the mean of its 2x2 block of the full decode (a smooth picture: a few levels)
+    half = decode_jpeg(data, "x.jpg", min_size=(24, 32)).astype(np.float64)
+    blocks = plain.astype(np.float64).reshape(24, 2, 32, 2, 3).mean(axis=(1, 3))
+    assert half.shape == blocks.shape and np.abs(half - blocks).mean() < 2.0
+
+
+def test_reduced_decoding_chooses_the_scale_on_the_displayed_size(tmp_path):
+    """Stored 64 wide x 32 high, EXIF 6 (displayed 32 x 64): at least 24 high x 8 wide as displayed needs the stored
+    width >= 24 (M = 3: 24 x 12, displayed 24 x 12); on the stored size it would be M = 6 (displayed 48 x 24)."""
+    img = Image.fromarray(_photo(32, 64))
+    path = _save_with_orientation(img, tmp_path / "t.jpg", 6, quality=95)
+    assert read_rgb(path).shape == (64, 32, 3)
+    assert read_rgb(path, min_size=(24, 8)).shape == (24, 12, 3)
+
+
+def test_training_decodes_reduced_and_validation_exactly(tmp_path):
+    """``data.train_decode``: the training dataset's loader decodes at the reduced size, the validation one never;
+    ``exact`` gives the plain pixels; the option is refused as a dataset option and when unknown."""
+    from _writers import write_midair
+
+    from cosemdepth.data.midair.splits import generate_splits
+    from cosemdepth.models.config import ModelConfig
+    from cosemdepth.training.config import DataConfig, DatasetSource
+    from cosemdepth.training.data import build_train_dataset, build_val_dataset
+
+    root = tmp_path / "ds"
+    write_midair(root, {("Kite_training", "sunny"): [0, 1], ("Kite_training", "cloudy"): [2]}, frames=24, size=64)
+    generate_splits(root, root / "splits")
+    src = DatasetSource(name="synthair", root=str(root), split_dir=str(root / "splits"))
+    model = ModelConfig()
+
+    def loaders(**kw):
+        data = DataConfig(train=(src,), val=src, size=(16, 16), augment=False, seq_len=2, val_seq_len=2,
+                          val_split="test", **kw)
+        return build_train_dataset(data, model, 0), build_val_dataset(data, model, 0)
+
+    train, val = loaders()
+    assert DataConfig(train=(src,)).train_decode == "reduced"
+    assert train.load_frame.reduced_decode is True and val.load_frame.reduced_decode is False
+    exact_train, exact_val = loaders(train_decode="exact")
+    assert exact_train.load_frame.reduced_decode is False
+    assert torch_equal(val[0]["rgb"], exact_val[0]["rgb"])
+    # 64 px sources at 16 px: the training loader decodes at 2/8 (16 px), the validation one at full size
+    rec = train.trajectories[0].frame(0)
+    small = read_rgb(rec.rgb, min_size=(16, 16))
+    assert small.shape == (16, 16, 3)
+    assert torch_equal(train.load_frame(rec)["rgb"], rgb_to_tensor(small, (16, 16)))
+    assert torch_equal(exact_train.load_frame(rec)["rgb"], rgb_to_tensor(read_rgb(rec.rgb), (16, 16)))
+    with pytest.raises(ConfigError, match="data.train_decode"):
+        DataConfig(train=(src,), train_decode="fast")
+    bad = DatasetSource(name="synthair", root=str(root), split_dir=str(root / "splits"),
+                        options={"reduced_decode": True})
+    with pytest.raises(ConfigError, match=r"options.reduced_decode"):
+        build_train_dataset(DataConfig(train=(bad,), size=(16, 16), augment=False), model, 0)
+
+
+def torch_equal(a, b) -> bool:
+    import torch
+
+    return bool(torch.equal(a, b))

@@ -70,7 +70,7 @@ def key_path(key: str) -> str:
     return key.replace("[", ".").replace("]", "")
 
 
-#: The ``data.train_decode`` choices (the first is the default).
+#: The ``data.train_decode`` choices.
 TRAIN_DECODES = ("exact", "reduced")
 
 
@@ -99,11 +99,12 @@ class DataConfig:
     mix_length: Optional[int] = None
     num_workers: int = 2
     #: JPEG decoding of the training datasets, one of :data:`TRAIN_DECODES` (validation always decodes exactly):
-    #: ``"exact"`` decodes at full size and resizes with BL2, the original's pixels; ``"reduced"`` decodes at the
-    #: smallest libjpeg DCT scale M/8 at least ``size`` (a 1024 px frame at 3/8 for 384) and BL2 resizes the rest:
-    #: a fraction of the decoding work, a low-pass picture instead of the original's (readers of the Mid-Air
-    #: format; others decode exactly).
-    train_decode: str = "exact"
+    #: ``"reduced"`` (the default) decodes at the smallest libjpeg DCT scale M/8 at least ``size`` (a 1024 px frame
+    #: at 3/8 for 384) and BL2 resizes the rest: a fraction of the decoding work, a low-pass picture instead of the
+    #: original's (identical when no scale below 8/8 is large enough, e.g. 384 px sources at 384); ``"exact"``
+    #: decodes at full size and resizes with BL2, the original's pixels. Readers of the Mid-Air format; others
+    #: decode exactly.
+    train_decode: str = "reduced"
 
     def __post_init__(self) -> None:
         if isinstance(self.size, int) and not isinstance(self.size, bool):
