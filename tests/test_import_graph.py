@@ -86,7 +86,7 @@ def test_the_scanner_sees_relative_function_local_and_package_imports():
     assert "cosemdepth.models.model" in g["cosemdepth.models"]  # from .model import ... in a package __init__
     assert "cosemdepth.config" in g["cosemdepth.models.model"]  # from ..config import ...
     assert "cosemdepth.models" in g["cosemdepth.checkpoints.model_io"]  # a function-local import
-    assert "cosemdepth.models.model" in g["cosemdepth.inference.engine"]  # inference sits above models
+    assert "cosemdepth.models.model" in g["cosemdepth.inference.fast_model"]  # inference sits above models
     assert not any(m.startswith("cosemdepth.inference") for m in set().union(*(g[m] for m in g if m.startswith("cosemdepth.models"))))
 
 
