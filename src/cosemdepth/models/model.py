@@ -20,7 +20,7 @@ from typing import Optional, Sequence
 import torch
 import torch.nn as nn
 
-from ..config import ModelConfig
+from .config import ModelConfig
 from ..ops.resample import resize_nn2
 from .encoder import Encoder
 from .infer import infer_sequence
