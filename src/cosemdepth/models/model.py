@@ -261,6 +261,7 @@ class CoSemDepthT(SceneModel):
     default_arch = "cosemdepth-t"
 
 
+#: Architecture name -> model class.
 MODELS = {"cosemdepth": CoSemDepth, "m4depth": M4Depth, "m4semantic": M4Semantic, "cosemdepth-t": CoSemDepthT}
 
 
