@@ -64,6 +64,10 @@ def test_every_name_in_all_resolves_and_is_documented(package):
     for name in names:
         assert not name.startswith("_") or (name.startswith("__") and name.endswith("__")), (package, name)
         obj = getattr(mod, name)  # raises AttributeError for a name that does not resolve
+        if hasattr(mod, "__path__") and (Path(mod.__path__[0]) / f"{name}.py").exists():
+            # importing a submodule of the same name (its first import) must not replace what the name gives
+            importlib.import_module(f"{package}.{name}")
+            assert getattr(mod, name) is obj, f"{package}.{name} is shadowed by its module"
         if name.startswith("__"):
             continue
         if inspect.ismodule(obj) or inspect.isclass(obj) or inspect.isroutine(obj):

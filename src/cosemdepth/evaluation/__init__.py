@@ -9,7 +9,6 @@ from .._lazy import lazy_getattr as _lazy_getattr
 
 _LAZY = {
     "evaluate": ".evaluator",
-    "predict": ".predict",
     "compare_with_reference": ".fidelity",
     "class_info": ".classes",
     "open_fixture": ".tfref_fixture",
