@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from cosemdepth.bench.harness import make_report, write_report
-from cosemdepth.data.synthair.writer import DEPTH_ENCODING
+from cosemdepth.synthair.writer import DEPTH_ENCODING
 
 HERE = Path(__file__).resolve()
 REPO = HERE.parents[1]

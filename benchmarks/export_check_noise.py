@@ -42,7 +42,7 @@ from cosemdepth.export.check import (
     valid_depth,
 )
 from cosemdepth.export.onnx import export_onnx
-from cosemdepth.io.atomic import atomic_write_text
+from cosemdepth.output_safety.atomic import atomic_write_text
 from cosemdepth.models.outputs import StreamState
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 from cosemdepth.bench.harness import make_report, write_report
 from cosemdepth.evaluation.fidelity import compare_with_reference
 from cosemdepth.evaluation.tfref_fixture import open_fixture
-from cosemdepth.io.model_io import load_model
+from cosemdepth.checkpoints.model_io import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACKED = ROOT / "benchmarks" / "results" / "fidelity.json"

@@ -33,7 +33,7 @@ from pathlib import Path
 import torch
 
 from cosemdepth.bench.harness import make_report, write_report
-from cosemdepth.io.atomic import atomic_write_text
+from cosemdepth.output_safety.atomic import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 TFREF_DIR = ROOT.parent / "shared" / "tools" / "tfref"
@@ -81,7 +81,7 @@ def _inputs(n: int, size: int, seed: int = 0):
 
 
 def time_ours(name: str, size: int, warmup: int, frames: int) -> dict:
-    from cosemdepth.config import ModelConfig
+    from cosemdepth.models.config import ModelConfig
     from cosemdepth.models import build_model
 
     mode, dtype, _ = PATHS[name]

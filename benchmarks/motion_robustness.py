@@ -47,7 +47,7 @@ import torch
 
 from cosemdepth.bench.harness import command_line, make_report, run_meta, write_report
 from cosemdepth.evaluation.metrics import EVAL_MAX_DEPTH, EPS, DepthMetrics, ValidDepthMetrics
-from cosemdepth.io.atomic import atomic_write_bytes, atomic_write_text
+from cosemdepth.output_safety.atomic import atomic_write_bytes, atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -455,7 +455,7 @@ def main(argv=None) -> int:
     from cosemdepth.data import open_dataset
     from cosemdepth.evaluation.evaluator import evaluate
     from cosemdepth.inference.policy import Streamer, policy_info
-    from cosemdepth.io.model_io import load_model
+    from cosemdepth.checkpoints.model_io import load_model
 
     todo = flights(a)
     model = load_model(a.model, mode="fast")

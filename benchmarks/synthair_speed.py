@@ -25,10 +25,10 @@ import numpy as np
 import torch
 
 from cosemdepth.bench.harness import make_report, write_report
-from cosemdepth.data.synthair.climate import get_climate
-from cosemdepth.data.synthair.render import render_frames
-from cosemdepth.data.synthair.world import build_world
-from cosemdepth.data.synthair.writer import (
+from cosemdepth.synthair.climate import get_climate
+from cosemdepth.synthair.render import render_frames
+from cosemdepth.synthair.world import build_world
+from cosemdepth.synthair.writer import (
     SynthConfig,
     batch_size,
     depth_to_png_disparity,

@@ -39,7 +39,7 @@ from pathlib import Path
 import torch
 
 from cosemdepth.bench.harness import make_report, run_meta, write_report
-from cosemdepth.io.atomic import atomic_write_text
+from cosemdepth.output_safety.atomic import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -149,7 +149,7 @@ def train_run(run: Path, variant: str, seed: int, steps: int, train: Path, split
 def evaluate_run(model_dir: Path, tests: dict, callbacks_for=None) -> dict:
     from cosemdepth.data import open_dataset
     from cosemdepth.evaluation.evaluator import evaluate
-    from cosemdepth.io.model_io import load_model
+    from cosemdepth.checkpoints.model_io import load_model
 
     model = load_model(model_dir, mode="fast")
     per_flight = {}
@@ -171,7 +171,7 @@ def time_variants(models: dict[str, Path], tests: dict, rounds: int) -> dict[str
     """Interleaved rounds on the first held-out flight: per variant every round's ms per frame and their median."""
     from cosemdepth.data import open_dataset
     from cosemdepth.evaluation.evaluator import evaluate
-    from cosemdepth.io.model_io import load_model
+    from cosemdepth.checkpoints.model_io import load_model
 
     w = next(iter(tests))
     root, sp = tests[w]

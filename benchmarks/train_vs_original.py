@@ -46,7 +46,7 @@ from pathlib import Path
 
 from cosemdepth.bench.harness import make_report, write_report
 from cosemdepth.devices import bf16_convolutions, no_bf16_reason
-from cosemdepth.io.atomic import atomic_write_text
+from cosemdepth.output_safety.atomic import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -6,7 +6,7 @@ The recipe (``scripts/make_demo_weights.sh``) trains on six SynthAir worlds (see
 climate, sunny and cloudy, 400 frames at 128x128, every trajectory in the train split: ``cosemdepth splits --rule
 train``) with ``src/cosemdepth/configs/synthair-demo.yaml`` (size, seq_len, db_seq_len). SynthAir is deterministic
 from its seed, so the training windows' motion follows from the flight planner alone: for each world this script
-plans the flights as ``cosemdepth synth`` does (:func:`cosemdepth.data.synthair.writer.plan_flights`), turns their
+plans the flights as ``cosemdepth synth`` does (:func:`cosemdepth.synthair.writer.plan_flights`), turns their
 100 Hz ground truth into split-CSV rows with the split generator's code (:func:`cosemdepth.data.midair.splits.
 trajectory_rows`, written with :func:`~cosemdepth.data.midair.splits.write_csv` into a temporary folder), opens those
 CSVs as the trainer does (train windows of the config) and takes the statistics of
@@ -29,12 +29,12 @@ import numpy as np
 from cosemdepth.data import open_dataset
 from cosemdepth.data.frames import midair_intrinsics
 from cosemdepth.data.midair.splits import Trajectory, trajectory_rows, write_csv
-from cosemdepth.data.synthair.writer import ENVIRONMENT, SynthConfig, plan_flights
-from cosemdepth.data.synthair.world import get_world
-from cosemdepth.io.atomic import atomic_write_text
-from cosemdepth.io.model_io import CONFIG_FILE, OPERATING_POINT, read_config_file
+from cosemdepth.synthair.writer import ENVIRONMENT, SynthConfig, plan_flights
+from cosemdepth.synthair.world import get_world
+from cosemdepth.output_safety.atomic import atomic_write_text
+from cosemdepth.checkpoints.model_io import CONFIG_FILE, OPERATING_POINT, read_config_file
 from cosemdepth.operating_point import MotionStats, OperatingPoint
-from cosemdepth.training.run_config import resolve_config
+from cosemdepth.training.config import resolve_config
 
 #: The training worlds of scripts/make_demo_weights.sh and their `cosemdepth synth` arguments.
 SEEDS = (11, 12, 13, 14, 15, 16)

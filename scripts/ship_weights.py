@@ -22,8 +22,8 @@ from pathlib import Path
 import torch
 import yaml
 
-from cosemdepth.io.atomic import atomic_path, atomic_write_text
-from cosemdepth.io.model_io import read_model_files, read_operating_point, save_weights
+from cosemdepth.output_safety.atomic import atomic_path, atomic_write_text
+from cosemdepth.checkpoints.model_io import read_model_files, read_operating_point, save_weights
 from cosemdepth.training.events import read_events
 
 

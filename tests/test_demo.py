@@ -122,7 +122,7 @@ def test_demo_generates_the_flight_with_the_synth_command(model_dir, tmp_path, m
     assert calls == [["synth", "--out", calls[0][2], "--trajectories", "1", "--frames", "24", "--size", "32",
                       "--seed", "7", "--climates", "foggy", "--supersample", "3", "--no-progress"]]
     assert not Path(calls[0][2]).exists()  # the temporary flight is deleted
-    # ... so metrics.json does not name it as the flight's root (issue 9: it named a folder that no longer existed)
+    # ... so metrics.json does not name it as the flight's root (a folder that may no longer exist)
     assert m["flight"]["root"] is None and m["flight"]["kept"] is False
     assert calls[0][2] not in (tmp_path / "r" / "metrics.json").read_text()
     check_schema(m)
@@ -161,7 +161,7 @@ def test_bad_outputs_and_arguments(model_dir, data, tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--frames", "1"]) == 2
     assert "--frames" in capsys.readouterr().err
     # more frames than synth renders: the demo's own one line, before the flight is built (not synth's error too)
-    from cosemdepth.data.synthair.writer import MAX_FRAMES
+    from cosemdepth.synthair.writer import MAX_FRAMES
 
     assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--frames", str(10**9)]) == 2
     err = capsys.readouterr().err
@@ -193,7 +193,7 @@ def test_majority_and_constant_baselines_by_hand():
 
 
 def test_the_generated_flight_has_the_model_s_focal_length():
-    from cosemdepth.io.convert import MIDAIR_OPERATING_POINT
+    from cosemdepth.checkpoints.convert import MIDAIR_OPERATING_POINT
     from cosemdepth.operating_point import OperatingPoint
 
     # SynthAir's camera is a 90-degree pinhole (f = S/2): the side is twice the model's focal length

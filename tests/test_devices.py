@@ -68,7 +68,7 @@ def test_without_bf16_convolutions_training_and_the_fast_path_refuse_bf16_in_one
     from cosemdepth.cli.main import main
     from cosemdepth.cli._shared import load
     from cosemdepth.inference.engine import FastEngine
-    from cosemdepth.io.model_io import save_model
+    from cosemdepth.checkpoints.model_io import save_model
     from cosemdepth.models import build_model
 
     out = tmp_path / "run"

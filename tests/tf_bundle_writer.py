@@ -7,7 +7,7 @@ more data shards, every block and tensor with its masked CRC32C. Options produce
 reject (big-endian header, compressed block type, ...). It also builds the key/shape sets of Co-SemDepth,
 M4Depth and M4Semantic checkpoints as design section 13.1 names them.
 
-CRC32C comes from ``cosemdepth.io.crc32c``, whose values are checked separately against published test vectors,
+CRC32C comes from ``cosemdepth.checkpoints.crc32c``, whose values are checked separately against published test vectors,
 a bit-by-bit reference and a checkpoint written by TensorFlow itself.
 """
 
@@ -20,7 +20,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from cosemdepth.io.crc32c import crc32c, mask_crc
+from cosemdepth.checkpoints.crc32c import crc32c, mask_crc
 
 MAGIC = 0xDB4775248B80FB57
 SUFFIX = "/.ATTRIBUTES/VARIABLE_VALUE"

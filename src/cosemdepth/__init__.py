@@ -16,10 +16,10 @@ from ._lazy import lazy_getattr as _lazy_getattr
 __version__ = "0.1.0"
 
 _LAZY = {
-    "load_model": ("cosemdepth.io.model_io", "load_model"),
-    "save_model": ("cosemdepth.io.model_io", "save_model"),
+    "load_model": ("cosemdepth.checkpoints.model_io", "load_model"),
+    "save_model": ("cosemdepth.checkpoints.model_io", "save_model"),
     "build_model": ("cosemdepth.models", "build_model"),
-    "ModelConfig": ("cosemdepth.config", "ModelConfig"),
+    "ModelConfig": ("cosemdepth.models.config", "ModelConfig"),
     "Streamer": ("cosemdepth.inference.policy", "Streamer"),
     "StreamPolicy": ("cosemdepth.inference.policy", "StreamPolicy"),
 }

@@ -49,8 +49,8 @@ from .cli import main as cli
 from .data import open_dataset
 from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from .data.frames import FocalSize, midair_intrinsics
-from .data.synthair.climate import CLIMATES
-from .data.synthair.writer import MAX_FRAMES
+from .synthair.climate import CLIMATES
+from .synthair.writer import MAX_FRAMES
 from .errors import CheckpointError, ConfigError, DatasetError
 from .evaluation.classes import class_info
 from .evaluation.evaluator import Evaluator, to_json
@@ -58,11 +58,11 @@ from .evaluation.figures import FlightPictures, frame_maps
 from .evaluation.metrics import ConfusionMatrix, DepthMetrics, EPS, EVAL_MAX_DEPTH
 from .evaluation.resources import machine_info, resolve_device
 from .evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
-from .io.atomic import atomic_path, atomic_write_text
-from .io.model_io import load_model, read_config_file
+from .output_safety.atomic import atomic_path, atomic_write_text
+from .checkpoints.model_io import load_model, read_config_file
 from .operating_point import OperatingPoint
-from .io.outdir import Input, check_not_input, model_inputs
-from .io.staging import StagedDir
+from .output_safety.outdir import Input, check_not_input, model_inputs
+from .output_safety.staging import StagedDir
 from .models.footprint import check_size
 
 #: Where the shipped weights live, relative to the repository root (or the current folder).

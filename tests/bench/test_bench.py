@@ -69,7 +69,7 @@ def test_graph_path_runs_the_static_program_on_cpu():
 
 
 def test_noise_verdict_on_hand_made_samples():
-    """Issue 9: "joint faster: no" was drawn from a difference inside the run-to-run noise."""
+    """No "joint faster: no" drawn from a difference inside the run-to-run noise."""
     from cosemdepth.bench.noise import compare_times, format_busy, format_spread, quantile, spread
 
     a = [10.0, 11.0, 12.0, 13.0, 14.0]  # IQR 11-13

@@ -1,5 +1,5 @@
 """Every command's bad paths and values through the real command line: exit status 2, one error line that names the
-argument or file, no traceback, nothing written (issue 9). Each command of ``cli/main.py`` COMMANDS is covered."""
+argument or file, no traceback, nothing written. Each command of ``cli/main.py`` COMMANDS is covered."""
 
 import subprocess
 import sys

@@ -33,7 +33,7 @@ def test_export_command_errors_name_the_argument(tmp_path, capsys):
 
 
 def test_export_refuses_the_ground_truth_depth_variant_in_one_line(tmp_path, capsys):
-    from cosemdepth.io.model_io import save_model
+    from cosemdepth.checkpoints.model_io import save_model
     from cosemdepth.models import build_model
 
     save_model(build_model(levels=2, semantic_time="gt"), tmp_path / "gt")
@@ -70,7 +70,7 @@ def test_benchmark_command_writes_json_and_markdown(tmp_path, capsys, bf16_cpu):
     params = build_model(arch="m4semantic", levels=2).num_parameters()
     assert all(r["height"] == 16 and r["levels"] == 2 and r["params"] == params for r in rep["results"])
     assert rep["meta"]["cpu_count"] >= 1 and "M4Semantic" in md.read_text()
-    # issue 9: the spread of the repeats and a readable busy figure ("machine busy 0.505050505050505" before)
+    # the spread of the repeats and a readable busy figure ("machine busy 0.505050505050505" before)
     import re
 
     rows = [line for line in capsys.readouterr().out.splitlines() if "ms/frame" in line]

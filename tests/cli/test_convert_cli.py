@@ -12,8 +12,8 @@ import pytest
 import torch
 
 from cosemdepth.cli.main import main
-from cosemdepth.io.convert import MIDAIR_STEP_TRANSLATION, convert_checkpoint
-from cosemdepth.io.model_io import read_model_files
+from cosemdepth.checkpoints.convert import MIDAIR_STEP_TRANSLATION, convert_checkpoint
+from cosemdepth.checkpoints.model_io import read_model_files
 from tf_bundle_writer import model_tensors, write_bundle
 
 SRC = Path(__file__).resolve().parents[2] / "src"

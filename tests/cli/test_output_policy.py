@@ -1,4 +1,4 @@
-"""The output policy (cosemdepth.io.outdir) through the real commands: outputs never replace, hold or lie inside an
+"""The output policy (cosemdepth.output_safety.outdir) through the real commands: outputs never replace, hold or lie inside an
 input (resolved paths: symlinks, ``..``, relative paths), folders cosemdepth did not write are never replaced, a
 command's own previous output is; damaged or non-finite models are refused on load; non-finite outputs stop a run
 naming the frame and leave nothing behind."""
@@ -21,7 +21,7 @@ from _outputs import _one_thread, data, model_dir  # noqa: E402, F401 (pytest fi
 from _writers import snapshot  # noqa: E402
 
 from cosemdepth.cli.main import main  # noqa: E402
-from cosemdepth.io.outdir import MARKER  # noqa: E402
+from cosemdepth.output_safety.outdir import MARKER  # noqa: E402
 
 
 @pytest.fixture
@@ -47,7 +47,7 @@ def err_line(capsys) -> str:
 
 
 @pytest.mark.parametrize("target, why", [
-    ("ds", "is the --root"),                  # the dataset folder itself (issue 9: deleted the inputs)
+    ("ds", "is the --root"),                  # the dataset folder itself (never deleted)
     (".", "contains the --model"),           # a folder above the inputs (model and dataset)
     ("model", "is the --model"),             # the model folder
     ("ds/splits", "lies inside the --root"),  # the split folder (also an input)
@@ -196,7 +196,7 @@ def test_no_command_writes_over_or_into_another_commands_input(work, capsys):
     """Whoever wrote them (here: the project's own writers, rosbags, the test writers), datasets, split folders
     (with the marker `splits` leaves), models, checkpoints, runs, TF checkpoints, flights and bags are never
     another command's output, with or without --overwrite."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "io"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "output_safety"))
     from _input_folders import make_input_folders
 
     tmp, ds, model = work
@@ -367,7 +367,7 @@ def test_a_damaged_checkpoint_is_refused_naming_the_file(work, capsys):
 
 
 def test_a_model_with_nan_weights_is_refused(work, capsys):
-    from cosemdepth.io.model_io import read_model_files, save_weights
+    from cosemdepth.checkpoints.model_io import read_model_files, save_weights
 
     tmp, ds, model = work
     sd, cfg, _ = read_model_files(model)
@@ -382,7 +382,7 @@ def test_a_model_with_nan_weights_is_refused(work, capsys):
 def _exploding_model(tmp: Path, model: Path) -> Path:
     """Finite weights (they pass the load checks) whose semantic decoder overflows to inf/NaN (biases near the
     float32 maximum: sums of them overflow)."""
-    from cosemdepth.io.model_io import read_model_files, save_weights
+    from cosemdepth.checkpoints.model_io import read_model_files, save_weights
 
     sd, cfg, _ = read_model_files(model)
     for k in sd:

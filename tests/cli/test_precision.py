@@ -4,7 +4,7 @@ import torch
 from cosemdepth.cli._shared import load
 from cosemdepth.cli.main import main
 from cosemdepth.errors import ConfigError
-from cosemdepth.io.model_io import save_model
+from cosemdepth.checkpoints.model_io import save_model
 from cosemdepth.models import build_model
 
 

@@ -156,7 +156,7 @@ def test_own_flight_with_a_gif(model_dir, tmp_path):
     assert sbs.shape == (*pics["frame_size"], 3) and sbs.shape[1] == 3 * 768 + 2 * 4
     assert gif.size == (sbs.shape[1], sbs.shape[0])
     assert man["frames"][0]["source"].endswith("img_0000.png")
-    # issue 9: outputs keep the input image's name (they were renumbered 000000, 000001, ...)
+    # outputs keep the input image's name (they were renumbered 000000, 000001, ...)
     assert sorted(p.name for p in (out / "images" / "depth").iterdir()) == [f"img_{k:04d}.npy" for k in range(4)]
     assert sorted(p.name for p in (out / "images" / "labels").iterdir()) == [f"img_{k:04d}.png" for k in range(4)]
     for f in man["frames"]:

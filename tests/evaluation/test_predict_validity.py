@@ -15,7 +15,7 @@ import pytest
 import torch
 from PIL import Image
 
-from cosemdepth.config import ModelConfig
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.data.sequence import SequenceDataset, Trajectory
 from cosemdepth.evaluation.predict import predict
 from cosemdepth.evaluation.visualize import DEPTH_PNG_SCALE
@@ -115,7 +115,7 @@ def test_bad_invalid_mode_is_refused_before_anything_is_written(tmp_path):
 def test_bag_depth_is_nan_where_invalid_and_the_status_topic_reads_back(tmp_path):
     from rosbags.highlevel import AnyReader
 
-    from cosemdepth.io.bag_writer import BagWriter
+    from cosemdepth.robotics.bag_writer import BagWriter
 
     stamps = [1_700_000_000_000_000_000 + k * 40_000_000 for k in range(len(MOTION))]
     sink = BagWriter(lambda i: (stamps[i], "cam"), K, palette=np.array([[0, 0, 0], [255, 255, 255]], np.uint8))

@@ -19,7 +19,7 @@ from cosemdepth.evaluation.tfref_fixture import (
     rebuild_fixture,
     seeded_weight,
 )
-from cosemdepth.io.tf_checkpoint import CheckpointReader
+from cosemdepth.checkpoints.tf_checkpoint import CheckpointReader
 from tf_bundle_writer import write_bundle
 
 IN_REPO = Path(__file__).resolve().parents[1] / "fixtures" / "tfref-64x96"

@@ -159,7 +159,7 @@ SHIPPED = Path(__file__).resolve().parents[2] / "weights" / "synthair-cosemdepth
 
 @pytest.fixture(scope="module")
 def shipped_export(tmp_path_factory):
-    from cosemdepth.io.model_io import load_model
+    from cosemdepth.checkpoints.model_io import load_model
 
     m = load_model(SHIPPED)
     path = export_onnx(m, tmp_path_factory.mktemp("shipped") / "s64.onnx", 64, 64)

@@ -198,7 +198,7 @@ def test_optimize_switch_training_and_weight_reload():
     with pytest.raises(ValueError, match="mode"):
         m.optimize("turbo")
     with pytest.raises(ValueError, match="dtype"):
-        m.optimize("fast", dtype="int4")  # int8 is a mode of its own since issue 13 (tests/inference/test_int8.py)
+        m.optimize("fast", dtype="int4")  # int8 is a mode of its own (tests/inference/test_int8.py)
 
 
 def test_fast_and_reference_states_are_interchangeable(models):

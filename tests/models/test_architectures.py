@@ -10,11 +10,11 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from cosemdepth.config import ARCHITECTURES
+from cosemdepth.models.config import ARCHITECTURES
 from cosemdepth.errors import ConfigError
 from cosemdepth.export import export_onnx
 from cosemdepth.export.check import run_onnx_stream, synthetic_sequence
-from cosemdepth.io.model_io import load_model, save_model
+from cosemdepth.checkpoints.model_io import load_model, save_model
 from cosemdepth.models import build_model
 from cosemdepth.models.layers import Refiner
 from cosemdepth.models.pyramid import PyramidDecoder, PyramidLevel

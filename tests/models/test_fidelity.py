@@ -1,7 +1,7 @@
 """Fidelity against the authors' TensorFlow implementation (the ``tfref_dir`` fixtures: 4 frames of 64x96, batch 2,
 in the repository; 4 frames at 128x128 in ``../shared``).
 
-Acceptance (issue 2): semantic probabilities and encoder features within 1e-4 absolute; depth and parallax on every
+Acceptance: semantic probabilities and encoder features within 1e-4 absolute; depth and parallax on every
 frame and level with a median relative error <= 1e-3 and a 99th percentile <= 2e-2. The original multiplies its cost
 volume in float16; converted checkpoints do the same by default (``pscv_dtype="float16"``), and the float32 variant
 must also meet the bar.

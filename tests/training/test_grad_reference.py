@@ -18,7 +18,7 @@ import torch
 
 from cosemdepth.evaluation.fidelity import inputs_from_reference
 from cosemdepth.evaluation.tfref_fixture import seeded_weight
-from cosemdepth.io.convert import convert_tensors
+from cosemdepth.checkpoints.convert import convert_tensors
 from cosemdepth.models import build_model
 from cosemdepth.training.trainer import compute_loss, forward_batch, prepare_for_training
 
@@ -55,7 +55,7 @@ def our_step(channels_last: bool = False):
         "depth": torch.from_numpy(ref["depth"]).permute(1, 0, 4, 2, 3).contiguous(),
         "semantic": torch.from_numpy(ref["semantic"][..., 0].astype(np.int64)).permute(1, 0, 2, 3).contiguous(),
     }
-    from cosemdepth.config import RunConfig
+    from cosemdepth.training.config import RunConfig
 
     cfg = RunConfig.from_dict({"model": conv.config.to_dict(), "data": {"train": [{"name": "toy"}]}})
     out = forward_batch(model, batch)  # the trainer's forward (the semantic decoder skips frame 0)

@@ -30,7 +30,7 @@ from typing import Any, Callable, Mapping, Optional
 import torch
 
 from ..evaluation.evaluator import to_json
-from ..io.atomic import atomic_write_text
+from ..output_safety.atomic import atomic_write_text
 
 #: Version of the report shape below; a change of the shape raises it.
 SCHEMA = 1

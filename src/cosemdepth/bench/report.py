@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..io.atomic import atomic_write_text
+from ..output_safety.atomic import atomic_write_text
 
 NAMES = {"cosemdepth": "Co-SemDepth", "m4depth": "M4Depth", "m4semantic": "M4Semantic", "m4depth+m4semantic": "M4Depth + M4Semantic"}
 

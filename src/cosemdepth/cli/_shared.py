@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from ..config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
+from ..models.config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
 from ..data import open_dataset
 from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS, image_size
 from ..data.frames import FocalSize, as_size
@@ -16,7 +16,7 @@ from ..data.registry import DATASETS, split_datasets
 from ..errors import CheckpointError, ConfigError
 from ..workers import WORKERS_PER_CORE, check_workers
 from ..devices import resolve_device
-from ..io.model_io import load_model, operating_point_of
+from ..checkpoints.model_io import load_model, operating_point_of
 from ..models import build_model
 from ..inference.policy import BASELINE, EVERY_FRAME, POLICIES
 from ..operating_point import OperatingPoint
@@ -66,8 +66,7 @@ def add_model_args(parser: argparse.ArgumentParser, required: bool = True) -> No
 def add_reference_arg(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reference", action="store_true",
                         help="run the plain PyTorch modules instead of the fast inference path (the default: fp32, "
-                        "the same results up to float rounding, 1.1-1.4x faster on the CPUs measured in "
-                        "docs/benchmarks.md)")
+                        "the same results up to float rounding, faster: docs/benchmarks.md)")
 
 
 #: ``--precision`` -> ``SceneModel.optimize("fast", dtype)``

@@ -29,10 +29,10 @@ from ..bench.runner import (
     run_separate,
     wait_for_idle,
 )
-from ..config import ARCHITECTURES, ModelConfig
+from ..models.config import ARCHITECTURES, ModelConfig
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device
 from ..errors import ConfigError
-from ..io.outdir import check_output_file, model_inputs, record_output_file
+from ..output_safety.outdir import check_output_file, model_inputs, record_output_file
 from ..models import build_model
 from ..models.footprint import check_size
 from ._shared import DEFAULT_SIZE_PAIR, load_or_build, model_size_pair, parse_size_pair, positive_int

@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..data.synthair.writer import SUPERSAMPLES
+from ..synthair.writer import SUPERSAMPLES
 from ..demo import DEFAULT_CLIMATE, DEFAULT_FRAMES, DEFAULT_MODEL, DEFAULT_SEED, DEFAULT_SIZE, DEFAULT_SUPERSAMPLE, run_demo
 from ..errors import ConfigError
 from ..evaluation.visualize import DEFAULT_VIDEO, VIDEO_FORMATS

@@ -20,8 +20,8 @@ from pathlib import Path
 
 from ..data.registry import dataset_spec
 from ..evaluation.evaluator import evaluate
-from ..io.outdir import Input, model_inputs
-from ..io.staging import OutputFiles
+from ..output_safety.outdir import Input, model_inputs
+from ..output_safety.staging import OutputFiles
 from ..inference.policy import EVERY_FRAME
 from ._shared import (add_model_args, add_policy_args, add_run_args, add_split_args, apply_threads, check_run_size, input_size, load,
                       model_operating_point, open_split, parse_size, size_help, stream_policy, warn_far_size)

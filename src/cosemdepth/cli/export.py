@@ -7,7 +7,7 @@ import argparse
 from ..errors import ConfigError
 from ..export.check import CHECK_FRAMES, NOISE_MULTIPLE, compare_onnx
 from ..export.onnx import DEFAULT_OPSET, MIN_OPSET, export_onnx, is_our_onnx
-from ..io.outdir import check_output_file, model_inputs, record_output_file
+from ..output_safety.outdir import check_output_file, model_inputs, record_output_file
 from ..models.footprint import check_size
 from ..optional import require
 from ._shared import DEFAULT_SIZE_PAIR, add_model_or_arch_args, load_or_build, model_size_pair, parse_size_pair

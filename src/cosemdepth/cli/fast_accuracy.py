@@ -25,8 +25,8 @@ from ..bench.harness import command_line, make_report, run_meta, write_report
 from ..data import open_dataset
 from ..data.registry import dataset_spec
 from ..devices import resolve_device
-from ..io.model_io import load_model
-from ..io.outdir import Input, check_output_file, model_inputs, record_output_file
+from ..checkpoints.model_io import load_model
+from ..output_safety.outdir import Input, check_output_file, model_inputs, record_output_file
 from ._shared import (add_device_args, add_split_args, apply_threads, check_split_dir, input_size,
                       model_operating_point, parse_size, positive_int, size_help)
 

@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 from ..data import open_dataset
-from ..data.bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP
+from ..robotics.bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP
 from ..data.flight import DEFAULT_CONVENTION
 from ..data.pose_matching import DEFAULT_MAX_GAP, MATCHES
 from ..data.poses import CONVENTIONS
@@ -31,10 +31,10 @@ from ..evaluation.predict import DEFAULT_INVALID, INVALID_MODES, predict
 from ..inference.policy import BASELINE, EVERY_FRAME
 from ..models.outputs import ESTIMATED, HELD, RESET
 from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
-from ..io.outdir import Input, model_inputs
-from ..io.rerun_writer import check_rrd_path
-from ..io.staging import StagedDir
-from ._robotics import add_robotics_args, bag_report, check_args, make_sinks, open_bag
+from ..output_safety.outdir import Input, model_inputs
+from ..robotics.rerun_writer import check_rrd_path
+from ..output_safety.staging import StagedDir
+from ..robotics.cli import add_robotics_args, bag_report, check_args, make_sinks, open_bag
 from ._shared import (add_model_args, add_policy_args, apply_threads, add_run_args, add_split_args, check_run_size, check_split_dir,
                       frame_size, input_size, load, model_operating_point, parse_size, positive_int, size_help,
                       stream_policy, warn_far_size)
@@ -142,7 +142,7 @@ def _open(args: argparse.Namespace):
 
 
 def command_inputs(args: argparse.Namespace) -> list:
-    """The input paths of predict / view (for the output policy of :mod:`cosemdepth.io.outdir`)."""
+    """The input paths of predict / view (for the output policy of :mod:`cosemdepth.output_safety.outdir`)."""
     return [*model_inputs(args.model), *(Input(label, p) for label, p in (
         ("--root", args.root), ("--split-dir", args.split_dir), ("--images", args.images), ("--poses", args.poses),
         ("--bag", args.bag)) if p is not None)]

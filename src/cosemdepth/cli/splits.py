@@ -7,7 +7,7 @@
 Mid-Air-format output: ``OUT_DIR/{train,val,test}_data/<env>/<climate>/traj_XXXX.csv`` in the authors' tab-separated
 format, trajectories numbered in sorted order of their folders. OUT_DIR holds this output only: a previous
 ``splits`` output there is replaced as a whole (the CSVs of another rule do not stay), a folder holding anything
-else is refused (:mod:`cosemdepth.io.outdir`). Nothing is written into ROOT (except for SynthAir when OUT_DIR is
+else is refused (:mod:`cosemdepth.output_safety.outdir`). Nothing is written into ROOT (except for SynthAir when OUT_DIR is
 left out: ROOT/splits is where ``open_dataset("synthair", ROOT)`` looks).
 """
 
@@ -19,8 +19,8 @@ from pathlib import Path
 from ..data.midair.splits import SPLITS
 from ..data.registry import DATASETS, dataset_spec
 from ..errors import ConfigError
-from ..io.outdir import Input
-from ..io.staging import StagedDir
+from ..output_safety.outdir import Input
+from ..output_safety.staging import StagedDir
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

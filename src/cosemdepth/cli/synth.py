@@ -1,6 +1,6 @@
 """``cosemdepth synth``: generate a SynthAir dataset (procedural aerial flights written in the Mid-Air format).
 
-The dataset goes to ``--out DIR`` (see :mod:`cosemdepth.data.synthair.writer` for the layout); its split CSVs go
+The dataset goes to ``--out DIR`` (see :mod:`cosemdepth.synthair.writer` for the layout); its split CSVs go
 to ``DIR/splits/{train,val,test}_data/SynthAir/<climate>/traj_XXXX.csv``.
 """
 
@@ -10,8 +10,8 @@ import argparse
 import json
 from pathlib import Path
 
-from ..data.synthair.motion import DEFAULT_YAW, GRAMMAR
-from ..data.synthair.writer import SUPERSAMPLES, SynthConfig, generate
+from ..synthair.motion import DEFAULT_YAW, GRAMMAR
+from ..synthair.writer import SUPERSAMPLES, SynthConfig, generate
 
 #: The generator's defaults (the flags read them: one home for defaults).
 DEFAULTS = SynthConfig(out=Path("."))

@@ -7,7 +7,7 @@ only a rerun recording of it (no viewer is started; open it with ``rerun FILE.rr
 
 It takes the inputs of ``predict`` (same arguments, same checks) because the recording needs what a prediction
 folder does not keep (the input images, the intrinsics and the camera motion); ``predict ... --rerun FILE.rrd``
-writes the same recording beside the usual files. Contents: :mod:`cosemdepth.io.rerun_writer`.
+writes the same recording beside the usual files. Contents: :mod:`cosemdepth.robotics.rerun_writer`.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from pathlib import Path
 from tqdm.auto import tqdm
 
 from ..evaluation.streaming import make_schedule, stream, trajectory_rows
-from ..io.rerun_writer import check_rrd_path, require_rerun
-from ._robotics import make_sinks
+from ..robotics.rerun_writer import check_rrd_path, require_rerun
+from ..robotics.cli import make_sinks
 from ._shared import apply_threads, check_run_size, load
 from ..inference.policy import Streamer, policy_info
 from .predict import _open, _validate, command_inputs, depth_report, flight_report, input_policy

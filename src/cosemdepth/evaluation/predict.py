@@ -42,9 +42,9 @@ import torch
 from tqdm.auto import tqdm
 
 from ..errors import ConfigError
-from ..io.atomic import atomic_write_text
-from ..io.outdir import Input
-from ..io.staging import StagedDir
+from ..output_safety.atomic import atomic_write_text
+from ..output_safety.outdir import Input
+from ..output_safety.staging import StagedDir
 from ..inference.policy import StreamPolicy, Streamer, policy_info
 from ..models.outputs import ESTIMATED, RESET
 from .classes import class_info
@@ -265,14 +265,14 @@ def predict(
     Args:
         model: a loaded model (eval mode). dataset: stream-mode single frames (``open_dataset(..., seq_len=1)``).
         out: output folder: new, empty, or a previous ``predict`` output (the output policy of
-            :mod:`cosemdepth.io.outdir`; never an input or a folder holding or inside one).
+            :mod:`cosemdepth.output_safety.outdir`; never an input or a folder holding or inside one).
         video: ``"mp4"`` (GIF when no ffmpeg), ``"gif"`` or ``None``/``"none"``.
         fps: video frame rate. max_frames: only the first N rows. lanes, num_workers: as :func:`stream`.
         overwrite: also replace the output of another cosemdepth command (never a folder cosemdepth did not write).
         progress: progress bar. dataset_name: for the palette. info: extra entries of ``predictions.json``.
         depth_range: near/far metres of the depth colour map (default: per trajectory, from its first frames).
-        sinks: more outputs (the ROS bag of :mod:`cosemdepth.io.bag_writer`, the rerun recording of
-            :mod:`cosemdepth.io.rerun_writer`): objects with ``open(folder)``, ``__call__(batch)``, ``close() -> dict``
+        sinks: more outputs (the ROS bag of :mod:`cosemdepth.robotics.bag_writer`, the rerun recording of
+            :mod:`cosemdepth.robotics.rerun_writer`): objects with ``open(folder)``, ``__call__(batch)``, ``close() -> dict``
             (merged into the manifest) and ``abort()``.
         inputs: the command's input paths (model, pose file...); ``dataset.root`` is always one.
         policy: the streaming policy (:mod:`cosemdepth.inference.policy`: ``"baseline"`` or ``"every-frame"``, the

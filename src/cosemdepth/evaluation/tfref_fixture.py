@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CheckpointError
-from ..io.atomic import atomic_open, atomic_write_bytes, atomic_write_text
+from ..output_safety.atomic import atomic_open, atomic_write_bytes, atomic_write_text
 
 LAYOUT = "shard.json"
 STORED = "shard_stored.bin"
@@ -70,7 +70,7 @@ def compact_fixture(src: str | Path, dst: str | Path) -> dict:
 
     Returns the layout written to ``shard.json``.
     """
-    from ..io.tf_checkpoint import list_entries
+    from ..checkpoints.tf_checkpoint import list_entries
 
     src, dst = Path(src), Path(dst)
     if dst.exists() and any(dst.iterdir()):

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from ..io.atomic import atomic_open, atomic_path
+from ..output_safety.atomic import atomic_open, atomic_path
 
 #: Metres -> 16-bit PNG units: ``uint16 = round(depth_m * DEPTH_PNG_SCALE)``.
 DEPTH_PNG_SCALE = 256.0

@@ -31,10 +31,10 @@ import numpy as np
 import torch
 
 from ..data.midair.splits import GT_PER_ROW, relative_motions
-from ..data.synthair.climate import get_climate
-from ..data.synthair.render import render_frames
-from ..data.synthair.world import get_world
-from ..data.synthair.writer import SynthConfig, plan_flights
+from ..synthair.climate import get_climate
+from ..synthair.render import render_frames
+from ..synthair.world import get_world
+from ..synthair.writer import SynthConfig, plan_flights
 from ..errors import ConfigError
 from ..models.outputs import StreamState
 from .onnx import state_components

@@ -26,8 +26,8 @@ import torch.nn as nn
 
 from .. import __version__
 from ..errors import ConfigError
-from ..io.atomic import atomic_path
-from ..model_config import MIDAIR_IMAGE_SIZE
+from ..output_safety.atomic import atomic_path
+from ..models.config import MIDAIR_IMAGE_SIZE
 from ..models.outputs import StreamState
 
 #: ONNX opset (``--opset``): GridSample needs at least ``MIN_OPSET``.

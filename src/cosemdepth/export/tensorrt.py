@@ -14,7 +14,7 @@ from typing import Optional
 import torch
 
 from ..errors import ConfigError
-from ..io.atomic import atomic_path
+from ..output_safety.atomic import atomic_path
 from ..models.outputs import StepOutput, StreamState
 from .onnx import state_components
 

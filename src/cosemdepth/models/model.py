@@ -19,7 +19,7 @@ from typing import Callable, Optional, Sequence
 import torch
 import torch.nn as nn
 
-from ..config import ModelConfig
+from .config import ModelConfig
 from ..ops.resample import resize_nn2
 from .encoder import Encoder
 from .outputs import SequenceOutput, StepOutput, StreamState
@@ -82,7 +82,7 @@ class SceneModel(nn.Module):
           ``calibration=`` (an iterable of ``(rgb, rot, trans, intrinsics, reset)`` frames), or the first
           ``calibration_frames`` (default 8) streamed frames calibrate, in float32.
         * ``mode="reference"``: the plain PyTorch modules (the default of a freshly built model;
-          :func:`~cosemdepth.io.model_io.load_model` returns the fast float32 path unless asked for this one).
+          :func:`~cosemdepth.checkpoints.model_io.load_model` returns the fast float32 path unless asked for this one).
 
         The fast path is used only in eval mode and never records gradients; ``forward_sequence`` (training) always
         runs the reference modules. Loading a state dict rebuilds the engine; so do a change of device and any in-place

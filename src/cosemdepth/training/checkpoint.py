@@ -2,7 +2,7 @@
 
 Layout of one checkpoint, ``RUN_DIR/checkpoints/ckpt-<step, 8 digits>/``::
 
-    model.safetensors   the weights   } our model format (cosemdepth.io.model_io): the folder itself loads
+    model.safetensors   the weights   } our model format (cosemdepth.checkpoints.model_io): the folder itself loads
     config.json         model config  } with ``load_model``
     optimizer.pt        optimizer state dict (torch.save; loads with ``weights_only=True``)
     rng.pt              RNG states: python, numpy, torch CPU (and CUDA)
@@ -37,11 +37,11 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import torch
 
-from ..config import ModelConfig
+from ..models.config import ModelConfig
 from ..errors import CheckpointError
-from ..io.atomic import _fsync_dir, atomic_write_bytes, atomic_write_text
-from ..io.manifest import MANIFEST_FILE, MANIFEST_FORMAT, MANIFEST_VERSION, sha256_file, validate_manifest
-from ..io.model_io import read_model_files, save_weights
+from ..output_safety.atomic import _fsync_dir, atomic_write_bytes, atomic_write_text
+from ..output_safety.manifest import MANIFEST_FILE, MANIFEST_FORMAT, MANIFEST_VERSION, sha256_file, validate_manifest
+from ..checkpoints.model_io import read_model_files, save_weights
 from ..operating_point import OperatingPoint
 
 STATE_FILE = "trainer_state.json"
@@ -74,7 +74,7 @@ def _debug_delay() -> None:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Model weights: our model format (cosemdepth.io.model_io), so that every checkpoint is also a loadable model folder.
+# Model weights: our model format (cosemdepth.checkpoints.model_io), so that every checkpoint is also a loadable model folder.
 # ---------------------------------------------------------------------------------------------------------------
 
 

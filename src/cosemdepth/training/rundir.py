@@ -20,14 +20,15 @@ from typing import Any, Mapping
 import torch
 import yaml
 
-from ..config import ModelConfig, RunConfig
+from ..models.config import ModelConfig
+from .config import RunConfig
 from ..errors import ConfigError
-from ..io.outdir import probe_writable
-from ..io.atomic import _fsync_dir, atomic_write_text
-from ..io.outdir import Input, check_not_input, check_not_other_input
+from ..output_safety.outdir import probe_writable
+from ..output_safety.atomic import _fsync_dir, atomic_write_text
+from ..output_safety.outdir import Input, check_not_input, check_not_other_input
 from ..operating_point import OperatingPoint
 from .checkpoint import _jsonable, save_model_files
-from .run_config import dump_config
+from .config import dump_config
 
 CONFIG_NAME = "config.yaml"
 EVENTS_NAME = "events.jsonl"
@@ -51,7 +52,7 @@ def run_inputs(config: RunConfig | None) -> list[Input]:
 
 def check_output_dir(run_dir: str | os.PathLike, config: RunConfig | None = None) -> bool:
     """Check that ``run_dir`` can hold a run, without writing anything. Returns True if it is an existing run
-    (to be resumed). The output policy of :mod:`cosemdepth.io.outdir`: the run folder is new, empty or a run (its
+    (to be resumed). The output policy of :mod:`cosemdepth.output_safety.outdir`: the run folder is new, empty or a run (its
     ``config.yaml``), and never one of the run's inputs (``config``'s dataset roots and split folders), a folder
     holding one or a folder inside one.
 

@@ -45,12 +45,13 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
-from ..config import ModelConfig, RunConfig
+from ..models.config import ModelConfig
+from .config import RunConfig
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device, retain_freed_host_memory
 from ..errors import CheckpointError, ConfigError, CosemdepthError, DatasetError
 from ..evaluation.metrics import selection_rule
-from ..io.atomic import atomic_write_text
-from ..io.model_io import read_weights
+from ..output_safety.atomic import atomic_write_text
+from ..checkpoints.model_io import read_weights
 from ..models import build_model
 from ..models.footprint import check_size
 from ..ops.resample import resize_nn2
@@ -73,7 +74,7 @@ from .events import CONSOLE_KINDS, EventLog
 from .init import read_transfer_source, transfer_state_dict
 from .losses import FIRST_SUPERVISED_FRAME, LossTerms, total_loss
 from .optim import make_optimizer
-from .run_config import dump_config
+from .config import dump_config
 from .rundir import (
     BEST_METRICS_NAME,
     BEST_NAME,

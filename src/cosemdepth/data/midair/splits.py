@@ -18,8 +18,8 @@ import h5py
 import numpy as np
 
 from ...errors import DatasetError
-from ...io.atomic import atomic_write_text
-from ...io.staging import StagedDir
+from ...output_safety.atomic import atomic_write_text
+from ...output_safety.staging import StagedDir
 from ..files import dataset_root, read_text
 from ..quaternion import qconj, qmul, qrotate
 from . import format as fmt
@@ -300,7 +300,7 @@ def generate_splits(
 def write_split_files(out_dir: Path, planned: list, written: dict[str, list[Path]],
                       columns: tuple[str, ...] | None = None) -> dict[str, list[Path]]:
     """Make the planned ``(split, relative path, rows)`` CSVs the contents of ``out_dir``, under the output policy
-    (:mod:`cosemdepth.io.outdir`): a previous ``splits`` output there is replaced as a whole (no CSV of another
+    (:mod:`cosemdepth.output_safety.outdir`): a previous ``splits`` output there is replaced as a whole (no CSV of another
     rule is left over), a folder holding anything else (a CSV nobody wrote or one edited since) is refused. Returns
     ``written`` with the paths appended."""
     if not planned:

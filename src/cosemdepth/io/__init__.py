@@ -1,1 +1,0 @@
-"""File formats: atomic writes, our model format, TensorFlow checkpoint reading."""

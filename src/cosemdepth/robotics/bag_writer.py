@@ -1,0 +1,163 @@
+"""Predictions as a ROS 2 bag (MCAP storage), one message per topic and processed image, with the input image's
+header stamp and frame_id (``cosemdepth predict --bag``):
+
+==============================  ===============================  =====================================================
+topic (default namespace)       type                             content
+==============================  ===============================  =====================================================
+``/cosemdepth/depth``           ``sensor_msgs/msg/Image``        ``32FC1``: metres along the optical axis; NaN where
+                                                                 the depth is not valid (REP 117/118)
+``/cosemdepth/depth_valid``     ``sensor_msgs/msg/Image``        ``mono8``: 255 where the depth is an estimate, 0 not
+``/cosemdepth/depth_status``    ``diagnostic_msgs/msg/           one status per frame: level OK ``estimated``, WARN
+                                DiagnosticArray``                ``held`` (the reference frame's depth carried: too
+                                                                 little motion), ERROR ``reset`` (no depth); message:
+                                                                 the status; values: ``status``, ``baseline_m``,
+                                                                 ``valid_fraction`` (the policy: predictions.json)
+``/cosemdepth/labels``          ``sensor_msgs/msg/Image``        ``mono8``: class index
+``/cosemdepth/labels_color``    ``sensor_msgs/msg/Image``        ``rgb8``: the class palette
+``/cosemdepth/camera_info``     ``sensor_msgs/msg/CameraInfo``   the output size; K scaled to it (ROS pixel centres)
+==============================  ===============================  =====================================================
+
+Depth topics are absent for M4Semantic models, label topics for M4Depth. The bag is written with ``rosbags``
+(optional: ``pip install cosemdepth[ros]``) into the staging folder of ``predict``, so it appears with the other
+outputs or not at all. Messages are logged at their header stamp.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from .rosbag import require_rosbags
+from ..errors import ConfigError
+
+DEFAULT_NAMESPACE = "/cosemdepth"
+
+
+def check_namespace(ns: str) -> str:
+    """``ns`` as a topic prefix (leading ``/``, no trailing one); a ConfigError when it is not a valid ROS name."""
+    ns = "/" + str(ns).strip("/")
+    if ns != "/" and not re.fullmatch(r"(/[A-Za-z][A-Za-z0-9_]*)+", ns):
+        raise ConfigError(f"--out-namespace {ns!r} is not a valid ROS namespace (letters, digits, _ and /; each "
+                          "part starting with a letter)")
+    return "" if ns == "/" else ns
+
+
+class BagWriter:
+    """A ``predict`` sink writing the bag at ``FOLDER/bag`` (see the module docstring).
+
+    Args:
+        header: ``dataset index -> (stamp_ns, frame_id)`` of the input image.
+        intrinsics: ``(fx, fy, cx, cy)`` at the output size in the package's pixel convention (design 2.1).
+        palette: ``[N, 3]`` uint8 for ``labels_color`` (None: no label topics).
+        namespace: topic prefix.
+    """
+
+    def __init__(self, header: Callable[[int], tuple[int, str]], intrinsics, palette=None,
+                 namespace: str = DEFAULT_NAMESPACE) -> None:
+        require_rosbags()
+        self.header = header
+        self.k = [float(v) for v in intrinsics]
+        self.palette = None if palette is None else np.asarray(palette, dtype=np.uint8)
+        self.ns = check_namespace(namespace)
+        self._writer = None
+        self._conns: dict[str, Any] = {}
+        self.messages = 0
+        self.path: Path | None = None
+
+    def open(self, folder: Path) -> None:
+        # deferred: an optional dependency (cosemdepth[ros]), checked by require_rosbags
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.typesys import Stores, get_typestore
+
+        self.ts = get_typestore(Stores.ROS2_HUMBLE)
+        self.path = Path(folder) / "bag"
+        self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._writer.open()
+
+    def _conn(self, name: str, msgtype: str):
+        if name not in self._conns:
+            self._conns[name] = self._writer.add_connection(f"{self.ns}/{name}", msgtype, typestore=self.ts)
+        return self._conns[name]
+
+    def _write(self, name: str, msg: Any, stamp: int) -> None:
+        self._writer.write(self._conn(name, msg.__msgtype__), stamp, self.ts.serialize_cdr(msg, msg.__msgtype__))
+        self.messages += 1
+
+    def _image(self, hdr, array: np.ndarray, encoding: str):
+        t = self.ts.types
+        h, w = array.shape[:2]
+        data = np.ascontiguousarray(array).view(np.uint8).reshape(-1)
+        return t["sensor_msgs/msg/Image"](header=hdr, height=h, width=w, encoding=encoding, is_bigendian=0,
+                                          step=data.size // h, data=data)
+
+    def __call__(self, batch) -> None:
+        t = self.ts.types
+        for b in range(len(batch)):
+            stamp, frame_id = self.header(batch.indices[b])
+            sec, nsec = divmod(int(stamp), 1_000_000_000)
+            hdr = t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
+                                           frame_id=frame_id)
+            h, w = batch.rgb.shape[-2:]
+            if batch.depth is not None:
+                depth = batch.depth[b, 0].float().cpu().numpy().astype("<f4")
+                valid = np.isfinite(depth) & (depth > 0)
+                if getattr(batch, "valid", None) is not None:
+                    valid &= batch.valid[b, 0].cpu().numpy().astype(bool)
+                elif bool(batch.reset[b]):
+                    valid[...] = False
+                self._write("depth", self._image(hdr, np.where(valid, depth, np.float32(np.nan)).astype("<f4"),
+                                                 "32FC1"), stamp)
+                self._write("depth_valid", self._image(hdr, valid.astype(np.uint8) * np.uint8(255), "mono8"), stamp)
+                self._status(hdr, batch, b, float(valid.mean()), stamp)
+            if batch.labels is not None:
+                labels = batch.labels[b].cpu().numpy().astype(np.uint8)
+                self._write("labels", self._image(hdr, labels, "mono8"), stamp)
+                if self.palette is not None:
+                    self._write("labels_color", self._image(hdr, self.palette[labels], "rgb8"), stamp)
+            fx, fy, cx, cy = self.k
+            cx, cy = cx - 0.5, cy - 0.5  # ROS/OpenCV: pixel centres at integer coordinates
+            info = t["sensor_msgs/msg/CameraInfo"](
+                header=hdr, height=int(h), width=int(w), distortion_model="plumb_bob", d=np.zeros(5),
+                k=np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1], dtype=np.float64),
+                r=np.eye(3).reshape(-1),
+                p=np.array([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0], dtype=np.float64),
+                binning_x=0, binning_y=0,
+                roi=t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+            )
+            self._write("camera_info", info, stamp)
+
+    def _status(self, hdr, batch, b: int, valid_fraction: float, stamp: int) -> None:
+        t = self.ts.types
+        statuses = getattr(batch, "status", None) or []
+        status = statuses[b] if b < len(statuses) else ("reset" if bool(batch.reset[b]) else "estimated")
+        base = getattr(batch, "baseline", None)
+        st = t["diagnostic_msgs/msg/DiagnosticStatus"]
+        level = {"estimated": st.OK, "held": st.WARN}.get(status, st.ERROR)
+        values = [("status", status), ("baseline_m", "" if base is None else f"{float(base[b]):.6f}"),
+                  ("valid_fraction", f"{valid_fraction:.6f}")]
+        msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=hdr, status=[st(
+            level=level, name="cosemdepth depth", message=status, hardware_id=hdr.frame_id,
+            values=[t["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values])])
+        self._write("depth_status", msg, stamp)
+
+    def close(self) -> dict[str, Any]:
+        """Finish the bag; the manifest entry describing it."""
+        self._writer.close()
+        self._writer = None
+        return {"bag": {"path": "bag", "storage": "mcap",
+                        "topics": {f"{self.ns}/{n}": c.msgtype for n, c in self._conns.items()},
+                        "messages": self.messages}}
+
+    def abort(self) -> None:
+        if self._writer is not None:
+            try:
+                self._writer.close()
+            except Exception:
+                pass
+            self._writer = None
+
+
+__all__ = ["BagWriter", "DEFAULT_NAMESPACE", "check_namespace"]
