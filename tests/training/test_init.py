@@ -9,10 +9,10 @@ import torch
 import yaml
 
 from cosemdepth.cli.main import main
-from cosemdepth.config import ModelConfig
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.errors import CheckpointError, ConfigError
 from cosemdepth.export.check import synthetic_sequence
-from cosemdepth.io.model_io import save_model
+from cosemdepth.checkpoints.model_io import save_model
 from cosemdepth.models import build_model
 from cosemdepth.training.checkpoint import read_model_state
 from cosemdepth.training.events import read_events

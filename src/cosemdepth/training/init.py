@@ -22,10 +22,10 @@ from typing import Mapping
 
 import torch
 
-from ..config import ModelConfig
+from ..models.config import ModelConfig
 from ..errors import CheckpointError
-from ..io.convert import expected_param_shapes
-from ..io.model_io import read_weights
+from ..checkpoints.convert import expected_param_shapes
+from ..checkpoints.model_io import read_weights
 from ..models.semantic_decoder import semantic_refiner_inputs
 
 #: ModelConfig fields a transfer may change: they add decoders or append input channels to existing layers
