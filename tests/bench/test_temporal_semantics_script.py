@@ -56,3 +56,18 @@ def test_init_that_is_not_a_model_folder_exits_2_and_writes_nothing(script, tmp_
     err = capsys.readouterr().err
     assert err.strip() == f"--init {tmp_path / 'nope'}: not a model folder (no config.json)"
     assert not work.exists() and not (tmp_path / "out").exists()
+
+
+def _row(miou, flicker, ms):
+    return {"miou": {"mean": miou}, "flicker": {"mean": flicker}, "ms_per_frame": ms}
+
+
+def test_acceptance_against_hand_computed_differences(script):
+    summary = {"cosemdepth": _row(0.30, 0.10, 100.0), "cosemdepth_t": _row(0.325, 0.065, 111.0),
+               "s_prev_gt": _row(0.31, 0.08, 104.0)}
+    acc = script.acceptance(summary)
+    assert acc["miou_gain_points"]["measured"] == pytest.approx(2.5) and acc["miou_gain_points"]["met"]
+    assert acc["flicker_reduction"]["measured"] == pytest.approx(0.35) and acc["flicker_reduction"]["met"]
+    assert acc["time_increase"]["measured"] == pytest.approx(0.11) and not acc["time_increase"]["met"]
+    assert acc["s_prev_gt_miou_gain_points"]["measured"] == pytest.approx(1.0)
+    assert script.acceptance({"cosemdepth": summary["cosemdepth"]}) == {}
