@@ -2,8 +2,8 @@
 depth, and Co-SemDepth-T (S^{t-1} warped with the model's own depth), each trained with the same recipe and budget
 for several seeds on SynthAir and evaluated on held-out flights (other world seeds).
 
-    python benchmarks/temporal_semantics.py [--work DIR] [--seeds 0 1 2] [--steps 60]
-        [--test-worlds 21 22] [--variants cosemdepth sncv s_prev_gt cosemdepth_t] [--threads 1] [--rounds 3]
+    python benchmarks/temporal_semantics.py [--work DIR] [--init MODEL_DIR] [--lr LR] [--supersample 1|3|5]
+        [--test-frames 100] [--seeds 0 1 2] [--steps 60] [--test-worlds 21 22] [--variants cosemdepth sncv s_prev_gt cosemdepth_t] [--threads 1] [--rounds 3]
         [--out benchmarks/results/temporal_semantics] [--strip docs/images/temporal_strip.png]
 
 Data (generated with ``cosemdepth synth`` into ``--work`` and reused by a later run): training world 5, trajectories
@@ -12,6 +12,13 @@ trajectory in training; the held-out flights are one sunny trajectory of each ``
 rows). Training: ``cosemdepth train --config synthair-small`` (4 levels, batch 2, lr 3e-4, augmentation) for
 ``--steps`` steps with ``train.num_threads`` ``--threads``; the model evaluated is the one of the last step (one
 validation at the end writes it to ``best/``). A run folder that already holds ``best/`` is not trained again.
+
+Fine-tuning (``--init MODEL_DIR``): every variant starts from the same trained weights (``train.init_from``: the
+matching tensors copied, the new input channels of the semantic refiners zero), so at step 0 every variant computes
+exactly that model's outputs, which are evaluated once as the reference row. The recipe then takes the source's
+levels, and the bf16 autocast and semantic class weights its ``config.json`` records, with lr ``--lr`` (default
+:data:`FINETUNE_LR`); the data is supersampled 3x by default as the shipped weights' was. Runs go to a folder named
+after the recipe, so a from-scratch study and a fine-tuning one do not reuse each other's runs.
 
 Evaluation: ``evaluate`` (fast engine, float32, the default every-frame policy, reset frames left out) on each
 held-out flight with ``--threads`` threads; per run the mean over the flights of ``miou`` and of the labels' temporal
