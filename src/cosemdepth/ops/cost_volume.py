@@ -156,16 +156,17 @@ def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negati
 
 def _spatial_correlation_traceable(feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
     """``[B, C, H, W] -> [B, (2r+1)^2 * K, H, W]`` group-mean correlation, offset-major, before the activation, as
-    plain traceable ops (one stacked window row at a time): the form the ONNX export records."""
+    plain traceable ops: the form the ONNX export records. Channels-last, so that every window offset's group sums
+    reduce the innermost, contiguous axis (ONNX Runtime reduces a middle axis several times slower)."""
     b, c, h, w = feat.shape
     n = c // groups
     k = 2 * radius + 1
-    f = feat.contiguous()
-    padded = F.pad(f, (radius, radius, radius, radius))
-    fv = f.view(b, groups, n, 1, h, w)
-    rows = [torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], 2) for i in range(k)]
-    out = torch.stack([(r.view(b, groups, n, k, h, w) * fv).sum(dim=2) for r in rows], 2)  # [B, K, k, k, H, W]
-    return out.permute(0, 2, 3, 1, 4, 5).reshape(b, k * k * groups, h, w) * (1.0 / n)
+    f = feat.permute(0, 2, 3, 1)  # [B, H, W, C]
+    padded = F.pad(f, (0, 0, radius, radius, radius, radius))
+    fv = f.reshape(b, h, w, groups, n)
+    out = torch.cat([(padded[:, i : i + h, j : j + w].reshape(b, h, w, groups, n) * fv).sum(dim=-1)
+                     for i in range(k) for j in range(k)], dim=-1)  # [B, H, W, k*k*K], offset-major
+    return out.permute(0, 3, 1, 2) * (1.0 / n)
 
 
 def _compute_dtype(dtype: torch.dtype) -> torch.dtype:
