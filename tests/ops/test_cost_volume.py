@@ -155,3 +155,21 @@ def test_sncv_export_form_runs_in_onnxruntime_with_the_reference_values(tmp_path
         torch.onnx.export(Sncv(), (x,), str(path), input_names=["f"], opset_version=17, dynamo=False)
     got = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"f": x.numpy()})[0]
     torch.testing.assert_close(torch.from_numpy(got), spatial_cost_volume(x, 2, 3), rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("groups", [1, 2, 4])
+def test_pscv_export_form_equals_the_product_form(groups):
+    """The form the ONNX export records (channels-last warps and group means) is the same PSCV, out-of-image points
+    (border clamping) included."""
+    from cosemdepth.ops.cost_volume import _sweep_correlation_traceable
+
+    g = torch.Generator().manual_seed(3)
+    b, c, h, w, s = 2, 8, 5, 7, 3
+    feat = torch.randn(b, c, h, w, generator=g, dtype=torch.float64)
+    prev = torch.randn(b, c + 1, h, w, generator=g, dtype=torch.float64)
+    pts = _grid_points(b, s, h, w).double() + 3 * torch.randn(b, s, 2, h, w, generator=g, dtype=torch.float64)
+    want_corr, want_para = parallax_sweep_cost_volume(feat, prev, pts, groups)
+    stacked = pts.permute(0, 2, 1, 3, 4).reshape(b, 2, s * h, w)
+    corr, para = _sweep_correlation_traceable(feat, prev, stacked, groups)
+    torch.testing.assert_close(corr, want_corr, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(para, want_para, rtol=1e-12, atol=1e-12)

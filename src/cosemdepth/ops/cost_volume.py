@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from ..geometry.warp import sample_bilinear
+from ..geometry.warp import sample_bilinear, sample_bilinear_pixels
 
 
 def group_correlation(a: torch.Tensor, b: torch.Tensor, groups: int, half: bool = False) -> torch.Tensor:
@@ -63,6 +63,8 @@ def parallax_sweep_cost_volume(
     b, c, h, w = feat.shape
     s = points.shape[1]
     pts = points.permute(0, 2, 1, 3, 4).reshape(b, 2, s * h, w)
+    if torch.onnx.is_in_onnx_export() and not half:
+        return _sweep_correlation_traceable(feat, prev, pts, groups)
     # channels-last input: the CPU sampler reads each tap's C + 1 values contiguously (several times faster here)
     warped = sample_bilinear(prev.contiguous(memory_format=torch.channels_last), pts).contiguous()
     warped = warped.view(b, c + 1, s, h, w)
@@ -73,6 +75,20 @@ def parallax_sweep_cost_volume(
     if torch.is_grad_enabled() and (feat.requires_grad or warped.requires_grad):
         return _SweepCorrelation.apply(feat, warped, groups)
     return _sweep_correlation_loop(feat, warped, groups), warped[:, c]
+
+
+def _sweep_correlation_traceable(feat: torch.Tensor, prev: torch.Tensor, pts: torch.Tensor,
+                                 groups: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The PSCV of :func:`parallax_sweep_cost_volume` (``pts``: its points stacked as ``[B, 2, S*H, W]``) as plain
+    traceable ops: the form the ONNX export records. The warped maps stay channels-last, as the row gathers give
+    them, so that each group's mean reduces the innermost axis; only the small volume is transposed."""
+    b, c, h, w = feat.shape
+    s = pts.shape[2] // h
+    n = c // groups
+    warped = sample_bilinear_pixels(prev, pts).reshape(b, s, h, w, c + 1)
+    fcl = feat.permute(0, 2, 3, 1).reshape(b, 1, h, w, groups, n)
+    corr = (warped[..., :c].reshape(b, s, h, w, groups, n) * fcl).mean(dim=-1)  # [B, S, H, W, K]
+    return corr.permute(0, 4, 1, 2, 3).reshape(b, groups * s, h, w), warped[..., c]
 
 
 def _sweep_correlation_loop(feat: torch.Tensor, warped: torch.Tensor, groups: int) -> torch.Tensor:
