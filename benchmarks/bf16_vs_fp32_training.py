@@ -25,11 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve()
-from cosemdepth.bench.harness import make_report, write_report
-
 # the sibling script (benchmarks/ is the script's folder, first on sys.path)
 from convergence_vs_original import METRICS, blocks, metrics_panel, read_comparison, save_figure
+
+from cosemdepth.bench.harness import make_report, write_report
+
+HERE = Path(__file__).resolve()
 
 MODES = ("fp32", "bf16")
 

@@ -12,7 +12,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from _outputs import SIZE, leftovers, unwritable_folder  # noqa: E402
 from _outputs import _one_thread, data, model_dir  # noqa: E402, F401 (pytest fixtures)
-from _writers import snapshot  # noqa: E402
 
 import cosemdepth.cli.predict as predict_cli  # noqa: E402
 from cosemdepth.cli.main import main  # noqa: E402

@@ -4,7 +4,6 @@
 import json
 
 import numpy as np
-import pytest
 
 from _outputs import leftovers  # (puts tests/data on the path)
 from _outputs import _one_thread, data, model_dir  # noqa: F401 (pytest fixtures)

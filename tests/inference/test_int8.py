@@ -238,7 +238,9 @@ def test_equalized_chain_computes_the_same_function_with_even_channel_ranges():
     assert torch.allclose(yr2[0].lo, eq[0](x2).amin(dim=(0, 2, 3)).detach(), rtol=1e-4, atol=1e-5)
     # alpha 0.5: the input channels' ranges become sqrt(|x_c| max|w[:, c]|): their spread about the square root of
     # the 1e4 before (the weights' per-channel maxima of a fresh layer are within a factor ~2 of each other)
-    spread = lambda r: (r.absmax().max() / r.absmax().min()).item()
+    def spread(r):
+        return (r.absmax().max() / r.absmax().min()).item()
+
     w_spread = (lambda m: (m.max() / m.min()).item())(convs[0].weight.abs().amax(dim=(0, 2, 3)))
     assert spread(xr[0]) > 1e3
     assert spread(xr2[0]) <= (spread(xr[0]) * w_spread) ** 0.5 * 1.001

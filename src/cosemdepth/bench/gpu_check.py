@@ -443,7 +443,7 @@ class Check:
             finite = all(np.isfinite(losses))
             row.update(median_s_per_step=round(med, 4), steps_per_s=round(1 / med, 3), timed_steps=len(times),
                        losses_finite=finite, ok=finite, status="ok" if finite else "failed")
-            del model, opt
+            model = opt = step = None  # free the model before the next precision
 
     # ---- stage: DDP under torchrun
     def stage_ddp(self, stage: Stage) -> None:

@@ -21,7 +21,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from ..errors import ConfigError, DatasetError
+from ..errors import DatasetError
 from ..optional import require
 from ..data.decode import DEFAULT_JPEG_IDCT, decode_rgb
 from ..data.poses import interpolate_pose
