@@ -81,7 +81,7 @@ def _inputs(n: int, size: int, seed: int = 0):
 
 
 def time_ours(name: str, size: int, warmup: int, frames: int) -> dict:
-    from cosemdepth.config import ModelConfig
+    from cosemdepth.models.config import ModelConfig
     from cosemdepth.models import build_model
 
     mode, dtype, _ = PATHS[name]

@@ -25,14 +25,14 @@ from torch.profiler import ProfilerActivity, profile, record_function
 
 from cosemdepth import load_model
 from cosemdepth.bench.harness import make_report, write_report
-from cosemdepth.config import RunConfig
+from cosemdepth.training.config import RunConfig
 from cosemdepth.devices import retain_freed_host_memory
 from cosemdepth.export.check import synthetic_sequence
 from cosemdepth.output_safety.atomic import atomic_write_text
 from cosemdepth.models import build_model
 from cosemdepth.training.data import collate, to_device
 from cosemdepth.training.optim import make_optimizer
-from cosemdepth.training.toy import ToyDataset
+from cosemdepth.data.toy import ToyDataset
 from cosemdepth.training.trainer import bf16_autocast, compute_loss, forward_batch, prepare_for_training
 
 INFER_DOC = """Where a streamed frame's time goes on the fast path: torch.profiler by op, convolutions against everything else.

@@ -20,7 +20,7 @@ from cosemdepth.errors import ConfigError, CosemdepthError
 from cosemdepth.output_safety.atomic import atomic_write_text
 from cosemdepth.training.data import open_source
 from cosemdepth.training.losses import FIRST_SUPERVISED_FRAME, median_frequency_weights
-from cosemdepth.training.run_config import resolve_config
+from cosemdepth.training.config import resolve_config
 
 
 def count_labels(cfg) -> torch.Tensor:

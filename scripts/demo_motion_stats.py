@@ -34,7 +34,7 @@ from cosemdepth.synthair.world import get_world
 from cosemdepth.output_safety.atomic import atomic_write_text
 from cosemdepth.checkpoints.model_io import CONFIG_FILE, OPERATING_POINT, read_config_file
 from cosemdepth.operating_point import MotionStats, OperatingPoint
-from cosemdepth.training.run_config import resolve_config
+from cosemdepth.training.config import resolve_config
 
 #: The training worlds of scripts/make_demo_weights.sh and their `cosemdepth synth` arguments.
 SEEDS = (11, 12, 13, 14, 15, 16)

@@ -1,7 +1,10 @@
-"""The package's module graph has no cycle: every import of every module under src/cosemdepth, read statically
-(module level and function-local, absolute and relative), is an edge; the graph must be acyclic."""
+"""The package's module graph: every import of every module under src/cosemdepth, read statically (module level and
+function-local, absolute and relative), is an edge. The graph must be acyclic, and no module may import a module of a
+higher layer (docs/architecture.md), at module level or inside a function: a function-local import is how an upward
+dependency hides from a cycle check until the day the lower module is imported first."""
 
 import ast
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -9,11 +12,27 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = "cosemdepth"
 
+#: The layers of src/cosemdepth, lowest first (docs/architecture.md). A module may import its own layer and the
+#: ones below. A module belongs to the entry that names it or its longest enclosing package (the root package
+#: ``cosemdepth`` itself, its version and lazy attribute table, only by name).
+LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("base", ("cosemdepth", "cosemdepth._lazy", "cosemdepth.errors", "cosemdepth.coerce", "cosemdepth.models.config",
+              "cosemdepth.workers", "cosemdepth.devices", "cosemdepth.optional", "cosemdepth.operating_point",
+              "cosemdepth.output_safety")),
+    ("maths", ("cosemdepth.geometry", "cosemdepth.ops")),
+    ("models", ("cosemdepth.models",)),
+    ("engines, model folders, readers", ("cosemdepth.inference", "cosemdepth.checkpoints", "cosemdepth.data",
+                                         "cosemdepth.synthair")),
+    ("tasks", ("cosemdepth.tasks", "cosemdepth.evaluation", "cosemdepth.training", "cosemdepth.export", "cosemdepth.bench",
+               "cosemdepth.robotics")),
+    ("front ends", ("cosemdepth.cli", "cosemdepth.demo", "cosemdepth.__main__")),
+)
 
-def module_names() -> dict[str, Path]:
+
+def module_names(src: Path = SRC, package: str = PACKAGE) -> dict[str, Path]:
     out = {}
-    for path in sorted((SRC / PACKAGE).rglob("*.py")):
-        parts = list(path.relative_to(SRC).with_suffix("").parts)
+    for path in sorted((src / package).rglob("*.py")):
+        parts = list(path.relative_to(src).with_suffix("").parts)
         if parts[-1] == "__init__":
             parts = parts[:-1]
         out[".".join(parts)] = path
@@ -29,34 +48,69 @@ def resolve(module: str, is_package: bool, node: ast.ImportFrom) -> str:
     return ".".join(base + ([node.module] if node.module else []))
 
 
-def imports_of(module: str, path: Path, known: set[str]) -> set[str]:
-    """The package modules ``module`` imports anywhere in its body: ``from X import name`` is an edge to
-    ``X.name`` when that is a module, else to ``X``."""
+def _imports(tree: ast.AST):
+    """``(node, in_function)`` for every import statement of ``tree``; class bodies run at import, so only a
+    function (or lambda) body makes an import function-local."""
+    stack = [(tree, False)]
+    while stack:
+        node, local = stack.pop()
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            yield node, local
+        inner = local or isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
+        stack.extend((child, inner) for child in ast.iter_child_nodes(node))
+
+
+def imports_of(module: str, path: Path, known: set[str], package: str = PACKAGE) -> dict[str, bool]:
+    """The package modules ``module`` imports anywhere in its body, each with whether every import of it is inside a
+    function: ``from X import name`` is an edge to ``X.name`` when that is a module, else to ``X``."""
     tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
     is_package = path.name == "__init__.py"
-    edges = set()
-    for node in ast.walk(tree):
+    edges: dict[str, bool] = {}
+    for node, local in _imports(tree):
         if isinstance(node, ast.Import):
             targets = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
+        else:
             base = resolve(module, is_package, node)
             targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in known else base for a in node.names]
-        else:
-            continue
         for t in targets:
             while t and t not in known:  # "import cosemdepth.x.y as z" of a name inside a module: the module
                 t = t.rpartition(".")[0]
-            if t.startswith(PACKAGE) and t != module:
-                edges.add(t)
+            if (t == package or t.startswith(package + ".")) and t != module:
+                edges[t] = edges.get(t, True) and local
     return edges
 
 
-def graph() -> dict[str, set[str]]:
-    mods = module_names()
-    return {m: imports_of(m, p, set(mods)) for m, p in mods.items()}
+def graph(src: Path = SRC, package: str = PACKAGE) -> dict[str, dict[str, bool]]:
+    """Module -> {imported module: only function-local}."""
+    mods = module_names(src, package)
+    return {m: imports_of(m, p, set(mods), package) for m, p in mods.items()}
 
 
-def find_cycle(g: dict[str, set[str]]) -> list[str] | None:
+def layer_of(module: str, layers=LAYERS, root: str = PACKAGE) -> int | None:
+    """The index in ``layers`` of ``module``'s layer (None: in no layer)."""
+    best, best_len = None, -1
+    for i, (_, names) in enumerate(layers):
+        for name in names:
+            inside = module == name or (name != root and module.startswith(name + "."))
+            if inside and len(name) > best_len:
+                best, best_len = i, len(name)
+    return best
+
+
+def upward_imports(g: dict[str, dict[str, bool]], layers=LAYERS, root: str = PACKAGE) -> list[str]:
+    """One line for each import of a module of a higher layer than the importer's."""
+    out = []
+    for module in sorted(g):
+        low = layer_of(module, layers, root)
+        for target, local in sorted(g[module].items()):
+            high = layer_of(target, layers, root)
+            if low is not None and high is not None and high > low:
+                where = "inside a function (a function-local import)" if local else "at module level"
+                out.append(f"{module} ({layers[low][0]}) imports {target} ({layers[high][0]}) {where}")
+    return out
+
+
+def find_cycle(g) -> list[str] | None:
     """One cycle of ``g`` as a path ``[a, b, ..., a]``, or None (iterative DFS, three colours)."""
     colour = {m: 0 for m in g}
     for root in g:
@@ -84,8 +138,10 @@ def find_cycle(g: dict[str, set[str]]) -> list[str] | None:
 def test_the_scanner_sees_relative_function_local_and_package_imports():
     g = graph()
     assert "cosemdepth.models.model" in g["cosemdepth.models"]  # from .model import ... in a package __init__
-    assert "cosemdepth.config" in g["cosemdepth.models.model"]  # from ..config import ...
-    assert "cosemdepth.models" in g["cosemdepth.checkpoints.model_io"]  # a function-local import
+    assert "cosemdepth.models.config" in g["cosemdepth.models.model"]  # from .config import ...
+    assert g["cosemdepth.models.config"] == {"cosemdepth.errors": False, "cosemdepth.coerce": False}  # from ..x
+    assert g["cosemdepth.evaluation.tfref_fixture"]["cosemdepth.checkpoints.tf_checkpoint"] is True  # function-local
+    assert g["cosemdepth.training.config"]["cosemdepth.data.registry"] is False  # module level
     assert "cosemdepth.models.model" in g["cosemdepth.inference.engine"]  # inference sits above models
     assert not any(m.startswith("cosemdepth.inference") for m in set().union(*(g[m] for m in g if m.startswith("cosemdepth.models"))))
 
@@ -102,3 +158,59 @@ def test_cycle_finder_on_hand_made_graphs(edges, cycle):
 def test_no_import_cycle_in_the_package():
     cycle = find_cycle(graph())
     assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_every_module_is_in_a_layer():
+    assert [m for m in module_names() if layer_of(m) is None] == []
+    assert layer_of("cosemdepth.models.config") == 0 and layer_of("cosemdepth.models.model") == 2
+    assert layer_of("cosemdepth") == 0 and layer_of("cosemdepth.cli.train") == 5
+
+
+def test_no_module_imports_a_higher_layer():
+    up = upward_imports(graph())
+    assert up == [], "imports of a higher layer:\n" + "\n".join(up)
+
+
+def test_the_layer_check_catches_an_upward_function_local_import(tmp_path):
+    """A synthetic package: ``low`` imports ``high`` inside a function (the import a cycle check misses until
+    ``high`` imports ``low``), ``mid`` imports ``high`` at module level; ``high`` imports ``low`` (downward) both
+    ways. Only the two upward imports are reported, each with where it is."""
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    files = {
+        "__init__.py": "",
+        "low.py": """
+            import os
+
+            class Reader:
+                def names(self):
+                    from .high import TABLE  # upward, hidden in a method
+                    return TABLE
+            """,
+        "mid.py": "from pkg.high import TABLE\n",
+        "high.py": """
+            from . import low
+
+            TABLE = {}
+
+            def f():
+                from .low import Reader
+                return Reader, low
+            """,
+    }
+    for name, text in files.items():
+        (pkg / name).write_text(textwrap.dedent(text))
+    layers = (("low", ("pkg", "pkg.low")), ("mid", ("pkg.mid",)), ("high", ("pkg.high",)))
+    g = graph(tmp_path, "pkg")
+    assert g["pkg.low"] == {"pkg.high": True} and g["pkg.high"] == {"pkg.low": False}
+    assert find_cycle(g) == ["pkg.high", "pkg.low", "pkg.high"]  # (the cycle check sees it too, as a cycle)
+    assert upward_imports(g, layers, "pkg") == [
+        "pkg.low (low) imports pkg.high (high) inside a function (a function-local import)",
+        "pkg.mid (mid) imports pkg.high (high) at module level",
+    ]
+    # without the downward import there is no cycle, and the layer check alone still catches the upward one
+    (pkg / "high.py").write_text("TABLE = {}\n")
+    g = graph(tmp_path, "pkg")
+    assert find_cycle(g) is None
+    assert upward_imports(g, layers, "pkg")[0] == ("pkg.low (low) imports pkg.high (high) inside a function "
+                                                   "(a function-local import)")

@@ -7,7 +7,7 @@ import pytest
 
 from cosemdepth import workers
 from cosemdepth.cli.main import main
-from cosemdepth.config import DataConfig
+from cosemdepth.training.config import DataConfig
 from cosemdepth.errors import ConfigError
 from cosemdepth.workers import WORKERS_PER_CORE, check_workers, max_workers, usable_cores
 

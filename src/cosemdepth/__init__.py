@@ -19,7 +19,7 @@ _LAZY = {
     "load_model": ("cosemdepth.checkpoints.model_io", "load_model"),
     "save_model": ("cosemdepth.checkpoints.model_io", "save_model"),
     "build_model": ("cosemdepth.models", "build_model"),
-    "ModelConfig": ("cosemdepth.config", "ModelConfig"),
+    "ModelConfig": ("cosemdepth.models.config", "ModelConfig"),
     "Streamer": ("cosemdepth.inference.policy", "Streamer"),
     "StreamPolicy": ("cosemdepth.inference.policy", "StreamPolicy"),
 }

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from cosemdepth.config import ModelConfig
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.errors import CheckpointError
 from cosemdepth.checkpoints.convert import (
     convert_checkpoint,

@@ -11,7 +11,7 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cosemdepth.config import ModelConfig
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.errors import CheckpointError
 from cosemdepth.checkpoints.model_io import read_config_file, read_model_files, save_weights
 from cosemdepth.checkpoints.convert import expected_param_shapes

@@ -11,7 +11,7 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from cosemdepth.config import ModelConfig
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.errors import CheckpointError, ConfigError
 from cosemdepth.checkpoints.convert import convert_checkpoint, expected_param_shapes
 from cosemdepth.checkpoints.model_io import load_model, read_model_files, save_model, save_weights
@@ -139,7 +139,7 @@ def test_corrupt_config(saved):
         (lambda m: m.update(format_version=2), "format_version 2 is newer"),
         (lambda m: m.update(format_version="1"), "bad format_version"),
         (lambda m: m["model"].update(levels=9), r"invalid \"model\" entry: model levels"),
-        (lambda m: m["model"].update(colour="red"), r"invalid \"model\" entry: unknown model config key"),
+        (lambda m: m["model"].update(colour="red"), r"invalid \"model\" entry: unknown config key 'model.colour'"),
         (lambda m: m.pop("model"), r"invalid \"model\" entry"),
     ],
 )

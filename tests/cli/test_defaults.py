@@ -10,7 +10,8 @@ import pytest
 from cosemdepth.bench.runner import BenchCase
 from cosemdepth.cli._shared import MODEL_SIZE_RULE, parse_size_pair
 from cosemdepth.cli.main import COMMANDS, build_parser
-from cosemdepth.config import DataConfig, ModelConfig, RunConfig
+from cosemdepth.models.config import ModelConfig
+from cosemdepth.training.config import DataConfig, RunConfig
 from cosemdepth.robotics.bag_flight import open_bag_flight
 from cosemdepth.data.flight import open_flight
 from cosemdepth.data.registry import DATASETS, split_datasets
@@ -18,7 +19,7 @@ from cosemdepth.synthair.writer import SynthConfig
 from cosemdepth.demo import run_demo
 from cosemdepth.evaluation.predict import predict
 from cosemdepth.export.onnx import export_onnx
-from cosemdepth.training.run_config import resolve_config
+from cosemdepth.training.config import resolve_config
 
 
 def parse(command, *argv):

@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from cosemdepth.cli.main import build_parser
-from cosemdepth.config import DatasetSource, known_datasets
 from cosemdepth.data import DATASETS, open_dataset, register_dataset
+from cosemdepth.data.registry import split_datasets
 from cosemdepth.errors import ConfigError
 from cosemdepth.evaluation.classes import class_info, dataset_classes, generic_palette
+from cosemdepth.training.config import DatasetSource
 
 CLASSES = ("ground", "roof", "cloud")
 PALETTE = [[10, 20, 30], [40, 50, 60], [70, 80, 90]]
@@ -44,7 +45,7 @@ def test_open_dataset_uses_the_entry_and_its_defaults(toyset, tmp_path):
 
 
 def test_config_and_cli_choices_include_it(toyset, tmp_path):
-    assert known_datasets()[-2:] == (toyset, "toy")
+    assert tuple(DATASETS)[-2:] == ("toy", toyset)
     DatasetSource(name=toyset).check("data.train[0]")
     for command, extra in (("evaluate", []), ("predict", ["--out", "o"])):
         args = build_parser(only=command).parse_args(
@@ -74,18 +75,19 @@ def test_class_names_and_palette_come_from_the_entry(toyset):
 
 
 def test_builtin_entries_keep_todays_defaults():
-    assert tuple(DATASETS) == ("midair", "synthair", "topair", "aeroscapes", "flight")
+    assert tuple(DATASETS) == ("midair", "synthair", "topair", "aeroscapes", "flight", "toy")
     assert dataset_classes() == {"midair": 7, "synthair": 7, "topair": 9, "aeroscapes": 12}
     assert {n: (s.split, s.size) for n, s in DATASETS.items()} == {
         "midair": ("test", 384), "synthair": ("test", 384), "topair": ("test", 384), "aeroscapes": ("val", None),
-        "flight": (None, None)}
-    assert [n for n, s in DATASETS.items() if not s.windows] == ["aeroscapes"]
+        "flight": (None, None), "toy": ("train", (32, 32))}
+    assert [n for n, s in DATASETS.items() if not s.windows] == ["aeroscapes", "toy"]
+    assert [n for n, s in DATASETS.items() if not s.needs_root or s.model_classes] == ["toy"]
     assert class_info(7, "midair")[0] == ("sky", "water", "trees", "land", "boulders", "road", "others")
 
 
 @pytest.mark.parametrize("name, kwargs, message", [
     ("bad name", {}, "dataset name must be an identifier"),
-    ("toy", {}, "other than 'toy'"),
+    (3, {}, "dataset name must be an identifier"),
     ("ok", {"classes": ("a", "b"), "palette": [[0, 0, 0]]}, r"palette must have shape \(2, 3\)"),
 ])
 def test_register_refuses_bad_entries(name, kwargs, message):
@@ -94,6 +96,22 @@ def test_register_refuses_bad_entries(name, kwargs, message):
     assert name not in DATASETS
 
 
+def test_the_toy_is_an_entry_like_the_others():
+    """No root, labels of the class count asked for, the reader's options checked by name, not offered where split
+    files are needed (evaluate / predict / splits)."""
+    ds = open_dataset("toy", None, seq_len=3, length=2, num_classes=4, seed=1)
+    assert len(ds) == 2
+    item = ds[1]
+    assert item["rgb"].shape == (3, 3, 32, 32) and item["depth"].shape == (3, 1, 32, 32)  # the entry's default size
+    assert 0 <= int(item["semantic"].min()) and int(item["semantic"].max()) <= 3
+    assert open_dataset("toy", None, size=16, length=1)[0]["rgb"].shape == (1, 3, 16, 16)
+    with pytest.raises(ConfigError, match=r"unknown option\(s\) \['colour'\] for dataset 'toy'"):
+        open_dataset("toy", None, colour=1)
+    assert "toy" not in split_datasets() and DATASETS["toy"].split_generator is None
+    DatasetSource(name="toy").check("data.train[0]")
+    assert "toy" not in dataset_classes()  # its class count is the model's
+
+
 def test_unknown_dataset_names_the_registered_ones(tmp_path):
-    with pytest.raises(ConfigError, match=r"unknown dataset 'kitti'; choose one of \('midair', .*'flight'\)"):
+    with pytest.raises(ConfigError, match=r"unknown dataset 'kitti'; choose one of \('midair', .*'flight', 'toy'\)"):
         open_dataset("kitti", tmp_path)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from cosemdepth.config import ModelConfig
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.data.sequence import SequenceDataset, Trajectory
 from cosemdepth.models import StepOutput, StreamState
 

@@ -15,7 +15,7 @@ import pytest
 import torch
 from PIL import Image
 
-from cosemdepth.config import ModelConfig
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.data.sequence import SequenceDataset, Trajectory
 from cosemdepth.evaluation.predict import predict
 from cosemdepth.evaluation.visualize import DEPTH_PNG_SCALE

@@ -7,7 +7,7 @@ import copy
 import pytest
 import torch
 
-from cosemdepth.config import ModelConfig
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.export.check import synthetic_sequence
 from cosemdepth.inference.graphs import make_streamer
 from cosemdepth.models import build_model

@@ -10,7 +10,7 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from cosemdepth.config import ARCHITECTURES
+from cosemdepth.models.config import ARCHITECTURES
 from cosemdepth.errors import ConfigError
 from cosemdepth.export import export_onnx
 from cosemdepth.export.check import run_onnx_stream, synthetic_sequence

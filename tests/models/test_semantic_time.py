@@ -6,7 +6,7 @@ import torch
 
 from cosemdepth.errors import ConfigError
 from cosemdepth.export.check import synthetic_sequence
-from cosemdepth.model_config import ModelConfig
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.models import build_model
 from cosemdepth.models.semantic_decoder import SemanticFrame, SemanticLevel, semantic_refiner_in_channels
 

@@ -28,7 +28,7 @@ def _model_and_checkpoint(root: Path) -> tuple[Path, Path]:
     torch.manual_seed(0)
     model = build_model(arch="m4semantic", levels=1, num_classes=3)
     save_model(model, root / "model")
-    from cosemdepth.config import RunConfig
+    from cosemdepth.training.config import RunConfig
     from cosemdepth.training.rundir import create_run_dir
 
     create_run_dir(root / "run", RunConfig())

@@ -9,8 +9,7 @@ from typing import Any
 
 import pytest
 
-from cosemdepth.config import RunConfig
-from cosemdepth.training.run_config import set_key
+from cosemdepth.training.config import RunConfig, set_key
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 

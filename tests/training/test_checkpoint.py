@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from cosemdepth.config import ModelConfig
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.errors import CheckpointError
 from cosemdepth.models import build_model
 from cosemdepth.training.checkpoint import (

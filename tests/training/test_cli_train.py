@@ -182,7 +182,7 @@ def test_bf16_flag_and_key_round_trip(capsys, tmp_path):
     """--bf16 sets train.bf16; the printed config loads back with it; without the flag it stays false."""
     import yaml
 
-    from cosemdepth.config import RunConfig
+    from cosemdepth.training.config import RunConfig
 
     assert main(["train", "--out", str(tmp_path / "x"), "--dataset", "toy", "--bf16", "--print-config"]) == 0
     on = yaml.safe_load(capsys.readouterr().out)

@@ -55,7 +55,7 @@ def our_step(channels_last: bool = False):
         "depth": torch.from_numpy(ref["depth"]).permute(1, 0, 4, 2, 3).contiguous(),
         "semantic": torch.from_numpy(ref["semantic"][..., 0].astype(np.int64)).permute(1, 0, 2, 3).contiguous(),
     }
-    from cosemdepth.config import RunConfig
+    from cosemdepth.training.config import RunConfig
 
     cfg = RunConfig.from_dict({"model": conv.config.to_dict(), "data": {"train": [{"name": "toy"}]}})
     out = forward_batch(model, batch)  # the trainer's forward (the semantic decoder skips frame 0)

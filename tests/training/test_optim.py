@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from cosemdepth.config import TrainConfig
+from cosemdepth.training.config import TrainConfig
 from cosemdepth.errors import ConfigError
 from cosemdepth.training.optim import KerasAdam, make_optimizer
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from cosemdepth.config import DataConfig, DatasetSource, RunConfig, TrainConfig
+from cosemdepth.training.config import DataConfig, DatasetSource, RunConfig, TrainConfig
 from cosemdepth.errors import ConfigError
-from cosemdepth.training.run_config import (
+from cosemdepth.training.config import (
     apply_override,
     builtin_configs,
     dump_config,

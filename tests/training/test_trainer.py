@@ -15,7 +15,7 @@ from cosemdepth.errors import CheckpointError
 from cosemdepth.checkpoints.convert import convert_checkpoint
 from cosemdepth.training.checkpoint import load_checkpoint, read_model_state, validate_checkpoint
 from cosemdepth.training.events import read_events
-from cosemdepth.training.toy import ToyDataset
+from cosemdepth.data.toy import ToyDataset
 from cosemdepth.training.trainer import NonFiniteGuard, Trainer, TrainingDiverged, learning_rate
 
 
@@ -159,7 +159,7 @@ def test_validation_uses_only_the_last_frame_of_each_window(tiny_config):
     from cosemdepth.models import build_model
     from cosemdepth.ops.resample import resize_nn2
     from cosemdepth.training.data import collate
-    from cosemdepth.training.toy import ToyDataset
+    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.training.validation import run_window
 
     cfg = tiny_config()
@@ -195,7 +195,7 @@ def test_bf16_autocast_keeps_the_loss_in_float32(tiny_config, bf16_cpu):
     """The model and the loss work under bf16 autocast; the loss stays float32 (CPU autocast, as train.bf16 uses)."""
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
-    from cosemdepth.training.toy import ToyDataset
+    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.training.trainer import compute_loss
 
     cfg = tiny_config(train__bf16=True)
@@ -215,7 +215,7 @@ def test_compute_loss_applies_the_configured_class_weights(tiny_config):
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
     from cosemdepth.training.losses import semantic_loss
-    from cosemdepth.training.toy import ToyDataset
+    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.training.trainer import compute_loss
 
     cfg = tiny_config()
@@ -263,7 +263,7 @@ def test_bf16_cpu_training_step_is_close_to_float32(tiny_config, bf16_cpu):
 
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
-    from cosemdepth.training.toy import ToyDataset
+    from cosemdepth.data.toy import ToyDataset
 
     cfg = tiny_config(data__size=32)
     torch.manual_seed(0)
@@ -290,7 +290,7 @@ def test_loss_is_float32_even_inside_autocast(tiny_config, bf16_cpu):
     outside it, for bf16 predictions."""
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
-    from cosemdepth.training.toy import ToyDataset
+    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.training.trainer import compute_loss
 
     cfg = tiny_config()

@@ -7,10 +7,12 @@ import pytest
 import torch
 from torch.utils.data import DataLoader, DistributedSampler
 
-from cosemdepth.config import DataConfig, DatasetSource, ModelConfig
 from cosemdepth.data import MixedDataset
 from cosemdepth.data.midair.format import PALETTE_7
+from cosemdepth.data.toy import ToyDataset
 from cosemdepth.errors import ConfigError, DatasetError
+from cosemdepth.models.config import ModelConfig
+from cosemdepth.training.config import DataConfig, DatasetSource
 from cosemdepth.training.data import (
     EpochBatchSampler,
     EpochItems,
@@ -23,7 +25,6 @@ from cosemdepth.training.data import (
     steps_per_epoch,
     total_steps,
 )
-from cosemdepth.training.toy import ToyDataset
 from cosemdepth.tasks import DEPTH, SEMANTIC
 from cosemdepth.training.visual import depth_to_rgb, example_strip, labels_to_rgb
 
@@ -90,6 +91,18 @@ def _open(src, **kw):
                 num_classes=7)
     args.update(kw)
     return open_source(src, "data.train[0]", **args)
+
+
+def test_the_toy_opens_through_the_dataset_table_with_the_run_seed_and_the_model_classes():
+    ds = _open(DatasetSource(name="toy", options={"length": 3, "shift": 1}), split="val", seq_len=3, size=(16, 24),
+               seed=5, num_classes=4)
+    expected = ToyDataset(length=3, seq_len=3, size=(16, 24), num_classes=4, seed=5, split="val", shift=1)
+    assert len(ds) == 3
+    for k in ("rgb", "depth", "semantic", "trans"):
+        assert torch.equal(ds[2][k], expected[2][k]), k
+    with pytest.raises(ConfigError, match=r"data\.train\[0\] \(toy, split 'train'\): unknown option\(s\) \['colour'\] "
+                                          r"for dataset 'toy'"):
+        _open(DatasetSource(name="toy", options={"colour": 1}))
 
 
 def test_dataset_errors_name_the_key_and_the_folder(tmp_path):

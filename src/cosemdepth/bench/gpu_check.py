@@ -212,7 +212,7 @@ class Check:
     def model(self):
         """The float32 model on the CPU (reference modules); copies are moved and optimised per row."""
         if self._model is None:
-            from ..config import ModelConfig
+            from ..models.config import ModelConfig
             from ..models import build_model
 
             w = self.plan.weights
@@ -398,11 +398,11 @@ class Check:
 
     # ---- stage: training steps/s
     def stage_training(self, stage: Stage) -> None:
-        from ..config import RunConfig
+        from ..training.config import RunConfig
         from ..devices import bf16_convolutions
         from ..models import build_model
         from ..training.data import collate, to_device
-        from ..training.toy import ToyDataset
+        from ..data.toy import ToyDataset
         from ..training.trainer import bf16_autocast, compute_loss, forward_batch, prepare_for_training
 
         dev = torch.device(self.plan.device)

@@ -18,7 +18,7 @@ from typing import Callable, Optional
 
 import torch
 
-from ..config import MIDAIR_IMAGE_SIZE, ModelConfig
+from ..models.config import MIDAIR_IMAGE_SIZE, ModelConfig
 from ..export.check import synthetic_sequence
 from ..inference.graphs import make_streamer
 from ..models import build_model

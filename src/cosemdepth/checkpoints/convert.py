@@ -35,8 +35,8 @@ import numpy as np
 import torch
 
 from .. import __version__
-from ..config import ARCHITECTURES, ENCODER_CHANNELS, ModelConfig
-from ..model_config import MIDAIR_IMAGE_SIZE, ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
+from ..models.config import ARCHITECTURES, ENCODER_CHANNELS, ModelConfig
+from ..models.config import MIDAIR_IMAGE_SIZE, ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
 from ..errors import CheckpointError, ConfigError
 from ..models.depth_decoder import refiner_in_channels
 from ..models.model import build_model

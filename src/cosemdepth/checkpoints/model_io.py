@@ -31,7 +31,7 @@ import torch
 from safetensors import SafetensorError
 
 from .. import __version__
-from ..config import ModelConfig
+from ..models.config import ModelConfig
 from ..errors import CheckpointError, ConfigError
 from ..models import build_model
 from ..operating_point import OperatingPoint

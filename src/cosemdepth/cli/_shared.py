@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from ..config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
+from ..models.config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
 from ..data import open_dataset
 from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS, image_size
 from ..data.frames import FocalSize, as_size
@@ -66,8 +66,7 @@ def add_model_args(parser: argparse.ArgumentParser, required: bool = True) -> No
 def add_reference_arg(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reference", action="store_true",
                         help="run the plain PyTorch modules instead of the fast inference path (the default: fp32, "
-                        "the same results up to float rounding, 1.1-1.4x faster on the CPUs measured in "
-                        "docs/benchmarks.md)")
+                        "the same results up to float rounding, faster: docs/benchmarks.md)")
 
 
 #: ``--precision`` -> ``SceneModel.optimize("fast", dtype)``

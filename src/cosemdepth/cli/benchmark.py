@@ -29,7 +29,7 @@ from ..bench.runner import (
     run_separate,
     wait_for_idle,
 )
-from ..config import ARCHITECTURES, ModelConfig
+from ..models.config import ARCHITECTURES, ModelConfig
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device
 from ..errors import ConfigError
 from ..output_safety.outdir import check_output_file, model_inputs, record_output_file

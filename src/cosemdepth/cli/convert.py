@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..config import ARCHITECTURES
-from ..model_config import ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
+from ..models.config import ARCHITECTURES
+from ..models.config import ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
 from ..errors import CheckpointError
 from ..checkpoints.convert import MIDAIR_OPERATING_POINT, import_checkpoint
 from ..checkpoints.model_io import CONFIG_FILE, WEIGHTS_FILE, save_weights

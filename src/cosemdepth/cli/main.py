@@ -33,9 +33,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 #: Commands run with OpenMP threads that sleep rather than spin while waiting (``OMP_WAIT_POLICY=PASSIVE``, unless
-#: the user set it): on a machine whose cores are shared with other processes, spinning threads made model steps
-#: 2-7x slower (measured on the 2-core dev machine: 0.43 s vs 0.18 s per 128x128 frame with 2 threads under load);
-#: on an idle machine the difference is within noise. It must be set before torch is imported.
+#: the user set it): on a machine whose cores are shared with other processes, spinning threads make model steps
+#: several times slower; on an idle machine the difference is within noise. It must be set before torch is imported.
 PASSIVE_WAIT_COMMANDS = ("demo", "evaluate", "predict", "view")
 
 

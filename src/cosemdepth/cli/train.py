@@ -14,8 +14,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..config import ARCHITECTURES, RunConfig, known_datasets
-from ..training.run_config import dump_config, resolve_config
+from ..data.registry import DATASETS
+from ..models.config import ARCHITECTURES
+from ..training.config import RunConfig, dump_config, resolve_config
 from ..training.trainer import Trainer
 
 #: The defaults the shortcuts show (the paper's recipe; a --config file may change them).
@@ -36,7 +37,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     m, d, t = DEFAULTS.model, DEFAULTS.data, DEFAULTS.train
     g.add_argument("--model", choices=tuple(ARCHITECTURES), help=f"model.arch (default {m.arch})")
     g.add_argument("--dataset", metavar="NAME",
-                   help=f"data.train.0.name: {', '.join(known_datasets())} (default {d.train[0].name})")
+                   help=f"data.train.0.name: {', '.join(DATASETS)} (default {d.train[0].name})")
     g.add_argument("--data-root", metavar="DIR", help="data.train.0.root")
     g.add_argument("--split-dir", metavar="DIR", help="data.train.0.split_dir")
     g.add_argument("--epochs", type=int, help=f"train.epochs (default {t.epochs})")

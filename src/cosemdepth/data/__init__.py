@@ -18,7 +18,7 @@ from .sequence import SequenceDataset
 
 def open_dataset(
     name: str,
-    root: str | Path,
+    root: str | Path | None,
     split_dir: str | Path | None = None,
     split: str | None = None,
     seq_len: int = 1,
@@ -30,8 +30,9 @@ def open_dataset(
 
     Args:
         name: a registered dataset (:mod:`cosemdepth.data.registry`): ``"midair"``, ``"synthair"``, ``"topair"``,
-            ``"aeroscapes"``, ``"flight"``, or one added with :func:`register_dataset`.
-        root: dataset root (for ``"flight"``: the folder of images).
+            ``"aeroscapes"``, ``"flight"``, ``"toy"`` (procedural, in memory), or one added with
+            :func:`register_dataset`.
+        root: dataset root (for ``"flight"``: the folder of images; None for ``"toy"``).
         split_dir: folder of the split files. Required for ``"midair"`` (``<split_dir>/<split>_data/**/*.csv``);
             ``"synthair"`` and ``"topair"`` default to ``<root>/splits``, ``"aeroscapes"`` to
             ``<root>/ImageSets``; ignored for ``"flight"``.

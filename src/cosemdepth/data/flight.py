@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from ..errors import ConfigError, DatasetError
-from ..model_config import ModelConfig
+from ..models.config import ModelConfig
 from .augment import resolve_augment
 from .decode import (DEFAULT_JPEG_IDCT, check_image_size, check_jpeg_idct, check_nonnegative, image_size, read_label_ids,
                      read_rgb, read_uint16_png)

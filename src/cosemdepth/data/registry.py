@@ -15,13 +15,14 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from ..model_config import MIDAIR_IMAGE_SIZE
 from ..errors import ConfigError
+from ..models.config import MIDAIR_IMAGE_SIZE
 from . import aeroscapes, flight, topair
 from .midair import format as midair_format
 from .midair.dataset import open_midair
 from .midair.splits import generate_splits
 from .topair_splits import generate_topair_splits
+from .toy import open_toy
 
 #: ``opener(root, split_dir, split, seq_len, size, augment, **options) -> SequenceDataset``.
 Opener = Callable[..., Any]
@@ -41,14 +42,18 @@ class DatasetSpec:
         size: default output size (None: the native size).
         split_dir: folder of the split files under the root when none is given (None: the reader decides).
         needs_split_dir: ``open_dataset`` refuses to guess the split folder (Mid-Air: it is kept outside the root).
-        classes: the class names of its labels, as the reader returns them (empty: no labels).
+        classes: the class names of its labels, as the reader returns them (empty: no labels, or labels of the
+            model's class count, ``model_classes``).
         palette: ``[len(classes), 3]`` uint8 colours of the classes (None: a generic palette).
         has_depth: its items carry ground-truth depth.
         has_splits: it has split files and ground truth, so evaluate / predict offer it as ``--dataset``.
-        windows: its reader takes the ``mode`` / ``db_seq_len`` window options (False for single images).
+        windows: its reader takes the ``mode`` / ``db_seq_len`` window options (False for single images and the toy).
         split_generator: writes its split files (``cosemdepth splits NAME``), or None.
         splits_into_root: ``cosemdepth splits NAME ROOT`` without OUT_DIR writes ``ROOT/<split_dir>``.
         options: reader options always passed (before the user's).
+        needs_root: it is read from a folder (False: generated in memory, no ``root``; ``"toy"``).
+        model_classes: its labels take the model's class count: a training run passes ``num_classes`` to its
+            opener (procedural labels, ``"toy"``).
     """
 
     name: str
@@ -65,6 +70,8 @@ class DatasetSpec:
     split_generator: SplitGenerator | None = None
     splits_into_root: bool = False
     options: Mapping[str, Any] = field(default_factory=dict)
+    needs_root: bool = True
+    model_classes: bool = False
 
     @property
     def num_classes(self) -> int:
@@ -80,8 +87,8 @@ def register_dataset(name: str, opener: Opener, **spec: Any) -> DatasetSpec:
 
     ``spec``: the other fields of :class:`DatasetSpec`. Registering an existing name replaces its entry.
     """
-    if not isinstance(name, str) or not name.isidentifier() or name == "toy":
-        raise ConfigError(f"dataset name must be an identifier other than 'toy', got {name!r}")
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ConfigError(f"dataset name must be an identifier, got {name!r}")
     if not callable(opener):
         raise TypeError(f"dataset {name!r}: opener must be callable, got {opener!r}")
     classes = tuple(spec.pop("classes", ()))
@@ -130,5 +137,7 @@ register_dataset("topair", topair.open_topair, split_dir="splits", classes=topai
 register_dataset("aeroscapes", aeroscapes.open_aeroscapes, split="val", size=None, split_dir="ImageSets", classes=aeroscapes.CLASSES,
                  palette=aeroscapes.PALETTE, has_depth=False, windows=False)
 register_dataset("flight", flight.open_flight, split=None, size=None, has_depth=False, has_splits=False)
+register_dataset("toy", open_toy, split="train", size=(32, 32), has_splits=False, windows=False, needs_root=False,
+                 model_classes=True)
 
 __all__ = ["DATASETS", "DatasetSpec", "dataset_spec", "register_dataset", "split_datasets"]

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from ..errors import DatasetError
-from ..model_config import MIDAIR_IMAGE_SIZE
+from ..models.config import MIDAIR_IMAGE_SIZE
 from .csvsplits import open_csv_split
 from .decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, read_channel0, read_label_ids, read_rgb
 from .frames import Size, depth_to_tensor, labels_to_tensor, rgb_to_tensor

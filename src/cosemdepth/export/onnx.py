@@ -27,7 +27,7 @@ import torch.nn as nn
 from .. import __version__
 from ..errors import ConfigError
 from ..output_safety.atomic import atomic_path
-from ..model_config import MIDAIR_IMAGE_SIZE
+from ..models.config import MIDAIR_IMAGE_SIZE
 from ..models.outputs import StreamState
 
 #: ONNX opset (``--opset``): GridSample needs at least ``MIN_OPSET``.

@@ -16,17 +16,13 @@ volumes and coarse estimates whose ranges differ by orders of magnitude, and one
 ones. Between convolutions the scales fold into the weights (free); on the refiner's input they cost one
 multiplication.
 
-Measured on the shipped SynthAir weights (78 frames of a 128x128 SynthAir flight, seed 77, calibration on 14 frames
-of another flight, relative to fast fp32: mIoU 22.26 %, AbsRel 0.2838): the default (semantic refiners int8, depth
-refiners bfloat16) mIoU +0.17 points, AbsRel +0.94 % (the bfloat16 depth refiners' share; +0.12 points without
-equalisation); every refiner int8: AbsRel +7.5 % without equalisation, +1.4 % with it (+0.4 % keeping the depth
-refiners' first convolution float). The depth metrics of this recurrent model move by a few percent either way for
-small changes (alpha 0.3 to 1.0 gives -0.6 % to +7 %), so the depth decoder's refiners stay float by default: in
-bfloat16 on a CPU with native bf16 (AVX512-BF16 / AMX), else float32 (``FastEngine(int8_float_dtype=...)``), and
-float32 on the coarse levels whatever the precision (``engine.FLOAT32_FROM_LEVEL``). On a
-CPU with AMX (measured here) the int8 convolution plus its separate LeakyReLU takes about the time of the fused bf16
-convolution, so int8 is not faster than bf16 there; it can only pay where int8 convolutions are much faster than bf16
-ones (not measured).
+The depth metrics of this recurrent model move by a few percent either way under small changes of quantisation
+(the equalisation's alpha, which convolutions are int8), while the semantic ones hardly move, so the depth decoder's
+refiners stay float by default: in bfloat16 on a CPU with native bf16 (AVX512-BF16 / AMX), else float32
+(``FastEngine(int8_float_dtype=...)``), and float32 on the coarse levels whatever the precision
+(``engine.FLOAT32_FROM_LEVEL``). The accuracy of each mode against fast fp32 is what ``cosemdepth fast-accuracy``
+measures (its current report: docs/benchmarks.md); whether int8 pays over bf16 depends on the CPU's int8 and bf16
+convolution speeds (``benchmarks/conv_peak.py``), the LeakyReLU being a separate pass in int8.
 
 What stays float32: the encoder and its DINL normalisation, the grouped L2 feature normalisation, the cost volumes of
 the normalised features (SNCV, PSCV), the warps and the geometry, the last convolution of each refiner (it produces

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..config import ModelConfig
+from .config import ModelConfig
 from ..geometry.camera import level_intrinsics
 from ..geometry.parallax import (
     PARALLAX_EPS,

@@ -19,7 +19,7 @@ from typing import Callable, Optional, Sequence
 import torch
 import torch.nn as nn
 
-from ..config import ModelConfig
+from .config import ModelConfig
 from ..ops.resample import resize_nn2
 from .encoder import Encoder
 from .outputs import SequenceOutput, StepOutput, StreamState

@@ -7,7 +7,7 @@ Adding a decoder is a module with a :class:`~cosemdepth.models.pyramid.PyramidDe
 
 from __future__ import annotations
 
-from ..config import ARCHITECTURES
+from .config import ARCHITECTURES
 from ..errors import ConfigError
 from .depth_decoder import DepthDecoder
 from .pyramid import PyramidDecoder

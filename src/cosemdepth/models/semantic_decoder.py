@@ -14,13 +14,13 @@ from typing import Optional, Sequence
 
 import torch
 
-from ..config import ModelConfig
+from .config import ModelConfig
 from ..geometry.camera import level_intrinsics
 from ..geometry.correspondence import previous_points
 from ..geometry.parallax import epipolar_geometry
 from ..geometry.rotation import quaternion_to_matrix
 from ..geometry.warp import sample_bilinear
-from ..model_config import SEMANTIC_TIME_GT, SEMANTIC_TIME_OFF, SEMANTIC_TIME_OWN
+from .config import SEMANTIC_TIME_GT, SEMANTIC_TIME_OFF, SEMANTIC_TIME_OWN
 from .layers import Refiner
 from .outputs import SemanticLevelOutput
 from .pyramid import GT_DEPTH, LevelOps, PyramidDecoder, PyramidLevel

@@ -33,9 +33,9 @@ def group_correlation(a: torch.Tensor, b: torch.Tensor, groups: int, half: bool 
     return prod.unflatten(1, (groups, n)).mean(dim=2)
 
 
-#: Maps smaller than this (the coarse levels: many channels, few pixels) correlate faster in the
-#: product form (one ``[B, C, S, H, W]`` product, then the group means) than in the channel loop (measured, 1 thread,
-#: S = 9: 96 ch at 24x24 0.41 vs 0.72 ms, 128 ch at 12x12 0.10 vs 0.78 ms; 64 ch at 48x48 1.02 vs 0.79 ms).
+#: Maps smaller than this (the coarse levels: many channels, few pixels) correlate in the product form (one
+#: ``[B, C, S, H, W]`` product, then the group means); larger ones in the channel loop, which was the faster of the
+#: two there while the product form won on the small maps.
 PSCV_LOOP_MIN_PIXELS = 1024
 
 

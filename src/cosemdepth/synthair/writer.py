@@ -36,7 +36,7 @@ from ..errors import ConfigError
 from ..workers import check_workers
 from ..output_safety.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ..output_safety.outdir import check_output_dir
-from ..model_config import MIDAIR_IMAGE_SIZE
+from ..models.config import MIDAIR_IMAGE_SIZE
 from ..data.midair import format as fmt
 from ..data.midair.splits import generate_splits
 from .climate import CLIMATES, get_climate

@@ -16,7 +16,7 @@ from typing import Any, Callable, Mapping, Optional, Sequence
 import numpy as np
 import torch
 
-from ..config import ARCHITECTURES, ModelConfig
+from ..models.config import ARCHITECTURES, ModelConfig
 from ..errors import ConfigError
 from ..models.pyramid import PyramidDecoder
 from ..models.registry import register_architecture, register_decoder
@@ -162,7 +162,7 @@ class DecoderTask:
     # ------------------------------------------------------------------ training
     def loss(self, out, batch: Mapping[str, Any], train) -> Tensor:
         """Its unweighted loss (float32 scalar) on a :class:`~cosemdepth.models.outputs.SequenceOutput` ``out`` and a
-        training batch (``[B, T, ...]``), with the options of the run's :class:`~cosemdepth.config.TrainConfig`."""
+        training batch (``[B, T, ...]``), with the options of the run's :class:`~cosemdepth.training.config.TrainConfig`."""
         raise NotImplementedError(f"the {self.name} decoder declares no loss")
 
     def loss_weight(self, train) -> float:

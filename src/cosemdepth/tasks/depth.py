@@ -11,7 +11,7 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from ..config import ModelConfig
+from ..models.config import ModelConfig
 from ..errors import CheckpointError
 from ..evaluation.metrics import DepthMetrics, ValidDepthMetrics
 from ..evaluation.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png

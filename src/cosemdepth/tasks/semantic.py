@@ -11,7 +11,7 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from ..config import ModelConfig
+from ..models.config import ModelConfig
 from ..errors import CheckpointError, ConfigError
 from ..evaluation.classes import class_info, dataset_classes
 from ..evaluation.metrics import ConfusionMatrix

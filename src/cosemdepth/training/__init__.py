@@ -2,12 +2,12 @@
 
 * :mod:`~cosemdepth.training.losses`: the losses of design 8;
 * :mod:`~cosemdepth.training.trainer`: :class:`Trainer` (the loop, resume, non-finite guard, validation, best model);
-* :mod:`~cosemdepth.training.run_config`: YAML configs and ``KEY=VALUE`` overrides (the dataclasses are in
-  :mod:`cosemdepth.config`);
+* :mod:`~cosemdepth.training.config`: the run config (the ``data``, ``train`` and ``debug`` sections around the
+  model config, their defaults), its YAML files and ``KEY=VALUE`` overrides (:func:`resolve_config`);
 * :mod:`~cosemdepth.training.checkpoint`: atomic, manifest-validated checkpoints;
 * :mod:`~cosemdepth.training.data`, :mod:`~cosemdepth.training.validation`, :mod:`~cosemdepth.training.distributed`,
   :mod:`~cosemdepth.training.events`, :mod:`~cosemdepth.training.board`, :mod:`~cosemdepth.training.visual`,
-  :mod:`~cosemdepth.training.rundir`, :mod:`~cosemdepth.training.toy`.
+  :mod:`~cosemdepth.training.rundir`.
 
 Three lines::
 
@@ -22,7 +22,7 @@ from .._lazy import lazy_getattr as _lazy_getattr
 
 _LAZY = {
     "Trainer": ("cosemdepth.training.trainer", "Trainer"),
-    "resolve_config": ("cosemdepth.training.run_config", "resolve_config"),
+    "resolve_config": ("cosemdepth.training.config", "resolve_config"),
     "validate": ("cosemdepth.training.validation", "validate"),
     "load_checkpoint": ("cosemdepth.training.checkpoint", "load_checkpoint"),
 }

@@ -37,7 +37,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import torch
 
-from ..config import ModelConfig
+from ..models.config import ModelConfig
 from ..errors import CheckpointError
 from ..output_safety.atomic import _fsync_dir, atomic_write_bytes, atomic_write_text
 from ..output_safety.manifest import MANIFEST_FILE, MANIFEST_FORMAT, MANIFEST_VERSION, sha256_file, validate_manifest

@@ -24,13 +24,13 @@ from typing import Any, Iterator, Mapping, Sequence
 import torch
 from torch.utils.data import DataLoader, Dataset, DistributedSampler, Sampler
 
-from ..config import ARCHITECTURES, DataConfig, DatasetSource, ModelConfig, key_path
 from ..data import MixedDataset, dataset_spec, open_dataset
 from ..errors import ConfigError, DatasetError
-from ..workers import check_workers
+from ..models.config import ARCHITECTURES, ModelConfig
 from ..operating_point import MotionStats, OperatingPoint
 from ..tasks import tasks_for
-from .toy import ToyDataset
+from ..workers import check_workers
+from .config import DataConfig, DatasetSource, key_path
 
 #: Seed stride between the sample orders of successive rollbacks (a rollback re-shuffles the rest of the epoch).
 SALT_STRIDE = 1_000_003
@@ -55,33 +55,30 @@ def open_source(
         DatasetError: the dataset folder (or split folder) is missing.
         ConfigError: an option is invalid.
     """
-    if src.name == "toy":
-        opts = dict(src.options)
-        unknown = sorted(set(opts) - {"length", "shift", "altitude"})
-        if unknown:
-            raise ConfigError(f"{key}.options: unknown option(s) {unknown} for the toy dataset; valid: "
-                              "['altitude', 'length', 'shift']")
-        return ToyDataset(seq_len=seq_len, size=size, num_classes=num_classes, seed=seed, split=split, **opts)
-
-    if src.root is None:
-        raise ConfigError(f"{key}.root: the folder of the {src.name!r} dataset is required (set it in the config "
-                          f"file, or with --data-root / --set {key_path(key)}.root=PATH)")
-    root = Path(src.root)
-    if not root.exists():
-        raise DatasetError(f"{key}.root: dataset folder {root} not found")
-    if not root.is_dir():
-        raise DatasetError(f"{key}.root: {root} is not a folder")
+    spec = dataset_spec(src.name)
+    if spec.needs_root:
+        if src.root is None:
+            raise ConfigError(f"{key}.root: the folder of the {src.name!r} dataset is required (set it in the config "
+                              f"file, or with --data-root / --set {key_path(key)}.root=PATH)")
+        root = Path(src.root)
+        if not root.exists():
+            raise DatasetError(f"{key}.root: dataset folder {root} not found")
+        if not root.is_dir():
+            raise DatasetError(f"{key}.root: {root} is not a folder")
     if src.split_dir is not None and not Path(src.split_dir).is_dir():
         raise DatasetError(f"{key}.split_dir: split folder {src.split_dir} not found")
     kwargs: dict[str, Any] = {"seed": seed}
-    if dataset_spec(src.name).windows:  # (not for single images)
+    if spec.windows:  # (not for single images)
         kwargs.update(mode=mode, db_seq_len=db_seq_len)
+    if spec.model_classes:
+        kwargs.update(num_classes=num_classes)
     kwargs.update(src.options)
     try:
         return open_dataset(src.name, src.root, split_dir=src.split_dir, split=split, seq_len=seq_len, size=size,
                             augment=augment, **kwargs)
     except (ConfigError, DatasetError) as e:
-        raise type(e)(f"{key} ({src.name} at {src.root}, split {split!r}): {e}") from e
+        where = f" at {src.root}" if src.root is not None else ""
+        raise type(e)(f"{key} ({src.name}{where}, split {split!r}): {e}") from e
 
 
 def build_train_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Dataset:

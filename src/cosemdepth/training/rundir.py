@@ -20,14 +20,15 @@ from typing import Any, Mapping
 import torch
 import yaml
 
-from ..config import ModelConfig, RunConfig
+from ..models.config import ModelConfig
+from .config import RunConfig
 from ..errors import ConfigError
 from ..output_safety.outdir import probe_writable
 from ..output_safety.atomic import _fsync_dir, atomic_write_text
 from ..output_safety.outdir import Input, check_not_input, check_not_other_input
 from ..operating_point import OperatingPoint
 from .checkpoint import _jsonable, save_model_files
-from .run_config import dump_config
+from .config import dump_config
 
 CONFIG_NAME = "config.yaml"
 EVENTS_NAME = "events.jsonl"

@@ -45,7 +45,8 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
-from ..config import ModelConfig, RunConfig
+from ..models.config import ModelConfig
+from .config import RunConfig
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device, retain_freed_host_memory
 from ..errors import CheckpointError, ConfigError, CosemdepthError, DatasetError
 from ..evaluation.metrics import selection_rule
@@ -73,7 +74,7 @@ from .data import (
 from .events import CONSOLE_KINDS, EventLog
 from .losses import FIRST_SUPERVISED_FRAME, LossTerms, weighted_total
 from .optim import make_optimizer
-from .run_config import dump_config
+from .config import dump_config
 from .rundir import (
     BEST_METRICS_NAME,
     BEST_NAME,

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from ...errors import ConfigError
-from ...model_config import MIDAIR_IMAGE_SIZE
+from ...models.config import MIDAIR_IMAGE_SIZE
 from ..csvsplits import open_csv_split
 from ..decode import (DEFAULT_JPEG_IDCT, check_jpeg_idct, check_nonnegative, read_label_ids, read_rgb,
                       read_uint16_png)

@@ -1,16 +1,20 @@
-"""The model config, the lowest layer of the configuration: the architecture's choices and the paper's image size.
+"""The model config: the architecture's choices (:class:`ModelConfig`, ``ARCHITECTURES``) and the paper's image size.
 
-Everything here depends on nothing but :mod:`cosemdepth.errors`, so that any layer (``models``, ``data``, ``checkpoints``)
-may read it; the run recipe (:mod:`cosemdepth.config`) sits above it and re-exports these names.
+The lowest layer of the configuration: it imports nothing but :mod:`cosemdepth.errors` and :mod:`cosemdepth.coerce`,
+so every layer that reads a model config (the models, ``data``, ``checkpoints``, the CLI) may import it. A model
+folder's ``config.json`` is read with :meth:`ModelConfig.from_dict` (the typed coercer); the run config
+(:mod:`cosemdepth.training.config`) holds one as its ``model`` section.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import typing
 from dataclasses import dataclass
-from typing import Any, Mapping, Optional
+from typing import Any, Literal, Mapping, Optional
 
-from .errors import ConfigError
+from ..coerce import from_mapping
+from ..errors import ConfigError
 
 #: Architecture -> the decoders it puts on the shared encoder (names of :data:`cosemdepth.models.registry.DECODERS`;
 #: ``cosemdepth.models.registry.register_architecture`` adds entries).
@@ -20,8 +24,9 @@ ARCHITECTURES: dict[str, tuple[str, ...]] = {"cosemdepth": ("depth", "semantic")
 #: ``ModelConfig.semantic_time``: the semantic decoder's temporal input ``S^{t-1}`` (design 6.3): none (the released
 #: code), the previous frame's labels warped with the ground-truth depth (the paper's ablation; training and
 #: evaluation only) or with the model's own depth (Co-SemDepth-T).
-SEMANTIC_TIME_OFF, SEMANTIC_TIME_GT, SEMANTIC_TIME_OWN = "off", "gt", "own"
-SEMANTIC_TIMES = (SEMANTIC_TIME_OFF, SEMANTIC_TIME_GT, SEMANTIC_TIME_OWN)
+SemanticTime = Literal["off", "gt", "own"]
+SEMANTIC_TIMES = typing.get_args(SemanticTime)
+SEMANTIC_TIME_OFF, SEMANTIC_TIME_GT, SEMANTIC_TIME_OWN = SEMANTIC_TIMES
 #: Architectures whose ``semantic_time`` is fixed (the default of every other one is "off").
 ARCH_SEMANTIC_TIME = {"cosemdepth-t": SEMANTIC_TIME_OWN}
 
@@ -30,7 +35,8 @@ ENCODER_CHANNELS = (16, 32, 64, 96, 128, 192)
 
 #: Precisions of the parallax-sweeping cost-volume products (``ModelConfig.pscv_dtype``); the original computes them
 #: in float16, so converted official checkpoints use it to reproduce the original's numbers.
-PSCV_DTYPES = ("float32", "float16")
+PscvDtype = Literal["float32", "float16"]
+PSCV_DTYPES = typing.get_args(PscvDtype)
 ORIGINAL_PSCV_DTYPE = "float16"
 
 #: Mid-Air camera: 90 degree horizontal FOV, so f = W/2 and c = (W/2, H/2) (design 2.1).
@@ -58,7 +64,7 @@ class ModelConfig:
     level_memory: bool = True
     #: Precision of the parallax-sweeping cost-volume products: "float32", or "float16" as the original computes
     #: them (converted official checkpoints use float16 so that they reproduce the original's numbers).
-    pscv_dtype: str = "float32"
+    pscv_dtype: PscvDtype = "float32"
     #: Semantic decoder: a spatial cost volume of the level's features (7x7, one group) beside them in the refiner
     #: input (the paper's "+SNCV").
     semantic_sncv: bool = False
@@ -66,7 +72,7 @@ class ModelConfig:
     #: the refiner input: "off", "gt" (warped with the ground-truth depth: the paper's "+S^{t-1}"; the depth is an
     #: input of every forward pass) or "own" (with the model's own depth: Co-SemDepth-T). None: the architecture's
     #: (``ARCH_SEMANTIC_TIME``, else "off").
-    semantic_time: Optional[str] = None
+    semantic_time: Optional[SemanticTime] = None
 
     def __post_init__(self) -> None:
         if self.arch not in ARCHITECTURES:
@@ -120,19 +126,15 @@ class ModelConfig:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "ModelConfig":
-        return _from_dict(cls, d, "model config")
-
-
-def _from_dict(cls, d: Mapping[str, Any], what: str):
-    if not isinstance(d, Mapping):
-        raise ConfigError(f"{what} must be a mapping, got {type(d).__name__}")
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(d) - names)
-    if unknown:
-        raise ConfigError(f"unknown {what} key(s) {unknown}; valid keys: {sorted(names)}")
-    return cls(**dict(d))
+    def from_dict(cls, d: Mapping[str, Any], prefix: str = "model") -> "ModelConfig":
+        """Build from a (partial) dict, e.g. the ``"model"`` entry of a ``config.json``: missing keys take the
+        defaults, values are converted to the field types (:func:`cosemdepth.coerce.from_mapping`); unknown keys and
+        bad values raise :class:`ConfigError` naming the key (``prefix.key``)."""
+        if d is None:
+            raise ConfigError(f"{prefix} must be a mapping of keys to values, got null")
+        return from_mapping(cls, d, prefix)
 
 
 __all__ = ["ARCH_SEMANTIC_TIME", "ARCHITECTURES", "SEMANTIC_TIMES", "SEMANTIC_TIME_GT", "SEMANTIC_TIME_OFF",
-           "SEMANTIC_TIME_OWN", "ENCODER_CHANNELS", "MIDAIR_IMAGE_SIZE", "ModelConfig", "ORIGINAL_PSCV_DTYPE", "PSCV_DTYPES"]
+           "SEMANTIC_TIME_OWN", "ENCODER_CHANNELS", "MIDAIR_IMAGE_SIZE", "ModelConfig", "ORIGINAL_PSCV_DTYPE", "PSCV_DTYPES",
+           "PscvDtype", "SemanticTime"]

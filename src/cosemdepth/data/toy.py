@@ -9,7 +9,8 @@ rotation and ``t = (dx, 0, 0)``, ``dx = shift * altitude / f``.
 
 Items have the layout of :func:`cosemdepth.data.open_dataset` (``rgb`` [T,3,H,W], ``depth`` [T,1,H,W], ``semantic``
 [T,H,W] int64, ``rot`` [T,4], ``trans`` [T,3], ``intrinsics`` [4], ``reset`` [T] bool) and depend only on
-``(seed, split, index)``: no files, no randomness across epochs.
+``(seed, split, index)``: no files, no randomness across epochs. It is a dataset of the dataset table like the others
+(:func:`open_toy` is its opener; no root, its labels take the model's class count).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from ..data.midair.format import PALETTE_7
+from .midair.format import PALETTE_7
 
 
 class ToyDataset(Dataset):
@@ -119,6 +120,16 @@ class ToyDataset(Dataset):
         }
 
 
+def open_toy(root, split_dir, split, seq_len, size, augment, *, seed: int = 0, num_classes: int = 7,
+             length: int = 24, shift: int = 2, altitude: float = 40.0) -> ToyDataset:
+    """The opener of the ``"toy"`` dataset (:mod:`cosemdepth.data.registry`): ``root`` and ``split_dir`` are unused
+    (nothing is read), ``augment`` too (the items are fixed); ``size`` is an int (square) or ``(H, W)``."""
+    if isinstance(size, int):
+        size = (size, size)
+    return ToyDataset(length=length, seq_len=seq_len, size=size, num_classes=num_classes, seed=seed, split=split,
+                      shift=shift, altitude=altitude)
+
+
 def _palette(n: int) -> np.ndarray:
     """``[n, 3]`` colours: the Mid-Air palette, then grey levels for extra classes."""
     extra = max(0, n - len(PALETTE_7))
@@ -126,4 +137,4 @@ def _palette(n: int) -> np.ndarray:
     return np.concatenate([PALETTE_7.astype(np.float64), greys])[:n]
 
 
-__all__ = ["ToyDataset"]
+__all__ = ["ToyDataset", "open_toy"]

@@ -1,51 +1,53 @@
-"""The one place for defaults: the paper's Mid-Air configuration (design sections 9.1 and 14.1).
+"""The run config: what a training run trains (``model``, ``data``, ``train``, ``debug``), and its YAML files.
 
-Two layers: the model config (:class:`ModelConfig`, ``ARCHITECTURES``, the image size) lives low in
-:mod:`cosemdepth.model_config` and is re-exported here; the run recipe (data, training) is defined here.
+Three layers, each with its defaults in one place: the model (:class:`~cosemdepth.models.config.ModelConfig`, beside
+the models), the data and the training recipe (:class:`DataConfig`, :class:`TrainConfig`: the paper's Mid-Air
+recipe, design sections 9.1 and 14.1, here), and the run that holds them (:class:`RunConfig`). This module sits
+above ``data`` and ``evaluation``, whose tables it checks names against (the dataset table, the augmentation
+presets, the best-checkpoint metrics).
 
-Configs are plain dataclasses; they round-trip through dicts (JSON/YAML) with :func:`to_dict` / ``from_dict``.
+A config file has up to four sections, ``model``, ``data``, ``train`` and ``debug`` (the fields of
+:class:`RunConfig`); a missing key takes its default. :func:`resolve_config` layers defaults < a file < explicit
+values < ``KEY=VALUE`` overrides with a dotted key, list items by index (``train.lr=3e-4``,
+``data.train.0.root=data/midair``, ``data.train.1.weight=0.5``); an override's value is read as YAML (``true``,
+``null``, ``[1, 2]``...). Every value then goes through the one typed coercer (:mod:`cosemdepth.coerce`), so
+``"3e-4"`` is a float and a bad value is one line naming its key. :func:`dump_config` writes the YAML back.
+
+The shipped configs live in the package (``cosemdepth/configs/*.yaml``) and can be named without a path
+(``--config midair``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import math
-import types
 import typing
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Optional, Union
+from pathlib import Path
+from typing import Any, Iterable, Literal, Mapping, Optional, Union
 
-from .errors import ConfigError
-from .workers import check_workers
-from .model_config import ARCHITECTURES, ENCODER_CHANNELS, MIDAIR_IMAGE_SIZE, ModelConfig
+import yaml
 
+from ..coerce import from_mapping
+from ..data.augment import resolve_augment
+from ..data.registry import DATASETS
+from ..errors import ConfigError
+from ..evaluation.metrics import selection_rule
+from ..models.config import MIDAIR_IMAGE_SIZE, ModelConfig
+from ..workers import check_workers
 
-
-def to_dict(cfg: Any) -> dict[str, Any]:
-    return dataclasses.asdict(cfg)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Training (design 9): the paper's Mid-Air recipe as defaults
-# ---------------------------------------------------------------------------------------------------------------
-
-def known_datasets() -> tuple[str, ...]:
-    """The dataset names a training run accepts: the registered datasets of :mod:`cosemdepth.data.registry` (when
-    the readers are installed) plus ``"toy"`` (a tiny procedural in-memory dataset for smoke tests,
-    :mod:`cosemdepth.training.toy`)."""
-    try:
-        from .data import DATASETS  # the dataset table (deferred: the readers sit above the config)
-    except ImportError:
-        return ("toy",)
-    return (*DATASETS, "toy")
+#: ``train.optimizer``: Keras 2's Adam update (the original's) or ``torch.optim.Adam``.
+Optimizer = Literal["adam_keras", "adam_torch"]
 
 
 @dataclass(frozen=True)
 class DatasetSource:
     """One dataset of a run: which reader, where, and its weight in a mix.
 
-    ``options`` are passed on to :func:`cosemdepth.data.open_dataset` as keyword arguments (e.g. ``labels``,
-    ``modalities``; for ``"toy"``: ``length``).
+    ``name`` is a dataset of the dataset table (:mod:`cosemdepth.data.registry`); ``options`` are passed on to
+    :func:`cosemdepth.data.open_dataset` as keyword arguments (e.g. ``labels``, ``modalities``; for ``"toy"``:
+    ``length``).
     """
 
     name: str = "midair"
@@ -57,9 +59,8 @@ class DatasetSource:
     def check(self, key: str) -> None:
         """Raise :class:`ConfigError` naming ``key`` (e.g. ``data.train[0]``) if a value is invalid. (A missing
         ``root`` is reported when the dataset is opened, so that a config can be written before the data exists.)"""
-        names = known_datasets()
-        if self.name not in names:
-            raise ConfigError(f"{key}.name: unknown dataset {self.name!r}; choose one of {list(names)}")
+        if self.name not in DATASETS:
+            raise ConfigError(f"{key}.name: unknown dataset {self.name!r}; choose one of {list(DATASETS)}")
         if not (self.weight >= 0 and math.isfinite(self.weight)):
             raise ConfigError(f"{key}.weight must be a finite number >= 0, got {self.weight!r}")
 
@@ -82,7 +83,7 @@ class DataConfig:
     train_split: str = "train"
     val_split: str = "val"
     validate: bool = True
-    #: Network input size (square side or [H, W]); the paper uses 384.
+    #: Network input size, [H, W] (a single side, ``size: 384`` or ``(384,)``, is square); the paper uses 384.
     size: tuple[int, ...] = (MIDAIR_IMAGE_SIZE, MIDAIR_IMAGE_SIZE)
     seq_len: int = 4
     db_seq_len: int = 4
@@ -95,6 +96,10 @@ class DataConfig:
     num_workers: int = 2
 
     def __post_init__(self) -> None:
+        if isinstance(self.size, int) and not isinstance(self.size, bool):
+            object.__setattr__(self, "size", (self.size,))
+        if isinstance(self.size, tuple) and len(self.size) == 1:
+            object.__setattr__(self, "size", self.size * 2)  # a square size
         if not self.train:
             raise ConfigError("data.train must list at least one dataset")
         for i, src in enumerate(self.train):
@@ -133,7 +138,7 @@ class TrainConfig:
     #: Adam as Keras' defaults in the original: lr 1e-4 constant, betas 0.9/0.999, eps 1e-7, no weight decay.
     #: ``optimizer``: "adam_keras" (Keras 2's update, epsilon added to sqrt(v) before the bias correction: the
     #: original's) or "adam_torch" (torch.optim.Adam); see :mod:`cosemdepth.training.optim`.
-    optimizer: str = "adam_keras"
+    optimizer: Optimizer = "adam_keras"
     lr: float = 1e-4
     betas: tuple[float, float] = (0.9, 0.999)
     eps: float = 1e-7
@@ -195,8 +200,9 @@ class TrainConfig:
         _positive_int("train.epochs", self.epochs)
         _positive_int("train.max_steps", self.max_steps, minimum=0)
         _positive_int("train.batch_size", self.batch_size)
-        if self.optimizer not in ("adam_keras", "adam_torch"):
-            raise ConfigError(f"train.optimizer must be 'adam_keras' or 'adam_torch', got {self.optimizer!r}")
+        if self.optimizer not in typing.get_args(Optimizer):
+            raise ConfigError(f"train.optimizer must be {' or '.join(map(repr, typing.get_args(Optimizer)))}, got "
+                              f"{self.optimizer!r}")
         _positive_number("train.lr", self.lr)
         if len(self.betas) != 2 or not all(0.0 <= b < 1.0 for b in self.betas):
             raise ConfigError(f"train.betas must be two numbers in [0, 1), got {list(self.betas)}")
@@ -224,9 +230,6 @@ class TrainConfig:
         _positive_int("train.max_rollbacks", self.max_rollbacks, minimum=0)
         _positive_int("train.log_every", self.log_every)
         _positive_int("train.image_every", self.image_every, minimum=0)
-        # deferred: the metrics sit above the config (the run recipe should move above them; see docs/architecture.md)
-        from .evaluation.metrics import selection_rule
-
         try:
             selection_rule(self.best)
         except ConfigError as e:
@@ -263,22 +266,18 @@ class RunConfig:
                               f"model.num_classes = {self.model.num_classes}")
 
     def to_dict(self) -> dict[str, Any]:
-        return to_dict(self)
+        return dataclasses.asdict(self)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "RunConfig":
         """Build from a (partial) nested dict; missing keys take the defaults. Values are converted to the field
         types (so ``"3e-4"`` is a float); unknown keys and bad values raise :class:`ConfigError` naming the key."""
-        return build_config(cls, d, "")
+        return from_mapping(cls, d, "")
 
 
 def _check_augment(augment: Any) -> None:
     """``data.augment`` through the data package's own reading of it (the presets live there), so that a config that
     prints (``train --print-config``) is one that runs."""
-    try:
-        from .data.augment import resolve_augment  # deferred: the readers sit above the config
-    except ImportError:  # pragma: no cover - the data package is part of the distribution
-        return
     try:
         resolve_augment(augment)
     except ConfigError as e:
@@ -299,115 +298,126 @@ def _positive_number(key: str, value: Any, allow_zero: bool = False) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Typed construction from nested dicts (YAML, JSON, command-line overrides)
+# Config files: YAML in, overrides on top, YAML out
 # ---------------------------------------------------------------------------------------------------------------
 
-_TRUE = ("true", "yes", "on", "1")
-_FALSE = ("false", "no", "off", "0")
+def builtin_configs() -> list[str]:
+    """Names of the configs shipped with the package (``midair``, ``synthair-small``...)."""
+    folder = importlib.resources.files("cosemdepth") / "configs"
+    if not folder.is_dir():
+        return []
+    return sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
 
 
-def build_config(cls, d: Any, prefix: str):
-    """Build dataclass ``cls`` from the mapping ``d`` (missing keys: defaults), converting values to the field
-    types. ``prefix`` is the dotted key of ``d`` for error messages (``""`` at the top)."""
-    what = prefix or "the config"
-    if d is None:
-        d = {}
-    if not isinstance(d, Mapping):
-        raise ConfigError(f"{what} must be a mapping of keys to values, got {type(d).__name__} {d!r}")
-    hints = typing.get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    unknown = [k for k in d if k not in names]
-    if unknown:
-        keys = ", ".join(repr(_join(prefix, str(k))) for k in unknown)
-        raise ConfigError(f"unknown config key{'s' if len(unknown) > 1 else ''} {keys}; valid keys"
-                          f"{' of ' + repr(prefix) if prefix else ''}: {names}")
-    kwargs = {k: _coerce(v, hints[k], _join(prefix, k)) for k, v in d.items()}
+def _resolve_path(config: str | Path) -> tuple[str, str]:
+    """``(text, origin)`` of a config given as a path or as the name of a shipped config."""
+    p = Path(config)
+    if p.is_file():
+        try:
+            return p.read_text(encoding="utf-8"), str(p)
+        except (OSError, UnicodeDecodeError) as e:
+            raise ConfigError(f"{p}: cannot read the config file ({e})") from e
+    if p.exists():
+        raise ConfigError(f"{p}: the config must be a YAML file, this is a folder")
+    name = str(config)
+    if "/" not in name and not name.endswith((".yaml", ".yml")):
+        res = importlib.resources.files("cosemdepth") / "configs" / f"{name}.yaml"
+        if res.is_file():
+            return res.read_text(encoding="utf-8"), f"cosemdepth/configs/{name}.yaml"
+    shipped = builtin_configs()
+    raise ConfigError(f"{config}: config file not found" + (f" (shipped configs: {shipped})" if shipped else ""))
+
+
+def load_config_dict(config: str | Path) -> dict[str, Any]:
+    """The raw nested dict of a YAML config file (a path, or the name of a shipped config)."""
+    text, origin = _resolve_path(config)
     try:
-        return cls(**kwargs)
-    except ConfigError as e:
-        if prefix == "model" and not str(e).startswith("model"):
-            raise ConfigError(f"model: {e}") from None
-        raise
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{origin}: not valid YAML: {e}") from e
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{origin}: the top level must be a mapping with sections model/data/train/debug, "
+                          f"got {type(data).__name__}")
+    return data
 
 
-def _join(prefix: str, key: str) -> str:
-    return f"{prefix}.{key}" if prefix else key
+def apply_override(d: dict[str, Any], override: str) -> None:
+    """Apply one ``KEY=VALUE`` override to the nested dict ``d`` in place (see the module docstring)."""
+    key, sep, raw = override.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise ConfigError(f"override {override!r}: expected KEY=VALUE, e.g. train.lr=3e-4")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError:
+        value = raw
+    set_key(d, key, value)
 
 
-def _coerce(value: Any, tp: Any, key: str) -> Any:
-    origin = typing.get_origin(tp)
-    args = typing.get_args(tp)
-    if origin in (Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        options = [a for a in args if a is not type(None)]
-        if bool in options and (isinstance(value, bool) or (isinstance(value, str) and value.lower() in _TRUE + _FALSE)):
-            return _coerce(value, bool, key)
-        errors = []
-        for a in options:
-            try:
-                return _coerce(value, a, key)
-            except ConfigError as e:
-                errors.append(str(e))
-        raise ConfigError(errors[0] if len(errors) == 1 else f"{key}: invalid value {value!r} ({'; '.join(errors)})")
-    if value is None:
-        raise ConfigError(f"{key}: a value is required, got null")
-    if dataclasses.is_dataclass(tp):
-        if isinstance(value, tp):
-            return value
-        return build_config(tp, value, key)
-    if origin is tuple:
-        if tp == tuple[int, ...] and key.endswith(".size") and isinstance(value, (int, str)) and not isinstance(value, bool):
-            value = [value, value]  # a square size
-        if not isinstance(value, (list, tuple)):
-            value = [value] if args and args[-1] is Ellipsis else value
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{key}: expected a list, got {value!r}")
-        if args and args[-1] is Ellipsis:
-            return tuple(_coerce(v, args[0], f"{key}[{i}]") for i, v in enumerate(value))
-        if len(value) != len(args):
-            raise ConfigError(f"{key}: expected a list of {len(args)} values, got {list(value)!r}")
-        return tuple(_coerce(v, a, f"{key}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
-    if tp is dict or origin is dict:
-        if not isinstance(value, Mapping):
-            raise ConfigError(f"{key}: expected a mapping, got {value!r}")
-        return dict(value)
-    if tp is bool:
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, str) and value.lower() in _TRUE + _FALSE:
-            return value.lower() in _TRUE
-        raise ConfigError(f"{key}: expected true or false, got {value!r}")
-    if tp is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-        if isinstance(value, float) and value.is_integer():
-            return int(value)
-        if isinstance(value, str):
-            try:
-                return int(value.strip())
-            except ValueError:
-                pass
-        raise ConfigError(f"{key}: expected an integer, got {value!r}")
-    if tp is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
-        if isinstance(value, str):
-            try:
-                return float(value.strip())
-            except ValueError:
-                pass
-        raise ConfigError(f"{key}: expected a number, got {value!r}")
-    if tp is str:
-        if isinstance(value, str):
-            return value
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return str(value)
-        raise ConfigError(f"{key}: expected a string, got {value!r}")
-    raise AssertionError(f"unsupported config type {tp!r} for {key}")
+def set_key(d: dict[str, Any], key: str, value: Any) -> None:
+    """Set the dotted ``key`` (integer parts index lists) of the nested dict ``d`` to ``value``."""
+    parts = key.split(".")
+    node: Any = d
+    for i, part in enumerate(parts):
+        last = i == len(parts) - 1
+        where = ".".join(parts[:i]) or "the config"
+        if isinstance(node, list):
+            if not part.isdigit():
+                raise ConfigError(f"override {key!r}: {where} is a list; index it with a number, e.g. {where}.0")
+            idx = int(part)
+            if idx > len(node):
+                raise ConfigError(f"override {key!r}: {where} has {len(node)} item(s); the next index is {len(node)}")
+            if idx == len(node):
+                node.append({})
+            if last:
+                node[idx] = value
+            else:
+                if not isinstance(node[idx], (dict, list)):
+                    node[idx] = {}
+                node = node[idx]
+            continue
+        if not isinstance(node, dict):
+            raise ConfigError(f"override {key!r}: {where} is a value, not a section")
+        if last:
+            node[part] = value
+        else:
+            nxt = parts[i + 1]
+            if part not in node or not isinstance(node[part], (dict, list)):
+                node[part] = [] if nxt.isdigit() else {}
+            node = node[part]
+
+
+def resolve_config(
+    config: str | Path | None = None,
+    overrides: Iterable[str] = (),
+    values: Mapping[str, Any] | None = None,
+) -> RunConfig:
+    """Build a :class:`RunConfig`: defaults, then the file ``config`` (if any), then ``values`` (``{dotted key:
+    value}``, e.g. from explicit command-line flags), then the ``KEY=VALUE`` ``overrides`` in order."""
+    d = load_config_dict(config) if config is not None else {}
+    for key, value in (values or {}).items():
+        set_key(d, key, value)
+    for ov in overrides:
+        apply_override(d, ov)
+    return RunConfig.from_dict(d)
+
+
+def dump_config(cfg: RunConfig) -> str:
+    """The YAML text of a resolved config (every key, defaults included); loads back to an equal config."""
+    return yaml.safe_dump(_plain(cfg.to_dict()), sort_keys=False, default_flow_style=None, width=100)
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, Mapping):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    return x
 
 
 __all__ = [
-    "ARCHITECTURES", "DataConfig", "DatasetSource", "DebugConfig", "ENCODER_CHANNELS",
-    "MIDAIR_IMAGE_SIZE", "ModelConfig", "RunConfig", "TrainConfig", "build_config", "known_datasets", "to_dict",
+    "DataConfig", "DatasetSource", "DebugConfig", "Optimizer", "RunConfig", "TrainConfig", "apply_override",
+    "builtin_configs", "dump_config", "key_path", "load_config_dict", "resolve_config", "set_key",
 ]
