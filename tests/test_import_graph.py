@@ -16,7 +16,7 @@ PACKAGE = "cosemdepth"
 #: ones below. A module belongs to the entry that names it or its longest enclosing package (the root package
 #: ``cosemdepth`` itself, its version and lazy attribute table, only by name).
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("base", ("cosemdepth", "cosemdepth._lazy", "cosemdepth.errors", "cosemdepth.coerce", "cosemdepth.models.config",
+    ("base", ("cosemdepth", "cosemdepth._lazy", "cosemdepth.errors", "cosemdepth.coerce", "cosemdepth.plugins", "cosemdepth.models.config",
               "cosemdepth.workers", "cosemdepth.devices", "cosemdepth.optional", "cosemdepth.operating_point",
               "cosemdepth.output_safety")),
     ("maths", ("cosemdepth.geometry", "cosemdepth.ops")),

@@ -100,7 +100,7 @@ class PredictionWriter:
         invalid: ``"keep"`` (the ``.npy`` holds the model's values everywhere; the mask says which are estimates) or
             ``"nan"`` (NaN in the ``.npy`` where the mask is 0).
         tasks: the model's decoder tasks (:func:`cosemdepth.tasks.tasks_for`), whose writers write the files of each
-            frame and whose panels join the pictures (default: those of the heads the stream has).
+            frame (default: those of the heads the stream has).
     """
 
     def __init__(self, folder: Path, *, num_classes: int | None, dataset_name: str | None = None,
@@ -157,8 +157,6 @@ class PredictionWriter:
         maps = frame_maps(batch, b, title=f"frame {int(batch.frame[b])}", labels_ok=self._labels_ok)
         for t in self._tasks_of(batch):
             files.update(self._writer(t).write(self.folder, rel, stem, batch, b, record))
-            for panel in t.panels(batch, b):
-                maps.extra[panel.caption] = panel.rgb
         files["side_by_side"] = f"{rel}/side_by_side/{stem}.png"
         pictures = self._pictures.get(traj)
         if pictures is None:

@@ -9,7 +9,6 @@ from .base import (
     DecoderTask,
     Frames,
     MetricContext,
-    Panel,
     TaskMetrics,
     TaskWriter,
     WriteOptions,
@@ -22,6 +21,6 @@ from .base import (
 from .depth import DEPTH
 from .semantic import SEMANTIC
 
-__all__ = ["DEPTH", "DecoderTask", "Frames", "MetricContext", "Panel", "SEMANTIC", "TASKS", "TEST", "TaskMetrics",
+__all__ = ["DEPTH", "DecoderTask", "Frames", "MetricContext", "SEMANTIC", "TASKS", "TEST", "TaskMetrics",
            "TaskWriter", "VALIDATION", "WriteOptions", "architecture_of", "float32_levels", "register_task", "task",
            "tasks_for"]

@@ -104,15 +104,6 @@ class TaskWriter:
         return {}
 
 
-@dataclass
-class Panel:
-    """A picture of the side-by-side frames that a task adds after the figure's own panels: ``rgb [H, W, 3]`` uint8
-    at the maps' size, drawn under ``caption``."""
-
-    caption: str
-    rgb: np.ndarray
-
-
 class DecoderTask:
     """What a decoder learns and how it is measured, written and drawn. Subclass it, set the class attributes and
     override the methods the decoder needs; :func:`register_task` makes the decoder and its task known.
@@ -205,10 +196,6 @@ class DecoderTask:
         """``predictions.json``'s ``encodings`` of its files."""
         return {}
 
-    def panels(self, frames, b: int) -> list[Panel]:
-        """Panels it adds to the side-by-side pictures of frame ``b`` of ``frames`` (a StreamBatch)."""
-        return []
-
     # ------------------------------------------------------------------ official checkpoints
     def tf_config(self, shapes: Mapping[str, tuple[int, ...]], levels: int, origin: str) -> dict[str, Any]:
         """The :class:`ModelConfig` fields its converted weights determine, from our parameter names and their TF
@@ -258,5 +245,5 @@ def architecture_of(decoders: Sequence[str]) -> Optional[str]:
     return next((a for a, d in ARCHITECTURES.items() if set(d) == want), None)
 
 
-__all__ = ["DecoderTask", "Frames", "MetricContext", "Panel", "TASKS", "TEST", "TaskMetrics", "TaskWriter",
+__all__ = ["DecoderTask", "Frames", "MetricContext", "TASKS", "TEST", "TaskMetrics", "TaskWriter",
            "VALIDATION", "WriteOptions", "architecture_of", "float32_levels", "register_task", "task", "tasks_for"]
