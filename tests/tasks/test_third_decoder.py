@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import onnx
 import pytest
 import torch
 from PIL import Image
@@ -114,3 +115,11 @@ def test_an_unknown_plugin_is_a_one_line_error(tmp_path):
     assert PLUGINS_ENV in done.stderr and "no_such_plugin_module" in done.stderr
     assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "run").exists()
+
+
+def test_export_gives_the_edge_decoder_its_onnx_output(trained, tmp_path):
+    out = tmp_path / "model.onnx"
+    done = _cli("export", "--model", str(trained / "best"), "--onnx", str(out), "--size", "16", "16")
+    assert done.returncode == 0, done.stderr
+    graph = onnx.load(str(out)).graph
+    assert [o.name for o in graph.output][:2] == ["depth", "edge"]

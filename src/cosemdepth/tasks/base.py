@@ -1,8 +1,8 @@
 """The declaration of a decoder's task: what it is trained on, how it is measured, how its outputs are written and
-drawn, and which official TF checkpoint weights it holds (:class:`DecoderTask`); and the table of them
-(:data:`TASKS`, :func:`register_task`, :func:`tasks_for`).
+drawn (:class:`DecoderTask`), and the table of them (:data:`TASKS`, :func:`register_task`, :func:`tasks_for`). The
+official TF checkpoints' names of a decoder sit below, with the conversion (:mod:`cosemdepth.checkpoints.tf_decoders`).
 
-The loops of the package (the trainer's loss, validation, the evaluator, ``predict``, ``convert``) run over the tasks
+The loops of the package (the trainer's loss, validation, the evaluator, ``predict``) run over the tasks
 of a model's decoders and name none of them, so a decoder registered with its task is trained, evaluated and written
 like the built-in ones. A task is keyed by its decoder's registered name (:data:`cosemdepth.models.registry.DECODERS`).
 """
@@ -113,15 +113,12 @@ class DecoderTask:
         decoder: its :class:`~cosemdepth.models.pyramid.PyramidDecoder` subclass.
         gt_key: the key of its ground truth in dataset items and batches (``ground_truth`` may derive it instead).
         predicts: what it predicts, in words, for messages ("depth", "class labels").
-        tf_refiner: the scope of its refiners in the official TensorFlow checkpoints (``<root>/levels/{j}/<scope>/``),
-            None when there are none.
     """
 
     name: str = ""
     decoder: type = PyramidDecoder
     gt_key: str = ""
     predicts: str = ""
-    tf_refiner: Optional[str] = None
 
     # ------------------------------------------------------------------ outputs
     @property
@@ -194,12 +191,6 @@ class DecoderTask:
 
     def encodings(self, options: WriteOptions) -> dict[str, Any]:
         """``predictions.json``'s ``encodings`` of its files."""
-        return {}
-
-    # ------------------------------------------------------------------ official checkpoints
-    def tf_config(self, shapes: Mapping[str, tuple[int, ...]], levels: int, origin: str) -> dict[str, Any]:
-        """The :class:`ModelConfig` fields its converted weights determine, from our parameter names and their TF
-        shapes (``[kh, kw, C_in, C_out]``), keyed by field (the fields read from the shapes)."""
         return {}
 
 

@@ -4,7 +4,6 @@ refiners in the official checkpoints (``disp_refiner``)."""
 
 from __future__ import annotations
 
-import itertools
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
@@ -12,10 +11,9 @@ import numpy as np
 import torch
 
 from ..models.config import ModelConfig
-from ..errors import CheckpointError
 from ..evaluation.metrics import DepthMetrics, ValidDepthMetrics
 from ..evaluation.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png
-from ..models.depth_decoder import DepthDecoder, refiner_in_channels
+from ..models.depth_decoder import DepthDecoder
 from ..models.outputs import ESTIMATED, RESET, STATUSES
 from ..training.losses import depth_loss
 from ..training.visual import depth_to_rgb
@@ -102,7 +100,6 @@ class DepthTask(DecoderTask):
     decoder = DepthDecoder
     gt_key = "depth"
     predicts = "depth"
-    tf_refiner = "disp_refiner"
 
     def loss(self, out, batch: Mapping[str, Any], train) -> torch.Tensor:
         return depth_loss(float32_levels(out.maps("depth")), batch["depth"])
@@ -141,41 +138,7 @@ class DepthTask(DecoderTask):
             "depth_png_scale": DEPTH_PNG_SCALE,
         }
 
-    def tf_config(self, shapes, levels: int, origin: str) -> dict[str, Any]:
-        """The depth ablations from the refiners' input channels ``9K + 1 + 4·[level memory] + 49K·[SNCV] + [time
-        recurrence]`` with ``K = 2^floor(l/2)`` (1 without feature subdivision) at absolute level ``l``."""
-        c_ins = []
-        for j in range(levels):
-            first = shapes.get(f"depth_decoder.levels.{j}.refiner.convs.0.weight")
-            if first is None or len(first) != 4:
-                raise CheckpointError(f"{origin}: the first conv of depth refiner level {j} is missing or not a kernel")
-            c_ins.append(int(first[2]))
-        sncv, tr, lm, sub = infer_depth_ablations(c_ins, origin)
-        return dict(sncv=sncv, time_recurrence=tr, level_memory=lm, feature_subdivision=sub)
-
-
-def infer_depth_ablations(c_ins: list[int], origin: str) -> tuple[bool, bool, bool, bool]:
-    """``(sncv, time_recurrence, level_memory, feature_subdivision)`` matching the refiner input channels."""
-    matches = [
-        combo
-        for combo in itertools.product((True, False), repeat=4)
-        if all(refiner_in_channels(j + 1, _ablation_config(*combo)) == c for j, c in enumerate(c_ins))
-    ]
-    if not matches:
-        raise CheckpointError(
-            f"{origin}: depth refiner input channels {c_ins} (finest level first) match no combination of the "
-            "SNCV / time recurrence / level memory / feature subdivision switches (design 5.1): not an M4Depth decoder"
-        )
-    # Several matches only when they are indistinguishable (e.g. 1 level: K = 1 with or without subdivision);
-    # the first one in product order is the one with the most switches on, i.e. the defaults.
-    return matches[0]
-
-
-def _ablation_config(sncv: bool, time_recurrence: bool, level_memory: bool, subdivision: bool) -> ModelConfig:
-    return ModelConfig(sncv=sncv, time_recurrence=time_recurrence, level_memory=level_memory,
-                       feature_subdivision=subdivision)
-
 
 DEPTH = register_task(DepthTask())
 
-__all__ = ["DEPTH", "DepthTask", "DepthTaskMetrics", "DepthWriter", "infer_depth_ablations", "valid_mask"]
+__all__ = ["DEPTH", "DepthTask", "DepthTaskMetrics", "DepthWriter", "valid_mask"]

@@ -12,12 +12,12 @@ import numpy as np
 import torch
 
 from ..models.config import ModelConfig
-from ..errors import CheckpointError, ConfigError
+from ..errors import ConfigError
 from ..evaluation.classes import class_info, dataset_classes
 from ..evaluation.metrics import ConfusionMatrix
 from ..evaluation.temporal import TemporalConsistency
 from ..evaluation.visualize import colorize_labels, save_png
-from ..models.semantic_decoder import SemanticDecoder, semantic_refiner_in_channels
+from ..models.semantic_decoder import SemanticDecoder
 from ..training.losses import semantic_loss
 from ..training.visual import labels_to_rgb
 from .base import TEST, DecoderTask, Frames, MetricContext, TaskMetrics, TaskWriter, WriteOptions, float32_levels, \
@@ -86,7 +86,6 @@ class SemanticTask(DecoderTask):
     decoder = SemanticDecoder
     gt_key = "semantic"
     predicts = "class labels"
-    tf_refiner = "semantic_refiner"
 
     def loss(self, out, batch: Mapping[str, Any], train) -> torch.Tensor:
         scores = out.maps("semantic_logits" if train.semantic_from_logits else "semantic")
@@ -126,40 +125,7 @@ class SemanticTask(DecoderTask):
         return {"labels": "labels/*.png: uint8 class index (argmax of the probabilities)",
                 "labels_color": "labels_color/*.png: RGB, palette below"}
 
-    def tf_config(self, shapes, levels: int, origin: str) -> dict[str, Any]:
-        """The classes from the last conv of the finest refiner (``N + 4`` channels), the SNCV from the refiners'
-        input channels (design 6.3)."""
-        last = shapes.get("semantic_decoder.levels.0.refiner.convs.6.weight")
-        if last is None or len(last) != 4:
-            raise CheckpointError(f"{origin}: the last conv of the finest semantic refiner is missing or not a kernel")
-        if last[3] - 4 < 2:
-            raise CheckpointError(f"{origin}: the last semantic conv has {last[3]} channels; expected classes + 4 >= 6")
-        num_classes = int(last[3] - 4)
-        return {"num_classes": num_classes, "semantic_sncv": infer_semantic_sncv(shapes, levels, num_classes, origin)}
-
-
-def infer_semantic_sncv(shapes: Mapping[str, tuple[int, ...]], levels: int, num_classes: int, origin: str) -> bool:
-    """``semantic_sncv`` matching the semantic refiners' input channels (design 6.3). The authors' released code
-    has neither of the semantic decoder's additions (its SNCV is commented out, its ``S^{t-1}`` helper unused), so its
-    checkpoints all read as off; a layout with other channels is refused."""
-    c_ins = []
-    for j in range(levels):
-        first = shapes.get(f"semantic_decoder.levels.{j}.refiner.convs.0.weight")
-        if first is None or len(first) != 4:
-            raise CheckpointError(f"{origin}: the first conv of semantic refiner level {j} is missing or not a kernel")
-        c_ins.append(int(first[2]))
-    for sncv in (False, True):
-        cfg = ModelConfig(arch="m4semantic", levels=levels, num_classes=num_classes, semantic_sncv=sncv)
-        if all(semantic_refiner_in_channels(j + 1, c, cfg) == n
-               for j, (c, n) in enumerate(zip(cfg.encoder_channels, c_ins))):
-            return sncv
-    raise CheckpointError(
-        f"{origin}: semantic refiner input channels {c_ins} (finest level first) match neither the released semantic "
-        "decoder (classes + 4 + features) nor its SNCV variant (design 6.3); a previous-frame input (S^{t-1}) cannot "
-        "come from the authors' code, which has none"
-    )
-
 
 SEMANTIC = register_task(SemanticTask())
 
-__all__ = ["LabelsWriter", "SEMANTIC", "SemanticTask", "SemanticTaskMetrics", "infer_semantic_sncv"]
+__all__ = ["LabelsWriter", "SEMANTIC", "SemanticTask", "SemanticTaskMetrics"]
