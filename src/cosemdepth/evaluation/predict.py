@@ -46,7 +46,7 @@ from ..output_safety.atomic import atomic_write_text
 from ..output_safety.outdir import Input
 from ..output_safety.staging import StagedDir
 from ..inference.policy import StreamPolicy, Streamer, policy_info
-from ..tasks import TASKS, DecoderTask, TaskWriter, WriteOptions, tasks_for
+from ..tasks import TASKS, DecoderTask, TaskWriter, WriteOptions, class_count, tasks_for
 from ..tasks.depth import valid_mask
 from .classes import class_info
 from .evaluator import _model_config, to_json
@@ -298,7 +298,7 @@ def predict(
     start = time.perf_counter()
     with staged as tmp:
         tasks = tasks_for(cfg)
-        writer = PredictionWriter(tmp, num_classes=cfg.num_classes if cfg.has_semantic else None,
+        writer = PredictionWriter(tmp, num_classes=class_count(cfg),
                                   dataset_name=name, video=video, fps=fps, depth_range=depth_range,
                                   sources=_sources(dataset, [i for g in groups for i in g]), invalid=invalid,
                                   tasks=tasks)

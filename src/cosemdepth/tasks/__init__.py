@@ -13,6 +13,7 @@ from .base import (
     TaskWriter,
     WriteOptions,
     architecture_of,
+    class_count,
     float32_levels,
     register_task,
     task,
@@ -22,5 +23,5 @@ from .depth import DEPTH
 from .semantic import SEMANTIC
 
 __all__ = ["DEPTH", "DecoderTask", "Frames", "MetricContext", "SEMANTIC", "TASKS", "TEST", "TaskMetrics",
-           "TaskWriter", "VALIDATION", "WriteOptions", "architecture_of", "float32_levels", "register_task", "task",
+           "TaskWriter", "VALIDATION", "WriteOptions", "architecture_of", "class_count", "float32_levels", "register_task", "task",
            "tasks_for"]

@@ -224,6 +224,13 @@ def tasks_for(config: ModelConfig) -> list[DecoderTask]:
     return [task(name) for name in config.decoders]
 
 
+def class_count(config: ModelConfig) -> Optional[int]:
+    """The classes ``config``'s decoders predict (the ``num_classes`` a task states in :meth:`DecoderTask.model_info`),
+    None when none predicts classes: the palette and class names of the pictures and files."""
+    return next((info["num_classes"] for t in tasks_for(config) if (info := t.model_info(config)).get("num_classes")),
+                None)
+
+
 def float32_levels(levels: Sequence[Tensor]) -> list[Tensor]:
     """Per-level predictions in float32 (unchanged if they already are): losses are computed in float32 whatever the
     forward pass's precision (``train.bf16``)."""
@@ -237,4 +244,4 @@ def architecture_of(decoders: Sequence[str]) -> Optional[str]:
 
 
 __all__ = ["DecoderTask", "Frames", "MetricContext", "TASKS", "TEST", "TaskMetrics", "TaskWriter",
-           "VALIDATION", "WriteOptions", "architecture_of", "float32_levels", "register_task", "task", "tasks_for"]
+           "VALIDATION", "WriteOptions", "architecture_of", "class_count", "float32_levels", "register_task", "task", "tasks_for"]
