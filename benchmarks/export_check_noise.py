@@ -8,7 +8,7 @@ Exports the model at ``--size`` (batch 1), then streams the check's SynthAir fli
 middle) through ONNX Runtime and, on the same inputs and ONNX Runtime's incoming state, through the PyTorch reference
 path and these float32 variants that differ from it only in the order of the floating-point operations:
 
-* ``fast``: the fast engine (``model.optimize("fast")``: pre-packed channels-last convolutions, other cost-volume sums);
+* ``fast``: the fast engine (``FastModel(model)``: pre-packed channels-last convolutions, other cost-volume sums);
 * ``onednn_off``: the reference modules with oneDNN switched off (PyTorch's own im2col + GEMM convolutions);
 * ``channels_last``: the reference modules on channels-last tensors (oneDNN's NHWC kernels);
 * ``chains_L``: DINL's two means over H x W summed in L sequential float32 chains (L = 4, 8, 16);
@@ -42,6 +42,7 @@ from cosemdepth.export.check import (
     valid_depth,
 )
 from cosemdepth.export.onnx import export_onnx
+from cosemdepth.inference import FastModel
 from cosemdepth.output_safety.atomic import atomic_write_text
 from cosemdepth.models.outputs import StreamState
 
@@ -52,7 +53,7 @@ def _cl(x):
 
 def variants(model):
     """``name -> step(args, state)`` for every variant (the model on its reference path)."""
-    fast = copy.deepcopy(model).optimize("fast")
+    fast = FastModel(copy.deepcopy(model))
     cl = copy.deepcopy(model).to(memory_format=torch.channels_last)
     chains = {}
     for lanes in (4, 8, 16):

@@ -30,6 +30,7 @@ import torch
 from cosemdepth.bench.harness import make_report, write_report
 from cosemdepth.bench.memory import rss_bytes, trim, use_mmap_for_large_allocations
 from cosemdepth.export.check import synthetic_sequence
+from cosemdepth.inference import FastModel
 from cosemdepth.models import build_model
 
 
@@ -114,7 +115,8 @@ def main(argv=None) -> int:
     h, w = a.size
     torch.manual_seed(0)
     model = build_model(arch=a.arch).to(dev).eval()
-    model.optimize(a.path, **({"dtype": a.precision} if a.path == "fast" else {}))
+    if a.path == "fast":
+        model = FastModel(model, a.precision)
     rgb, rot, trans, intr = (t.to(dev) for t in synthetic_sequence(1, 8, h, w))
     cuda = dev.type == "cuda"
 

@@ -29,6 +29,7 @@ from cosemdepth.training.config import RunConfig
 from cosemdepth.devices import retain_freed_host_memory
 from cosemdepth.export.check import synthetic_sequence
 from cosemdepth.output_safety.atomic import atomic_write_text
+from cosemdepth.inference import FastModel
 from cosemdepth.models import build_model
 from cosemdepth.training.data import collate, to_device
 from cosemdepth.training.optim import make_optimizer
@@ -70,7 +71,7 @@ def frames_for(size: int, n: int, seed: int):
 def prepare(model_path: str, precision: str, size: int):
     model = load_model(model_path, mode="reference")
     options = {"calibration": frames_for(size, 4, seed=2)} if precision == "int8" else {}
-    return model.optimize("fast", PRECISION_DTYPES[precision], **options)
+    return FastModel(model, PRECISION_DTYPES[precision], **options)
 
 
 def stream(model, frames, state=None):

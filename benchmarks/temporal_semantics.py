@@ -2,8 +2,8 @@
 depth, and Co-SemDepth-T (S^{t-1} warped with the model's own depth), each trained with the same recipe and budget
 for several seeds on SynthAir and evaluated on held-out flights (other world seeds).
 
-    python benchmarks/temporal_semantics.py [--work DIR] [--seeds 0 1 2] [--steps 60]
-        [--test-worlds 21 22] [--variants cosemdepth sncv s_prev_gt cosemdepth_t] [--threads 1] [--rounds 3]
+    python benchmarks/temporal_semantics.py [--work DIR] [--init MODEL_DIR] [--lr LR] [--supersample 1|3|5]
+        [--test-frames 100] [--seeds 0 1 2] [--steps 60] [--test-worlds 21 22] [--variants cosemdepth sncv s_prev_gt cosemdepth_t] [--threads 1] [--rounds 3]
         [--out benchmarks/results/temporal_semantics] [--strip docs/images/temporal_strip.png]
 
 Data (generated with ``cosemdepth synth`` into ``--work`` and reused by a later run): training world 5, trajectories
@@ -12,6 +12,13 @@ trajectory in training; the held-out flights are one sunny trajectory of each ``
 rows). Training: ``cosemdepth train --config synthair-small`` (4 levels, batch 2, lr 3e-4, augmentation) for
 ``--steps`` steps with ``train.num_threads`` ``--threads``; the model evaluated is the one of the last step (one
 validation at the end writes it to ``best/``). A run folder that already holds ``best/`` is not trained again.
+
+Fine-tuning (``--init MODEL_DIR``): every variant starts from the same trained weights (``train.init_from``: the
+matching tensors copied, the new input channels of the semantic refiners zero), so at step 0 every variant computes
+exactly that model's outputs, which are evaluated once as the reference row. The recipe then takes the source's
+levels, and the bf16 autocast and semantic class weights its ``config.json`` records, with lr ``--lr`` (default
+:data:`FINETUNE_LR`); the data is supersampled 3x by default as the shipped weights' was. Runs go to a folder named
+after the recipe, so a from-scratch study and a fine-tuning one do not reuse each other's runs.
 
 Evaluation: ``evaluate`` (fast engine, float32, the default every-frame policy, reset frames left out) on each
 held-out flight with ``--threads`` threads; per run the mean over the flights of ``miou`` and of the labels' temporal
@@ -25,6 +32,8 @@ frame) and the picture strip (labels over consecutive frames of the first held-o
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import math
 import os
 import shutil
@@ -54,6 +63,8 @@ SIZE = 128
 #: Issue targets for Co-SemDepth-T against Co-SemDepth (mean over seeds).
 TARGETS = {"miou_gain_points": 2.0, "flicker_reduction": 0.30, "time_increase_max": 0.10}
 STRIP_FRAMES = 6
+#: Learning rate of the fine-tuning (``--init``): the shipped weights' stage 2 started at 6e-5 with batch 3.
+FINETUNE_LR = 3e-5
 #: A killed training run is resumed this many times in all, after a pause.
 TRAIN_ATTEMPTS, RETRY_WAIT_S = 4, 60
 
@@ -68,14 +79,17 @@ def cli(*args: str, log: Path | None = None, threads: int = 1) -> None:
         subprocess.run(cmd, check=True, env=env, stdout=f, stderr=subprocess.STDOUT)
 
 
-def make_data(work: Path, test_worlds: list[int], log: Path) -> tuple[Path, Path, dict[int, tuple[Path, Path]]]:
+def make_data(work: Path, test_worlds: list[int], log: Path, supersample: int = 1, test_frames: int = 100
+              ) -> tuple[Path, Path, dict[int, tuple[Path, Path]]]:
     """Generate (or reuse) the training world and the held-out flights; returns the training root and split folder
     and, per test world, its root and split folder."""
-    train = work / f"train-s{TRAIN_WORLD}"
+    ss = ["--supersample", str(supersample)]
+    tag = "" if supersample == 1 else f"-ss{supersample}"
+    train = work / f"train-s{TRAIN_WORLD}{tag}"
     if not (train / "synthair.json").exists():
         cli("synth", "--out", str(train), "--trajectories", "2", "--frames", "200", "--size", str(SIZE), "--seed",
-            str(TRAIN_WORLD), "--climates", *TRAIN_CLIMATES, "--no-progress", log=log)
-    splits = work / f"splits-train-s{TRAIN_WORLD}"
+            str(TRAIN_WORLD), "--climates", *TRAIN_CLIMATES, *ss, "--no-progress", log=log)
+    splits = work / f"splits-train-s{TRAIN_WORLD}{tag}"
     if not (splits / "train_data").exists():
         cli("splits", "synthair", str(train), str(splits), "--rule", "train", log=log)
         # the trainer validates once, at the end, to write the last step's model to best/: a training flight will do
@@ -83,24 +97,46 @@ def make_data(work: Path, test_worlds: list[int], log: Path) -> tuple[Path, Path
         val.mkdir(parents=True, exist_ok=True)
         shutil.copy(splits / "train_data" / "SynthAir" / "sunny" / "traj_0000.csv", val / "traj_0000.csv")
     tests = {}
+    test_tag = ("" if test_frames == 100 else f"-f{test_frames}") + tag
     for w in test_worlds:
-        root, sp = work / f"test-s{w}", work / f"splits-test-s{w}"
+        root, sp = work / f"test-s{w}{test_tag}", work / f"splits-test-s{w}{test_tag}"
         if not (root / "synthair.json").exists():
-            cli("synth", "--out", str(root), "--trajectories", "1", "--frames", "100", "--size", str(SIZE), "--seed",
-                str(w), "--climates", "sunny", "--no-progress", log=log)
+            cli("synth", "--out", str(root), "--trajectories", "1", "--frames", str(test_frames), "--size", str(SIZE),
+                "--seed", str(w), "--climates", "sunny", *ss, "--no-progress", log=log)
         if not (sp / "test_data").exists():
             cli("splits", "synthair", str(root), str(sp), "--rule", "test", log=log)
         tests[w] = (root, sp)
     return train, splits, tests
 
 
-def train_run(run: Path, variant: str, seed: int, steps: int, train: Path, splits: Path, threads: int, log: Path
-              ) -> float:
+def recipe_sets(init: Path | None, lr: float | None) -> list[str]:
+    """The ``--set`` overrides of the recipe common to every variant, on top of ``--config synthair-small``.
+
+    From scratch: synthair-small as it is (``lr`` replaces its 3e-4). Fine-tuning (``init``): the source model's
+    levels, and its training's precision (bf16 autocast) and per-class weights of the semantic loss when its
+    config.json records them (the shipped weights' stage 2), ``lr`` (default :data:`FINETUNE_LR`)."""
+    sets = [] if lr is None and init is None else [f"train.lr={lr if lr is not None else FINETUNE_LR}"]
+    if init is not None:
+        meta = json.loads((init / "config.json").read_text(encoding="utf-8"))
+        sets.append(f"model.levels={meta['model']['levels']}")
+        train_cfg = meta.get("source", {}).get("run_config", {}).get("train", {})
+        if train_cfg.get("bf16"):
+            sets.append("train.bf16=true")
+        if train_cfg.get("semantic_class_weights"):
+            sets.append(f"train.semantic_class_weights={json.dumps(train_cfg['semantic_class_weights'])}")
+    return sets
+
+
+def train_run(run: Path, variant: str, seed: int, steps: int, train: Path, splits: Path, threads: int, log: Path,
+              init: Path | None = None, recipe: list[str] = ()) -> float:
     """Train one run (unless its ``best/`` exists); returns the training wall time in seconds (NaN when reused)."""
     if (run / "best" / "model.safetensors").exists():
         return math.nan
-    sets = [*VARIANTS[variant][1], f"train.num_threads={threads}", "train.validate_every_epochs=0",
-            f"train.validate_every_steps={steps}", "train.val_max_batches=1"]
+    # epochs high enough that --steps alone ends the run
+    sets = [*VARIANTS[variant][1], *recipe, f"train.num_threads={threads}", "train.epochs=1000",
+            "train.validate_every_epochs=0", f"train.validate_every_steps={steps}", "train.val_max_batches=1"]
+    if init is not None:
+        sets.append(f"train.init_from={init}")
     t0 = time.perf_counter()
     for attempt in range(TRAIN_ATTEMPTS):
         try:
@@ -157,6 +193,11 @@ def time_variants(models: dict[str, Path], tests: dict, rounds: int) -> dict[str
     return {v: {"rounds": t, "median": statistics.median(t)} for v, t in times.items()}
 
 
+def _tag(recipe: list[str]) -> str:
+    """A short name for a fine-tuning recipe's run folders (another recipe trains into other folders)."""
+    return hashlib.sha256("\n".join(recipe).encode()).hexdigest()[:8]
+
+
 def _num(x):
     return None if x is None or (isinstance(x, float) and math.isnan(x)) else x
 
@@ -204,11 +245,16 @@ def markdown(report: dict) -> str:
         "",
         f"`{report['command']}` on {report['machine']['cpu']} ({report['machine']['threads']} thread), "
         f"{report['date']}. Recipe: {report['recipe']}. Held-out flights: worlds {report['test_worlds']} "
-        f"(sunny, 25 rows each). Seeds {report['seeds']}.",
+        f"(sunny, {report['test_frames'] // 4 - 1} rows each, supersample {report['supersample']}). "
+        f"Seeds {report['seeds']}.",
         "",
         "| variant | mIoU % (mean ± sd, min-max) | flicker % (mean ± sd) | change recall % | ms/frame | params |",
         "|---|---|---|---|---|---|",
     ]
+    ref = report.get("reference")
+    if ref:
+        lines.append(f"| step 0: `{report['init']}` (every variant) | {100 * ref['miou']:.2f} | "
+                     f"{100 * ref['flicker']:.2f} | {100 * ref['change_recall']:.1f} | | {ref['params']:,} |")
     for v, row in s.items():
         mi, fl, cr = row["miou"], row["flicker"], row["change_recall"]
         lines.append(
@@ -277,6 +323,10 @@ class StripCollector:
                 self.pred[fr] = batch.labels[b].cpu().numpy()
 
 
+def _label(v: str) -> str:
+    return "step 0 (--init)" if v == "init" else VARIANTS[v][0]
+
+
 def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: int) -> None:
     from PIL import Image, ImageDraw
 
@@ -288,7 +338,7 @@ def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: 
     frames = sorted(any_c.pred)
     rows = [("RGB", [rgb_to_uint8(any_c.rgb[f]) for f in frames]),
             ("ground truth", [colorize_labels(any_c.gt[f], palette) for f in frames])]
-    rows += [(VARIANTS[v][0], [colorize_labels(c.pred[f], palette) for f in frames]) for v, c in collectors.items()]
+    rows += [(_label(v), [colorize_labels(c.pred[f], palette) for f in frames]) for v, c in collectors.items()]
     h, w = rows[0][1][0].shape[:2]
     label_w, gap = 150, 2
     canvas = Image.new("RGB", (label_w + len(frames) * (w + gap), len(rows) * (h + gap) + 16), "white")
@@ -309,6 +359,14 @@ def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, default=Path("runs/temporal_semantics"))
+    ap.add_argument("--init", type=Path, metavar="MODEL_DIR",
+                    help="fine-tune every variant from these weights (train.init_from) instead of training from scratch")
+    ap.add_argument("--lr", type=float, help=f"learning rate (default: synthair-small's 3e-4 from scratch, "
+                                             f"{FINETUNE_LR:g} with --init)")
+    ap.add_argument("--supersample", type=int, choices=(1, 3, 5),
+                    help="SynthAir colour supersampling of the data (default 1; 3 with --init, as the shipped "
+                         "weights' training data)")
+    ap.add_argument("--test-frames", type=int, default=100, help="25 Hz frames of each held-out flight (default 100)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--test-worlds", type=int, nargs="+", default=[21, 22])
@@ -318,17 +376,28 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "temporal_semantics")
     ap.add_argument("--strip", type=Path, default=ROOT / "docs" / "images" / "temporal_strip.png")
     a = ap.parse_args()
+    if a.init is not None and not (a.init / "config.json").is_file():
+        print(f"--init {a.init}: not a model folder (no config.json)", file=sys.stderr)
+        return 2
+    supersample = a.supersample or (3 if a.init is not None else 1)
     torch.set_num_threads(a.threads)
     a.work.mkdir(parents=True, exist_ok=True)
     log = a.work / "log.txt"
-    train, splits, tests = make_data(a.work, a.test_worlds, log)
-    runs = []
+    train, splits, tests = make_data(a.work, a.test_worlds, log, supersample, a.test_frames)
+    recipe = recipe_sets(a.init, a.lr)
+    runs_dir = a.work / ("runs" if a.init is None else f"runs-ft-{_tag([str(a.init), *recipe])}")
     first_world = a.test_worlds[0]
     collectors: dict[str, StripCollector] = {}
+    reference = None
+    if a.init is not None:  # every variant's step 0: the source model's outputs exactly
+        collectors["init"] = StripCollector(1, STRIP_FRAMES)
+        reference = evaluate_run(a.init, tests, lambda w, c=collectors["init"]: [c] if w == first_world else [])
+        print(f"init ({a.init}): miou {reference['miou']:.4f} flicker {reference['flicker']:.4f}", flush=True)
+    runs = []
     for seed in a.seeds:  # seed-major: every variant has some seeds done if the study is cut short
         for v in a.variants:
-            run = a.work / "runs" / f"{v}-s{seed}"
-            secs = train_run(run, v, seed, a.steps, train, splits, a.threads, log)
+            run = runs_dir / f"{v}-s{seed}"
+            secs = train_run(run, v, seed, a.steps, train, splits, a.threads, log, a.init, recipe)
             cb = None
             if seed == a.seeds[0]:
                 collectors[v] = StripCollector(1, STRIP_FRAMES)
@@ -337,7 +406,7 @@ def main() -> int:
             runs.append({"variant": v, "seed": seed, "train_seconds": None if math.isnan(secs) else secs, **res})
             print(f"{v} seed {seed}: miou {res['miou']:.4f} flicker {res['flicker']:.4f} ({secs:.0f} s training)",
                   flush=True)
-    timing = time_variants({v: a.work / "runs" / f"{v}-s{a.seeds[0]}" / "best" for v in a.variants}, tests, a.rounds)
+    timing = time_variants({v: runs_dir / f"{v}-s{a.seeds[0]}" / "best" for v in a.variants}, tests, a.rounds)
     summary = {}
     for v in a.variants:
         rs = [r for r in runs if r["variant"] == v]
@@ -346,21 +415,26 @@ def main() -> int:
                       "ms_per_frame": timing[v]["median"], "ms_per_frame_rounds": timing[v]["rounds"],
                       "params": rs[0]["params"]}
     meta = run_meta()
+    start = "from scratch" if a.init is None else f"fine-tuned from {a.init} (train.init_from)"
     report = {
         "command": meta["command"],
         "date": meta["date_utc"],
         "machine": {"cpu": meta["cpu_model"], "threads": a.threads, "torch": torch.__version__},
-        "recipe": f"cosemdepth train --config synthair-small (4 levels, 128 px, batch 2, lr 3e-4), {a.steps} steps, "
-                  f"training world {TRAIN_WORLD} ({' + '.join(TRAIN_CLIMATES)}, 2 trajectories each)",
-        "steps": a.steps, "seeds": a.seeds, "test_worlds": a.test_worlds, "policy": "every-frame",
-        "summary": summary, "acceptance": None, "runs": runs,
+        "recipe": f"cosemdepth train --config synthair-small {' '.join('--set ' + x for x in recipe)} (128 px, "
+                  f"batch 2), {start}, {a.steps} steps, training world {TRAIN_WORLD} "
+                  f"({' + '.join(TRAIN_CLIMATES)}, 2 trajectories each, supersample {supersample})",
+        "init": None if a.init is None else str(a.init), "steps": a.steps, "seeds": a.seeds,
+        "test_worlds": a.test_worlds, "test_frames": a.test_frames, "supersample": supersample,
+        "policy": "every-frame", "reference": reference, "summary": summary, "acceptance": None, "runs": runs,
     }
     report["acceptance"] = acceptance(summary)
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    params = {k: report[k] for k in ("recipe", "steps", "seeds", "test_worlds", "policy")}
-    params.update(variants=a.variants, threads=a.threads, rounds=a.rounds)
+    params = {k: report[k] for k in ("recipe", "init", "steps", "seeds", "test_worlds", "test_frames", "supersample",
+                                     "policy")}
+    params.update(variants=a.variants, threads=a.threads, rounds=a.rounds, lr=a.lr)
     write_report(a.out.with_suffix(".json"), make_report(
-        "temporal_semantics", params, {k: report[k] for k in ("summary", "acceptance", "runs")}, meta=meta))
+        "temporal_semantics", params, {k: report[k] for k in ("reference", "summary", "acceptance", "runs")},
+        meta=meta))
     atomic_write_text(a.out.with_suffix(".md"), markdown(report))
     plot(report, a.out.with_suffix(".png"))
     if collectors and all(c.pred for c in collectors.values()):

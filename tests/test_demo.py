@@ -82,9 +82,9 @@ def test_demo_end_to_end_on_a_given_dataset(model_dir, data, tmp_path, capsys):
     from cosemdepth import load_model
     from cosemdepth.evaluation.evaluator import evaluate
 
-    # the demo runs the fast inference path by default
-    ev = evaluate(load_model(model_dir).optimize("fast"), open_dataset("synthair", data, split="test", seq_len=1,
-                                                                        size=SIZE))
+    # the demo runs the fast inference path by default (load_model's FastModel)
+    ev = evaluate(load_model(model_dir, mode="fast"), open_dataset("synthair", data, split="test", seq_len=1,
+                                                                   size=SIZE))
     for k in ("miou", "abs_rel", "rmse", "delta1"):
         assert m["model"][k] == pytest.approx(ev.metrics[k], rel=1e-9), k
     import imageio_ffmpeg

@@ -142,7 +142,7 @@ def test_the_scanner_sees_relative_function_local_and_package_imports():
     assert g["cosemdepth.models.config"] == {"cosemdepth.errors": False, "cosemdepth.coerce": False}  # from ..x
     assert g["cosemdepth.evaluation.tfref_fixture"]["cosemdepth.checkpoints.tf_checkpoint"] is True  # function-local
     assert g["cosemdepth.training.config"]["cosemdepth.data.registry"] is False  # module level
-    assert "cosemdepth.models.model" in g["cosemdepth.inference.engine"]  # inference sits above models
+    assert "cosemdepth.models.model" in g["cosemdepth.inference.fast_model"]  # inference sits above models
     assert not any(m.startswith("cosemdepth.inference") for m in set().union(*(g[m] for m in g if m.startswith("cosemdepth.models"))))
 
 

@@ -60,6 +60,7 @@ from .evaluation.resources import machine_info, resolve_device
 from .evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 from .output_safety.atomic import atomic_path, atomic_write_text
 from .checkpoints.model_io import load_model, read_config_file
+from .inference.fast_model import reference_model
 from .operating_point import OperatingPoint
 from .tasks import class_count
 from .output_safety.outdir import Input, check_not_input, model_inputs
@@ -464,7 +465,7 @@ def run_demo(
     requested = size
     if size is None:
         size = flight_size(op)
-    check_size(net, size, size, device=dev)  # before a flight is rendered at that size
+    check_size(reference_model(net), size, size, device=dev)  # before a flight is rendered at that size
     timings["load_model"] = time.perf_counter() - t
     log(f"model: {model_path} ({cfg.arch}, {net.num_parameters():,} parameters)")
 

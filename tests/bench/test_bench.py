@@ -111,7 +111,7 @@ def test_int8_case_is_calibrated_before_timing_and_cpu_only():
     from cosemdepth.bench.runner import build
 
     case = BenchCase(arch="m4semantic", height=16, width=16, levels=2, precision="int8")
-    engine = build(case)._streamer()
+    engine = build(case).engine
     assert engine.int8 and engine.calibrated  # no timed frame runs the float32 calibration pass
     with pytest.raises(ValueError, match="CPU only"):
         build(BenchCase(**{**case.__dict__, "device": "cuda"}))

@@ -216,11 +216,11 @@ def test_save_model_and_load_model(tmp_path):
     cfg = ModelConfig(arch="cosemdepth", levels=2, num_classes=6, sncv=False)
     model = build_model(cfg)
     out = save_model(model, tmp_path / "m", source={"type": "test"})
-    loaded = load_model(out)
+    loaded = load_model(out)  # a FastModel: its weights are those of its model
     assert loaded.config == cfg
-    assert not loaded.training
+    assert not loaded.model.training
     ref = model.state_dict()
-    for k, v in loaded.state_dict().items():
+    for k, v in loaded.model.state_dict().items():
         assert torch.equal(v, ref[k]), k
     assert all(p.device.type == "cpu" for p in loaded.parameters())
 
@@ -235,7 +235,7 @@ def test_load_model_from_tf_checkpoint(tfref_dir):
     assert model.config == ModelConfig(pscv_dtype="float16")
     assert sum(p.numel() for p in model.parameters()) == 5_202_528
     sd, _ = convert_checkpoint(tfref_dir / "ckpt")
-    got = model.state_dict()
+    got = model.model.state_dict()
     assert all(torch.equal(got[k], sd[k]) for k in sd)
 
 
@@ -245,7 +245,7 @@ def test_load_model_from_written_m4depth_checkpoint(tmp_path):
     for path in (tmp_path / "train", prefix, f"{prefix}.index"):
         model = load_model(path)
         assert model.config.arch == "m4depth" and model.config.levels == 1
-    bias = model.state_dict()["depth_decoder.levels.0.refiner.convs.6.bias"]
+    bias = model.model.state_dict()["depth_decoder.levels.0.refiner.convs.6.bias"]
     np.testing.assert_array_equal(
         bias.numpy(), t["d_estimator/levels/0/disp_refiner/est_d_conv_layers/3/bias/.ATTRIBUTES/VARIABLE_VALUE"]
     )
@@ -293,7 +293,7 @@ def test_weights_stored_in_float16_load_as_float32(tmp_path):
     model = build_model(cfg)
     half = {k: v.half() for k, v in model.state_dict().items()}
     save_weights(half, cfg, tmp_path / "m")
-    loaded = load_model(tmp_path / "m")
+    loaded = load_model(tmp_path / "m", mode="reference")
     for k, v in loaded.state_dict().items():
         assert v.dtype == torch.float32, k
         assert torch.equal(v, half[k].float()), k

@@ -78,6 +78,26 @@ def test_view_and_predict_rerun_without_rerun_sdk_write_nothing(tmp_path, data, 
         assert list(out.iterdir()) == []
 
 
+def test_predict_and_benchmark_onnxruntime_backend_without_onnxruntime_write_nothing(tmp_path, data, model_dir):
+    split = ["--dataset", "midair", "--root", data, "--split-dir", data / "splits", "--size", SIZE, "--no-progress"]
+    graph = tmp_path / "m.onnx"
+    graph.write_bytes(b"not read: the package check comes first")
+    out = tmp_path / "out"
+    out.mkdir()
+    for argv, what in (
+            (["predict", "--model", model_dir, *split, "--out", out / "p", "--backend", "onnxruntime", "--onnx", graph],
+             "predict"),
+            (["benchmark", "--backend", "onnxruntime", "--models", "m4depth", "--levels", 2, "--size", 16, 16,
+              "--batch", 1, "--json", out / "b.json", "--md", out / "b.md"], "benchmark")):
+        r = cli_without(tmp_path, "onnxruntime", *argv)
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        lines = r.stderr.strip().splitlines()
+        assert lines == [f"cosemdepth {what}: error: {what} --backend onnxruntime needs the Python package "
+                         "onnxruntime, which is not installed; pip install 'cosemdepth[export]' (or pip install "
+                         "onnxruntime)"], lines
+        assert list(out.iterdir()) == []
+
+
 def test_predict_bag_without_rosbags_writes_nothing(tmp_path, model_dir):
     bag = tmp_path / "flight_bag"
     bag.mkdir()

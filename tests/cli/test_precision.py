@@ -5,7 +5,8 @@ from cosemdepth.cli._shared import load
 from cosemdepth.cli.main import main
 from cosemdepth.errors import ConfigError
 from cosemdepth.checkpoints.model_io import save_model
-from cosemdepth.models import build_model
+from cosemdepth.inference import FastModel
+from cosemdepth.models import SceneModel, build_model
 
 
 @pytest.fixture(scope="module")
@@ -19,18 +20,18 @@ def test_load_selects_the_fast_path_in_the_precision(model_dir, precision, dtype
     if precision == "bf16":
         request.getfixturevalue("bf16_cpu")  # PyTorch's own bf16 kernels on a CPU where oneDNN has none
     model, _ = load(model_dir, "cpu", precision=precision)
-    assert model.inference_mode == "fast"
+    assert isinstance(model, FastModel) and model.dtype == dtype
     if dtype == "int8":
-        assert model._fast.int8 and not model._fast.calibrated  # calibrates on the first frames it sees
+        assert model.engine.int8 and not model.engine.calibrated  # calibrates on the first frames it sees
     else:
-        assert model._fast.dtype == dtype and not model._fast.int8
+        assert model.engine.dtype == dtype and not model.engine.int8
 
 
 def test_reference_with_a_reduced_precision_is_a_user_error(model_dir):
     with pytest.raises(ConfigError, match="--precision int8 is a setting of the fast path: drop --reference"):
         load(model_dir, "cpu", fast=False, precision="int8")
     model, _ = load(model_dir, "cpu", fast=False, precision="fp32")
-    assert model.inference_mode == "reference"
+    assert isinstance(model, SceneModel) and not model.training
 
 
 @pytest.mark.parametrize("cmd", ["predict", "evaluate"])

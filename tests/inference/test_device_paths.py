@@ -9,6 +9,7 @@ import torch
 
 from cosemdepth.models.config import ModelConfig
 from cosemdepth.export.check import synthetic_sequence
+from cosemdepth.inference import FastModel
 from cosemdepth.inference.graphs import make_streamer
 from cosemdepth.models import build_model
 
@@ -49,8 +50,7 @@ def test_fp32_paths_stream_like_the_reference_on_the_cpu(model, reference, devic
     (rgb, q, tr, K), ref = reference
     m = copy.deepcopy(model).to(device)
     if path == "fast":
-        m.optimize("fast", dtype=torch.float32)
-        step = m.step
+        step = FastModel(m, dtype=torch.float32).step
     else:
         streamer = make_streamer(m, B, H, W, device=device)
         assert streamer.use_graph == (device == "cuda")
@@ -72,9 +72,9 @@ def test_reduced_precision_stays_close_to_fp32(model, reference, device, dtype):
     (rgb, q, tr, K), ref = reference
     if dtype == torch.bfloat16 and not bf16_convolutions(device):  # e.g. an AVX2-only CPU: refused in one line
         with pytest.raises(ValueError, match="bfloat16 needs bfloat16 convolutions"):
-            copy.deepcopy(model).to(device).optimize("fast", dtype=dtype)
+            FastModel(copy.deepcopy(model).to(device), dtype=dtype)
         return
-    m = copy.deepcopy(model).to(device).optimize("fast", dtype=dtype)
+    m = FastModel(copy.deepcopy(model).to(device), dtype=dtype)
     with torch.no_grad():  # one reset frame and one step from the reference's state: no compounding
         out, _ = m.step(*(t.to(device) for t in (rgb[:, 0], q[:, 0], tr[:, 0], K, torch.tensor([True]))))
         torch.testing.assert_close(out.semantic.float().cpu(), ref[0][1], rtol=0, atol=0.02)

@@ -1,9 +1,11 @@
 import pytest
 import torch
 
-from cosemdepth.inference import FastEngine
+from cosemdepth.inference import FastEngine, FastModel
 from cosemdepth.inference.convs import HAS_MKLDNN_POINTWISE, PackedConv
-from cosemdepth.models import StreamState, build_model
+from cosemdepth.models import SceneModel, StreamState, build_model
+from cosemdepth.models.pyramid import decode_step
+from cosemdepth.ops.resample import resize_nn2
 from cosemdepth.ops.padding import Conv2dSame
 
 
@@ -90,19 +92,17 @@ def test_fp32_fast_streams_like_the_reference_over_frames_with_a_reset():
     rgb, q, tr, K = sequence(t=6)
     rs = resets(2, 6, extra=((1, 3),))
     outs = {}
-    for name, mode, onednn in (("reference", "reference", True), ("native", "reference", False), ("fast", "fast", True)):
-        m.optimize(mode)
+    for name, path, onednn in (("reference", m, True), ("native", m, False), ("fast", FastModel(m), True)):
         state, outs[name] = None, []
         was = torch.backends.mkldnn.enabled
         torch.backends.mkldnn.enabled = onednn  # (mkldnn.flags() would also touch the TF32 switch, with a warning)
         try:
             with torch.no_grad():
                 for k in range(6):
-                    out, state = m.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
+                    out, state = path.step(rgb[:, k], q[:, k], tr[:, k], K, rs[:, k], state)
                     outs[name].append(out)
         finally:
             torch.backends.mkldnn.enabled = was
-    m.optimize("reference")
     m64, state, exact = m.double(), None, []
     with torch.no_grad():
         for k in range(6):
@@ -175,30 +175,58 @@ def test_packed_conv_matches_the_module(use_mkldnn, stride, size, act):
     assert out.is_contiguous(memory_format=torch.channels_last)
 
 
-def test_optimize_switch_training_and_weight_reload():
+def test_the_model_always_runs_its_modules_and_the_fast_model_follows_a_weight_reload():
     torch.manual_seed(5)
     m = build_model(arch="m4semantic").eval()
     rgb, q, tr, K = sequence(b=1, t=1)
     args = (rgb[:, 0], q[:, 0], tr[:, 0], K, None, None)
     with torch.no_grad():
         ref = m.step(*args)[0].semantic
-        assert m.inference_mode == "reference"
-        fast = m.optimize("fast").step(*args)[0].semantic
-        assert m.inference_mode == "fast"
+        fm = FastModel(m)
+        fast = fm.step(*args)[0].semantic
         torch.testing.assert_close(fast, ref, rtol=0, atol=1e-5)
-        m.train()  # training mode always takes the reference modules
-        assert torch.equal(m.step(*args)[0].semantic, ref)
+        # the model's step is its modules, bit for bit, in eval and in training mode, with a FastModel built on it
+        modules = decode_step(m.decoders, m.encoder(rgb[:, 0]), *args[1:], lambda x: resize_nn2(x, (32, 48)))[0]
+        assert torch.equal(m.step(*args)[0].semantic, modules.semantic) and torch.equal(ref, modules.semantic)
+        assert torch.equal(m.train().step(*args)[0].semantic, ref)
         m.eval()
-        other = build_model(arch="m4semantic").state_dict()
-        m.load_state_dict(other)  # the engine's weight copies follow
-        fast2 = m.step(*args)[0].semantic
-        ref2 = m.optimize("reference").step(*args)[0].semantic
+        m.load_state_dict(build_model(arch="m4semantic").state_dict())  # the FastModel's weight copies follow
+        fast2 = fm.step(*args)[0].semantic
+        ref2 = m.step(*args)[0].semantic
     assert not torch.allclose(fast2, fast, atol=1e-3)
     torch.testing.assert_close(fast2, ref2, rtol=0, atol=1e-5)
-    with pytest.raises(ValueError, match="mode"):
-        m.optimize("turbo")
     with pytest.raises(ValueError, match="dtype"):
-        m.optimize("fast", dtype="int4")  # int8 is a mode of its own (tests/inference/test_int8.py)
+        FastModel(m, dtype="int4")  # int8 is a mode of its own (tests/inference/test_int8.py)
+    with pytest.raises(TypeError, match="SceneModel"):
+        FastModel(fm)
+    with pytest.raises(TypeError, match="device"):
+        FastModel(m, device="cpu")
+
+
+def test_the_fast_model_checks_its_inputs_and_decoders_as_the_model_does(models):
+    m = models["cosemdepth"]
+    fm = FastModel(m)
+    rgb, q, tr, K = sequence(b=2, t=1)
+    good = (rgb[:, 0], q[:, 0], tr[:, 0], K)
+    bad = [((rgb[:, 0, :2], *good[1:]), "argument rgb"), ((good[0], q[:1, 0], *good[2:]), "argument rot"),
+           ((*good[:3], K[:, :3]), "argument intrinsics")]
+    for args, message in bad:
+        for path in (m, fm):
+            with pytest.raises(ValueError, match=message):
+                path.step(*args, None, None)
+    for path in (m, fm):
+        with pytest.raises(ValueError, match="argument decoders"):
+            path.step(*good, None, None, decoders=("flow",))
+        with pytest.raises(ValueError, match="guide_depth"):
+            path.step(*good, None, None, guide_depth=torch.ones(2, 1, 32, 48))
+    with torch.no_grad():
+        _, state = fm.step(*good, None, None)
+        out, same = fm.step(*good, None, state, decoders=())
+        assert out.depth is None and same is state
+        sem, kept = fm.step(*good, None, state, decoders=("semantic",))
+        ref, ref_kept = m.step(*good, None, state, decoders=("semantic",))
+    assert sem.depth is None and kept.depths == state.depths and ref_kept.depths == state.depths
+    torch.testing.assert_close(sem.semantic, ref.semantic, rtol=0, atol=1e-5)
 
 
 def test_fast_and_reference_states_are_interchangeable(models):
@@ -236,10 +264,11 @@ def test_load_model_gives_the_fast_fp32_engine_by_default_and_the_modules_on_req
     save_model(tame(build_model(arch="cosemdepth", levels=3)), tmp_path / "m")
     fast = load_model(tmp_path / "m")
     ref = load_model(tmp_path / "m", mode="reference")
-    assert fast.inference_mode == "fast" and isinstance(fast._streamer(), FastEngine)
-    assert fast._streamer().dtype == torch.float32 and not fast._streamer().int8
-    assert ref.inference_mode == "reference" and ref._streamer() is None
-    assert not fast.training and not ref.training
+    assert isinstance(fast, FastModel) and isinstance(fast.engine, FastEngine) and isinstance(fast.model, SceneModel)
+    assert fast.engine.dtype == torch.float32 and not fast.engine.int8 and fast.dtype == torch.float32
+    assert type(ref) is type(fast.model) and isinstance(ref, SceneModel)
+    assert not fast.model.training and not ref.training
+    assert fast.config == ref.config and fast.num_parameters() == ref.num_parameters()
     rgb, q, tr, K = sequence(b=1, t=3)
     rs = resets(1, 3, extra=())
     with torch.no_grad():
@@ -250,24 +279,32 @@ def test_load_model_gives_the_fast_fp32_engine_by_default_and_the_modules_on_req
     assert not torch.equal(a.depth[:, 1:], torch.full_like(a.depth[:, 1:], 1000.0))  # frames after the reset moved on
     with pytest.raises(ValueError, match="fast path"):
         load_model(tmp_path / "m", mode="reference", dtype="bfloat16")
+    with pytest.raises(ValueError, match="mode"):
+        load_model(tmp_path / "m", mode="turbo")
 
 
-def test_the_fast_engine_follows_in_place_weight_changes():
-    """An optimiser step (or any in-place edit) on a model whose fast engine holds weight copies: the next eval-mode
-    step rebuilds the engine instead of running the old weights."""
+def test_the_fast_model_follows_in_place_weight_changes():
+    """An optimiser step (or any in-place edit) on a model whose FastModel holds packed weight copies: the next step
+    rebuilds the engine instead of running the old weights."""
     torch.manual_seed(12)
-    m = build_model(arch="m4semantic", levels=2).eval().optimize("fast")
+    m = build_model(arch="m4semantic", levels=2).eval()
+    fm = FastModel(m)
     rgb, q, tr, K = sequence(b=1, t=1)
     args = (rgb[:, 0], q[:, 0], tr[:, 0], K, None, None)
     with torch.no_grad():
-        before = m.step(*args)[0].semantic
+        before = fm.step(*args)[0].semantic
+        engine = fm.engine
         m.train()
         opt = torch.optim.SGD(m.parameters(), lr=1.0)
         w = m.semantic_decoder.levels[0].refiner.convs[0].weight  # the engine holds a re-laid-out copy of it
         w.grad = torch.randn(w.shape, generator=torch.Generator().manual_seed(0))
         opt.step()
         m.eval()
-        after = m.step(*args)[0].semantic
-        ref = m.optimize("reference").step(*args)[0].semantic
+        after = fm.step(*args)[0].semantic
+        ref = m.step(*args)[0].semantic
+        assert fm.engine is not engine
+        unchanged = fm.engine
+        fm.step(*args)
+        assert fm.engine is unchanged  # no change, no rebuild
     assert not torch.allclose(after, before, atol=1e-3)
     torch.testing.assert_close(after, ref, rtol=0, atol=1e-5)

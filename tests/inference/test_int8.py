@@ -2,7 +2,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from cosemdepth.inference import FastEngine
+from cosemdepth.inference import FastEngine, FastModel
 from cosemdepth.inference.int8 import QTensor, QuantConv, Range, activation_qmax, has_int8, quantize, quantize_weight
 from cosemdepth.models import build_model
 from cosemdepth.ops.padding import Conv2dSame
@@ -156,12 +156,12 @@ def test_int8_engine_bad_arguments():
         FastEngine(m, dtype="int4")
 
 
-def test_optimize_int8_through_the_model():
+def test_int8_through_the_fast_model():
     torch.manual_seed(5)
     m = tame(build_model().eval())
-    m.optimize("fast", "int8", calibration=frames(t=3, seed=1))
-    assert m.inference_mode == "fast" and m._fast.int8 and m._fast.calibrated
-    out, state = m.step(*frames(t=1, extra=())[0])
+    fm = FastModel(m, "int8", calibration=frames(t=3, seed=1))
+    assert fm.dtype == "int8" and fm.engine.int8 and fm.engine.calibrated
+    out, state = fm.step(*frames(t=1, extra=())[0])
     assert out.depth.dtype == torch.float32
 
 

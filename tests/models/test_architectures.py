@@ -15,6 +15,7 @@ from cosemdepth.errors import ConfigError
 from cosemdepth.export import export_onnx
 from cosemdepth.export.check import run_onnx_stream, synthetic_sequence
 from cosemdepth.checkpoints.model_io import load_model, save_model
+from cosemdepth.inference import FastModel
 from cosemdepth.models import build_model
 from cosemdepth.models.layers import Refiner
 from cosemdepth.models.pyramid import PyramidDecoder, PyramidLevel
@@ -216,10 +217,7 @@ def test_fast_path_equals_reference(models, arch):
     rgb, rot, trans, K, reset = inputs(seed=5)
     depth = guide(m, rgb)
     ref, ref_state = stream(m, rgb, rot, trans, K, reset, depth)
-    try:
-        fast, fast_state = stream(m.optimize("fast"), rgb, rot, trans, K, reset, depth)
-    finally:
-        m.optimize("reference")
+    fast, fast_state = stream(FastModel(m), rgb, rot, trans, K, reset, depth)
     for a, b in zip(fast, ref):
         for key, maps in b.levels.items():
             for x, y in zip(a.levels[key], maps):

@@ -59,12 +59,13 @@ def check_report(report, median_tol=1e-3, p99_tol=2e-2, abs_tol=1e-4):
 @pytest.mark.parametrize("mode, pscv_dtype", [("reference", "float16"), ("reference", "float32"), ("fast", "float16")])
 def test_matches_tensorflow_reference(converted, tfref_dir, mode, pscv_dtype):
     from cosemdepth import load_model
+    from cosemdepth.inference import FastModel, reference_model
 
     model = load_model(converted, mode=mode)
-    assert model.inference_mode == mode
-    assert not model.training and next(model.parameters()).device.type == "cpu"
+    assert isinstance(model, FastModel) == (mode == "fast")
+    assert not reference_model(model).training and next(model.parameters()).device.type == "cpu"
     assert model.config.pscv_dtype == "float16"  # converted checkpoints reproduce the original's float16 products
-    model.set_numerics(pscv_half=pscv_dtype == "float16")
+    reference_model(model).set_numerics(pscv_half=pscv_dtype == "float16")
     report = compare_with_reference(model, tfref_dir)
     check_report(report)
     # the reset frame is exact: 1000 m and parallax 2^(L-l)

@@ -129,3 +129,47 @@ def test_pscv_equals_the_product_and_group_mean():
     ref = torch.autograd.grad((want * wt).sum() + warped[:, c].sum(), (f, prev))
     for a, r in zip(got, ref):
         torch.testing.assert_close(a, r, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "shape, groups, radius", [((2, 16, 9, 13), 1, 3), ((1, 32, 6, 5), 2, 3), ((1, 8, 1, 1), 2, 3), ((2, 6, 7, 4), 3, 1)])
+def test_sncv_export_form_equals_the_channel_loop(shape, groups, radius):
+    """The form the ONNX export records (channels-last sums) is the same SNCV: same channels, same values."""
+    from cosemdepth.ops.cost_volume import _sncv_channel_loop, _spatial_correlation_traceable
+
+    x = torch.randn(shape, dtype=torch.float64)
+    want = _sncv_channel_loop(x.contiguous(), groups, radius)
+    torch.testing.assert_close(_spatial_correlation_traceable(x, groups, radius), want, rtol=1e-12, atol=1e-12)
+
+
+def test_sncv_export_form_runs_in_onnxruntime_with_the_reference_values(tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+
+    class Sncv(torch.nn.Module):
+        def forward(self, f):
+            return spatial_cost_volume(f, 2, 3)
+
+    x = torch.randn(1, 8, 10, 12)
+    path = tmp_path / "sncv.onnx"
+    with torch.no_grad():
+        torch.onnx.export(Sncv(), (x,), str(path), input_names=["f"], opset_version=17, dynamo=False)
+    got = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"f": x.numpy()})[0]
+    torch.testing.assert_close(torch.from_numpy(got), spatial_cost_volume(x, 2, 3), rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("groups", [1, 2, 4])
+def test_pscv_export_form_equals_the_product_form(groups):
+    """The form the ONNX export records (channels-last warps and group means) is the same PSCV, out-of-image points
+    (border clamping) included."""
+    from cosemdepth.ops.cost_volume import _sweep_correlation_traceable
+
+    g = torch.Generator().manual_seed(3)
+    b, c, h, w, s = 2, 8, 5, 7, 3
+    feat = torch.randn(b, c, h, w, generator=g, dtype=torch.float64)
+    prev = torch.randn(b, c + 1, h, w, generator=g, dtype=torch.float64)
+    pts = _grid_points(b, s, h, w).double() + 3 * torch.randn(b, s, 2, h, w, generator=g, dtype=torch.float64)
+    want_corr, want_para = parallax_sweep_cost_volume(feat, prev, pts, groups)
+    stacked = pts.permute(0, 2, 1, 3, 4).reshape(b, 2, s * h, w)
+    corr, para = _sweep_correlation_traceable(feat, prev, stacked, groups)
+    torch.testing.assert_close(corr, want_corr, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(para, want_para, rtol=1e-12, atol=1e-12)

@@ -14,8 +14,10 @@ from typing import Iterable, Optional, Sequence
 import torch
 
 from ..evaluation.metrics import EvaluationMetrics
+from ..inference.fast_model import FastModel
 
-#: mode -> (path of ``SceneModel.optimize``, dtype); "reference" is what the others are compared with
+#: mode -> (path, dtype of the :class:`~cosemdepth.inference.FastModel`); "reference" (the modules) is what the
+#: others are compared with
 MODES = {
     "reference": ("reference", None),
     "fast-fp32": ("fast", "float32"),
@@ -65,7 +67,7 @@ def stream_metrics(model, dataset, device: torch.device, max_frames: Optional[in
 
 def calibration_frames(dataset, frames: int) -> list[tuple]:
     """The first ``frames`` frames of ``dataset`` as ``(rgb, rot, trans, intrinsics, reset)`` steps of batch 1, the
-    first one a reset (what ``optimize("fast", dtype="int8", calibration=...)`` takes)."""
+    first one a reset (what ``FastModel(model, dtype="int8", calibration=...)`` takes)."""
     out = []
     for i in range(min(len(dataset), frames)):
         it = dataset[i]
@@ -91,8 +93,8 @@ def verdict(mode: dict, reference: dict) -> dict:
 def compare_modes(load, dataset, modes: Sequence[str], device: torch.device, max_frames: Optional[int] = None,
                   calibration: Optional[list] = None, report=print) -> dict:
     """``{"metrics": {mode: metrics}, "verdicts": {mode: verdict}}`` for the reference and every mode of ``modes``;
-    ``load()`` returns a fresh copy of the model on the reference path for each mode; ``calibration`` (int8) the
-    steps of :func:`calibration_frames`."""
+    ``load()`` returns a fresh copy of the :class:`~cosemdepth.models.SceneModel` for each mode; ``calibration``
+    (int8) the steps of :func:`calibration_frames`."""
     unknown = [m for m in modes if m not in MODES or m == "reference"]
     if unknown:
         raise ValueError(f"unknown fast modes {unknown}: choose from {[m for m in MODES if m != 'reference']}")
@@ -100,10 +102,8 @@ def compare_modes(load, dataset, modes: Sequence[str], device: torch.device, max
     for name in ["reference", *modes]:
         path, dtype = MODES[name]
         model = load()
-        extra: dict = {"calibration": calibration} if dtype == "int8" else {}
-        if dtype:
-            extra["dtype"] = dtype
-        model.optimize(path, **extra)
+        if path == "fast":
+            model = FastModel(model, dtype, **({"calibration": calibration} if dtype == "int8" else {}))
         results[name] = stream_metrics(model, dataset, device, max_frames)
         report(name, {k: v for k, v in results[name].items() if k in SHOWN})
     verdicts = {name: verdict(results[name], results["reference"]) for name in modes}

@@ -210,7 +210,7 @@ class Check:
 
     # ---- shared inputs
     def model(self):
-        """The float32 model on the CPU (reference modules); copies are moved and optimised per row."""
+        """The float32 model on the CPU (its modules); copies are moved and given their path per row."""
         if self._model is None:
             from ..models.config import ModelConfig
             from ..models import build_model
@@ -239,7 +239,7 @@ class Check:
         if self._reference is None:
             import copy
 
-            self._reference = copy.deepcopy(self.model()).to(self.plan.device).optimize("reference")
+            self._reference = copy.deepcopy(self.model()).to(self.plan.device)
         return self._reference
 
     def compare(self, step: Callable, device: Optional[str] = None) -> dict:

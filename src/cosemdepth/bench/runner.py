@@ -20,6 +20,7 @@ import torch
 
 from ..models.config import MIDAIR_IMAGE_SIZE, ModelConfig
 from ..export.check import synthetic_sequence
+from ..inference.fast_model import FastModel
 from ..inference.graphs import make_streamer
 from ..models import build_model
 from .memory import PeakMemory, exact_rss
@@ -126,7 +127,9 @@ def _sync(device: torch.device) -> None:
 
 
 def build(case: BenchCase, model=None):
-    """The model of ``case`` on its device with its inference path selected (``model``: use these weights)."""
+    """What ``case`` streams, on its device: the :class:`~cosemdepth.models.SceneModel` (path ``reference``), its
+    :class:`~cosemdepth.inference.FastModel` (``fast``) or a static-buffer streamer (``graph``); ``model``: use
+    these weights."""
     if case.precision == "int8" and torch.device(case.device).type != "cpu":
         raise ValueError(f"precision int8 runs on the CPU only, not on {case.device}")
     if model is None:
@@ -138,16 +141,14 @@ def build(case: BenchCase, model=None):
     if case.path == "fast" and case.precision == "int8":
         rgb, rot, trans, intr = make_frames(case, INT8_CALIBRATION_FRAMES)
         frames = [(rgb[:, k], rot[:, k], trans[:, k], intr, torch.full((case.batch,), k == 0)) for k in range(rgb.shape[1])]
-        model.optimize("fast", dtype="int8", calibration=frames)
-    elif case.path == "fast":
-        model.optimize("fast", dtype=PRECISIONS[case.precision])
-    elif case.path == "reference":
+        return FastModel(model, dtype="int8", calibration=frames)
+    if case.path == "fast":
+        return FastModel(model, dtype=PRECISIONS[case.precision])
+    if case.path == "reference":
         if case.precision != "fp32":
             raise ValueError("the reference path runs in fp32 only")
-        model.optimize("reference")
-    else:
-        raise ValueError(f"path must be 'fast', 'graph' or 'reference', got {case.path!r}")
-    return model
+        return model
+    raise ValueError(f"path must be 'fast', 'graph' or 'reference', got {case.path!r}")
 
 
 class _GraphStepper:

@@ -33,7 +33,8 @@ from safetensors import SafetensorError
 from .. import __version__
 from ..models.config import ModelConfig
 from ..errors import CheckpointError, ConfigError
-from ..models import build_model
+from ..inference.fast_model import FastModel, reference_model
+from ..models import SceneModel, build_model
 from ..operating_point import OperatingPoint
 from ..output_safety.atomic import atomic_open
 from .convert import MIDAIR_OPERATING_POINT, convert_checkpoint, expected_param_shapes
@@ -49,6 +50,8 @@ CONFIG_FILE = "config.json"
 WEIGHTS_CHECKSUM = "weights_sha256"
 #: config.json key of the operating point (:class:`~cosemdepth.operating_point.OperatingPoint`).
 OPERATING_POINT = "operating_point"
+#: ``load_model``'s ``mode``: a :class:`~cosemdepth.inference.FastModel`, or the :class:`~cosemdepth.models.SceneModel`
+LOAD_MODES = ("fast", "reference")
 
 
 def check_state_dict(state_dict: Mapping[str, torch.Tensor], cfg: ModelConfig, origin: str) -> None:
@@ -146,12 +149,14 @@ def save_weights(
     return out
 
 
-def save_model(model: torch.nn.Module, out_dir: str | os.PathLike, source: Mapping[str, Any] | None = None,
+def save_model(model: SceneModel | FastModel, out_dir: str | os.PathLike, source: Mapping[str, Any] | None = None,
                operating_point: OperatingPoint | None = None) -> Path:
     """Save ``model`` (which has a ``config: ModelConfig``) in our format; see :func:`save_weights`.
 
     ``operating_point`` defaults to the model's own ``model.operating_point`` (set by :func:`load_model`), if any.
+    A :class:`~cosemdepth.inference.FastModel` saves the weights of its model.
     """
+    model = reference_model(model)
     cfg = getattr(model, "config", None)
     if not isinstance(cfg, ModelConfig):
         raise ConfigError(f"save_model needs a model with a ModelConfig in .config, got {type(cfg).__name__}")
@@ -325,20 +330,23 @@ def load_model(
     device: str | torch.device = "cpu",
     mode: str = "fast",
     dtype: torch.dtype | str = torch.float32,
-) -> torch.nn.Module:
+) -> FastModel | SceneModel:
     """Build the model stored at ``path`` and load its weights, in eval mode on ``device``.
 
     ``path`` is one of our model folders, or an official TensorFlow checkpoint (a prefix such as
     ``.../cp-0059.ckpt``, its ``.index`` file, or a folder with a ``checkpoint`` file), converted on the fly.
 
-    ``mode`` selects the inference path of ``step`` / ``infer`` (:meth:`~cosemdepth.models.SceneModel.optimize`):
-    ``"fast"`` (default) the fast engine in ``dtype`` (float32 by default: the reference results up to float
-    rounding; ``"bfloat16"`` / ``"int8"`` are faster and less exact, opt in after measuring), ``"reference"`` the
-    plain PyTorch modules. Training (``forward_sequence``, train mode) and ONNX export always use the modules.
+    ``mode="fast"`` (default) returns a :class:`~cosemdepth.inference.FastModel`: the fast streaming path in
+    ``dtype`` (float32 by default: the modules' results up to float rounding; ``"bfloat16"`` / ``"int8"`` are faster
+    and less exact, opt in after measuring), its modules in ``.model``. ``mode="reference"`` returns the
+    :class:`~cosemdepth.models.SceneModel` itself, whose ``step`` / ``infer`` run the plain PyTorch modules (as do
+    training and the ONNX export). Both have the same ``step`` and ``infer``.
 
     The returned model has ``model.operating_point``: the :class:`~cosemdepth.operating_point.OperatingPoint` its
     folder records (:func:`read_operating_point`; Mid-Air's for a TensorFlow checkpoint), or None.
     """
+    if mode not in LOAD_MODES:
+        raise ValueError(f"mode must be one of {list(LOAD_MODES)}, got {mode!r}")
     state_dict, cfg, origin, op = _read(path)
     if mode == "reference" and dtype not in (torch.float32, "float32", "fp32"):
         raise ValueError(f"dtype {dtype!r} is a setting of the fast path; mode='reference' runs float32")
@@ -352,15 +360,16 @@ def load_model(
         model.load_state_dict(state_dict, strict=True, assign=True)
     except RuntimeError as e:
         raise CheckpointError(f"{origin}: weights do not fit the {cfg.arch} model: {e}") from e
-    model = model.eval().to(device).optimize(mode, dtype)
+    model = model.eval().to(device)
     model.operating_point = op
-    return model
+    return model if mode == "reference" else FastModel(model, dtype)
 
 
 __all__ = [
     "CONFIG_FILE",
     "FORMAT",
     "FORMAT_VERSION",
+    "LOAD_MODES",
     "OPERATING_POINT",
     "WEIGHTS_CHECKSUM",
     "WEIGHTS_FILE",

@@ -18,6 +18,7 @@ from ..workers import WORKERS_PER_CORE, check_workers
 from ..devices import resolve_device
 from ..checkpoints.model_io import load_model, operating_point_of
 from ..models import build_model
+from ..inference.fast_model import FastModel, reference_model
 from ..inference.policy import BASELINE, EVERY_FRAME, POLICIES
 from ..operating_point import OperatingPoint
 from ..models.footprint import check_size
@@ -69,7 +70,7 @@ def add_reference_arg(parser: argparse.ArgumentParser) -> None:
                         "the same results up to float rounding, faster: docs/benchmarks.md)")
 
 
-#: ``--precision`` -> ``SceneModel.optimize("fast", dtype)``
+#: ``--precision`` -> ``FastModel(model, dtype)``
 PRECISION_DTYPES = {"fp32": "float32", "bf16": "bfloat16", "int8": "int8"}
 
 
@@ -258,8 +259,9 @@ def add_jpeg_idct_arg(parser: argparse.ArgumentParser) -> None:
 
 
 def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32"):
-    """``(model, device)``: the model at ``model_path`` on the device named ``device_name``, in eval mode, on the
-    fast inference path in ``precision`` (``--precision``) unless ``fast`` is False (``--reference``)."""
+    """``(model, device)``: the model at ``model_path`` on the device named ``device_name``, in eval mode: a
+    :class:`~cosemdepth.inference.FastModel` in ``precision`` (``--precision``), or with ``fast`` False
+    (``--reference``) the :class:`~cosemdepth.models.SceneModel`."""
     if precision not in PRECISION_DTYPES:
         raise ConfigError(f"--precision must be one of {list(PRECISION_DTYPES)}, got {precision!r}")
     if not fast and precision != "fp32":
@@ -269,7 +271,7 @@ def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32
     if not fast:
         return model, device
     try:
-        return model.optimize("fast", PRECISION_DTYPES[precision]), device
+        return FastModel(model, PRECISION_DTYPES[precision]), device
     except ValueError as e:
         raise ConfigError(f"--precision {precision}: {e}") from None
 
@@ -308,7 +310,7 @@ def check_run_size(model, dataset, device, batch: int = 1) -> None:
     size = frame_size(dataset)
     batch = max(min(batch, len(dataset.trajectories)), 1)  # a batch holds at most one lane per trajectory
     if size is not None:
-        check_size(model, *size, device=device, batch=batch,
+        check_size(reference_model(model), *size, device=device, batch=batch,
                    what="--size" if batch == 1 else "--size/--trajectories-per-batch")
 
 

@@ -43,6 +43,11 @@ from .flag_rules import explicit
 
 def configure(parser: argparse.ArgumentParser) -> None:
     add_model_args(parser)
+    parser.add_argument("--backend", choices=["pytorch", "onnxruntime"], default="pytorch",
+                        help="pytorch (default: the fast path, or --reference) or onnxruntime: the graph --onnx "
+                        "(written by 'cosemdepth export --onnx' from --model at the input size) run by ONNX Runtime's "
+                        "CPU provider with the state fed back (fp32; --threads intra-op threads)")
+    parser.add_argument("--onnx", type=Path, metavar="FILE", help="the exported graph of --backend onnxruntime")
     add_split_args(parser, required=False)
     flight = parser.add_argument_group("your own flight (instead of --dataset)")
     flight.add_argument("--flight", action="store_true", help="run on a folder of images with a pose file")
@@ -96,6 +101,15 @@ def _validate(args: argparse.Namespace) -> None:
     if args.max_pose_gap is not None and not args.max_pose_gap >= 0:
         raise ConfigError(f"--max-pose-gap must be >= 0 seconds, got {args.max_pose_gap}")
     check_args(args)
+    if args.backend == "onnxruntime":
+        if args.reference or args.precision != "fp32":
+            raise ConfigError("--backend onnxruntime runs the exported fp32 graph: drop --reference / --precision")
+        if args.onnx is None:
+            raise ConfigError("--backend onnxruntime needs --onnx FILE (a graph written by 'cosemdepth export --onnx')")
+        if args.device not in ("auto", "cpu"):
+            raise ConfigError(f"--backend onnxruntime runs on the CPU provider, not --device {args.device}")
+    elif args.onnx is not None:
+        raise ConfigError("--onnx is the graph of --backend onnxruntime: add --backend onnxruntime")
     if args.bag is not None:
         return
     if args.flight:
@@ -163,7 +177,9 @@ def run_settings(args: argparse.Namespace, dataset) -> dict:
     size = frame_size(dataset)
     return {
         "model": str(args.model),
-        "path": "reference" if args.reference else "fast",
+        "path": "onnxruntime" if getattr(args, "backend", "pytorch") == "onnxruntime" else
+                "reference" if args.reference else "fast",
+        "onnx": str(args.onnx) if getattr(args, "onnx", None) is not None else None,
         "precision": args.precision,
         "input_size": None if size is None else list(size),
         "intrinsics": [float(v) for v in dataset.intrinsics.tolist()],
@@ -190,7 +206,10 @@ def run(args: argparse.Namespace) -> int:
     StagedDir(args.out, "predict", overwrite=args.overwrite, what="--out folder", inputs=inputs).check()  # first
     check_rrd_path(args.rerun, inputs=[*inputs, Input("--out", args.out)]) if args.rerun is not None else None
     dataset = _open(args)
-    model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
+    if args.backend == "onnxruntime":
+        model, device = _onnx_model(args, dataset)
+    else:
+        model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
     check_run_size(model, dataset, device, args.lanes)
     info = {
         "model": {"path": str(args.model)},
@@ -219,6 +238,30 @@ def run(args: argparse.Namespace) -> int:
             print(f"cosemdepth predict: warning: no depth was produced: {no_depth_reason(manifest['frames_by_status'])}",
                   file=sys.stderr)
     return 0
+
+
+def _onnx_model(args: argparse.Namespace, dataset):
+    """``(model, device)`` of ``--backend onnxruntime``: the graph ``--onnx`` behind the model's ``step``, checked
+    against the input's frame size and ``--trajectories-per-batch`` before any frame is read."""
+    import torch
+
+    from ..export.runtime import OnnxModel, OnnxStep
+    from ..optional import require
+
+    require("onnxruntime", "predict --backend onnxruntime")
+    if not args.onnx.is_file():
+        raise ConfigError(f"--onnx {args.onnx}: no such file")
+    model, device = load(args.model, "cpu", fast=False)
+    step = OnnxStep(args.onnx, threads=args.threads)
+    want = (None, 3, *frame_size(dataset)) if frame_size(dataset) is not None else None
+    got = step.shape
+    if want is not None and tuple(got[1:]) != tuple(want[1:]):
+        raise ConfigError(f"--onnx {args.onnx}: the graph takes {got[2]}x{got[3]} images, the input is read at "
+                          f"{want[2]}x{want[3]} (export at this size with --size, or give --size)")
+    if got[0] is not None and (got[0] != 1 or args.lanes != 1):
+        raise ConfigError(f"--onnx {args.onnx}: the graph has a fixed batch of {got[0]}; streaming needs batch 1 "
+                          "(and --trajectories-per-batch 1) or a graph exported with --dynamic-batch")
+    return OnnxModel(model, step), torch.device("cpu")
 
 
 def input_policy(args: argparse.Namespace) -> tuple[str | None, float | None]:

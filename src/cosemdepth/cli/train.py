@@ -51,6 +51,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     g.add_argument("--init-weights", metavar="PATH",
                    help="train.init_weights: start from these weights (a model folder, a run's best/ or checkpoint "
                         "folder, an official TF checkpoint) instead of a random initialisation: fine-tuning")
+    g.add_argument("--init-from", metavar="MODEL_DIR",
+                   help="train.init_from: start from the weights of a model of another config (another arch, "
+                        "semantic_sncv or semantic_time): matching tensors copied, new input channels zero, so the "
+                        "run starts with that model's outputs")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
 
@@ -59,7 +63,7 @@ _FLAGS = {
     "model": "model.arch", "dataset": "data.train.0.name", "data_root": "data.train.0.root",
     "split_dir": "data.train.0.split_dir", "epochs": "train.epochs", "max_steps": "train.max_steps",
     "batch_size": "train.batch_size", "lr": "train.lr", "seed": "train.seed", "device": "train.device",
-    "bf16": "train.bf16", "init_weights": "train.init_weights",
+    "bf16": "train.bf16", "init_weights": "train.init_weights", "init_from": "train.init_from",
 }
 
 

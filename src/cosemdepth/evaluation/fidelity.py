@@ -14,6 +14,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..inference.fast_model import reference_model
+
 #: our level-map name -> fixture suffix
 LEVEL_KEYS = {
     "depth": "depth",
@@ -58,8 +60,9 @@ def inputs_from_reference(ref: Any) -> dict[str, torch.Tensor]:
 
 
 @torch.no_grad()
-def compare_with_reference(model: torch.nn.Module, fixture: str | Path) -> dict[str, Any]:
-    """Run ``model`` on a fixture's inputs (streaming, training mode, encoder) and compare every output.
+def compare_with_reference(model, fixture: str | Path) -> dict[str, Any]:
+    """Run ``model`` on a fixture's inputs (streaming, training mode, encoder) and compare every output; a
+    :class:`~cosemdepth.inference.FastModel` streams on the fast path, its model's modules run the training mode.
 
     Returns a nested dict: ``streaming`` / ``training`` -> frame -> key -> stats (relative stats for depth and
     parallax, max abs error for the others), ``features`` -> frame -> level -> max abs error.
@@ -95,7 +98,7 @@ def compare_with_reference(model: torch.nn.Module, fixture: str | Path) -> dict[
             frame["semantic"] = {"max_abs": abs_error(_nhwc(o.semantic), ref["infer_semantic"][t])}
         report["streaming"].append(frame)
 
-    seq = model.forward_sequence(
+    seq = reference_model(model).forward_sequence(
         torch.stack(inp["rgb"], 1),
         torch.stack(inp["rot"], 1),
         torch.stack(inp["trans"], 1),

@@ -36,6 +36,7 @@ from ..synthair.render import render_frames
 from ..synthair.world import get_world
 from ..synthair.writer import SynthConfig, plan_flights
 from ..errors import ConfigError
+from ..inference.fast_model import reference_model
 from ..models.outputs import StreamState
 from .onnx import state_components
 
@@ -279,7 +280,6 @@ def noise_model(model):
     means over H x W summed in ``SUMMATION_LANES`` sequential chains (:func:`sequential_spatial_mean`), the long
     reductions whose summation order a runtime chooses. Nothing else changes."""
     noisy = copy.deepcopy(model).float().to(memory_format=torch.channels_last)
-    noisy.optimize("reference")
     if getattr(noisy.encoder, "dinl", None) is not None:
         noisy.encoder.dinl.spatial_mean = sequential_spatial_mean
     return noisy
@@ -307,9 +307,9 @@ def compare_onnx(model, path: str | Path, frames: int = CHECK_FRAMES, reset_at: 
                  inputs=None, multiple: float = NOISE_MULTIPLE) -> OnnxComparison:
     """Stream ``frames`` frames (frame 0 and ``reset_at`` reset; default the middle frame) of a SynthAir flight
     (:func:`flight_sequence`, or ``inputs = (rgb, rot, trans, intrinsics)``) through ONNX Runtime and, step by step on
-    the same inputs and incoming state, through ``model.step`` (reference path, float32) and through
-    :func:`noise_model`; returns an :class:`OnnxComparison` (see the module docstring). The model is given back in
-    the inference mode it had."""
+    the same inputs and incoming state, through ``model.step`` (its modules, float32: a
+    :class:`~cosemdepth.inference.FastModel`'s model) and through :func:`noise_model`; returns an
+    :class:`OnnxComparison` (see the module docstring)."""
     try:
         import onnxruntime as ort  # deferred: an optional dependency (cosemdepth[export])
     except ImportError as e:  # pragma: no cover - optional dependency
@@ -326,8 +326,7 @@ def compare_onnx(model, path: str | Path, frames: int = CHECK_FRAMES, reset_at: 
                     if i.name.startswith("state_")]
     ort_state = [np.zeros(s, np.float32) for s in state_shapes]
     comps = state_components(i.name for i in sess.get_inputs() if i.name.startswith("state_"))
-    mode, options = model.inference_mode, model.inference_options
-    model.optimize("reference")
+    model = reference_model(model)
     p = next(model.parameters())
     dev = p.device
     reference = model if p.dtype == torch.float32 else copy.deepcopy(model).float()
@@ -335,34 +334,31 @@ def compare_onnx(model, path: str | Path, frames: int = CHECK_FRAMES, reset_at: 
     report = OnnxComparison(size=(int(rgb.shape[-2]), int(rgb.shape[-1])), batch=b, frames=frames,
                             resets=[k for k in range(frames) if bool(reset[:, k].any())])
     crit = {key: Criterion(*key, multiple=multiple) for key in CRITERIA}
-    try:
-        with torch.no_grad():
-            for k in range(frames):
-                feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy(),
-                         "intrinsics": intr.numpy(), "reset": reset[:, k].numpy()}
-                st_in = [torch.from_numpy(s).to(dev) for s in ort_state]
-                res, ort_state = run_onnx_stream(sess, feeds, ort_state)
-                args = tuple(a.to(dev) for a in (rgb[:, k], rot[:, k], trans[:, k], intr, reset[:, k]))
-                st = StreamState.unflatten(st_in, comps) if st_in and k > 0 else None
-                out, new = reference.step(*args, st)
-                st_cl = StreamState.unflatten([_channels_last(s) for s in st_in], comps) if st is not None else None
-                outn, newn = noisy.step(*(_channels_last(a) for a in args), st_cl)
-                if out.depth is not None:
-                    d, dn, do = out.depth.cpu().numpy(), outn.depth.cpu().numpy(), res["depth"]
-                    ok = valid_depth(d, reset[:, k].numpy())
-                    crit[CRITERIA[0]].add(k, nrms(do, d), nrms(dn, d))
-                    crit[CRITERIA[1]].add(k, relative_percentile(do, d, ok), relative_percentile(dn, d, ok))
-                    if ok.any():
-                        report.depth_max_rel.append(relative_percentile(do, d, ok, 100.0))
-                        report.depth_max_rel_noise.append(relative_percentile(dn, d, ok, 100.0))
-                if out.semantic is not None:
-                    s = out.semantic.cpu().numpy()
-                    crit[CRITERIA[2]].add(k, nrms(res["semantic"], s), nrms(outn.semantic.cpu().numpy(), s))
-                if new.flatten():
-                    ref = [t.cpu().numpy() for t in new.flatten()]
-                    crit[CRITERIA[3]].add(k, max(nrms(a, t) for a, t in zip(ort_state, ref)),
-                                          max(nrms(t.cpu().numpy(), r) for t, r in zip(newn.flatten(), ref)))
-    finally:
-        model.optimize(mode, **(options or {}))
+    with torch.no_grad():
+        for k in range(frames):
+            feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy(),
+                     "intrinsics": intr.numpy(), "reset": reset[:, k].numpy()}
+            st_in = [torch.from_numpy(s).to(dev) for s in ort_state]
+            res, ort_state = run_onnx_stream(sess, feeds, ort_state)
+            args = tuple(a.to(dev) for a in (rgb[:, k], rot[:, k], trans[:, k], intr, reset[:, k]))
+            st = StreamState.unflatten(st_in, comps) if st_in and k > 0 else None
+            out, new = reference.step(*args, st)
+            st_cl = StreamState.unflatten([_channels_last(s) for s in st_in], comps) if st is not None else None
+            outn, newn = noisy.step(*(_channels_last(a) for a in args), st_cl)
+            if out.depth is not None:
+                d, dn, do = out.depth.cpu().numpy(), outn.depth.cpu().numpy(), res["depth"]
+                ok = valid_depth(d, reset[:, k].numpy())
+                crit[CRITERIA[0]].add(k, nrms(do, d), nrms(dn, d))
+                crit[CRITERIA[1]].add(k, relative_percentile(do, d, ok), relative_percentile(dn, d, ok))
+                if ok.any():
+                    report.depth_max_rel.append(relative_percentile(do, d, ok, 100.0))
+                    report.depth_max_rel_noise.append(relative_percentile(dn, d, ok, 100.0))
+            if out.semantic is not None:
+                s = out.semantic.cpu().numpy()
+                crit[CRITERIA[2]].add(k, nrms(res["semantic"], s), nrms(outn.semantic.cpu().numpy(), s))
+            if new.flatten():
+                ref = [t.cpu().numpy() for t in new.flatten()]
+                crit[CRITERIA[3]].add(k, max(nrms(a, t) for a, t in zip(ort_state, ref)),
+                                      max(nrms(t.cpu().numpy(), r) for t, r in zip(newn.flatten(), ref)))
     report.criteria = [c for c in crit.values() if c.frames]
     return report

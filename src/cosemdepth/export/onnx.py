@@ -26,6 +26,7 @@ import torch.nn as nn
 
 from .. import __version__
 from ..errors import ConfigError
+from ..inference.fast_model import reference_model
 from ..output_safety.atomic import atomic_path
 from ..models.config import MIDAIR_IMAGE_SIZE
 from ..models.outputs import StreamState
@@ -116,7 +117,8 @@ def export_onnx(
     """Export ``model``'s streaming step to an ONNX file (written atomically).
 
     Args:
-        model: a :class:`SceneModel` (exported in float32 on CPU; the model itself is left as it was).
+        model: a :class:`SceneModel` (exported in float32 on CPU; the model itself is left as it was), or a
+            :class:`~cosemdepth.inference.FastModel`, whose model's modules are exported.
         path: output ``.onnx`` file.
         height, width: input resolution (fixed in the graph; the state shapes depend on it).
         batch: batch size of the example (fixed unless ``dynamic_batch``).
@@ -126,6 +128,7 @@ def export_onnx(
     Returns:
         the path written.
     """
+    model = reference_model(model)
     cfg = getattr(model, "config", None)
     if cfg is not None and cfg.needs_depth_input:
         raise ConfigError(f"the model's semantic decoder warps the previous labels with the ground-truth depth "
@@ -178,12 +181,11 @@ def is_our_onnx(path: str | Path) -> bool:
 
 @contextlib.contextmanager
 def _frozen_for_export(model):
-    """Reference path, eval mode, static numerics, float32 on CPU; everything restored on exit."""
+    """Eval mode, static numerics, float32 on CPU; everything restored on exit."""
     p = next(model.parameters())
     device, dtype, training = p.device, p.dtype, model.training
-    mode, options = model.inference_mode, model.inference_options
     static = {name: dec.static for name, dec in model.decoders.items()}
-    model.optimize("reference").eval().float().cpu()
+    model.eval().float().cpu()
     model.set_numerics(static=True)
     try:
         yield
@@ -191,4 +193,3 @@ def _frozen_for_export(model):
         model.to(device=device, dtype=dtype).train(training)
         for name, dec in model.decoders.items():
             dec.static = static[name]
-        model.optimize(mode, **(options or {}))

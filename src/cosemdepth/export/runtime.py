@@ -108,4 +108,36 @@ class OnnxStep:
         return self.session.end_profiling()
 
 
-__all__ = ["OnnxStep"]
+class OnnxModel:
+    """A loaded model whose ``step`` runs an exported graph of it in ONNX Runtime: what the inference commands drive
+    (``predict --backend onnxruntime``) in place of the PyTorch model. The model supplies what the graph does not
+    hold (its config, operating point and parameters' device); the graph computes every decoder on each call, and
+    a call asked for a subset of ``decoders`` returns the state of the others as it came in, like
+    :meth:`SceneModel.step`.
+
+    Args:
+        model: the PyTorch model the graph was exported from (its config and operating point are read).
+        step: an :class:`OnnxStep` over the graph.
+    """
+
+    def __init__(self, model, step: OnnxStep):
+        self.model = model
+        self.onnx = step
+        # the state components each decoder owns (the components of a graph's state are those of the model's)
+        self._owned = {name: tuple(dec.state_shapes(1, 32, 32)) for name, dec in model.decoders.items()}
+
+    def __getattr__(self, name):  # config, operating_point, parameters()...: the model's
+        return getattr(self.model, name)
+
+    def step(self, rgb, rot, trans, intrinsics, reset=None, state: Optional[StreamState] = None,
+             decoders: Optional[Sequence[str]] = None):
+        out, new = self.onnx.step(rgb, rot, trans, intrinsics, reset, state)
+        if decoders is None or state is None or not state.flatten():
+            return out, new
+        keep = {c for name in self._owned if name not in decoders for c in self._owned.get(name, ())}
+        comps = {k: (state.components[k] if k in keep and k in state.components else v)
+                 for k, v in new.components.items()}
+        return out, StreamState(**comps)
+
+
+__all__ = ["OnnxModel", "OnnxStep"]

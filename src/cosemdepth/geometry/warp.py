@@ -31,6 +31,13 @@ def sample_bilinear(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
 
 
 def sample_bilinear_rows(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """:func:`sample_bilinear` as :func:`sample_bilinear_pixels` (same arguments and result layout)."""
+    b, c = image.shape[:2]
+    ho, wo = points.shape[-2:]
+    return sample_bilinear_pixels(image, points).reshape(b, ho, wo, c).permute(0, 3, 1, 2)
+
+
+def sample_bilinear_pixels(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """:func:`sample_bilinear` (same arguments, same result up to float rounding) as gathers of whole pixels: the
     image channels-last as rows of C values, the four taps of every position gathered as rows and blended with
     their bilinear weights. The exported graph takes this form: ONNX Runtime's CPU GridSample kernel is many times
@@ -40,7 +47,7 @@ def sample_bilinear_rows(image: torch.Tensor, points: torch.Tensor) -> torch.Ten
         image: ``[B, C, H, W]``.
         points: ``[B, 2, H_o, W_o]`` positions (x = column, y = row).
     Returns:
-        ``[B, C, H_o, W_o]``.
+        ``[B, H_o * W_o, C]``: the samples channels-last, positions in row-major order.
     """
     b, c, h, w = image.shape
     ho, wo = points.shape[-2:]
@@ -58,7 +65,7 @@ def sample_bilinear_rows(image: torch.Tensor, points: torch.Tensor) -> torch.Ten
     top = tap(0) + fx * (tap(dx) - tap(0)) if dx else tap(0)
     bottom = tap(dy) + fx * (tap(dy + dx) - tap(dy)) if dx else tap(dy)
     out = top + fy * (bottom - top) if dy else top
-    return out.reshape(b, ho, wo, c).permute(0, 3, 1, 2)
+    return out.reshape(b, ho * wo, c)
 
 
 def warp(image: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:

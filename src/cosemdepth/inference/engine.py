@@ -30,7 +30,6 @@ import torch.nn.functional as F
 
 from ..devices import bf16_convolutions, no_bf16_reason, onednn_enabled
 from ..models.depth_decoder import DepthLevel
-from ..models.model import STREAMERS
 from ..models.outputs import StepOutput, StreamState
 from ..models.pyramid import LevelOps, PyramidLevel, decode_step
 from ..ops.concat import write_blocks
@@ -126,7 +125,10 @@ def _fast_ops(level: PyramidLevel, refiner: _Refiner) -> LevelOps:
 
 
 class FastEngine:
-    """Inference-only twin of a :class:`~cosemdepth.models.SceneModel`, built from a snapshot of its weights.
+    """Inference-only twin of a :class:`~cosemdepth.models.SceneModel`, built from a snapshot of its weights: its
+    ``step`` feeds the model's own level loop (:func:`cosemdepth.models.pyramid.decode_step`) with packed
+    :class:`~cosemdepth.models.pyramid.LevelOps`, without input checks. :class:`~cosemdepth.inference.FastModel` is the
+    public front (checks, ``infer``, weights followed); the engine is what :class:`~cosemdepth.inference.graphs.StaticStreamer` captures.
 
     Args:
         model: the source model (its configuration and numerics switches are read now; weights are copied).
@@ -298,5 +300,3 @@ class FastEngine:
         shapes = self.state_shapes(batch, height, width).items()
         return StreamState(**{k: tuple(torch.zeros(s, device=self.device) for s in v) for k, v in shapes})
 
-
-STREAMERS["fast"] = FastEngine

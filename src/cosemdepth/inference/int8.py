@@ -1,4 +1,4 @@
-"""int8 refiners for the fast CPU path (``SceneModel.optimize("fast", "int8")``): oneDNN quantized convolutions.
+"""int8 refiners for the fast CPU path (``FastModel(model, "int8")``): oneDNN quantized convolutions.
 
 What is quantised: the six hidden 3x3 convolutions of the semantic decoder's refiners by default (see
 ``engine.INT8_KEEP_FLOAT``; any refiner's hidden convolutions can be), with per-output-channel symmetric int8

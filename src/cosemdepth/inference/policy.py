@@ -36,6 +36,8 @@ from ..geometry.reproject import carry_depth
 from ..geometry.validity import MAX_CONDITIONING, depth_validity
 from ..models.outputs import ESTIMATED, HELD, RESET, StepOutput, StreamState
 
+#: The two streaming policies: ``baseline`` estimates against a reference frame at least ``min_baseline`` away,
+#: ``every-frame`` estimates every frame from the previous one (the paper's protocol).
 BASELINE, EVERY_FRAME = "baseline", "every-frame"
 #: Streaming policies (``--policy``).
 POLICIES = (BASELINE, EVERY_FRAME)

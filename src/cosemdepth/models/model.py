@@ -8,13 +8,14 @@ Two ways to run a model:
 * streaming: :meth:`SceneModel.step` on one frame ``[B, 3, H, W]`` with an explicit :class:`StreamState` in and a new
   one out, and a per-sample reset mask.
 
-Both run the same per-frame decoder code, so they agree exactly.
+Both run the same per-frame decoder code, so they agree exactly, and both always run the modules. The fast inference
+path is an object of its own built from a model (:class:`cosemdepth.inference.FastModel`, what
+:func:`~cosemdepth.checkpoints.model_io.load_model` returns by default): this package does not know it.
 """
 
 from __future__ import annotations
 
-import importlib
-from typing import Callable, Optional, Sequence
+from typing import Optional, Sequence
 
 import torch
 import torch.nn as nn
@@ -22,16 +23,10 @@ import torch.nn as nn
 from .config import ModelConfig
 from ..ops.resample import resize_nn2
 from .encoder import Encoder
+from .infer import infer_sequence
 from .outputs import SequenceOutput, StepOutput, StreamState
 from .pyramid import PyramidDecoder, decode_step, decoder_guide, depth_pyramid
 from .registry import DECODERS
-
-#: Streaming implementations of :meth:`SceneModel.step` besides the reference modules, by :meth:`~SceneModel.optimize`
-#: mode: ``factory(model, dtype=..., device=...)`` returns an object with the same ``step`` and a ``device``.
-STREAMERS: dict[str, Callable] = {}
-#: The module that registers a mode into :data:`STREAMERS`, imported by name the first time the mode is asked for:
-#: the inference package sits above this one and is not imported by it.
-STREAMER_PLUGINS = {"fast": "cosemdepth.inference"}
 
 
 class SceneModel(nn.Module):
@@ -49,11 +44,6 @@ class SceneModel(nn.Module):
         for name in DECODERS:
             setattr(self, f"{name}_decoder", DECODERS[name](config) if name in config.decoders else None)
         self.set_numerics(pscv_half=config.pscv_dtype == "float16")
-        self._fast = None  # the streaming implementation of optimize(), None: the reference modules
-        self._fast_mode: str | None = None
-        self._fast_options: dict | None = None
-        self._fast_weights: tuple[int, ...] = ()  # _weights_version() when the engine copied the weights
-        self.register_load_state_dict_post_hook(_rebuild_streamer)
 
     default_arch = "cosemdepth"
 
@@ -66,64 +56,6 @@ class SceneModel(nn.Module):
         """Per-level shapes of every :class:`StreamState` component for a ``batch x 3 x height x width`` input (no
         weights needed: works on a model built on the meta device), in the order of :meth:`StreamState.flatten`."""
         return {k: v for dec in self.decoders.values() for k, v in dec.state_shapes(batch, height, width).items()}
-
-    # ------------------------------------------------------------------ fast inference switch
-    def optimize(self, mode: str = "fast", dtype: torch.dtype | str = torch.float32, device=None,
-                 **options) -> "SceneModel":
-        """Select the streaming inference path of :meth:`step` / :meth:`infer`; returns ``self``.
-
-        * ``mode="fast"``: a :class:`~cosemdepth.inference.FastEngine` built from the current weights (channels-last
-          pre-packed convolutions with fused activations, vectorised cost volumes); with ``dtype=torch.float32`` it
-          gives the reference results up to float rounding (the *safe* setting, which the inference commands use by
-          default). ``dtype=torch.bfloat16`` (CPU or GPU) or ``torch.float16`` (GPU) runs the refiners' hidden
-          convolutions in that precision, faster and less exact: opt in after checking the accuracy of your weights
-          (``cosemdepth fast-accuracy``). ``dtype="int8"`` (CPU) runs the refiners' hidden convolutions as oneDNN
-          int8 convolutions with statically calibrated activations (:mod:`cosemdepth.inference.int8`): pass
-          ``calibration=`` (an iterable of ``(rgb, rot, trans, intrinsics, reset)`` frames), or the first
-          ``calibration_frames`` (default 8) streamed frames calibrate, in float32.
-        * ``mode="reference"``: the plain PyTorch modules (the default of a freshly built model;
-          :func:`~cosemdepth.checkpoints.model_io.load_model` returns the fast float32 path unless asked for this one).
-
-        The fast path is used only in eval mode and never records gradients; ``forward_sequence`` (training) always
-        runs the reference modules. Loading a state dict rebuilds the engine; so do a change of device and any in-place
-        change of the weights (an optimiser step) before the next eval-mode ``step``.
-        """
-        if mode == "reference":
-            self._fast = self._fast_mode = self._fast_options = None
-            return self
-        if mode not in STREAMERS and mode in STREAMER_PLUGINS:
-            importlib.import_module(STREAMER_PLUGINS[mode])
-        if mode not in STREAMERS:
-            raise ValueError(f"mode must be one of {['reference', *sorted(set(STREAMERS) | set(STREAMER_PLUGINS))]}, "
-                             f"got {mode!r}")
-        options = {"dtype": dtype, "device": device, **options}
-        self._fast = STREAMERS[mode](self, **options)
-        self._fast_mode, self._fast_options = mode, options
-        self._fast_weights = self._weights_version()
-        return self
-
-    @property
-    def inference_mode(self) -> str:
-        """``"fast"`` or ``"reference"``: the path :meth:`step` takes in eval mode."""
-        return self._fast_mode or "reference"
-
-    @property
-    def inference_options(self) -> dict | None:
-        """The ``optimize`` options (dtype, device) of the current mode; None for the reference path."""
-        return None if self._fast_options is None else dict(self._fast_options)
-
-    def _weights_version(self) -> tuple[int, ...]:
-        """Changes whenever a parameter is modified in place (an optimiser step) or replaced."""
-        return tuple(v for p in self.parameters() for v in (p.data_ptr(), p._version))
-
-    def _streamer(self):
-        if self._fast is None or self.training:
-            return None
-        p = next(self.parameters())
-        if (self._fast_options.get("device") is None and self._fast.device != p.device) or \
-                self._fast_weights != self._weights_version():
-            _rebuild_streamer(self, None)  # the engine holds copies of the weights: refresh them
-        return self._fast
 
     # ------------------------------------------------------------------ numerics switches
     def set_numerics(self, guard: bool | None = None, pscv_half: bool | None = None, static: bool | None = None):
@@ -233,24 +165,36 @@ class SceneModel(nn.Module):
             ``[B,1,H,W]`` the depth pixels that are estimates and ``out.status`` per sample ``"reset"`` or
             ``"estimated"`` (every frame is estimated from the previous one; the baseline-aware policy of
             :class:`~cosemdepth.inference.Streamer` also holds frames).
+
+        Always the modules, in training and in eval mode (the fast path: :class:`cosemdepth.inference.FastModel`).
         """
+        self.check_step(rgb, rot, trans, intrinsics, reset, decoders, guide_depth)
+        if decoders is not None and not decoders:  # nothing to run: the state passes through
+            return StepOutput(None, None), state if state is not None else StreamState()
+        size = tuple(rgb.shape[-2:])
+        feats = self.encoder(rgb)
+        return decode_step(self.decoders, feats, rot, trans, intrinsics, reset, state, lambda x: resize_nn2(x, size),
+                           only=decoders, guide_depth=guide_depth)
+
+    def check_step(
+        self,
+        rgb: torch.Tensor,
+        rot: torch.Tensor,
+        trans: torch.Tensor,
+        intrinsics: torch.Tensor,
+        reset: Optional[torch.Tensor] = None,
+        decoders: Optional[Sequence[str]] = None,
+        guide_depth: Optional[torch.Tensor] = None,
+    ) -> None:
+        """Raise a one-line ValueError naming the argument unless these are inputs :meth:`step` takes (shapes, the
+        reset mask, decoder names, a ground-truth depth exactly for a model that reads one); every implementation of
+        the streaming step checks its inputs with it."""
         _check_inputs(rgb, rot, trans, intrinsics, reset, sequence=False)
         self._check_guide(rgb, guide_depth, sequence=False)
         if decoders is not None:
             unknown = sorted(set(decoders) - set(self.decoders))
             if unknown:
                 raise ValueError(f"argument decoders: {unknown} not among this model's {list(self.decoders)}")
-            if not decoders:  # nothing to run: the state passes through
-                return StepOutput(None, None), state if state is not None else StreamState()
-        streamer = self._streamer()
-        if streamer is not None:
-            if guide_depth is None:
-                return streamer.step(rgb, rot, trans, intrinsics, reset, state, decoders=decoders)
-            return streamer.step(rgb, rot, trans, intrinsics, reset, state, decoders=decoders, guide_depth=guide_depth)
-        size = tuple(rgb.shape[-2:])
-        feats = self.encoder(rgb)
-        return decode_step(self.decoders, feats, rot, trans, intrinsics, reset, state, lambda x: resize_nn2(x, size),
-                           only=decoders, guide_depth=guide_depth)
 
     def _check_guide(self, rgb: torch.Tensor, guide_depth: Optional[torch.Tensor], sequence: bool) -> None:
         """A ground-truth depth is given exactly when the model reads one, with one map per frame of ``rgb``."""
@@ -286,34 +230,8 @@ class SceneModel(nn.Module):
             ``heads`` every decoder's output), without per-level maps.
         """
         p = next(self.parameters())
-        frames = torch.as_tensor(frames, dtype=p.dtype, device=p.device)
-        single = frames.dim() == 4
-        if single:
-            frames = frames.unsqueeze(0)
-        if isinstance(motions, (tuple, list)):
-            rot, trans = (torch.as_tensor(m, dtype=p.dtype, device=p.device) for m in motions)
-        else:
-            m = torch.as_tensor(motions, dtype=p.dtype, device=p.device)
-            rot, trans = m[..., :4], m[..., 4:7]
-        if single:
-            rot, trans = rot.unsqueeze(0), trans.unsqueeze(0)
-        b, t = frames.shape[:2]
-        intr = torch.as_tensor(intrinsics, dtype=p.dtype, device=p.device)
-        intr = intr.expand(b, 4) if intr.dim() == 1 else intr
-        rs = torch.zeros(b, t, dtype=torch.bool, device=p.device)
-        if reset is not None:
-            rs |= torch.as_tensor(reset, dtype=torch.bool, device=p.device).view(-1, t).expand(b, t)
-        rs[:, 0] = True
-        gd = None if guide_depth is None else torch.as_tensor(guide_depth, dtype=p.dtype, device=p.device)
-        if gd is not None and single:
-            gd = gd.unsqueeze(0)
-        state, heads = None, []
-        for k in range(t):
-            out, state = self.step(frames[:, k], rot[:, k], trans[:, k], intr, rs[:, k], state,
-                                   guide_depth=None if gd is None else gd[:, k])
-            heads.append(out.heads)
-        full = {h: torch.stack([o[h] for o in heads], 1)[0 if single else slice(None)] for h in heads[0]}
-        return StepOutput(full.get("depth"), full.get("semantic"), heads=full)
+        return infer_sequence(self.step, frames, motions, intrinsics, reset, guide_depth, device=p.device,
+                              dtype=p.dtype)
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
@@ -343,6 +261,7 @@ class CoSemDepthT(SceneModel):
     default_arch = "cosemdepth-t"
 
 
+#: Architecture name -> model class.
 MODELS = {"cosemdepth": CoSemDepth, "m4depth": M4Depth, "m4semantic": M4Semantic, "cosemdepth-t": CoSemDepthT}
 
 
@@ -353,13 +272,6 @@ def build_model(config: ModelConfig | None = None, **overrides) -> SceneModel:
     elif overrides:
         config = ModelConfig.from_dict({**config.to_dict(), **overrides})
     return MODELS.get(config.arch, SceneModel)(config)
-
-
-def _rebuild_streamer(module: SceneModel, incompatible_keys) -> None:
-    """``load_state_dict`` post-hook (and device change): the streamer holds copies of the weights, refresh them."""
-    if module._fast is not None:
-        module._fast = STREAMERS[module._fast_mode](module, **module._fast_options)
-        module._fast_weights = module._weights_version()
 
 
 def _skipped_frames_nan(x: torch.Tensor, n: int) -> torch.Tensor:

@@ -33,12 +33,25 @@ SEMANTIC_SNCV_RADIUS = 3
 GUIDE_MAPS = {SEMANTIC_TIME_OWN: "depth", SEMANTIC_TIME_GT: GT_DEPTH}
 
 
+def semantic_refiner_inputs(channels: int, cfg: ModelConfig) -> tuple[tuple[str, int], ...]:
+    """The blocks of a semantic refiner's input, ``(name, channels)`` in the order :meth:`SemanticLevel.refine`
+    concatenates them: the coarser level's probabilities (N) and "other" channels (4), the level's features
+    (``channels``), then the cost volume (49, ``semantic_sncv``) and the warped previous probabilities and their
+    validity (N, 1; a ``semantic_time``). The optional blocks come last, so a model with a switch turned on holds the
+    inputs of the model without it as its leading channels (:mod:`cosemdepth.training.init` relies on it)."""
+    n = cfg.num_classes
+    blocks = [("probs", n), ("other", 4), ("features", channels)]
+    if cfg.semantic_sncv:
+        blocks.append(("sncv", (2 * SEMANTIC_SNCV_RADIUS + 1) ** 2))
+    if cfg.semantic_time != SEMANTIC_TIME_OFF:
+        blocks += [("previous_probs", n), ("previous_valid", 1)]
+    return tuple(blocks)
+
+
 def semantic_refiner_in_channels(level: int, channels: int, cfg: ModelConfig) -> int:
     """``N + 4 + C_l`` plus 49 with ``semantic_sncv`` plus ``N + 1`` (warped probabilities, validity) with a
-    ``semantic_time`` (design 6.3); ``level`` is unused (one group at every level)."""
-    n = cfg.num_classes
-    n_sncv = (2 * SEMANTIC_SNCV_RADIUS + 1) ** 2
-    return n + 4 + channels + n_sncv * cfg.semantic_sncv + (n + 1) * (cfg.semantic_time != SEMANTIC_TIME_OFF)
+    ``semantic_time`` (design 6.3, :func:`semantic_refiner_inputs`); ``level`` is unused (one group at every level)."""
+    return sum(c for _, c in semantic_refiner_inputs(channels, cfg))
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from ..geometry.warp import sample_bilinear
+from ..geometry.warp import sample_bilinear, sample_bilinear_pixels
 
 
 def group_correlation(a: torch.Tensor, b: torch.Tensor, groups: int, half: bool = False) -> torch.Tensor:
@@ -63,6 +63,8 @@ def parallax_sweep_cost_volume(
     b, c, h, w = feat.shape
     s = points.shape[1]
     pts = points.permute(0, 2, 1, 3, 4).reshape(b, 2, s * h, w)
+    if torch.onnx.is_in_onnx_export() and not half:
+        return _sweep_correlation_traceable(feat, prev, pts, groups)
     # channels-last input: the CPU sampler reads each tap's C + 1 values contiguously (several times faster here)
     warped = sample_bilinear(prev.contiguous(memory_format=torch.channels_last), pts).contiguous()
     warped = warped.view(b, c + 1, s, h, w)
@@ -73,6 +75,20 @@ def parallax_sweep_cost_volume(
     if torch.is_grad_enabled() and (feat.requires_grad or warped.requires_grad):
         return _SweepCorrelation.apply(feat, warped, groups)
     return _sweep_correlation_loop(feat, warped, groups), warped[:, c]
+
+
+def _sweep_correlation_traceable(feat: torch.Tensor, prev: torch.Tensor, pts: torch.Tensor,
+                                 groups: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The PSCV of :func:`parallax_sweep_cost_volume` (``pts``: its points stacked as ``[B, 2, S*H, W]``) as plain
+    traceable ops: the form the ONNX export records. The warped maps stay channels-last, as the row gathers give
+    them, so that each group's mean reduces the innermost axis; only the small volume is transposed."""
+    b, c, h, w = feat.shape
+    s = pts.shape[2] // h
+    n = c // groups
+    warped = sample_bilinear_pixels(prev, pts).reshape(b, s, h, w, c + 1)
+    fcl = feat.permute(0, 2, 3, 1).reshape(b, 1, h, w, groups, n)
+    corr = (warped[..., :c].reshape(b, s, h, w, groups, n) * fcl).mean(dim=-1)  # [B, S, H, W, K]
+    return corr.permute(0, 4, 1, 2, 3).reshape(b, groups * s, h, w), warped[..., c]
 
 
 def _sweep_correlation_loop(feat: torch.Tensor, warped: torch.Tensor, groups: int) -> torch.Tensor:
@@ -156,16 +172,17 @@ def spatial_cost_volume(feat: torch.Tensor, groups: int, radius: int = 3, negati
 
 def _spatial_correlation_traceable(feat: torch.Tensor, groups: int, radius: int) -> torch.Tensor:
     """``[B, C, H, W] -> [B, (2r+1)^2 * K, H, W]`` group-mean correlation, offset-major, before the activation, as
-    plain traceable ops (one stacked window row at a time): the form the ONNX export records."""
+    plain traceable ops: the form the ONNX export records. Channels-last, so that every window offset's group sums
+    reduce the innermost, contiguous axis (ONNX Runtime reduces a middle axis several times slower)."""
     b, c, h, w = feat.shape
     n = c // groups
     k = 2 * radius + 1
-    f = feat.contiguous()
-    padded = F.pad(f, (radius, radius, radius, radius))
-    fv = f.view(b, groups, n, 1, h, w)
-    rows = [torch.stack([padded[:, :, i : i + h, j : j + w] for j in range(k)], 2) for i in range(k)]
-    out = torch.stack([(r.view(b, groups, n, k, h, w) * fv).sum(dim=2) for r in rows], 2)  # [B, K, k, k, H, W]
-    return out.permute(0, 2, 3, 1, 4, 5).reshape(b, k * k * groups, h, w) * (1.0 / n)
+    f = feat.permute(0, 2, 3, 1)  # [B, H, W, C]
+    padded = F.pad(f, (0, 0, radius, radius, radius, radius))
+    fv = f.reshape(b, h, w, groups, n)
+    out = torch.cat([(padded[:, i : i + h, j : j + w].reshape(b, h, w, groups, n) * fv).sum(dim=-1)
+                     for i in range(k) for j in range(k)], dim=-1)  # [B, H, W, k*k*K], offset-major
+    return out.permute(0, 3, 1, 2) * (1.0 / n)
 
 
 def _compute_dtype(dtype: torch.dtype) -> torch.dtype:

@@ -16,6 +16,7 @@ from .rerun_writer import RerunWriter, require_rerun
 
 
 def add_robotics_args(parser: argparse.ArgumentParser) -> None:
+    """Add the ROS bag input, bag output and rerun options to a command's ``parser``."""
     bag = parser.add_argument_group("a ROS bag as the flight (instead of --dataset or --flight; docs/robotics.md)")
     bag.add_argument("--bag", type=Path, metavar="PATH", help="ROS 2 bag folder (sqlite3 or MCAP) or ROS 1 .bag")
     bag.add_argument("--image-topic", metavar="T", help="sensor_msgs/Image or CompressedImage topic")

@@ -7,11 +7,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: Climate preset names (``cosemdepth synth --climate``).
 CLIMATES = ("sunny", "cloudy", "foggy", "sunset")
 
 
 @dataclass(frozen=True)
 class Climate:
+    """A climate preset: sun, sky and ambient light, clouds, fog and exposure (colours linear RGB)."""
+
     name: str
     sun_elevation: float  # degrees above the horizon
     sun_azimuth: float  # degrees, clockwise from north (towards east)
@@ -64,6 +67,7 @@ PRESETS: dict[str, Climate] = {
 
 
 def get_climate(name: str) -> Climate:
+    """The climate preset ``name`` (one of :data:`CLIMATES`); ValueError naming the choices for another."""
     try:
         return PRESETS[name]
     except KeyError:

@@ -80,6 +80,8 @@ class Segment:
 
 @dataclass(frozen=True)
 class MotionProfile:
+    """A flight's timeline warp: its segments in order (what ``--motion`` parses into)."""
+
     segments: tuple[Segment, ...]
 
     @property

@@ -30,6 +30,8 @@ OPTICAL_BLUR = 0.2
 
 @dataclass
 class Frame:
+    """One rendered frame: colour, z-depth and Mid-Air labels, all ``[H, W]`` maps of the same view."""
+
     rgb: np.ndarray  # [H, W, 3] uint8
     depth: np.ndarray  # [H, W] float32 z-depth, metres (SKY_DEPTH for the sky)
     labels: np.ndarray  # [H, W] uint8 Mid-Air label IDs

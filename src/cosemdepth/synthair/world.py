@@ -30,6 +30,8 @@ CANOPY_HEIGHT = 9.0
 
 @dataclass
 class World:
+    """The world of a seed: terrain, object tile and buildings, and the renderer's tables built from them."""
+
     seed: int
     terrain: Terrain
     tile: ObjectTile

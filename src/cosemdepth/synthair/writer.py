@@ -48,6 +48,7 @@ from .world import get_world
 #: How the disparity PNGs encode depth (recorded in synthair.json; a tree in another encoding is refused).
 DEPTH_ENCODING = "stereo_disparity PNG: uint16 = float16 bits of 512 / z_depth (Mid-Air convention, any size)"
 
+#: Environment name of the generated tree (its folder under the dataset root).
 ENVIRONMENT = "SynthAir"
 #: Version of the generator's output; bump whenever the same arguments would give different files.
 VERSION = "1.0"

@@ -161,6 +161,13 @@ class TrainConfig:
     #: TensorFlow checkpoint. They must fit ``model`` (same architecture, levels, classes). Only the weights are
     #: taken (a fresh optimizer, step 0); a run that resumes from its own checkpoints ignores this key.
     init_weights: str = ""
+    #: Start a new run from the weights of a model of another config (a model folder, a run's checkpoint or
+    #: ``best``): tensors of the same shape copied, the new input channels of a grown layer (e.g. the semantic
+    #: refiners' ``semantic_sncv`` and ``semantic_time`` inputs) zero, so that the run starts computing exactly the
+    #: source model's outputs; tensors the source lacks keep their initialisation (:mod:`cosemdepth.training.init`).
+    #: Only ``model.arch``, ``semantic_sncv`` and ``semantic_time`` may differ. Exclusive with ``init_weights``;
+    #: a resumed run ignores it.
+    init_from: str = ""
     seed: int = 42
     #: "auto" (CUDA when available), "cpu", "cuda", "cuda:1"...
     device: str = "auto"
@@ -217,6 +224,9 @@ class TrainConfig:
             _positive_number(f"train.semantic_class_weights[{i}]", w, allow_zero=True)
         if self.semantic_class_weights and not any(self.semantic_class_weights):
             raise ConfigError("train.semantic_class_weights: at least one weight must be > 0, got all zeros")
+        if self.init_weights and self.init_from:
+            raise ConfigError("train.init_weights and train.init_from: give one of them (init_from also takes "
+                              "weights of the run's own model)")
         if not self.device or not (self.device in ("auto", "cpu", "mps") or self.device.startswith("cuda")):
             raise ConfigError(f"train.device must be 'auto', 'cpu', 'cuda', 'cuda:N' or 'mps', got {self.device!r}")
         _positive_int("train.num_threads", self.num_threads, minimum=0)

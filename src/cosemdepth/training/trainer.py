@@ -72,6 +72,7 @@ from .data import (
     training_operating_point,
 )
 from .events import CONSOLE_KINDS, EventLog
+from .init import read_transfer_source, transfer_state_dict
 from .losses import FIRST_SUPERVISED_FRAME, LossTerms, weighted_total
 from .optim import make_optimizer
 from .config import dump_config
@@ -277,6 +278,9 @@ class Trainer:
         # the weights a new run starts from, read now so that a bad path fails before anything is written
         self._init_state = read_init_weights(tc.init_weights, config.model) if tc.init_weights and not \
             self.resuming else None
+        #: ``train.init_from``: the source weights, read now for the same reason (the plan is made again at set-up)
+        self._init_source = read_transfer_source(tc.init_from, config.model)[0] if tc.init_from and not \
+            self.resuming else None
 
         self.train_set = train_dataset if train_dataset is not None else build_train_dataset(
             config.data, config.model, tc.seed)
@@ -371,8 +375,17 @@ class Trainer:
                     self._init_state = read_init_weights(cfg.train.init_weights, cfg.model)
                 self.model.load_state_dict(self._init_state)  # copies into the parameters, keeping their layout
                 self._init_state = None
+            transfer = None
+            if cfg.train.init_from:
+                if self._init_source is None:
+                    self._init_source = read_transfer_source(cfg.train.init_from, cfg.model)[0]
+                state, transfer = transfer_state_dict(self._init_source, self.model.state_dict(),
+                                                      f"train.init_from: {cfg.train.init_from}")
+                self.model.load_state_dict(state)
+                self._init_source = None
             self.events("start", run_dir=str(self.run_dir), total_steps=self.total_steps,
-                        init_weights=cfg.train.init_weights or None,
+                        init_weights=cfg.train.init_weights or None, init_from=cfg.train.init_from or None,
+                        **({} if transfer is None else transfer.summary(prefix="init_")),
                         steps_per_epoch=self.steps_per_epoch, world_size=dist.world_size, device=str(self.device),
                         bf16_autocast=bf16_supported(self.device) and bool(cfg.train.bf16),
                         num_parameters=self.model.num_parameters(), train_items=len(self.train_set),
