@@ -139,6 +139,7 @@ class DepthTask(DecoderTask):
         }
 
 
+#: the depth decoder's task, registered under the decoder name "depth"
 DEPTH = register_task(DepthTask())
 
 __all__ = ["DEPTH", "DepthTask", "DepthTaskMetrics", "DepthWriter", "valid_mask"]

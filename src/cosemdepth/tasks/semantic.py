@@ -126,6 +126,7 @@ class SemanticTask(DecoderTask):
                 "labels_color": "labels_color/*.png: RGB, palette below"}
 
 
+#: the semantic decoder's task, registered under the decoder name "semantic"
 SEMANTIC = register_task(SemanticTask())
 
 __all__ = ["LabelsWriter", "SEMANTIC", "SemanticTask", "SemanticTaskMetrics"]
