@@ -16,14 +16,14 @@ PACKAGE = "cosemdepth"
 #: ones below. A module belongs to the entry that names it or its longest enclosing package (the root package
 #: ``cosemdepth`` itself, its version and lazy attribute table, only by name).
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("base", ("cosemdepth", "cosemdepth._lazy", "cosemdepth.errors", "cosemdepth.coerce", "cosemdepth.models.config",
+    ("base", ("cosemdepth", "cosemdepth._lazy", "cosemdepth.errors", "cosemdepth.coerce", "cosemdepth.plugins", "cosemdepth.models.config",
               "cosemdepth.workers", "cosemdepth.devices", "cosemdepth.optional", "cosemdepth.operating_point",
               "cosemdepth.output_safety")),
     ("maths", ("cosemdepth.geometry", "cosemdepth.ops")),
     ("models", ("cosemdepth.models",)),
     ("engines, model folders, readers", ("cosemdepth.inference", "cosemdepth.checkpoints", "cosemdepth.data",
                                          "cosemdepth.synthair")),
-    ("tasks", ("cosemdepth.evaluation", "cosemdepth.training", "cosemdepth.export", "cosemdepth.bench",
+    ("tasks", ("cosemdepth.tasks", "cosemdepth.evaluation", "cosemdepth.training", "cosemdepth.export", "cosemdepth.bench",
                "cosemdepth.robotics")),
     ("front ends", ("cosemdepth.cli", "cosemdepth.demo", "cosemdepth.__main__")),
 )

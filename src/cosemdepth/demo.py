@@ -62,6 +62,7 @@ from .output_safety.atomic import atomic_path, atomic_write_text
 from .checkpoints.model_io import load_model, read_config_file
 from .inference.fast_model import reference_model
 from .operating_point import OperatingPoint
+from .tasks import class_count
 from .output_safety.outdir import Input, check_not_input, model_inputs
 from .output_safety.staging import StagedDir
 from .models.footprint import check_size
@@ -496,12 +497,12 @@ def run_demo(
                 print(warning, file=sys.stderr)
 
         with staged as tmp:
-            names, palette = class_info(cfg.num_classes, "synthair") if cfg.has_semantic else ((), None)
+            classes = class_count(cfg)
+            names, palette = class_info(classes, "synthair") if classes else ((), None)
             writer = VideoWriter(tmp / "flight", fps=DEFAULT_FPS, fmt=video) if video else None
             try:
                 collector = DemoCollector(total_frames=dataset.num_frames if hasattr(dataset, "num_frames")
-                                          else len(dataset), num_classes=cfg.num_classes if cfg.has_semantic
-                                          else None, palette=palette, video=writer, class_names=tuple(names))
+                                          else len(dataset), num_classes=classes, palette=palette, video=writer, class_names=tuple(names))
                 t = time.perf_counter()
                 log(f"evaluating on {len(dataset)} frames ({split} split of {root}) ...")
                 evaluator = Evaluator(net, dataset, progress=progress, callbacks=[collector], dataset_name="synthair",

@@ -25,6 +25,7 @@ from cosemdepth.training.data import (
     steps_per_epoch,
     total_steps,
 )
+from cosemdepth.tasks import DEPTH, SEMANTIC
 from cosemdepth.training.visual import depth_to_rgb, example_strip, labels_to_rgb
 
 
@@ -142,9 +143,13 @@ def test_pictures():
     near, far = depth_to_rgb(np.array([[1.0, 150.0]]))[0]
     assert int(near.sum()) > int(far.sum())  # near is brighter
     assert (depth_to_rgb(np.array([[np.nan]])) == 0).all()
-    strip = example_strip(torch.rand(3, 8, 8), true_depth=torch.ones(1, 8, 8), pred_depth=torch.ones(1, 8, 8),
-                          true_labels=torch.zeros(8, 8, dtype=torch.long), pred_labels=None)
+    example = {"depth": torch.ones(1, 8, 8), "pred_depth": torch.ones(1, 8, 8),
+               "semantic": torch.zeros(8, 8, dtype=torch.long)}
+    cfg = ModelConfig()
+    panels = DEPTH.strip_panels(example, cfg) + SEMANTIC.strip_panels(example, cfg)  # no predicted labels: 3 panels
+    strip = example_strip(torch.rand(3, 8, 8), panels)
     assert strip.shape == (8, 32, 3) and strip.dtype == np.uint8
+    assert (strip[:, 8:16] == depth_to_rgb(np.ones((8, 8)))).all() and (strip[:, 24:] == PALETTE_7[0]).all()
 
 
 class _EpochItems(torch.utils.data.Dataset):

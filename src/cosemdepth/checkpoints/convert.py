@@ -25,7 +25,6 @@ so is the cost-volume precision (default float16, as the original computes it).
 from __future__ import annotations
 
 import hashlib
-import itertools
 import os
 import re
 from dataclasses import dataclass, field
@@ -38,11 +37,10 @@ from .. import __version__
 from ..models.config import ARCHITECTURES, ENCODER_CHANNELS, ModelConfig
 from ..models.config import MIDAIR_IMAGE_SIZE, ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
 from ..errors import CheckpointError, ConfigError
-from ..models.depth_decoder import refiner_in_channels
 from ..models.model import build_model
-from ..models.semantic_decoder import semantic_refiner_in_channels
 from ..operating_point import MotionStats, OperatingPoint
 from .tf_checkpoint import CheckpointReader
+from .tf_decoders import TF_DECODERS
 
 #: Convs of the refiner's ``prep_conv_layers`` stack; the ``est_*_conv_layers`` stack holds the other four.
 PREP_CONVS = 3
@@ -65,7 +63,7 @@ _VAR = r"/\.ATTRIBUTES/VARIABLE_VALUE$"
 _ENC_CONV = re.compile(r"^(?P<root>(?:.*/)?)conv_layers_s(?P<s>[12])/(?P<k>\d+)/(?P<p>kernel|bias)" + _VAR)
 _ENC_DINL = re.compile(r"^(?P<root>(?:.*/)?)dn_layers/(?P<k>\d+)/(?P<p>scale|bias)" + _VAR)
 _REFINER = re.compile(
-    r"^(?P<root>(?:.*/)?)levels/(?P<j>\d+)/(?P<ref>disp_refiner|semantic_refiner)/"
+    r"^(?P<root>(?:.*/)?)levels/(?P<j>\d+)/(?P<ref>\w+)/"
     r"(?P<stack>prep_conv_layers|est_[a-z]+_conv_layers)/(?P<k>\d+)/(?P<p>kernel|bias)" + _VAR
 )
 _SLOT = re.compile(r"/\.OPTIMIZER_SLOT/")
@@ -149,7 +147,10 @@ def _classify(key: str) -> tuple[str, str, str] | None:
         return "encoder", m["root"], ("encoder.dinl." if k == 0 else f"encoder.dinl{k}.") + p
     m = _REFINER.match(key)
     if m:
-        part = "depth_decoder" if m["ref"] == "disp_refiner" else "semantic_decoder"
+        name = next((n for n, t in TF_DECODERS.items() if t.refiner == m["ref"]), None)
+        if name is None:
+            return None
+        part = f"{name}_decoder"
         k = int(m["k"]) + (0 if m["stack"] == "prep_conv_layers" else PREP_CONVS)
         p = "weight" if m["p"] == "kernel" else "bias"
         return part, m["root"], f"{part}.levels.{int(m['j'])}.refiner.convs.{k}.{p}"
@@ -182,52 +183,6 @@ def _level_count(names: set[str], pattern: str, what: str, origin: str) -> int:
     return len(idx)
 
 
-def _ablation_config(sncv: bool, time_recurrence: bool, level_memory: bool, subdivision: bool) -> ModelConfig:
-    return ModelConfig(sncv=sncv, time_recurrence=time_recurrence, level_memory=level_memory,
-                       feature_subdivision=subdivision)
-
-
-def _infer_depth_ablations(
-    c_ins: list[int], origin: str
-) -> tuple[bool, bool, bool, bool]:
-    """``(sncv, time_recurrence, level_memory, feature_subdivision)`` matching the refiner input channels."""
-    matches = [
-        combo
-        for combo in itertools.product((True, False), repeat=4)
-        if all(refiner_in_channels(j + 1, _ablation_config(*combo)) == c for j, c in enumerate(c_ins))
-    ]
-    if not matches:
-        raise CheckpointError(
-            f"{origin}: depth refiner input channels {c_ins} (finest level first) match no combination of the "
-            "SNCV / time recurrence / level memory / feature subdivision switches (design 5.1): not an M4Depth decoder"
-        )
-    # Several matches only when they are indistinguishable (e.g. 1 level: K = 1 with or without subdivision);
-    # the first one in product order is the one with the most switches on, i.e. the defaults.
-    return matches[0]
-
-
-def _infer_semantic_sncv(shapes: Mapping[str, tuple[int, ...]], levels: int, num_classes: int, origin: str) -> bool:
-    """``semantic_sncv`` matching the semantic refiners' input channels (design 6.3). The authors' released code
-    has neither of the semantic decoder's additions (its SNCV is commented out, its ``S^{t-1}`` helper unused), so its
-    checkpoints all read as off; a layout with other channels is refused."""
-    c_ins = []
-    for j in range(levels):
-        first = shapes.get(f"semantic_decoder.levels.{j}.refiner.convs.0.weight")
-        if first is None or len(first) != 4:
-            raise CheckpointError(f"{origin}: the first conv of semantic refiner level {j} is missing or not a kernel")
-        c_ins.append(int(first[2]))
-    for sncv in (False, True):
-        cfg = ModelConfig(arch="m4semantic", levels=levels, num_classes=num_classes, semantic_sncv=sncv)
-        if all(semantic_refiner_in_channels(j + 1, c, cfg) == n
-               for j, (c, n) in enumerate(zip(cfg.encoder_channels, c_ins))):
-            return sncv
-    raise CheckpointError(
-        f"{origin}: semantic refiner input channels {c_ins} (finest level first) match neither the released semantic "
-        "decoder (classes + 4 + features) nor its SNCV variant (design 6.3); a previous-frame input (S^{t-1}) cannot "
-        "come from the authors' code, which has none"
-    )
-
-
 def infer_config(
     shapes: Mapping[str, tuple[int, ...]],
     *,
@@ -249,37 +204,31 @@ def infer_config(
     if levels > len(ENCODER_CHANNELS):
         raise CheckpointError(f"{origin}: {levels} encoder levels; at most {len(ENCODER_CHANNELS)} are supported")
     has = {}
-    for part in ("depth_decoder", "semantic_decoder"):
+    for name in TF_DECODERS:
+        part = f"{name}_decoder"
         n = _level_count(names, rf"{part}\.levels\.(\d+)\.", f"{part.replace('_', ' ')} level", origin)
         if n and n != levels:
             raise CheckpointError(f"{origin}: the encoder has {levels} levels but the {part.replace('_', ' ')} has {n}")
-        has[part] = bool(n)
-    found = {
-        (True, True): "cosemdepth",
-        (True, False): "m4depth",
-        (False, True): "m4semantic",
-        (False, False): None,
-    }[has["depth_decoder"], has["semantic_decoder"]]
+        has[name] = bool(n)
+    found = next((a for a, d in ARCHITECTURES.items() if set(d) == {k for k, v in has.items() if v}), None)
     if found is None:
+        scopes = " or ".join(sorted(f"'{t.refiner}'" for t in TF_DECODERS.values()))
         raise CheckpointError(
-            f"{origin}: an encoder but no decoder (no 'disp_refiner' or 'semantic_refiner' weights): not a "
-            "Co-SemDepth, M4Depth or M4Semantic checkpoint"
+            f"{origin}: an encoder but no decoder (no {scopes} weights): not a "
+            "Co-SemDepth, M4Depth or M4Semantic checkpoint" if not any(has.values()) else
+            f"{origin}: its decoders {sorted(k for k, v in has.items() if v)} make no registered architecture"
         )
     arch_inferred = arch is None
     if arch is None:
         arch = found
     elif arch not in ARCHITECTURES:
         raise ConfigError(f"arch must be one of {tuple(ARCHITECTURES)}, got {arch!r}")
-    want_depth = arch in ("cosemdepth", "m4depth")
-    want_sem = arch in ("cosemdepth", "m4semantic")
-    for want, part, ref in (
-        (want_depth, "depth_decoder", "disp_refiner"),
-        (want_sem, "semantic_decoder", "semantic_refiner"),
-    ):
-        if want and not has[part]:
+    wanted = [name for name in TF_DECODERS if name in ARCHITECTURES[arch]]
+    for name in wanted:
+        if not has[name]:
             raise CheckpointError(
-                f"{origin}: holds a {found} model, which has no {part.replace('_', ' ')} (no '{ref}' weights); "
-                f"it cannot be loaded as {arch}"
+                f"{origin}: holds a {found} model, which has no {name} decoder (no '{TF_DECODERS[name].refiner}' "
+                f"weights); it cannot be loaded as {arch}"
             )
 
     kw: dict[str, Any] = dict(
@@ -287,26 +236,10 @@ def infer_config(
     )
     kw["dinl"] = any(n.startswith("encoder.dinl.") for n in names)
     inferred = (["arch"] if arch_inferred else []) + ["levels", "dinl"]
-    if has["semantic_decoder"] and want_sem:
-        last = shapes.get("semantic_decoder.levels.0.refiner.convs.6.weight")
-        if last is None or len(last) != 4:
-            raise CheckpointError(f"{origin}: the last conv of the finest semantic refiner is missing or not a kernel")
-        if last[3] - 4 < 2:
-            raise CheckpointError(f"{origin}: the last semantic conv has {last[3]} channels; expected classes + 4 >= 6")
-        kw["num_classes"] = int(last[3] - 4)
-        inferred.append("num_classes")
-        kw["semantic_sncv"] = _infer_semantic_sncv(shapes, levels, kw["num_classes"], origin)
-        inferred.append("semantic_sncv")
-    if has["depth_decoder"] and want_depth:
-        c_ins = []
-        for j in range(levels):
-            first = shapes.get(f"depth_decoder.levels.{j}.refiner.convs.0.weight")
-            if first is None or len(first) != 4:
-                raise CheckpointError(f"{origin}: the first conv of depth refiner level {j} is missing or not a kernel")
-            c_ins.append(int(first[2]))
-        sncv, tr, lm, sub = _infer_depth_ablations(c_ins, origin)
-        kw.update(sncv=sncv, time_recurrence=tr, level_memory=lm, feature_subdivision=sub)
-        inferred += ["sncv", "time_recurrence", "level_memory", "feature_subdivision"]
+    for name in wanted:
+        fields = TF_DECODERS[name].config(shapes, levels, origin)
+        kw.update(fields)
+        inferred += list(fields)
     try:
         return ModelConfig(**kw), inferred
     except ConfigError as e:
@@ -371,9 +304,7 @@ def convert_tensors(
     )
     expected = expected_param_shapes(cfg)
 
-    loaded_parts = {"encoder"} | ({"depth_decoder"} if cfg.has_depth else set()) | (
-        {"semantic_decoder"} if cfg.has_semantic else set()
-    )
+    loaded_parts = {"encoder"} | {f"{name}_decoder" for name in cfg.decoders}
     dropped = sorted(key for name, (key, _) in mapped.items() if name.split(".", 1)[0] not in loaded_parts)
     unexpected = sorted(
         key for name, (key, _) in mapped.items() if name not in expected and name.split(".", 1)[0] in loaded_parts

@@ -14,6 +14,7 @@ import os
 import sys
 
 from . import flag_rules
+from ..plugins import load_plugins
 from ._boundary import error_line
 
 #: name -> (module, one-line help)
@@ -83,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     command = first if first in COMMANDS else None
     parser = args = None
     try:
+        load_plugins()  # further decoders register their tasks and architectures before the arguments are read
         # only the command being run gets its arguments (without one, `cosemdepth --help` lists the commands)
         parser = build_parser(only=command or "")
         args = parser.parse_args(argv)

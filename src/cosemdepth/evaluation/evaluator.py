@@ -3,9 +3,10 @@
 Each trajectory of the split is streamed frame by frame with the model's explicit state (design 7.2); frames that start
 a trajectory (``reset``; Mid-Air's CSV ``id == 0``) are run (they initialise the state) but left out of **all**
 metrics. Depth metrics are per-frame values averaged over the evaluated frames (design 11.1); mIoU comes from one global
-confusion matrix (design 11.2). What is evaluated follows the model and the data: depth when the model predicts depth
+confusion matrix (design 11.2). What is evaluated follows the model and the data: each decoder of the model whose
+ground truth the dataset has, with its task's metrics (:mod:`cosemdepth.tasks`): depth when the model predicts depth
 and the dataset has depth, segmentation when the model predicts classes and the dataset has labels (M4Depth,
-M4Semantic, Aeroscapes).
+M4Semantic, Aeroscapes), and so on for any further registered decoder.
 
 Datasets of independent images (Aeroscapes: every image is its own reset) would have no frame left under the reset
 rule; there every frame counts (the semantic decoder does not use time). ``exclude_resets`` overrides this.
@@ -38,30 +39,38 @@ from tqdm.auto import tqdm
 
 from .. import __version__
 from ..errors import ConfigError
-from .classes import class_info, dataset_classes
 from ..inference.policy import EVERY_FRAME, Streamer, policy_info
-from ..models.outputs import RESET, STATUSES
-from .metrics import ALL_DEPTH_METRICS, EvaluationMetrics, ValidDepthMetrics, format_markdown_table
+from ..tasks import TASKS, TEST, MetricContext, tasks_for
+from .metrics import ALL_DEPTH_METRICS, format_markdown_table
 from .resources import PeakMemory, machine_info
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
-from .temporal import TemporalConsistency
 
 #: Callback run after every streaming step: ``(batch, include [B] bool) -> None``.
 FrameCallback = Callable[[StreamBatch, torch.Tensor], None]
 
 
+def dataset_ground_truth(dataset) -> set[str]:
+    """The ground-truth keys of every registered decoder task that ``dataset`` carries (from its trajectories, else
+    from its first item: :meth:`~cosemdepth.tasks.DecoderTask.dataset_has_ground_truth`)."""
+    item: list = []
+
+    def first_item():
+        if not item:
+            item.append(dataset[0])
+        return item[0]
+
+    return {t.gt_key for t in TASKS.values() if t.dataset_has_ground_truth(dataset, first_item)}
+
+
 def dataset_modalities(dataset) -> tuple[bool, bool]:
     """``(has_depth, has_labels)`` of a sequence dataset (from its trajectories, else from its first item)."""
-    trajs = getattr(dataset, "trajectories", None)
-    if trajs:
-        return trajs[0].depth is not None, trajs[0].semantic is not None
-    item = dataset[0]
-    return "depth" in item, "semantic" in item
+    found = dataset_ground_truth(dataset)
+    return "depth" in found, "semantic" in found
 
 
 def _model_config(model):
     cfg = getattr(model, "config", None)
-    if cfg is None or not hasattr(cfg, "has_depth"):
+    if cfg is None or not hasattr(cfg, "decoders"):
         raise ConfigError(f"evaluate needs a cosemdepth model with a ModelConfig in .config, got {type(model).__name__}")
     return cfg
 
@@ -171,6 +180,10 @@ class EvaluationResult:
         flicker = self.flicker_line()
         if flicker:
             lines += ["", flicker]
+        for t in TASKS.values():  # the metrics of further decoders (the built-in ones are in the tables above)
+            more = t.report_lines(self.metrics)
+            if more:
+                lines += ["", *more]
         if self.confusion_matrix is not None:
             names = list(self.class_names)
             lines += ["", "Confusion matrix (rows: ground truth, columns: prediction; pixels):", ""]
@@ -249,41 +262,33 @@ class Evaluator:
         self.schedule = make_schedule(self.groups, lanes)
         if not self.schedule:
             raise ConfigError("evaluate: the dataset has no frame to stream")
-        has_depth, has_labels = dataset_modalities(dataset)
-        self.eval_depth = self.cfg.has_depth and has_depth
-        self.eval_semantic = self.cfg.has_semantic and has_labels
-        self.eval_flicker = self.eval_semantic and has_depth  # the pairs are followed with the true depth
-        if not (self.eval_depth or self.eval_semantic):
-            what = [w for w, has in (("depth", self.cfg.has_depth), ("class labels", self.cfg.has_semantic)) if has]
+        #: the ground-truth keys the dataset has (of every registered task: one decoder's metrics may use another's)
+        self.ground_truth = dataset_ground_truth(dataset)
+        tasks = tasks_for(self.cfg)
+        #: the model's decoders whose ground truth the dataset has: those evaluated, in order
+        self.tasks = [t for t in tasks if t.gt_key in self.ground_truth]
+        if not self.tasks:
+            what = [t.predicts for t in tasks]
             raise ConfigError(
                 f"nothing to evaluate: the {self.cfg.arch} model predicts {' and '.join(what)}, and the dataset "
                 f"{self.dataset_name!r} has no {' and no '.join(what)} ground truth"
             )
-        if self.eval_semantic:
-            expected = dataset_classes().get(self.dataset_name)
-            if expected is not None and expected != self.cfg.num_classes:
-                raise ConfigError(
-                    f"the model predicts {self.cfg.num_classes} classes but the {self.dataset_name} labels have "
-                    f"{expected}; evaluate it on a dataset with the same class set"
-                )
+        for t in self.tasks:
+            t.check_dataset(self.cfg, self.dataset_name)
         if exclude_resets is None:
             trajs = getattr(dataset, "trajectories", None) or []
             every_reset = bool(trajs) and all(bool(t.reset.all()) for t in trajs)
             exclude_resets = not every_reset
         self.exclude_resets = bool(exclude_resets)
-        self.class_names, self.palette = class_info(self.cfg.num_classes, self.dataset_name)
 
     @property
     def num_frames(self) -> int:
         return sum(len(s.indices) for s in self.schedule)
 
     def run(self) -> EvaluationResult:
-        metrics = EvaluationMetrics(self.cfg.num_classes if self.eval_semantic else None, depth=self.eval_depth)
-        valid_metrics = ValidDepthMetrics() if self.eval_depth else None
-        temporal = TemporalConsistency() if self.eval_flicker else None
+        context = MetricContext(TEST, self.cfg, self.dataset_name, frozenset(self.ground_truth), self.exclude_resets)
+        metrics = {t.name: t.metrics(context) for t in self.tasks}
         streamer = Streamer(self.model, self.policy, min_baseline=self.min_baseline)
-        statuses = {s: 0 for s in STATUSES}
-        depth_frames = 0
         device = next((p.device for p in self.model.parameters()), torch.device("cpu"))
         timed_seconds = 0.0
         timed_frames = 0
@@ -294,27 +299,8 @@ class Evaluator:
             for k, batch in enumerate(stream(streamer, self.dataset, schedule=self.schedule,
                                              num_workers=self.num_workers)):
                 include = ~batch.reset if self.exclude_resets else torch.ones_like(batch.reset)
-                # a frame without depth (status reset: the first of a trajectory, or held before any estimate) is
-                # left out of the depth metrics as the paper's protocol leaves out resets; its labels count
-                no_depth = torch.tensor([st == RESET for st in batch.status], dtype=torch.bool,
-                                        device=include.device) if batch.status else torch.zeros_like(include)
-                depth_include = include & ~no_depth if self.exclude_resets else include
-                depth_frames += int(depth_include.sum())
-                metrics.update(
-                    gt_depth=batch.gt_depth if self.eval_depth else None,
-                    pred_depth=batch.depth if self.eval_depth else None,
-                    gt_labels=batch.gt_labels if self.eval_semantic else None,
-                    pred_semantic=batch.labels if self.eval_semantic else None,
-                    include=include,
-                    depth_include=depth_include,
-                )
-                if valid_metrics is not None and batch.valid is not None:
-                    valid_metrics.update(batch.gt_depth, batch.depth, batch.valid, depth_include)
-                if temporal is not None:
-                    temporal.update(batch.trajectory, batch.reset, batch.gt_labels, batch.labels, batch.gt_depth,
-                                    batch.rot, batch.trans, batch.intrinsics)
-                for st, inc in zip(batch.status, include.tolist()):
-                    statuses[st] += int(inc)
+                for m in metrics.values():
+                    m.update(batch, include)
                 for cb in self.callbacks:
                     cb(batch, include)
                 n = len(batch)
@@ -329,33 +315,37 @@ class Evaluator:
                     bar.set_postfix(ms_per_frame=f"{1000 * timed_seconds / timed_frames:.1f}", refresh=False)
         bar.close()
         wall = time.perf_counter() - start
-        values = metrics.compute()
-        if valid_metrics is not None:
-            values.update(valid_metrics.compute())
-        if temporal is not None:
-            values.update(temporal.compute())
-        confusion = metrics.semantic.matrix.clone() if metrics.semantic is not None else None
+        values: dict[str, Any] = {}
+        for m in metrics.values():
+            values.update(m.compute())
+        reports = {name: m.report() for name, m in metrics.items()}
+        for r in reports.values():  # the further metrics (validity, temporal consistency) after every main one
+            values.update(r.get("metrics", {}))
+        confusion = next((r["confusion_matrix"] for r in reports.values() if "confusion_matrix" in r), None)
+        class_names = next((r["class_names"] for r in reports.values() if "class_names" in r), ())
         params = sum(p.numel() for p in self.model.parameters())
         ms = 1000.0 * timed_seconds / timed_frames if timed_frames else math.nan
         ds = self.dataset
+        model_info = {"arch": self.cfg.arch, "levels": self.cfg.levels, "num_classes": None}
+        for t in tasks_for(self.cfg):
+            model_info.update(t.model_info(self.cfg))
+        protocol = {
+            "lanes": self.lanes,
+            "trajectories": len(self.groups),
+            "frames_streamed": frames,
+            "reset_frames": resets,
+            "frames_evaluated": evaluated,
+            "reset_frames_excluded": self.exclude_resets,
+            **{f"{name}_evaluated": name in metrics for name in TASKS},
+            "max_frames": self.max_frames,
+            "policy": policy_info(streamer),
+        }
+        for name, t in TASKS.items():
+            protocol.update(t.protocol_info(metrics.get(name)))
         info = {
-            "model": {"arch": self.cfg.arch, "levels": self.cfg.levels,
-                      "num_classes": self.cfg.num_classes if self.cfg.has_semantic else None},
+            "model": model_info,
             "dataset": {"name": self.dataset_name, "size": _dataset_size(ds), "split": None, "root": None},
-            "protocol": {
-                "lanes": self.lanes,
-                "trajectories": len(self.groups),
-                "frames_streamed": frames,
-                "reset_frames": resets,
-                "frames_evaluated": evaluated,
-                "reset_frames_excluded": self.exclude_resets,
-                "depth_evaluated": self.eval_depth,
-                "semantic_evaluated": self.eval_semantic,
-                "max_frames": self.max_frames,
-                "policy": policy_info(streamer),
-                "frames_by_status": statuses if self.eval_depth else None,
-                "depth_frames_evaluated": depth_frames if self.eval_depth else None,
-            },
+            "protocol": protocol,
             "speed": {"timed_frames": timed_frames, "warmup_steps": min(self.warmup, len(self.schedule)),
                       "wall_seconds": wall},
             "machine": machine_info(device),
@@ -365,7 +355,7 @@ class Evaluator:
         return EvaluationResult(
             metrics=values,
             confusion_matrix=confusion,
-            class_names=tuple(self.class_names) if self.eval_semantic else (),
+            class_names=tuple(class_names),
             params=int(params),
             ms_per_frame=ms,
             peak_memory_mb=mem.peak_mb,

@@ -46,24 +46,25 @@ from ..output_safety.atomic import atomic_write_text
 from ..output_safety.outdir import Input
 from ..output_safety.staging import StagedDir
 from ..inference.policy import StreamPolicy, Streamer, policy_info
-from ..models.outputs import ESTIMATED, RESET
+from ..tasks import TASKS, DecoderTask, TaskWriter, WriteOptions, class_count, tasks_for
+from ..tasks.depth import valid_mask
 from .classes import class_info
 from .evaluator import _model_config, to_json
 from .figures import FlightPictures, frame_maps
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
-from .visualize import (
-    DEFAULT_FPS,
-    DEFAULT_VIDEO,
-    DEPTH_PNG_SCALE,
-    VIDEO_FORMATS,
-    VideoWriter,
-    colorize_labels,
-    depth_to_png16,
-    save_npy,
-    save_png,
-)
+from .visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 
 MANIFEST = "predictions.json"
+
+
+class _NoFiles(TaskWriter):
+    """The writer of a task that writes no file."""
+
+    def write(self, folder, rel, stem, frames, b, record):
+        return {}
+
+
+_NO_FILES = _NoFiles()
 #: What the ``.npy`` depth holds where the mask is 0 (``--invalid``): the model's values, or NaN.
 INVALID_MODES = ("keep", "nan")
 DEFAULT_INVALID = "keep"
@@ -98,11 +99,14 @@ class PredictionWriter:
         sources: dataset index -> source image path (recorded in the manifest).
         invalid: ``"keep"`` (the ``.npy`` holds the model's values everywhere; the mask says which are estimates) or
             ``"nan"`` (NaN in the ``.npy`` where the mask is 0).
+        tasks: the model's decoder tasks (:func:`cosemdepth.tasks.tasks_for`), whose writers write the files of each
+            frame (default: those of the heads the stream has).
     """
 
     def __init__(self, folder: Path, *, num_classes: int | None, dataset_name: str | None = None,
                  video: str | None = DEFAULT_VIDEO, fps: float = DEFAULT_FPS, depth_range: tuple[float, float] | None = None,
-                 sources: dict[int, str] | None = None, invalid: str = DEFAULT_INVALID) -> None:
+                 sources: dict[int, str] | None = None, invalid: str = DEFAULT_INVALID,
+                 tasks: Sequence[DecoderTask] | None = None) -> None:
         if invalid not in INVALID_MODES:
             raise ConfigError(f"--invalid must be one of {', '.join(INVALID_MODES)}, got {invalid!r}")
         self.invalid = invalid
@@ -112,8 +116,10 @@ class PredictionWriter:
         self.depth_range = depth_range
         self.names, self.palette = class_info(num_classes, dataset_name) if num_classes else ((), None)
         self.sources = sources or {}
+        self.tasks = None if tasks is None else list(tasks)
+        self.options = WriteOptions(invalid=invalid, palette=self.palette)
+        self._writers: dict[str, TaskWriter] = {}
         self.frames: list[dict[str, Any]] = []
-        self.statuses: dict[str, int] = {}
         self.trajectories: dict[str, dict[str, Any]] = {}
         self._stems: dict[str, set[str]] = {}
         self._videos: dict[str, VideoWriter] = {}
@@ -146,26 +152,11 @@ class PredictionWriter:
         rel = entry["folder"]
         stem = self._stem(entry, batch, b)
         base = self.folder / rel
+        record = {"trajectory": traj, "frame": int(batch.frame[b]), "reset": bool(batch.reset[b])}
         files: dict[str, str] = {}
         maps = frame_maps(batch, b, title=f"frame {int(batch.frame[b])}", labels_ok=self._labels_ok)
-        valid = None
-        if batch.depth is not None:
-            depth = maps.depth
-            valid = valid_mask(depth, maps.valid, bool(batch.reset[b]))
-            files["depth"] = f"{rel}/depth/{stem}.npy"
-            save_npy(self.folder / files["depth"], np.where(valid, depth, np.float32(np.nan))
-                     if self.invalid == "nan" else depth)
-            files["depth_valid"] = f"{rel}/depth_valid/{stem}.png"
-            save_png(self.folder / files["depth_valid"], valid.astype(np.uint8) * np.uint8(255))
-            files["depth_png"] = f"{rel}/depth_png/{stem}.png"
-            save_png(self.folder / files["depth_png"], depth_to_png16(depth, valid))
-        if batch.labels is not None:
-            labels = maps.labels.astype(np.uint8)
-            files["labels"] = f"{rel}/labels/{stem}.png"
-            save_png(self.folder / files["labels"], labels)
-            color = colorize_labels(labels, self.palette)
-            files["labels_color"] = f"{rel}/labels_color/{stem}.png"
-            save_png(self.folder / files["labels_color"], color)
+        for t in self._tasks_of(batch):
+            files.update(self._writer(t).write(self.folder, rel, stem, batch, b, record))
         files["side_by_side"] = f"{rel}/side_by_side/{stem}.png"
         pictures = self._pictures.get(traj)
         if pictures is None:
@@ -173,13 +164,6 @@ class PredictionWriter:
                 lambda path, image, traj=traj, base=base: self._emit(traj, base, path, image),
                 class_names=self.names, palette=self.palette, depth_range=self.depth_range)
         pictures.add(maps, self.folder / files["side_by_side"])
-        record = {"trajectory": traj, "frame": int(batch.frame[b]), "reset": bool(batch.reset[b])}
-        if valid is not None:
-            status = maps.status or (RESET if bool(batch.reset[b]) else ESTIMATED)
-            base = getattr(batch, "baseline", None)
-            record.update(status=status, baseline_m=None if base is None else round(float(base[b]), 6),
-                          valid_fraction=round(float(valid.mean()), 6))
-            self.statuses[status] = self.statuses.get(status, 0) + 1
         record["files"] = files
         src = self.sources.get(batch.indices[b])
         if src is not None:
@@ -187,6 +171,25 @@ class PredictionWriter:
         self.frames.append(record)
         entry["frames"] += 1
         return record
+
+    def _tasks_of(self, batch: StreamBatch) -> list[DecoderTask]:
+        """The tasks whose files are written: the model's (``tasks``), else those of every head the stream has."""
+        if self.tasks is not None:
+            return self.tasks
+        return [t for t in TASKS.values() if t.head in batch.heads]
+
+    def _writer(self, t: DecoderTask) -> TaskWriter:
+        if t.name not in self._writers:
+            self._writers[t.name] = t.writer(self.options) or _NO_FILES
+        return self._writers[t.name]
+
+    def summary(self) -> dict[str, Any]:
+        """What the tasks' writers say about the whole run (e.g. ``frames_by_status``)."""
+        return {k: v for w in self._writers.values() for k, v in w.summary().items()}
+
+    def encodings(self) -> dict[str, Any]:
+        """``predictions.json``'s ``encodings`` of the tasks' files."""
+        return {k: v for t in (self.tasks or ()) for k, v in t.encodings(self.options).items()}
 
     def _labels_ok(self, gt: np.ndarray) -> bool:
         return self.palette is not None and gt.size > 0 and int(gt.max()) < len(self.palette) and int(gt.min()) >= 0
@@ -216,15 +219,6 @@ class PredictionWriter:
         for writer in self._videos.values():
             writer.abort()
         self._videos.clear()
-
-
-def valid_mask(depth: np.ndarray, valid: np.ndarray | None, reset: bool) -> np.ndarray:
-    """``[H, W]`` bool: the pixels of ``depth`` written as estimates: those the prediction marks valid (all, for a
-    stream without a mask, except on a reset frame), and only finite positive depths."""
-    ok = np.isfinite(depth) & (depth > 0)
-    if valid is not None:
-        return ok & np.asarray(valid, dtype=bool)
-    return ok & (not reset)
 
 
 def _sources(dataset, indices) -> dict[int, str]:
@@ -303,9 +297,11 @@ def predict(
         raise ConfigError("predict: the dataset has no frame")
     start = time.perf_counter()
     with staged as tmp:
-        writer = PredictionWriter(tmp, num_classes=cfg.num_classes if cfg.has_semantic else None,
+        tasks = tasks_for(cfg)
+        writer = PredictionWriter(tmp, num_classes=class_count(cfg),
                                   dataset_name=name, video=video, fps=fps, depth_range=depth_range,
-                                  sources=_sources(dataset, [i for g in groups for i in g]), invalid=invalid)
+                                  sources=_sources(dataset, [i for g in groups for i in g]), invalid=invalid,
+                                  tasks=tasks)
         bar = tqdm(total=sum(len(g) for g in groups), unit="frame", desc="predict", disable=not progress,
                    leave=False)
         model_seconds = 0.0
@@ -337,21 +333,9 @@ def predict(
             "model": {**(info or {}).get("model", {}), "arch": cfg.arch},
             "dataset": {**(info or {}).get("dataset", {}), "name": name},
             "policy": policy_info(streamer) if streamer.has_depth else None,
-            "frames_by_status": writer.statuses if streamer.has_depth else None,
+            "frames_by_status": writer.summary().get("frames_by_status") if streamer.has_depth else None,
             "encodings": {
-                "depth": "depth/*.npy: float32 [H, W], metres, the model output as is" + (
-                    "; NaN where depth_valid is 0" if invalid == "nan" else
-                    " (also where depth_valid is 0: use the mask)"),
-                "depth_valid": "depth_valid/*.png: uint8, 255 where the depth is an estimate, 0 where it is not "
-                "(a reset frame, a frame held without an earlier estimate, ill-conditioned geometry, depth <= 0)",
-                "depth_png": f"depth_png/*.png: uint16 = round(depth_m * {DEPTH_PNG_SCALE:g}) saturated to "
-                f"[1, 65535]; depth_m = value / {DEPTH_PNG_SCALE:g}; 0 where depth_valid is 0",
-                "status": "frames[].status: estimated (from the camera's motion since its reference frame), held "
-                "(the reference frame's depth carried into this view: the camera moved less than "
-                "policy.min_baseline_m), reset (no depth); frames[].baseline_m: metres from the reference frame",
-                "depth_png_scale": DEPTH_PNG_SCALE,
-                "labels": "labels/*.png: uint8 class index (argmax of the probabilities)",
-                "labels_color": "labels_color/*.png: RGB, palette below",
+                **writer.encodings(),
                 "side_by_side": "side_by_side/*.png: RGB | predicted depth | ground-truth depth | predicted labels | "
                 "ground-truth labels (GT when known), depth on the turbo colour map, linear from red (0 m) to dark "
                 "blue at the range in trajectories[].pictures.depth_range_m, with a colour bar and a class legend",

@@ -25,6 +25,7 @@ from ..data.loader import collate
 from ..errors import ConfigError, NonFiniteOutputError
 from ..workers import check_workers
 from ..inference.policy import EVERY_FRAME, Streamer
+from ..tasks import TASKS
 
 
 @dataclass(frozen=True)
@@ -107,6 +108,9 @@ class StreamBatch:
             ``"reset"``, ``"estimated"`` or ``"held"``; baseline: ``[B]`` metres from the frame the depth was
             estimated against (see :class:`~cosemdepth.models.outputs.StepOutput`).
         rot, trans: ``[B, 4]``, ``[B, 3]`` the input motion (previous -> current frame).
+        heads: every decoder's output by head name (``StepOutput.heads``: ``depth``, ``semantic``, ...).
+        gt: the ground truth by key, of every registered decoder task whose ground truth the frames have
+            (:attr:`~cosemdepth.tasks.DecoderTask.gt_key`: ``depth``, ``semantic``, ...).
     """
 
     indices: list[int]
@@ -126,6 +130,8 @@ class StreamBatch:
     baseline: torch.Tensor | None = None
     rot: torch.Tensor | None = None
     trans: torch.Tensor | None = None
+    heads: dict[str, torch.Tensor] = field(default_factory=dict)
+    gt: dict[str, torch.Tensor] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.indices)
@@ -172,9 +178,8 @@ def frame_source(dataset, index: int) -> str | None:
 
 
 def check_finite_outputs(out, dataset, indices: list[int], trajectories: list[str], frames) -> None:
-    """Raise :class:`NonFiniteOutputError` naming the first frame whose depth or semantic output holds NaN/inf."""
-    for name in ("depth", "semantic"):
-        t = getattr(out, name, None)
+    """Raise :class:`NonFiniteOutputError` naming the first frame whose output (any decoder's head) holds NaN/inf."""
+    for name, t in (getattr(out, "heads", None) or {}).items():
         if t is None:
             continue
         bad = ~torch.isfinite(t.reshape(t.shape[0], -1))
@@ -272,8 +277,11 @@ def stream(
             _sync(device)
             seconds = time.perf_counter() - t0
             check_finite_outputs(out, dataset, list(step.indices), list(batch["trajectory"]), batch["frame"][:, 0])
-            gt_depth = batch.get("depth")
-            gt_labels = batch.get("semantic")
+            gt = {}
+            for t in TASKS.values():
+                g = t.ground_truth(batch)
+                if g is not None:
+                    gt[t.gt_key] = g[:, 0].to(device)
             yield StreamBatch(
                 indices=list(step.indices),
                 trajectory=list(batch["trajectory"]),
@@ -281,8 +289,8 @@ def stream(
                 reset=reset,
                 rgb=rgb,
                 intrinsics=intr,
-                gt_depth=None if gt_depth is None else gt_depth[:, 0].to(device),
-                gt_labels=None if gt_labels is None else gt_labels[:, 0].to(device),
+                gt_depth=gt.get("depth"),
+                gt_labels=gt.get("semantic"),
                 depth=out.depth,
                 semantic=out.semantic,
                 labels=None if out.semantic is None else out.semantic.argmax(dim=1),
@@ -292,6 +300,8 @@ def stream(
                 baseline=out.baseline,
                 rot=rot,
                 trans=trans,
+                heads=dict(out.heads),
+                gt=gt,
             )
 
 

@@ -104,6 +104,12 @@ class StepOutput:
     status: list[str] = field(default_factory=list)
     baseline: Optional[Tensor] = None
 
+    def __post_init__(self) -> None:
+        # the two named outputs are heads too (an output built from them alone, e.g. by a stand-in model)
+        for name, value in (("depth", self.depth), ("semantic", self.semantic)):
+            if value is not None:
+                self.heads.setdefault(name, value)
+
     @property
     def labels(self) -> Optional[Tensor]:
         """``[B, H, W]`` int64 argmax of ``semantic``."""
@@ -127,6 +133,14 @@ class SequenceOutput:
     semantic_other: list[Tensor] = field(default_factory=list)
     features: list[Tensor] = field(default_factory=list)
     extra: dict[str, list[Tensor]] = field(default_factory=dict)
+
+    def maps(self, key: str) -> list[Tensor]:
+        """The per-level maps of ``key`` (a field, or a further decoder's key in ``extra``)."""
+        if key in self.extra:
+            return self.extra[key]
+        if key in self.__dataclass_fields__ and key not in ("features", "extra"):
+            return getattr(self, key)
+        raise KeyError(f"no maps {key!r} in this output; maps of further decoders: {sorted(self.extra)}")
 
     def put(self, key: str, maps: list[Tensor]) -> None:
         if key in self.__dataclass_fields__ and key not in ("features", "extra"):

@@ -10,6 +10,7 @@ from .bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP, open_bag_f
 from ..errors import ConfigError
 from ..evaluation.classes import class_info
 from ..evaluation.evaluator import _model_config
+from ..tasks import class_count
 from .bag_writer import BagWriter, DEFAULT_NAMESPACE, check_namespace
 from .rerun_writer import RerunWriter, require_rerun
 
@@ -73,7 +74,8 @@ def open_bag(args: argparse.Namespace, size=None):
 def make_sinks(args: argparse.Namespace, dataset, model, *, bag_output: bool = True) -> tuple:
     """The extra outputs of ``predict``: the output bag (``--bag``) and the rerun recording (``--rerun``)."""
     cfg = _model_config(model)
-    names, palette = class_info(cfg.num_classes, "flight") if cfg.has_semantic else ((), None)
+    classes = class_count(cfg)
+    names, palette = class_info(classes, "flight") if classes else ((), None)
     flight = getattr(dataset, "bag_flight", None)
     sinks = []
     if flight is not None and bag_output:

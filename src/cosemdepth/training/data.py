@@ -27,8 +27,9 @@ from torch.utils.data import DataLoader, Dataset, DistributedSampler, Sampler
 
 from ..data import MixedDataset, dataset_spec, open_dataset
 from ..errors import ConfigError, DatasetError
-from ..models.config import ModelConfig
+from ..models.config import ARCHITECTURES, ModelConfig
 from ..operating_point import MotionStats, OperatingPoint
+from ..tasks import tasks_for
 from ..workers import check_workers
 from .config import DataConfig, DatasetSource, key_path
 
@@ -142,17 +143,18 @@ def training_operating_point(dataset: Dataset, size: tuple[int, int], what: str 
 
 
 def check_modalities(dataset: Dataset, model: ModelConfig, what: str) -> None:
-    """Raise :class:`DatasetError` unless the items of ``dataset`` carry the ground truth ``model`` learns from."""
+    """Raise :class:`DatasetError` unless the items of ``dataset`` carry the ground truth ``model`` learns from (that
+    of each of its decoders' tasks, :attr:`~cosemdepth.tasks.DecoderTask.gt_key`)."""
     item = dataset[0]
-    missing = [k for k, need in (("depth", model.has_depth), ("semantic", model.has_semantic))
-               if need and item.get(k) is None]
-    if model.needs_depth_input and not model.has_depth and item.get("depth") is None:
+    missing = [t.gt_key for t in tasks_for(model) if t.ground_truth(item) is None]
+    if model.needs_depth_input and "depth" not in model.decoders and item.get("depth") is None:
         raise DatasetError(f"{what} has no depth ground truth, which the {model.arch} model with semantic_time 'gt' "
                            "warps its previous labels with (choose a dataset with depth, or semantic_time 'off')")
     if missing:
-        other = "m4semantic" if "depth" in missing else "m4depth"
+        others = [a for a, decoders in ARCHITECTURES.items() if not set(decoders) & set(missing)]
+        hint = f"choose another dataset, or the {others[0]} model" if others else "choose another dataset"
         raise DatasetError(f"{what} has no {' and no '.join(missing)} ground truth, which the {model.arch} model "
-                           f"needs (choose another dataset, or the {other} model)")
+                           f"needs ({hint})")
 
 
 class ResumableSampler(DistributedSampler):

@@ -267,22 +267,37 @@ def median_frequency_weights(counts: Sequence[int], power: float = 0.5) -> list[
 class LossTerms:
     """The loss of one training step and its parts.
 
-    ``total = depth + semantic_weight * semantic``; a part the model does not have is ``None``.
+    ``total = sum(weights[k] * parts[k])`` over the model's decoders, in their order (:func:`weighted_total`):
+    ``depth + semantic_weight * semantic`` for Co-SemDepth. ``parts`` are the unweighted losses by decoder name.
     """
 
     total: torch.Tensor
-    depth: torch.Tensor | None
-    semantic: torch.Tensor | None
-    semantic_weight: float
+    parts: dict[str, torch.Tensor]
+    weights: dict[str, float]
+
+    @property
+    def depth(self) -> torch.Tensor | None:
+        return self.parts.get("depth")
+
+    @property
+    def semantic(self) -> torch.Tensor | None:
+        return self.parts.get("semantic")
 
     def as_dict(self) -> dict[str, float]:
-        """Detached Python floats for logging: ``total`` and the unweighted ``depth`` / ``semantic`` parts."""
-        out = {"total": float(self.total.detach())}
-        if self.depth is not None:
-            out["depth"] = float(self.depth.detach())
-        if self.semantic is not None:
-            out["semantic"] = float(self.semantic.detach())
-        return out
+        """Detached Python floats for logging: ``total`` and the unweighted parts (``depth``, ``semantic``, ...)."""
+        return {"total": float(self.total.detach()), **{k: float(v.detach()) for k, v in self.parts.items()}}
+
+
+def weighted_total(parts: dict[str, torch.Tensor], weights: dict[str, float]) -> LossTerms:
+    """``sum(weights[k] * parts[k])`` in the order of ``parts`` (a weight of 1 adds the part as it is)."""
+    if not parts:
+        raise ValueError("the loss has no part: nothing to supervise")
+    total = None
+    for k, part in parts.items():
+        w = weights.get(k, 1.0)
+        term = part if w == 1.0 else w * part
+        total = term if total is None else total + term
+    return LossTerms(total=total, parts=dict(parts), weights={k: float(weights.get(k, 1.0)) for k in parts})
 
 
 def total_loss(
@@ -319,25 +334,16 @@ def total_loss(
         raise ValueError("total_loss: pass both pred_semantic and gt_labels, or neither")
     if not (has_depth or has_sem):
         raise ValueError("total_loss: nothing to supervise (no depth and no semantic predictions)")
-    l_depth = (
-        depth_loss(pred_depths, gt_depth, mask=depth_mask, first_frame=first_frame) if has_depth else None
-    )
-    l_sem = (
-        semantic_loss(pred_semantic, gt_labels, from_logits=from_logits, first_frame=first_frame,
-                      class_weights=class_weights)
-        if has_sem else None
-    )
-    if l_depth is not None and l_sem is not None:
-        total = l_depth + semantic_weight * l_sem
-    elif l_depth is not None:
-        total = l_depth
-    else:
-        total = semantic_weight * l_sem
-    return LossTerms(total=total, depth=l_depth, semantic=l_sem, semantic_weight=float(semantic_weight))
-
+    parts = {}
+    if has_depth:
+        parts["depth"] = depth_loss(pred_depths, gt_depth, mask=depth_mask, first_frame=first_frame)
+    if has_sem:
+        parts["semantic"] = semantic_loss(pred_semantic, gt_labels, from_logits=from_logits, first_frame=first_frame,
+                                          class_weights=class_weights)
+    return weighted_total(parts, {"depth": 1.0, "semantic": semantic_weight})
 
 __all__ = [
     "FIRST_SUPERVISED_FRAME", "LOSS_MAX_DEPTH", "LOSS_MIN_DEPTH", "LossTerms", "SCCE_EPSILON", "SEMANTIC_WEIGHT",
     "depth_level_weights", "depth_loss", "log_depth", "median_frequency_weights", "sanitize_gt_depth", "semantic_loss",
-    "total_loss",
+    "total_loss", "weighted_total",
 ]

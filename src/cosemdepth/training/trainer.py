@@ -55,6 +55,7 @@ from ..checkpoints.model_io import read_weights
 from ..models import build_model
 from ..models.footprint import check_size
 from ..ops.resample import resize_nn2
+from ..tasks import tasks_for
 from . import distributed as D
 from .board import Board
 from .checkpoint import CheckpointManager, get_rng_state, load_checkpoint, set_rng_state
@@ -72,7 +73,7 @@ from .data import (
 )
 from .events import CONSOLE_KINDS, EventLog
 from .init import read_transfer_source, transfer_state_dict
-from .losses import FIRST_SUPERVISED_FRAME, LossTerms, total_loss
+from .losses import FIRST_SUPERVISED_FRAME, LossTerms, weighted_total
 from .optim import make_optimizer
 from .config import dump_config
 from .rundir import (
@@ -144,25 +145,16 @@ def seed_everything(seed: int) -> None:
 
 
 def compute_loss(out, batch: dict, cfg: RunConfig) -> LossTerms:
-    """The training loss (design 8) of a :class:`SequenceOutput` against a batch, for any of the three models.
+    """The training loss (design 8) of a :class:`SequenceOutput` against a batch: the weighted sum of the losses
+    of the model's decoders (:meth:`~cosemdepth.tasks.DecoderTask.loss`, ``loss_weight``), in their order.
 
     Always float32: autocast is switched off here and bfloat16 predictions (``train.bf16``) are cast to float32
     before the log, the resizes and the means, so the loss and its gradient have float32 rounding."""
-    m = cfg.model
-    from_logits = cfg.train.semantic_from_logits
-    sem = (out.semantic_logits if from_logits else out.semantic) if m.has_semantic else None
-    depth = out.depth if m.has_depth else None
-    device_type = (depth or sem)[0].device.type
+    tasks = tasks_for(cfg.model)
+    device_type = out.maps(tasks[0].head)[0].device.type
     with torch.autocast(device_type, enabled=False) if device_type in ("cpu", "cuda") else contextlib.nullcontext():
-        return total_loss(
-            _float32(depth),
-            batch["depth"] if m.has_depth else None,
-            _float32(sem),
-            batch["semantic"] if m.has_semantic else None,
-            semantic_weight=cfg.train.semantic_weight,
-            from_logits=from_logits,
-            class_weights=cfg.train.semantic_class_weights or None,
-        )
+        parts = {t.name: t.loss(out, batch, cfg.train) for t in tasks}
+        return weighted_total(parts, {t.name: t.loss_weight(cfg.train) for t in tasks})
 
 
 def forward_batch(net: torch.nn.Module, batch: dict):
@@ -173,11 +165,6 @@ def forward_batch(net: torch.nn.Module, batch: dict):
     guide = batch["depth"] if getattr(net, "module", net).config.needs_depth_input else None
     return net(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch.get("reset"),
                first_frame=FIRST_SUPERVISED_FRAME, guide_depth=guide)
-
-
-def _float32(levels):
-    """Per-level predictions in float32 (unchanged if they already are, or None)."""
-    return None if levels is None else [p if p.dtype == torch.float32 else p.float() for p in levels]
 
 
 def bf16_supported(device: torch.device) -> bool:
@@ -546,8 +533,8 @@ class Trainer:
     def _log_train(self) -> None:
         """Every ``log_every`` steps: mean losses of the good steps since the last log (over all ranks)."""
         st = self.state
-        keys = ["total", "grad_norm"] + [k for k, need in (("depth", self.cfg.model.has_depth),
-                                                           ("semantic", self.cfg.model.has_semantic)) if need]
+        parts = [t.name for t in tasks_for(self.cfg.model)]
+        keys = ["total", "grad_norm"] + parts
         means = {k: self._acc[k] / self._acc_n if self._acc_n else math.nan for k in keys}
         means["good_steps"] = float(self._acc_n)
         means = D.mean_over_ranks(means, self.dist, self.device)
@@ -557,7 +544,7 @@ class Trainer:
         self._t_log, self._steps_at_log, self._data_wait_s = now, st.step, 0.0
         self._acc, self._acc_n = {}, 0
         lr = learning_rate(self.cfg, st.epoch)
-        named = {f"loss_{k}" if k in ("total", "depth", "semantic") else k: v for k, v in means.items()}
+        named = {f"loss_{k}" if k in ("total", *parts) else k: v for k, v in means.items()}
         self.events("train", step=st.step, epoch=st.epoch, lr=lr, steps_per_s=speed, data_wait_s=data_wait, **named)
         if self.board is not None:
             self.board.scalars("train", {k: v for k, v in named.items() if k != "good_steps"}, st.step)
@@ -568,13 +555,13 @@ class Trainer:
     def _log_images(self, tag: str, batch: dict, out, step: int) -> None:
         m = self.cfg.model
         size = tuple(batch["rgb"].shape[-2:])
+        example = {"rgb": batch["rgb"][0, -1]}
         with torch.no_grad():
-            pd = resize_nn2(out.depth[0][:1, -1].float(), size)[0] if m.has_depth else None
-            pl = resize_nn2(out.semantic[0][:1, -1].float(), size)[0].argmax(0) if m.has_semantic else None
-        strip = example_strip(batch["rgb"][0, -1], true_depth=batch["depth"][0, -1] if m.has_depth else None,
-                              pred_depth=pd, true_labels=batch["semantic"][0, -1] if m.has_semantic else None,
-                              pred_labels=pl, num_classes=m.num_classes)
-        self.board.image(f"{tag}/rgb_depth_true_pred_labels_true_pred", strip, step)
+            for t in tasks_for(m):
+                gt = t.ground_truth(batch)
+                pred = resize_nn2(out.maps(t.head)[0][:1, -1].float(), size)[0]
+                example.update(t.example(None if gt is None else gt[0, -1], pred, m))
+        self.board.image(f"{tag}/rgb_depth_true_pred_labels_true_pred", example_strip_of(example, m), step)
 
     # ------------------------------------------------------------------------------------------------ validation
     def _validate(self) -> None:
@@ -586,10 +573,8 @@ class Trainer:
             metrics, example = validate(self.model, loader, self.device, max_batches=self.cfg.train.val_max_batches,
                                         autocast=self._autocast())
             if self.board is not None and example is not None:
-                strip = example_strip(example["rgb"], true_depth=example.get("depth"),
-                                      pred_depth=example.get("pred_depth"), true_labels=example.get("semantic"),
-                                      pred_labels=example.get("pred_labels"), num_classes=self.cfg.model.num_classes)
-                self.board.image("val/rgb_depth_true_pred_labels_true_pred", strip, st.step)
+                self.board.image("val/rgb_depth_true_pred_labels_true_pred", example_strip_of(example, self.cfg.model),
+                                 st.step)
             return metrics
 
         # Every rank validates (same weights, same data): no rank waits in a collective for the length of a
@@ -701,6 +686,12 @@ def _make_board(log_dir: Path, purge_step: int | None):
         return Board(log_dir, purge_step=purge_step)
     except ImportError:
         return None
+
+
+def example_strip_of(example: dict, model: ModelConfig) -> np.ndarray:
+    """The training picture of one frame: RGB, then each decoder's panels (true, predicted) from its
+    :meth:`~cosemdepth.tasks.DecoderTask.example` tensors in ``example``."""
+    return example_strip(example["rgb"], [p for t in tasks_for(model) for p in t.strip_panels(example, model)])
 
 
 def _scalars(metrics: dict) -> dict:

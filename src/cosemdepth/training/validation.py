@@ -13,7 +13,7 @@ from typing import Any, Iterable, Mapping
 
 import torch
 
-from ..evaluation.metrics import EvaluationMetrics
+from ..tasks import VALIDATION, Frames, MetricContext, tasks_for
 from .data import to_device
 
 
@@ -59,14 +59,17 @@ def validate(
         autocast: an autocast context for the forward passes (None: full precision).
         keep_example: also return the first window's last frame (inputs, ground truth, predictions) for pictures.
     Returns:
-        ``(metrics, example)``: the :meth:`EvaluationMetrics.compute` dict (depth metrics and/or ``miou``, ``iou``)
-        plus ``frames``; ``example`` has ``rgb [3,H,W]`` and those of ``depth``, ``pred_depth [1,H,W]``,
-        ``semantic``, ``pred_labels [H,W]`` that exist (None if no batch or not asked).
+        ``(metrics, example)``: the metrics of every decoder of the model (its task's, in order: the depth metrics,
+        ``miou``, ``iou``...) plus ``frames``; ``example`` has ``rgb [3,H,W]`` and each decoder's
+        :meth:`~cosemdepth.tasks.DecoderTask.example` tensors (``depth``, ``pred_depth [1,H,W]``, ``semantic``,
+        ``pred_labels [H,W]``...; None if no batch or not asked).
     """
     cfg = model.config
     was_training = model.training
     model.eval()
-    metrics = EvaluationMetrics(cfg.num_classes if cfg.has_semantic else None, depth=cfg.has_depth)
+    tasks = tasks_for(cfg)
+    context = MetricContext(VALIDATION, cfg)
+    metrics = {t.name: t.metrics(context) for t in tasks}
     example = None
     frames = 0
     try:
@@ -76,26 +79,18 @@ def validate(
             batch = to_device(batch, torch.device(device))
             with autocast if autocast is not None else contextlib.nullcontext():
                 out = run_window(model, batch)
-            pred_depth = None if out.depth is None else out.depth.float()
-            pred_sem = None if out.semantic is None else out.semantic.float()
-            metrics.update(
-                gt_depth=batch["depth"][:, -1] if cfg.has_depth else None,
-                pred_depth=pred_depth,
-                gt_labels=batch["semantic"][:, -1] if cfg.has_semantic else None,
-                pred_semantic=pred_sem,
-            )
+            heads = {t.head: out.heads[t.head].float() for t in tasks}
+            gt = {t.gt_key: t.ground_truth(batch)[:, -1] for t in tasks}
+            for t in tasks:
+                metrics[t.name].update(Frames(heads, gt))
             frames += batch["rgb"].shape[0]
             if keep_example and example is None:
                 example = {"rgb": batch["rgb"][0, -1].cpu()}
-                if cfg.has_depth:
-                    example["depth"] = batch["depth"][0, -1].cpu()
-                    example["pred_depth"] = pred_depth[0].cpu()
-                if cfg.has_semantic:
-                    example["semantic"] = batch["semantic"][0, -1].cpu()
-                    example["pred_labels"] = pred_sem[0].argmax(0).cpu()
+                for t in tasks:
+                    example.update(t.example(gt[t.gt_key][0], heads[t.head][0], cfg))
     finally:
         model.train(was_training)
-    result = metrics.compute() if frames else {}
+    result = {k: v for m in metrics.values() for k, v in m.compute().items()} if frames else {}
     result["frames"] = frames
     return result, example
 

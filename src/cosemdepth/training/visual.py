@@ -1,6 +1,8 @@
-"""Pictures for TensorBoard: colourised depth and labels, and a strip RGB | depth (true, predicted) | labels."""
+"""Pictures for TensorBoard: colourised depth and labels, and a strip RGB | each decoder's maps (true, predicted)."""
 
 from __future__ import annotations
+
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -51,26 +53,10 @@ def image_to_rgb(rgb: torch.Tensor) -> np.ndarray:
     return (x * 255.0 + 0.5).astype(np.uint8)
 
 
-def example_strip(
-    rgb: torch.Tensor,
-    *,
-    true_depth: torch.Tensor | None = None,
-    pred_depth: torch.Tensor | None = None,
-    true_labels: torch.Tensor | None = None,
-    pred_labels: torch.Tensor | None = None,
-    num_classes: int = 7,
-) -> np.ndarray:
-    """``[H, 5W, 3]`` uint8 (fewer panels when some are None): RGB | true depth | predicted depth | true labels |
-    predicted labels. ``rgb [3,H,W]``, depths ``[H,W]`` or ``[1,H,W]`` metres, labels ``[H,W]`` integers, all at the
-    same size."""
-    panels = [image_to_rgb(rgb)]
-    for d in (true_depth, pred_depth):
-        if d is not None:
-            panels.append(depth_to_rgb(d.reshape(d.shape[-2:])))
-    for lab in (true_labels, pred_labels):
-        if lab is not None:
-            panels.append(labels_to_rgb(lab.reshape(lab.shape[-2:]), num_classes))
-    return np.concatenate(panels, axis=1)
+def example_strip(rgb: torch.Tensor, panels: Sequence[np.ndarray] = ()) -> np.ndarray:
+    """``[H, (1 + n) W, 3]`` uint8: RGB (``[3, H, W]``) then the ``n`` panels (``[H, W, 3]`` uint8, e.g. each decoder's
+    true and predicted maps: :meth:`cosemdepth.tasks.DecoderTask.strip_panels`), all at the same size."""
+    return np.concatenate([image_to_rgb(rgb), *panels], axis=1)
 
 
 __all__ = ["DEPTH_VIS_RANGE", "depth_to_rgb", "example_strip", "image_to_rgb", "labels_to_rgb", "palette"]
