@@ -36,9 +36,26 @@ MODES = ("fp32", "bf16")
 
 
 def run_mode(a, mode: str, out: Path) -> None:
-    cmd = [sys.executable, str(HERE.parent / "convergence_vs_original.py"), "--data", a.data, "--out", str(out),
-           "--ours-only", "--sequential", "--steps", str(a.steps), "--every", str(a.every), "--size", str(a.size),
-           "--threads", str(a.threads), "--seeds", *map(str, a.seeds)]
+    cmd = [
+        sys.executable,
+        str(HERE.parent / "convergence_vs_original.py"),
+        "--data",
+        a.data,
+        "--out",
+        str(out),
+        "--ours-only",
+        "--sequential",
+        "--steps",
+        str(a.steps),
+        "--every",
+        str(a.every),
+        "--size",
+        str(a.size),
+        "--threads",
+        str(a.threads),
+        "--seeds",
+        *map(str, a.seeds),
+    ]
     if a.split_dir:
         cmd += ["--split-dir", a.split_dir]
     if mode == "bf16":
@@ -59,8 +76,14 @@ def read_runs(folder: Path, seeds: list[int] | None) -> dict:
         if missing:
             raise SystemExit(f"{p}: no run of ours for seed(s) {missing}")
         runs = {s: runs[s] for s in seeds}
-    return {"runs": runs, "overrides": r.get("ours_overrides", []), "steps": r["steps"], "size": r["size"],
-            "threads_each": r.get("threads_each"), "data": r.get("data")}
+    return {
+        "runs": runs,
+        "overrides": r.get("ours_overrides", []),
+        "steps": r["steps"],
+        "size": r["size"],
+        "threads_each": r.get("threads_each"),
+        "data": r.get("data"),
+    }
 
 
 def compare(fp32: dict, bf16: dict, every: int) -> dict:
@@ -69,19 +92,28 @@ def compare(fp32: dict, bf16: dict, every: int) -> dict:
         seeds = sorted(d["runs"])
         curves = np.array([blocks(d["runs"][s]["loss"], every) for s in seeds])
         mets = {m: [d["runs"][s]["metrics"][m] for s in seeds] for m in METRICS}
-        out[mode] = {"seeds": seeds, "steps": [every * (i + 1) for i in range(curves.shape[1])],
-                     "curves": curves.tolist(), "mean": curves.mean(0).tolist(),
-                     "min": curves.min(0).tolist(), "max": curves.max(0).tolist(),
-                     "metrics": mets, "metrics_mean": {m: float(np.mean(v)) for m, v in mets.items()},
-                     "metrics_min": {m: float(np.min(v)) for m, v in mets.items()},
-                     "metrics_max": {m: float(np.max(v)) for m, v in mets.items()}}
+        out[mode] = {
+            "seeds": seeds,
+            "steps": [every * (i + 1) for i in range(curves.shape[1])],
+            "curves": curves.tolist(),
+            "mean": curves.mean(0).tolist(),
+            "min": curves.min(0).tolist(),
+            "max": curves.max(0).tolist(),
+            "metrics": mets,
+            "metrics_mean": {m: float(np.mean(v)) for m, v in mets.items()},
+            "metrics_min": {m: float(np.min(v)) for m, v in mets.items()},
+            "metrics_max": {m: float(np.max(v)) for m, v in mets.items()},
+        }
     f, b = out["fp32"], out["bf16"]
     n = min(len(f["mean"]), len(b["mean"]))
-    side = ["inside" if f["min"][i] <= b["mean"][i] <= f["max"][i] else
-            ("below" if b["mean"][i] < f["min"][i] else "above") for i in range(n)]
+    side = [
+        "inside" if f["min"][i] <= b["mean"][i] <= f["max"][i] else ("below" if b["mean"][i] < f["min"][i] else "above")
+        for i in range(n)
+    ]
     met_in = {m: f["metrics_min"][m] <= b["metrics_mean"][m] <= f["metrics_max"][m] for m in METRICS}
     out["comparison"] = {
-        "bf16_mean_curve_inside_fp32_min_max": all(s == "inside" for s in side), "per_block_side": side,
+        "bf16_mean_curve_inside_fp32_min_max": all(s == "inside" for s in side),
+        "per_block_side": side,
         "max_abs_mean_curve_difference": float(np.max(np.abs(np.array(f["mean"][:n]) - np.array(b["mean"][:n])))),
         "bf16_mean_metrics_inside_fp32_seed_range": met_in,
         "same_seeds": f["seeds"] == b["seeds"],
@@ -101,10 +133,15 @@ def plot(res: dict, path: Path, title: str) -> None:
         s = res[mode]
         for c in s["curves"]:
             ax.plot(s["steps"], c, color=colours[mode], lw=0.8, alpha=0.45)
-        ax.plot(s["steps"], s["mean"], color=colours[mode], lw=2.5, marker="o",
-                label=f"{mode}: mean of {len(s['seeds'])} seeds")
-        ax.fill_between(s["steps"], s["min"], s["max"], color=colours[mode], alpha=0.13,
-                        label=f"{mode}: seed min-max")
+        ax.plot(
+            s["steps"],
+            s["mean"],
+            color=colours[mode],
+            lw=2.5,
+            marker="o",
+            label=f"{mode}: mean of {len(s['seeds'])} seeds",
+        )
+        ax.fill_between(s["steps"], s["min"], s["max"], color=colours[mode], alpha=0.13, label=f"{mode}: seed min-max")
     ax.set_xlabel("step")
     ax.set_ylabel(f"training loss, mean over the previous {res['every']} steps")
     ax.set_title(title, fontsize=10)
@@ -131,32 +168,53 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     out = Path(a.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    dirs = {"fp32": Path(a.fp32_dir).resolve() if a.fp32_dir else out / "fp32",
-            "bf16": Path(a.bf16_dir).resolve() if a.bf16_dir else out / "bf16"}
+    dirs = {
+        "fp32": Path(a.fp32_dir).resolve() if a.fp32_dir else out / "fp32",
+        "bf16": Path(a.bf16_dir).resolve() if a.bf16_dir else out / "bf16",
+    }
     for mode in MODES:
         if not (getattr(a, f"{mode}_dir") and (dirs[mode] / "convergence.json").exists()):
             if not a.data:
                 ap.error(f"--data is needed to train the {mode} runs (or give --{mode}-dir)")
             run_mode(a, mode, dirs[mode])
     got = {m: read_runs(dirs[m], a.seeds) for m in MODES}
-    if any("train.bf16=true" in o for o in got["fp32"]["overrides"]) or \
-            "train.bf16=true" not in got["bf16"]["overrides"]:
+    if (
+        any("train.bf16=true" in o for o in got["fp32"]["overrides"])
+        or "train.bf16=true" not in got["bf16"]["overrides"]
+    ):
         raise SystemExit("--fp32-dir must hold fp32 runs and --bf16-dir runs with train.bf16=true")
-    res = {"folders": {m: str(d) for m, d in dirs.items()},
-           "steps": got["fp32"]["steps"], "every": a.every, "size": got["fp32"]["size"],
-           "threads_each": {m: got[m]["threads_each"] for m in MODES}, "data": got["fp32"]["data"]}
+    res = {
+        "folders": {m: str(d) for m, d in dirs.items()},
+        "steps": got["fp32"]["steps"],
+        "every": a.every,
+        "size": got["fp32"]["size"],
+        "threads_each": {m: got[m]["threads_each"] for m in MODES},
+        "data": got["fp32"]["data"],
+    }
     res.update(compare(got["fp32"], got["bf16"], a.every))
     params = {k: res[k] for k in ("folders", "steps", "every", "size", "threads_each", "data")}
     params["seeds"] = a.seeds
-    write_report(out / "bf16_vs_fp32.json", make_report("bf16_vs_fp32_training", params,
-                                                        {m: res[m] for m in (*MODES, "comparison")}))
-    plot(res, out / "bf16_vs_fp32.png",
-         f"ours, fp32 vs bf16 training: {res['steps']} steps, {res['size']} px, seeds {a.seeds}")
+    write_report(
+        out / "bf16_vs_fp32.json",
+        make_report("bf16_vs_fp32_training", params, {m: res[m] for m in (*MODES, "comparison")}),
+    )
+    plot(
+        res,
+        out / "bf16_vs_fp32.png",
+        f"ours, fp32 vs bf16 training: {res['steps']} steps, {res['size']} px, seeds {a.seeds}",
+    )
     c = res["comparison"]
-    print(json.dumps({"per_block_side": c["per_block_side"],
-                      "metrics_inside": c["bf16_mean_metrics_inside_fp32_seed_range"],
-                      "fp32_metrics_mean": res["fp32"]["metrics_mean"],
-                      "bf16_metrics_mean": res["bf16"]["metrics_mean"]}, indent=1))
+    print(
+        json.dumps(
+            {
+                "per_block_side": c["per_block_side"],
+                "metrics_inside": c["bf16_mean_metrics_inside_fp32_seed_range"],
+                "fp32_metrics_mean": res["fp32"]["metrics_mean"],
+                "bf16_metrics_mean": res["bf16"]["metrics_mean"],
+            },
+            indent=1,
+        )
+    )
     print(f"[bf16_vs_fp32] wrote {out / 'bf16_vs_fp32.json'} and {out / 'bf16_vs_fp32.png'}")
     return 0
 

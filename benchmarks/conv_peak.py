@@ -26,17 +26,22 @@ from cosemdepth.ops.padding import Conv2dSame
 FRAME_GFLOP = 81.0
 
 
-
 def timed_row(run, dtype: str, threads: int, iters: int, gflop: float) -> dict:
     """Time ``run()`` (one warm-up call, then ``iters`` calls) on ``threads`` threads: one row of the table."""
     torch.set_num_threads(threads)
     ts = [t * 1e3 for t in time_calls(run, warmup=1, iters=iters)]
     best = min(ts)
-    row = {"dtype": dtype, "threads": threads, "min_ms": round(best, 2), "median_ms": round(statistics.median(ts), 2),
-           "gflops_at_min": round(gflop / best * 1e3, 1),
-           "frame_conv_floor_ms": round(FRAME_GFLOP / (gflop / best * 1e3) * 1e3, 1)}
+    row = {
+        "dtype": dtype,
+        "threads": threads,
+        "min_ms": round(best, 2),
+        "median_ms": round(statistics.median(ts), 2),
+        "gflops_at_min": round(gflop / best * 1e3, 1),
+        "frame_conv_floor_ms": round(FRAME_GFLOP / (gflop / best * 1e3) * 1e3, 1),
+    }
     print(row)
     return row
+
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -65,7 +70,12 @@ def main(argv=None) -> int:
             for th in a.threads:
                 rows.append(timed_row(lambda: q(qx), "int8", th, a.iters, gflop))
     nnpack = {"available": torch.backends.nnpack.is_available(), "shapes": {}}
-    for cin, cout, hw, bias in [(64, 64, 32, False), (64, 128, 192, False), (64, 128, 192, True), (128, 128, 192, True)]:
+    for cin, cout, hw, bias in [
+        (64, 64, 32, False),
+        (64, 128, 192, False),
+        (64, 128, 192, True),
+        (128, 128, 192, True),
+    ]:
         key = f"{cin}->{cout} at {hw}x{hw}{' +bias' if bias else ''}"
         try:
             torch._nnpack_spatial_convolution(
@@ -75,8 +85,13 @@ def main(argv=None) -> int:
         except RuntimeError as e:
             nnpack["shapes"][key] = str(e).splitlines()[0]
     print("nnpack", nnpack)
-    results = {"conv": "3x3 128->128 at 192x192, batch 1", "gflop": round(gflop, 2), "rows": rows, "nnpack": nnpack,
-               "bf16": "measured" if bf16_convolutions("cpu") else "left out: this CPU has no bf16 convolutions"}
+    results = {
+        "conv": "3x3 128->128 at 192x192, batch 1",
+        "gflop": round(gflop, 2),
+        "rows": rows,
+        "nnpack": nnpack,
+        "bf16": "measured" if bf16_convolutions("cpu") else "left out: this CPU has no bf16 convolutions",
+    }
     write_report(a.out, make_report("conv_peak", {"threads": a.threads, "iters": a.iters}, results))
     print(f"wrote {a.out}")
     return 0

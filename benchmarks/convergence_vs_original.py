@@ -46,7 +46,7 @@ HERE = Path(__file__).resolve()
 REPO = HERE.parents[1]
 TFREF_TOOLS = Path(os.environ.get("TFREF_TOOLS", REPO.parent / "shared" / "tools" / "tfref"))
 
-METRICS = {"miou": "mIoU", "abs_rel": "AbsRel", "delta1": "delta1"}   # ours -> the original's names
+METRICS = {"miou": "mIoU", "abs_rel": "AbsRel", "delta1": "delta1"}  # ours -> the original's names
 HIGHER_IS_BETTER = {"miou": True, "abs_rel": False, "delta1": True}
 
 
@@ -57,8 +57,10 @@ def check_depth_encoding(data: str) -> None:
     if meta.exists():
         enc = json.loads(meta.read_text()).get("depth_encoding")
         if enc != DEPTH_ENCODING:
-            raise SystemExit(f"{meta}: depth_encoding {enc!r}, expected {DEPTH_ENCODING!r}: regenerate the tree "
-                             "(cosemdepth synth) so that the original reads the same depths")
+            raise SystemExit(
+                f"{meta}: depth_encoding {enc!r}, expected {DEPTH_ENCODING!r}: regenerate the tree "
+                "(cosemdepth synth) so that the original reads the same depths"
+            )
 
 
 def prepare_for_original(tfpy: str, authors: str, data: str, split_dir: str, prep: str) -> dict:
@@ -68,8 +70,24 @@ def prepare_for_original(tfpy: str, authors: str, data: str, split_dir: str, pre
     prep_p = Path(prep)
     if not (prep_p / "prepare.json").exists():
         sets = sorted(p.name for p in (Path(split_dir) / "train_data").iterdir() if p.is_dir())
-        subprocess.run([tfpy, str(TFREF_TOOLS / "train_reference.py"), authors, "--data", data, "--prep", prep,
-                        "--stages", "prepare", "--sets", *sets, "--splits", split_dir], check=True)
+        subprocess.run(
+            [
+                tfpy,
+                str(TFREF_TOOLS / "train_reference.py"),
+                authors,
+                "--data",
+                data,
+                "--prep",
+                prep,
+                "--stages",
+                "prepare",
+                "--sets",
+                *sets,
+                "--splits",
+                split_dir,
+            ],
+            check=True,
+        )
     return json.loads((prep_p / "prepare.json").read_text())
 
 
@@ -85,34 +103,120 @@ def log(*a):
 
 # ------------------------------------------------------------------------------------------------------ runs
 def original_cmd(a, seed: int, out: Path, prep: str, authors: str, tfpy: str) -> list[str]:
-    return [tfpy, str(TFREF_TOOLS / "train_reference.py"), authors, "--prep", prep, "--out", str(out),
-            "--stages", "train", "eval", "--steps", str(a.steps), "--size", str(a.size), "--seed", str(seed),
-            "--batch", str(a.batch), "--seq-len", str(a.seq_len), "--db-seq-len", str(a.seq_len), "--lr", str(a.lr),
-            "--log-every", str(a.every), "--intra-threads", str(a.threads), "--inter-threads", str(a.threads),
-            "--overwrite"]
+    return [
+        tfpy,
+        str(TFREF_TOOLS / "train_reference.py"),
+        authors,
+        "--prep",
+        prep,
+        "--out",
+        str(out),
+        "--stages",
+        "train",
+        "eval",
+        "--steps",
+        str(a.steps),
+        "--size",
+        str(a.size),
+        "--seed",
+        str(seed),
+        "--batch",
+        str(a.batch),
+        "--seq-len",
+        str(a.seq_len),
+        "--db-seq-len",
+        str(a.seq_len),
+        "--lr",
+        str(a.lr),
+        "--log-every",
+        str(a.every),
+        "--intra-threads",
+        str(a.threads),
+        "--inter-threads",
+        str(a.threads),
+        "--overwrite",
+    ]
 
 
 def ours_train_cmd(a, seed: int, out: Path) -> list[str]:
-    cmd = [sys.executable, "-m", "cosemdepth", "train", "--config", "midair", "--data-root", a.data,
-           "--split-dir", a.split_dir, "--out", str(out), "--max-steps", str(a.steps), "--seed", str(seed),
-           "--batch-size", str(a.batch), "--lr", str(a.lr), "--no-progress",
-           "--set", f"data.size={a.size}", "--set", f"data.seq_len={a.seq_len}", "--set", f"data.db_seq_len={a.seq_len}",
-           "--set", "data.validate=false", "--set", "data.num_workers=0", "--set", f"train.num_threads={a.threads}",
-           "--set", "train.log_every=1", "--set", "train.image_every=0", "--set", f"train.checkpoint_every={a.steps}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "cosemdepth",
+        "train",
+        "--config",
+        "midair",
+        "--data-root",
+        a.data,
+        "--split-dir",
+        a.split_dir,
+        "--out",
+        str(out),
+        "--max-steps",
+        str(a.steps),
+        "--seed",
+        str(seed),
+        "--batch-size",
+        str(a.batch),
+        "--lr",
+        str(a.lr),
+        "--no-progress",
+        "--set",
+        f"data.size={a.size}",
+        "--set",
+        f"data.seq_len={a.seq_len}",
+        "--set",
+        f"data.db_seq_len={a.seq_len}",
+        "--set",
+        "data.validate=false",
+        "--set",
+        "data.num_workers=0",
+        "--set",
+        f"train.num_threads={a.threads}",
+        "--set",
+        "train.log_every=1",
+        "--set",
+        "train.image_every=0",
+        "--set",
+        f"train.checkpoint_every={a.steps}",
+    ]
     for s in a.ours_set:
         cmd += ["--set", s]
     return cmd
 
 
 def ours_eval_cmd(a, ckpt: Path, out: Path) -> list[str]:
-    return [sys.executable, "-m", "cosemdepth", "evaluate", "--model", str(ckpt), "--dataset", "midair",
-            "--root", a.data, "--split-dir", a.split_dir, "--size", str(a.size), "--threads", str(a.threads),
-            "--out", str(out), "--no-progress"]
+    return [
+        sys.executable,
+        "-m",
+        "cosemdepth",
+        "evaluate",
+        "--model",
+        str(ckpt),
+        "--dataset",
+        "midair",
+        "--root",
+        a.data,
+        "--split-dir",
+        a.split_dir,
+        "--size",
+        str(a.size),
+        "--threads",
+        str(a.threads),
+        "--out",
+        str(out),
+        "--no-progress",
+    ]
 
 
 def env_for(threads: int) -> dict:
-    env = dict(os.environ, OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads),
-               TF_CPP_MIN_LOG_LEVEL="2", TF_USE_LEGACY_KERAS="1")
+    env = dict(
+        os.environ,
+        OMP_NUM_THREADS=str(threads),
+        MKL_NUM_THREADS=str(threads),
+        TF_CPP_MIN_LOG_LEVEL="2",
+        TF_USE_LEGACY_KERAS="1",
+    )
     return env
 
 
@@ -124,9 +228,11 @@ def read_original(out: Path) -> dict | None:
     if "train" not in r or "eval" not in r or not isinstance(r["train"].get("loss_per_step"), list):
         return None
     m = r["eval"]["metrics"]
-    return {"loss": [float(x) for x in r["train"]["loss_per_step"]],
-            "metrics": {k: float(m[v]) for k, v in METRICS.items()},
-            "fit_wall_s": r["train"].get("fit_wall_s")}
+    return {
+        "loss": [float(x) for x in r["train"]["loss_per_step"]],
+        "metrics": {k: float(m[v]) for k, v in METRICS.items()},
+        "fit_wall_s": r["train"].get("fit_wall_s"),
+    }
 
 
 def read_ours(out: Path) -> dict | None:
@@ -156,8 +262,17 @@ def load_previous(a, with_original: bool) -> dict:
         prev = read_comparison(Path(a.previous))
     except (OSError, ValueError, KeyError) as e:
         bad(f"cannot read it ({e})")
-    mine = {"data": a.data, "steps": a.steps, "every": a.every, "size": a.size, "batch": a.batch,
-            "seq_len": a.seq_len, "lr": a.lr, "threads_each": a.threads, "ours_overrides": a.ours_set}
+    mine = {
+        "data": a.data,
+        "steps": a.steps,
+        "every": a.every,
+        "size": a.size,
+        "batch": a.batch,
+        "seq_len": a.seq_len,
+        "lr": a.lr,
+        "threads_each": a.threads,
+        "ours_overrides": a.ours_set,
+    }
     differ = [f"{k} {prev.get(k)!r} vs {v!r}" for k, v in mine.items() if prev.get(k) != v]
     if differ:
         bad(f"another protocol ({', '.join(differ)})")
@@ -190,7 +305,7 @@ def run_seed(a, seed: int, out: Path, orig: dict | None) -> dict:
     got = None if a.overwrite else read_ours(u_dir)
     if got is None:
         if u_dir.exists():
-            shutil.rmtree(u_dir)           # ours, from an earlier interrupted run of this benchmark
+            shutil.rmtree(u_dir)  # ours, from an earlier interrupted run of this benchmark
         u_dir.parent.mkdir(parents=True, exist_ok=True)
         todo.append(("ours", ours_train_cmd(a, seed, u_dir), out / "ours" / f"seed{seed}.log"))
     else:
@@ -221,7 +336,9 @@ def run_seed(a, seed: int, out: Path, orig: dict | None) -> dict:
     if "ours" not in res:
         cmd = ours_eval_cmd(a, last_checkpoint(u_dir), u_dir / "eval")
         with open(out / "ours" / f"seed{seed}.eval.log", "w") as fh:
-            if subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env_for(a.threads), cwd=str(REPO)).returncode:
+            if subprocess.run(
+                cmd, stdout=fh, stderr=subprocess.STDOUT, env=env_for(a.threads), cwd=str(REPO)
+            ).returncode:
                 raise SystemExit(f"seed {seed}: evaluation of ours failed; see {fh.name}")
         res["ours"] = read_ours(u_dir)
     if orig is not None and "original" not in res:
@@ -233,7 +350,7 @@ def run_seed(a, seed: int, out: Path, orig: dict | None) -> dict:
 
 # ------------------------------------------------------------------------------------------------------ summary
 def blocks(loss: list[float], every: int) -> list[float]:
-    return [float(np.mean(loss[i:i + every])) for i in range(0, len(loss) - every + 1, every)]
+    return [float(np.mean(loss[i : i + every])) for i in range(0, len(loss) - every + 1, every)]
 
 
 def summarize(per_seed: dict, every: int) -> dict:
@@ -244,8 +361,10 @@ def summarize(per_seed: dict, every: int) -> dict:
         mets = {m: [per_seed[s][impl]["metrics"][m] for s in sorted(per_seed)] for m in METRICS}
         out[impl] = {
             "steps": [every * (i + 1) for i in range(curves.shape[1])],
-            "mean": curves.mean(0).tolist(), "std": curves.std(0).tolist(),
-            "min": curves.min(0).tolist(), "max": curves.max(0).tolist(),
+            "mean": curves.mean(0).tolist(),
+            "std": curves.std(0).tolist(),
+            "min": curves.min(0).tolist(),
+            "max": curves.max(0).tolist(),
             "metrics_mean": {m: float(np.mean(v)) for m, v in mets.items()},
             "metrics_min": {m: float(np.min(v)) for m, v in mets.items()},
             "metrics_max": {m: float(np.max(v)) for m, v in mets.items()},
@@ -257,13 +376,16 @@ def summarize(per_seed: dict, every: int) -> dict:
         met_in = {m: o["metrics_min"][m] <= u["metrics_mean"][m] <= o["metrics_max"][m] for m in METRICS}
         out["acceptance"] = {
             "seeds": len(per_seed),
-            "ours_mean_curve_inside_original_min_max": all(inside), "per_block": inside,
+            "ours_mean_curve_inside_original_min_max": all(inside),
+            "per_block": inside,
             "per_block_side": side,  # "below": our mean loss lower than every run of the original
             "ours_mean_metrics_inside_original_seed_range": met_in,
             "passed": bool(all(inside) and all(met_in.values()) and len(per_seed) >= 3),
         }
         if len(per_seed) < 3:
-            out["acceptance"]["note"] = "the comparison needs at least 3 seeds; with one seed the band is a single curve"
+            out["acceptance"]["note"] = (
+                "the comparison needs at least 3 seeds; with one seed the band is a single curve"
+            )
     return out
 
 
@@ -289,8 +411,11 @@ def plot(per_seed: dict, summary: dict, every: int, path: Path, title: str) -> N
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     impls = [i for i in summary if i != "acceptance"]
-    metrics_panel(bx, {impl: {m: [per_seed[s][impl]["metrics"][m] for s in sorted(per_seed)] for m in METRICS}
-                       for impl in impls}, colours)
+    metrics_panel(
+        bx,
+        {impl: {m: [per_seed[s][impl]["metrics"][m] for s in sorted(per_seed)] for m in METRICS} for impl in impls},
+        colours,
+    )
     bx.set_title("test split, every seed (bar: mean)", fontsize=10)
     save_figure(fig, path)
 
@@ -306,8 +431,9 @@ def metrics_panel(bx, values: dict, colours: dict) -> None:
             bx.scatter(xs, vals, color=colours[series], s=25, label=series if j == 0 else None)
             bx.plot([xs[0] - 0.1, xs[0] + 0.1], [np.mean(vals)] * 2, color=colours[series], lw=2)
     bx.set_xticks(range(len(names)))
-    bx.set_xticklabels([f"{METRICS[m]} ({'higher' if HIGHER_IS_BETTER[m] else 'lower'} better)" for m in names],
-                       fontsize=8)
+    bx.set_xticklabels(
+        [f"{METRICS[m]} ({'higher' if HIGHER_IS_BETTER[m] else 'lower'} better)" for m in names], fontsize=8
+    )
     bx.grid(alpha=0.3)
     bx.legend(fontsize=8)
 
@@ -339,12 +465,17 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=1, help="threads of each training process")
     ap.add_argument("--sequential", action="store_true", help="train the two sides one after the other")
     ap.add_argument("--ours-only", action="store_true")
-    ap.add_argument("--ours-set", action="append", default=[], metavar="KEY=VALUE",
-                    help="config override for our side (repeatable)")
+    ap.add_argument(
+        "--ours-set", action="append", default=[], metavar="KEY=VALUE", help="config override for our side (repeatable)"
+    )
     ap.add_argument("--overwrite", action="store_true", help="redo runs already finished in OUT")
-    ap.add_argument("--previous", default=None, metavar="JSON",
-                    help="an earlier convergence.json of the same protocol (tree, steps, size, batch, sequence length, "
-                         "lr, threads): its seeds are reused where OUT has no finished run for them")
+    ap.add_argument(
+        "--previous",
+        default=None,
+        metavar="JSON",
+        help="an earlier convergence.json of the same protocol (tree, steps, size, batch, sequence length, "
+        "lr, threads): its seeds are reused where OUT has no finished run for them",
+    )
     a = ap.parse_args()
     a.split_dir = a.split_dir or os.path.join(a.data, "splits")
     a.data, a.split_dir = os.path.abspath(a.data), os.path.abspath(a.split_dir)
@@ -359,8 +490,10 @@ def main() -> int:
     if a.ours_only:
         log("--ours-only: training ours only")
     elif not (tfpy and authors):
-        log("TFREF_PY and COSEM_AUTHORS are not set: the original cannot run; training ours only "
-            "(see ../shared/tools/tfref/README.md)")
+        log(
+            "TFREF_PY and COSEM_AUTHORS are not set: the original cannot run; training ours only "
+            "(see ../shared/tools/tfref/README.md)"
+        )
     else:
         prep = str(Path(a.prep).resolve()) if a.prep else str(out / "prep")
         prepare_for_original(tfpy, authors, a.data, a.split_dir, prep)
@@ -374,19 +507,44 @@ def main() -> int:
             continue
         per_seed[seed] = run_seed(a, seed, out, orig)
     summary = summarize(per_seed, a.every)
-    params = {"data": a.data, "split_dir": a.split_dir, "steps": a.steps, "seeds": a.seeds, "every": a.every,
-              "size": a.size, "batch": a.batch, "seq_len": a.seq_len, "lr": a.lr, "threads_each": a.threads,
-              "simultaneous": not a.sequential, "ours_overrides": a.ours_set}
-    results = {"original_ran": orig is not None, "load_average_end": os.getloadavg(), "summary": summary,
-               "per_seed": {str(s): r for s, r in per_seed.items()}}
+    params = {
+        "data": a.data,
+        "split_dir": a.split_dir,
+        "steps": a.steps,
+        "seeds": a.seeds,
+        "every": a.every,
+        "size": a.size,
+        "batch": a.batch,
+        "seq_len": a.seq_len,
+        "lr": a.lr,
+        "threads_each": a.threads,
+        "simultaneous": not a.sequential,
+        "ours_overrides": a.ours_set,
+    }
+    results = {
+        "original_ran": orig is not None,
+        "load_average_end": os.getloadavg(),
+        "summary": summary,
+        "per_seed": {str(s): r for s, r in per_seed.items()},
+    }
     write_report(out / "convergence.json", make_report("convergence_vs_original", params, results))
-    plot(per_seed, summary, a.every, out / "convergence.png",
-         f"{a.steps} steps, seeds {a.seeds}, {a.size} px, batch {a.batch}, seq {a.seq_len}, lr {a.lr:g}; "
-         f"{Path(a.data).name}" + (f"; ours: {' '.join(a.ours_set)}" if a.ours_set else ""))
+    plot(
+        per_seed,
+        summary,
+        a.every,
+        out / "convergence.png",
+        f"{a.steps} steps, seeds {a.seeds}, {a.size} px, batch {a.batch}, seq {a.seq_len}, lr {a.lr:g}; "
+        f"{Path(a.data).name}" + (f"; ours: {' '.join(a.ours_set)}" if a.ours_set else ""),
+    )
     for impl, s in summary.items():
         if impl != "acceptance":
-            log(impl, "mean loss per block:", " ".join(f"{v:.3f}" for v in s["mean"]),
-                "| test:", " ".join(f"{METRICS[m]} {v:.4f}" for m, v in s["metrics_mean"].items()))
+            log(
+                impl,
+                "mean loss per block:",
+                " ".join(f"{v:.3f}" for v in s["mean"]),
+                "| test:",
+                " ".join(f"{METRICS[m]} {v:.4f}" for m, v in s["metrics_mean"].items()),
+            )
     if "acceptance" in summary:
         log("acceptance:", json.dumps({k: v for k, v in summary["acceptance"].items() if k != "per_block"}))
     log("wrote", out / "convergence.json", "and", out / "convergence.png")

@@ -43,8 +43,8 @@ from cosemdepth.export.check import (
 )
 from cosemdepth.export.onnx import export_onnx
 from cosemdepth.inference import FastModel
-from cosemdepth.output_safety.atomic import atomic_write_text
 from cosemdepth.models.outputs import StreamState
+from cosemdepth.output_safety.atomic import atomic_write_text
 
 
 def _cl(x):
@@ -67,8 +67,9 @@ def variants(model):
             return model.step(*args, st)
 
     def on_cl(m):
-        return lambda args, st: m.step(*map(_cl, args), None if st is None else StreamState.unflatten(
-            [_cl(t) for t in st.flatten()]))
+        return lambda args, st: m.step(
+            *map(_cl, args), None if st is None else StreamState.unflatten([_cl(t) for t in st.flatten()])
+        )
 
     out = {"fast": lambda args, st: fast.step(*args, st), "onednn_off": onednn_off, "channels_last": on_cl(cl)}
     out.update({f"chains_{n}": (lambda args, st, m=m: m.step(*args, st)) for n, m in chains.items()})
@@ -98,8 +99,13 @@ def main() -> None:
     rows = []
     with torch.no_grad():
         for k in range(args.frames):
-            feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy(),
-                     "intrinsics": intr.numpy(), "reset": reset[:, k].numpy()}
+            feeds = {
+                "rgb": rgb[:, k].numpy(),
+                "rot": rot[:, k].numpy(),
+                "trans": trans[:, k].numpy(),
+                "intrinsics": intr.numpy(),
+                "reset": reset[:, k].numpy(),
+            }
             st = StreamState.unflatten([torch.from_numpy(s) for s in state]) if k > 0 else None
             res, state = run_onnx_stream(sess, feeds, state)
             a = (rgb[:, k], rot[:, k], trans[:, k], intr, reset[:, k])
@@ -113,19 +119,33 @@ def main() -> None:
                 results[name] = (o.depth.numpy(), o.semantic.numpy(), [t.numpy() for t in n.flatten()])
             for name, (od, osem, ost) in results.items():
                 p99 = relative_percentile(od, d, ok)
-                rows.append({"frame": k, "reset": bool(reset[0, k]), "run": name, "depth_nrms": nrms(od, d),
-                             "depth_p99": p99, "semantic_nrms": nrms(osem, s),
-                             "state_nrms": max(nrms(x, y) for x, y in zip(ost, ref_st))})
+                rows.append(
+                    {
+                        "frame": k,
+                        "reset": bool(reset[0, k]),
+                        "run": name,
+                        "depth_nrms": nrms(od, d),
+                        "depth_p99": p99,
+                        "semantic_nrms": nrms(osem, s),
+                        "state_nrms": max(nrms(x, y) for x, y in zip(ost, ref_st)),
+                    }
+                )
             print(f"frame {k} done", flush=True)
     out.parent.mkdir(parents=True, exist_ok=True)
     params = {"size": args.size, "frames": args.frames, "model": args.model}
     write_report(out.with_suffix(".json"), make_report("export_check_noise", params, rows))
-    md = [f"# Distance to the PyTorch float32 reference, {args.size} px, {args.model}", "",
-          "| frame | run | depth nRMS | depth p99 rel. | semantic nRMS | state nRMS |", "|---|---|---|---|---|---|"]
+    md = [
+        f"# Distance to the PyTorch float32 reference, {args.size} px, {args.model}",
+        "",
+        "| frame | run | depth nRMS | depth p99 rel. | semantic nRMS | state nRMS |",
+        "|---|---|---|---|---|---|",
+    ]
     fmt = lambda x: "-" if x is None else f"{x:.2e}"  # noqa: E731
     for r in rows:
-        md.append(f"| {r['frame']}{' (reset)' if r['reset'] else ''} | {r['run']} | {fmt(r['depth_nrms'])} | "
-                  f"{fmt(r['depth_p99'])} | {fmt(r['semantic_nrms'])} | {fmt(r['state_nrms'])} |")
+        md.append(
+            f"| {r['frame']}{' (reset)' if r['reset'] else ''} | {r['run']} | {fmt(r['depth_nrms'])} | "
+            f"{fmt(r['depth_p99'])} | {fmt(r['semantic_nrms'])} | {fmt(r['state_nrms'])} |"
+        )
     atomic_write_text(out.with_suffix(".md"), "\n".join(md) + "\n")
     print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
 

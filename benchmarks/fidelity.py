@@ -17,9 +17,9 @@ import tempfile
 from pathlib import Path
 
 from cosemdepth.bench.harness import make_report, write_report
+from cosemdepth.checkpoints.model_io import load_model
 from cosemdepth.evaluation.fidelity import compare_with_reference
 from cosemdepth.evaluation.tfref_fixture import open_fixture
-from cosemdepth.checkpoints.model_io import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACKED = ROOT / "benchmarks" / "results" / "fidelity.json"
@@ -39,11 +39,14 @@ def output_path(args: argparse.Namespace) -> Path | None:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--fixture", type=Path, default=None,
-                   help=f"default: {SHARED_FIXTURE} if present, else {IN_REPO_FIXTURE}")
+    p.add_argument(
+        "--fixture", type=Path, default=None, help=f"default: {SHARED_FIXTURE} if present, else {IN_REPO_FIXTURE}"
+    )
     where = p.add_mutually_exclusive_group()
     where.add_argument("--out", type=Path, default=None, help="write the JSON here")
-    where.add_argument("--update", action="store_true", help="write the JSON to the tracked benchmarks/results/fidelity.json")
+    where.add_argument(
+        "--update", action="store_true", help="write the JSON to the tracked benchmarks/results/fidelity.json"
+    )
     return p.parse_args(argv)
 
 

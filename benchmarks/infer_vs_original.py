@@ -51,7 +51,13 @@ def tfref_paths() -> tuple[Path, Path, Path] | None:
     """(python, authors' code, tfref folder) from the environment, or None when the oracle is not set up."""
     py, authors = os.environ.get("TFREF_PY"), os.environ.get("COSEM_AUTHORS")
     tfdir = Path(os.environ.get("TFREF_DIR", TFREF_DIR))
-    if not py or not authors or not Path(py).exists() or not Path(authors).is_dir() or not (tfdir / "make_reference.py").exists():
+    if (
+        not py
+        or not authors
+        or not Path(py).exists()
+        or not Path(authors).is_dir()
+        or not (tfdir / "make_reference.py").exists()
+    ):
         return None
     return Path(py), Path(authors), tfdir
 
@@ -59,16 +65,35 @@ def tfref_paths() -> tuple[Path, Path, Path] | None:
 def time_original(sizes, warmup, frames, threads, tf) -> dict:
     py, authors, tfdir = tf
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [str(py), "make_reference.py", str(authors), "--out", tmp, "--no-reference", "--bench", str(frames),
-               "--bench-warmup", str(warmup), "--bench-sizes", *map(str, sizes),
-               "--intra-threads", str(threads), "--inter-threads", str(threads)]
+        cmd = [
+            str(py),
+            "make_reference.py",
+            str(authors),
+            "--out",
+            tmp,
+            "--no-reference",
+            "--bench",
+            str(frames),
+            "--bench-warmup",
+            str(warmup),
+            "--bench-sizes",
+            *map(str, sizes),
+            "--intra-threads",
+            str(threads),
+            "--inter-threads",
+            str(threads),
+        ]
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, cwd=tfdir, capture_output=True, text=True)
         if proc.returncode != 0:
             raise SystemExit(f"the original's benchmark failed (exit {proc.returncode}): {proc.stderr.strip()[-2000:]}")
         bench = json.loads((Path(tmp) / "bench.json").read_text())
-    return {"command": " ".join(cmd), "wall_s": round(time.perf_counter() - t0, 1),
-            "by_size": {r["size"]: r for r in bench["bench"]}, "threads": bench.get("threads")}
+    return {
+        "command": " ".join(cmd),
+        "wall_s": round(time.perf_counter() - t0, 1),
+        "by_size": {r["size"]: r for r in bench["bench"]},
+        "threads": bench.get("threads"),
+    }
 
 
 def _inputs(n: int, size: int, seed: int = 0):
@@ -76,14 +101,19 @@ def _inputs(n: int, size: int, seed: int = 0):
     base = torch.rand(1, 3, size + 8, size + 8, generator=g)
     for i in range(n):
         rgb = base[:, :, i % 8 : i % 8 + size, 4 : 4 + size].contiguous()
-        yield (rgb, torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.tensor([[0.0, 0.0, 0.5]]),
-               torch.tensor([[size / 2, size / 2, size / 2, size / 2]]), torch.tensor([i == 0]))
+        yield (
+            rgb,
+            torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
+            torch.tensor([[0.0, 0.0, 0.5]]),
+            torch.tensor([[size / 2, size / 2, size / 2, size / 2]]),
+            torch.tensor([i == 0]),
+        )
 
 
 def time_ours(name: str, size: int, warmup: int, frames: int) -> dict:
-    from cosemdepth.models.config import ModelConfig
     from cosemdepth.inference import FastModel
     from cosemdepth.models import build_model
+    from cosemdepth.models.config import ModelConfig
 
     mode, dtype, _ = PATHS[name]
     torch.manual_seed(0)
@@ -102,19 +132,33 @@ def time_ours(name: str, size: int, warmup: int, frames: int) -> dict:
             out.depth.float().numpy(), out.semantic.float().numpy()  # like the original's .numpy()
             if i >= warmup:
                 times.append(time.perf_counter() - t0)
-    return {"median_s": statistics.median(times), "min_s": min(times), "timed_frames": len(times),
-            "warmup_frames": warmup}
+    return {
+        "median_s": statistics.median(times),
+        "min_s": min(times),
+        "timed_frames": len(times),
+        "warmup_frames": warmup,
+    }
 
 
 def conv_floors(threads: int, iters: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "conv_peak.json"
-        cmd = [sys.executable, str(ROOT / "benchmarks" / "conv_peak.py"), "--threads", str(threads), "--iters",
-               str(iters), "--out", str(out)]
+        cmd = [
+            sys.executable,
+            str(ROOT / "benchmarks" / "conv_peak.py"),
+            "--threads",
+            str(threads),
+            "--iters",
+            str(iters),
+            "--out",
+            str(out),
+        ]
         subprocess.run(cmd, check=True, capture_output=True)
         rep = json.loads(out.read_text())
     prec = {"float32": "fp32", "bfloat16": "bf16", "int8": "int8"}
-    return {prec[r["dtype"]]: r for r in rep["results"]["rows"] if r["threads"] == threads} | {"command": " ".join(cmd[1:])}
+    return {prec[r["dtype"]]: r for r in rep["results"]["rows"] if r["threads"] == threads} | {
+        "command": " ".join(cmd[1:])
+    }
 
 
 def time_graph(path: Path, size: int, warmup: int, frames: int, threads: int) -> dict:
@@ -129,22 +173,34 @@ def time_graph(path: Path, size: int, warmup: int, frames: int, threads: int) ->
         out.depth.numpy(), out.semantic.numpy()
         if i >= warmup:
             times.append(time.perf_counter() - t0)
-    return {"median_s": statistics.median(times), "min_s": min(times), "timed_frames": len(times),
-            "warmup_frames": warmup}
+    return {
+        "median_s": statistics.median(times),
+        "min_s": min(times),
+        "timed_frames": len(times),
+        "warmup_frames": warmup,
+    }
 
 
 def markdown(rep: dict) -> str:
     m, prm, res = rep["meta"], rep["params"], rep["results"]
-    lines = [f"# Inference vs the original, side by side ({m['date_utc']})", "",
-             f"Machine: {m.get('cpu_model', '?')} ({m.get('cpu_capability', '?')}); {prm['threads']} threads; batch 1 "
-             f"streaming; {prm['warmup']} warm-up + {prm['frames']} timed frames; load average before {m['loadavg']}, "
-             f"after {res['loadavg_after']}. Indicative when the load average exceeds the thread count.", ""]
+    lines = [
+        f"# Inference vs the original, side by side ({m['date_utc']})",
+        "",
+        f"Machine: {m.get('cpu_model', '?')} ({m.get('cpu_capability', '?')}); {prm['threads']} threads; batch 1 "
+        f"streaming; {prm['warmup']} warm-up + {prm['frames']} timed frames; load average before {m['loadavg']}, "
+        f"after {res['loadavg_after']}. Indicative when the load average exceeds the thread count.",
+        "",
+    ]
     if res["original"] is None:
         lines += [f"**Original not measured**: {res['original_missing']}", ""]
     floors = res["conv_floor_ms_384"]
-    lines += ["Convolution floor of a 384x384 frame at this machine's measured peak (`conv_peak.py`): "
-              + ", ".join(f"{k} {v} ms" for k, v in floors.items()), "",
-              "| size | path | median s/frame | x original | fraction of floor |", "|---|---|---|---|---|"]
+    lines += [
+        "Convolution floor of a 384x384 frame at this machine's measured peak (`conv_peak.py`): "
+        + ", ".join(f"{k} {v} ms" for k, v in floors.items()),
+        "",
+        "| size | path | median s/frame | x original | fraction of floor |",
+        "|---|---|---|---|---|",
+    ]
     for size, rows in res["by_size"].items():
         for name, r in rows.items():
             ratio = "" if r.get("ratio_to_original") is None else f"{r['ratio_to_original']:.2f}x"
@@ -161,10 +217,18 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     p.add_argument("--paths", nargs="+", choices=list(PATHS), default=list(PATHS))
     p.add_argument("--conv-iters", type=int, default=10)
-    p.add_argument("--graphs", nargs="+", default=[], metavar="NAME=FILE",
-                   help="exported ONNX graphs (at the one --sizes given) timed in ONNX Runtime as rows onnx:NAME")
-    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "infer_vs_original"),
-                   help="output path without extension: OUT.json, OUT.md")
+    p.add_argument(
+        "--graphs",
+        nargs="+",
+        default=[],
+        metavar="NAME=FILE",
+        help="exported ONNX graphs (at the one --sizes given) timed in ONNX Runtime as rows onnx:NAME",
+    )
+    p.add_argument(
+        "--out",
+        default=str(ROOT / "benchmarks" / "results" / "infer_vs_original"),
+        help="output path without extension: OUT.json, OUT.md",
+    )
     a = p.parse_args(argv)
     graphs = {}
     for g in a.graphs:
@@ -195,9 +259,11 @@ def main(argv=None) -> int:
     for size in a.sizes:
         rows = {}
         if original is not None:
-            rows["original (TF)"] = {"median_s": original["by_size"][size]["median_s"], "ratio_to_original": 1.0,
-                                     "floor_fraction": floor_384["fp32"] * (size / 384) ** 2 / 1e3
-                                     / original["by_size"][size]["median_s"]}
+            rows["original (TF)"] = {
+                "median_s": original["by_size"][size]["median_s"],
+                "ratio_to_original": 1.0,
+                "floor_fraction": floor_384["fp32"] * (size / 384) ** 2 / 1e3 / original["by_size"][size]["median_s"],
+            }
         for name in a.paths:
             r = time_ours(name, size, a.warmup, a.frames)
             prec = PATHS[name][2]
@@ -207,7 +273,12 @@ def main(argv=None) -> int:
             if original is not None:
                 r["ratio_to_original"] = r["median_s"] / original["by_size"][size]["median_s"]
             rows[name] = r
-            print(size, name, round(r["median_s"], 4), {k: round(v, 3) for k, v in r.items() if k.endswith(("_to_original", "fraction"))})
+            print(
+                size,
+                name,
+                round(r["median_s"], 4),
+                {k: round(v, 3) for k, v in r.items() if k.endswith(("_to_original", "fraction"))},
+            )
         for name, path in graphs.items():
             r = time_graph(Path(path), size, a.warmup, a.frames, a.threads)
             if original is not None:
@@ -215,11 +286,25 @@ def main(argv=None) -> int:
             rows[f"onnx:{name}"] = r
             print(size, f"onnx:{name}", round(r["median_s"], 4))
         results[size] = rows
-    params = {"sizes": a.sizes, "warmup": a.warmup, "frames": a.frames, "threads": a.threads, "paths": a.paths,
-              "graphs": graphs, "conv_iters": a.conv_iters, "batch": 1,
-              "model": "cosemdepth, 5 levels, 7 classes, random weights (seed 0)"}
-    results = {"by_size": results, "original": original, "original_missing": missing, "conv_floors": floors,
-               "conv_floor_ms_384": floor_384, "loadavg_after": [round(x, 2) for x in os.getloadavg()]}
+    params = {
+        "sizes": a.sizes,
+        "warmup": a.warmup,
+        "frames": a.frames,
+        "threads": a.threads,
+        "paths": a.paths,
+        "graphs": graphs,
+        "conv_iters": a.conv_iters,
+        "batch": 1,
+        "model": "cosemdepth, 5 levels, 7 classes, random weights (seed 0)",
+    }
+    results = {
+        "by_size": results,
+        "original": original,
+        "original_missing": missing,
+        "conv_floors": floors,
+        "conv_floor_ms_384": floor_384,
+        "loadavg_after": [round(x, 2) for x in os.getloadavg()],
+    }
     rep = make_report("infer_vs_original", params, results)
     rep["meta"]["loadavg"] = [round(x, 2) for x in load_before]
     out = Path(a.out)

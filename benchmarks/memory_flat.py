@@ -33,9 +33,12 @@ from cosemdepth.export.check import synthetic_sequence
 from cosemdepth.inference import FastModel
 from cosemdepth.models import build_model
 
-
-MODES = {"reference": ("reference", None), "fast-fp32": ("fast", "fp32"), "fast-bf16": ("fast", "bf16"),
-         "fast-int8": ("fast", "int8")}
+MODES = {
+    "reference": ("reference", None),
+    "fast-fp32": ("fast", "fp32"),
+    "fast-bf16": ("fast", "bf16"),
+    "fast-int8": ("fast", "int8"),
+}
 
 
 def run_modes(a, argv) -> int:
@@ -49,25 +52,49 @@ def run_modes(a, argv) -> int:
                 mode = pending.pop(0)
                 path, precision = MODES[mode]
                 out = f"{tmp}/{mode}.json"
-                cmd = [sys.executable, __file__, *_strip(passthrough), "--single", "--path", path, "--out", out,
-                       *(["--precision", precision] if precision else [])]
+                cmd = [
+                    sys.executable,
+                    __file__,
+                    *_strip(passthrough),
+                    "--single",
+                    "--path",
+                    path,
+                    "--out",
+                    out,
+                    *(["--precision", precision] if precision else []),
+                ]
                 procs.append((mode, out, subprocess.Popen(cmd)))
             time.sleep(1)
             for item in [x for x in procs if x[2].poll() is not None]:
                 procs.remove(item)
                 mode, out, proc = item
-                results[mode] = (json.loads(Path(out).read_text())["results"] if Path(out).exists()
-                                 else {"ok": False, "error": proc.returncode})
+                results[mode] = (
+                    json.loads(Path(out).read_text())["results"]
+                    if Path(out).exists()
+                    else {"ok": False, "error": proc.returncode}
+                )
     ok = all(r["ok"] for r in results.values())
-    params = {"frames": a.frames, "size": a.size, "modes": list(a.modes), "jobs": a.jobs, "arch": a.arch,
-              "threads_each": a.threads, "warmup": a.warmup, "reset_every": a.reset_every, "every": a.every,
-              "tolerance_mb": a.tolerance_mb, "device": a.device}
+    params = {
+        "frames": a.frames,
+        "size": a.size,
+        "modes": list(a.modes),
+        "jobs": a.jobs,
+        "arch": a.arch,
+        "threads_each": a.threads,
+        "warmup": a.warmup,
+        "reset_every": a.reset_every,
+        "every": a.every,
+        "tolerance_mb": a.tolerance_mb,
+        "device": a.device,
+    }
     write_report(a.out, make_report("memory_flat", params, {"ok": ok, "modes": {m: results[m] for m in a.modes}}))
     for m in a.modes:
         r = results[m]
-        print(f"{m:>10}: {'FLAT' if r['ok'] else 'GROWING'} RSS start {r.get('rss_start_mb')} MB, after warm-up "
-              f"{r.get('baseline_mb')} MB, end {r.get('rss_end_mb')} MB, max growth {r.get('max_growth_after_warmup_mb')}"
-              f" MB, {r.get('ms_per_frame')} ms/frame")
+        print(
+            f"{m:>10}: {'FLAT' if r['ok'] else 'GROWING'} RSS start {r.get('rss_start_mb')} MB, after warm-up "
+            f"{r.get('baseline_mb')} MB, end {r.get('rss_end_mb')} MB, max growth {r.get('max_growth_after_warmup_mb')}"
+            f" MB, {r.get('ms_per_frame')} ms/frame"
+        )
     print(f"wrote {a.out}")
     return 0 if ok else 1
 

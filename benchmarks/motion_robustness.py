@@ -46,7 +46,7 @@ from typing import Callable
 import torch
 
 from cosemdepth.bench.harness import command_line, make_report, run_meta, write_report
-from cosemdepth.evaluation.metrics import EVAL_MAX_DEPTH, EPS, DepthMetrics, ValidDepthMetrics
+from cosemdepth.evaluation.metrics import EPS, EVAL_MAX_DEPTH, DepthMetrics, ValidDepthMetrics
 from cosemdepth.output_safety.atomic import atomic_write_bytes, atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -120,8 +120,9 @@ class Tally:
         self.too_near = 0
         self.too_near_removed = 0
 
-    def update(self, gt: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, status: list[str],
-               include: torch.Tensor) -> None:
+    def update(
+        self, gt: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, status: list[str], include: torch.Tensor
+    ) -> None:
         """Frames ``[B, 1, H, W]`` (GT, predicted depth, validity), their statuses, ``include [B]`` bool."""
         inc = include.to(torch.bool).cpu()
         for st, i in zip(status, inc.tolist()):
@@ -141,8 +142,12 @@ class Tally:
         d = self.depth.compute()
         v = self.valid.compute()
         return {
-            "abs_rel": d["abs_rel"], "delta1": d["delta1"], "depth_frames": d["depth_frames"],
-            "valid_abs_rel": v["valid_abs_rel"], "valid_delta1": v["valid_delta1"], "coverage": v["coverage"],
+            "abs_rel": d["abs_rel"],
+            "delta1": d["delta1"],
+            "depth_frames": d["depth_frames"],
+            "valid_abs_rel": v["valid_abs_rel"],
+            "valid_delta1": v["valid_delta1"],
+            "coverage": v["coverage"],
             "valid_frames": v["valid_frames"],
             "frames_by_status": {k: int(self.status.get(k, 0)) for k in ("estimated", "held", "reset")},
             "valid_nonpositive_pixels": self.nonpositive_valid,
@@ -172,8 +177,7 @@ class FlightTallies:
             sel = torch.tensor([k == sub for k in kinds])
             if bool(sel.any()):
                 idx = sel.nonzero().flatten()
-                tally.update(gt[idx], depth[idx], valid[idx], [status[i] for i in idx.tolist()],
-                             include.cpu()[idx])
+                tally.update(gt[idx], depth[idx], valid[idx], [status[i] for i in idx.tolist()], include.cpu()[idx])
 
 
 def _ratio(a, b) -> float:
@@ -195,11 +199,16 @@ def acceptance(results: dict) -> dict:
             s, f = get(regime, pol, seg), get(regime, pol, "fly")
             if s is None or f is None:
                 continue
-            r[pol] = {"segment_valid_abs_rel": s["valid_abs_rel"], "fly_valid_abs_rel": f["valid_abs_rel"],
-                      "ratio": _ratio(s["valid_abs_rel"], f["valid_abs_rel"]),
-                      "segment_abs_rel": s["abs_rel"], "fly_abs_rel": f["abs_rel"],
-                      "all_pixel_ratio": _ratio(s["abs_rel"], f["abs_rel"]),
-                      "segment_coverage": s["coverage"], "valid_nonpositive_pixels": s["valid_nonpositive_pixels"]}
+            r[pol] = {
+                "segment_valid_abs_rel": s["valid_abs_rel"],
+                "fly_valid_abs_rel": f["valid_abs_rel"],
+                "ratio": _ratio(s["valid_abs_rel"], f["valid_abs_rel"]),
+                "segment_abs_rel": s["abs_rel"],
+                "fly_abs_rel": f["abs_rel"],
+                "all_pixel_ratio": _ratio(s["abs_rel"], f["abs_rel"]),
+                "segment_coverage": s["coverage"],
+                "valid_nonpositive_pixels": s["valid_nonpositive_pixels"],
+            }
         if base in r:
             r["ok"] = bool(r[base]["valid_nonpositive_pixels"] == 0 and r[base]["ratio"] <= STILL_RATIO)
         if r:
@@ -214,32 +223,56 @@ def acceptance(results: dict) -> dict:
             x, n = get(regime, pol), normal[pol]
             if x is None or n is None:
                 continue
-            r[pol] = {"valid_abs_rel": x["valid_abs_rel"], "abs_rel": x["abs_rel"], "coverage": x["coverage"],
-                      "valid_ratio": _ratio(x["valid_abs_rel"], n["valid_abs_rel"]),
-                      "all_pixel_ratio": _ratio(x["abs_rel"], n["abs_rel"])}
+            r[pol] = {
+                "valid_abs_rel": x["valid_abs_rel"],
+                "abs_rel": x["abs_rel"],
+                "coverage": x["coverage"],
+                "valid_ratio": _ratio(x["valid_abs_rel"], n["valid_abs_rel"]),
+                "all_pixel_ratio": _ratio(x["abs_rel"], n["abs_rel"]),
+            }
         if base in r and regime in SLOW_REGIMES:
             r["ok"] = bool(r[base]["valid_ratio"] <= SLOW_RATIO)
         if r:
             slow[regime] = r
     if slow:
-        out["b_speed"] = {"max_ratio": SLOW_RATIO, "measure": "valid AbsRel, baseline policy, against the normal "
-                          "flights' under the same policy", **slow}
+        out["b_speed"] = {
+            "max_ratio": SLOW_RATIO,
+            "measure": "valid AbsRel, baseline policy, against the normal flights' under the same policy",
+            **slow,
+        }
     if normal[base] is not None and normal[every] is not None:
         b, e = normal[base], normal[every]
         change = abs(b["abs_rel"] - e["abs_rel"]) / e["abs_rel"]
-        out["c_normal"] = {"abs_rel_every_frame": e["abs_rel"], "abs_rel_baseline": b["abs_rel"],
-                           "abs_rel_relative_change": change,
-                           "valid_abs_rel_baseline": b["valid_abs_rel"], "coverage_baseline": b["coverage"],
-                           "coverage_every_frame": e["coverage"], "max_change": NORMAL_ABSREL_CHANGE,
-                           "min_coverage": MIN_COVERAGE,
-                           "ok": bool(change < NORMAL_ABSREL_CHANGE and b["coverage"] >= MIN_COVERAGE)}
+        out["c_normal"] = {
+            "abs_rel_every_frame": e["abs_rel"],
+            "abs_rel_baseline": b["abs_rel"],
+            "abs_rel_relative_change": change,
+            "valid_abs_rel_baseline": b["valid_abs_rel"],
+            "coverage_baseline": b["coverage"],
+            "coverage_every_frame": e["coverage"],
+            "max_change": NORMAL_ABSREL_CHANGE,
+            "min_coverage": MIN_COVERAGE,
+            "ok": bool(change < NORMAL_ABSREL_CHANGE and b["coverage"] >= MIN_COVERAGE),
+        }
     demo = {pol: get(DEMO_NAME, pol) for pol in (base, every)}
     if demo[base] is not None:
-        d = {pol: {"too_near_pixels": x["too_near_pixels"], "too_near_removed": x["too_near_removed"],
-                   "coverage": x["coverage"], "abs_rel": x["abs_rel"], "valid_abs_rel": x["valid_abs_rel"]}
-             for pol, x in demo.items() if x is not None}
-        out["d_demo"] = {"too_near": TOO_NEAR, "min_removed": MIN_TOO_NEAR_REMOVED, **d,
-                         "ok": bool(demo[base]["too_near_removed"] >= MIN_TOO_NEAR_REMOVED)}
+        d = {
+            pol: {
+                "too_near_pixels": x["too_near_pixels"],
+                "too_near_removed": x["too_near_removed"],
+                "coverage": x["coverage"],
+                "abs_rel": x["abs_rel"],
+                "valid_abs_rel": x["valid_abs_rel"],
+            }
+            for pol, x in demo.items()
+            if x is not None
+        }
+        out["d_demo"] = {
+            "too_near": TOO_NEAR,
+            "min_removed": MIN_TOO_NEAR_REMOVED,
+            **d,
+            "ok": bool(demo[base]["too_near_removed"] >= MIN_TOO_NEAR_REMOVED),
+        }
     for key in ("a_still", "b_speed"):
         if key in out:
             out[key]["ok"] = all(x["ok"] for x in out[key].values() if isinstance(x, dict) and "ok" in x)
@@ -260,8 +293,24 @@ def _complete(folder: Path) -> bool:
 
 
 def synth_argv(out: Path, seed: int, spec: str | None, step: int, frames: int | None = None) -> list[str]:
-    argv = ["synth", "--out", str(out), "--trajectories", "1", "--size", str(SIZE), "--seed", str(seed),
-            "--climates", CLIMATE, "--supersample", str(SUPERSAMPLE), "--frame-step", str(step), "--no-progress"]
+    argv = [
+        "synth",
+        "--out",
+        str(out),
+        "--trajectories",
+        "1",
+        "--size",
+        str(SIZE),
+        "--seed",
+        str(seed),
+        "--climates",
+        CLIMATE,
+        "--supersample",
+        str(SUPERSAMPLE),
+        "--frame-step",
+        str(step),
+        "--no-progress",
+    ]
     if spec is not None:
         argv += ["--motion", spec]
     if frames is not None:
@@ -317,12 +366,16 @@ def markdown(report: dict) -> str:
     s = report["settings"]
     m = report["meta"]
     lines = [
-        "# Depth under unusual camera motion (both streaming policies)", "",
+        "# Depth under unusual camera motion (both streaming policies)",
+        "",
         f"Model {s['model']}, SynthAir seeds {', '.join(map(str, s['seeds']))} ({s['resolution']}x{s['resolution']} "
         f"px, batch {s['batch']}, {s['precision']}), policies: "
-        + "; ".join(f"{k}: {json.dumps(v)}" for k, v in s["policies"].items()) + ".", "",
+        + "; ".join(f"{k}: {json.dumps(v)}" for k, v in s["policies"].items())
+        + ".",
+        "",
         f"{m['cpu_model']}, {m['threads']} torch threads, torch {m['torch']}, {m['date_utc']}; "
-        f"{report['wall_seconds']:.0f} s of streaming. Command: `{m['command']}`.", "",
+        f"{report['wall_seconds']:.0f} s of streaming. Command: `{m['command']}`.",
+        "",
         "| regime | rows | policy | AbsRel | δ1 | valid AbsRel | valid δ1 | coverage | estimated / held / reset "
         "| valid depth <= 0 | too near removed |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
@@ -337,18 +390,22 @@ def markdown(report: dict) -> str:
                     f"| {regime} | {sub} | {pol} | {_f(r['abs_rel'])} | {_f(r['delta1'], '.3f')} | "
                     f"{_f(r['valid_abs_rel'])} | {_f(r['valid_delta1'], '.3f')} | {_f(r['coverage'], '.3f')} | "
                     f"{st['estimated']} / {st['held']} / {st['reset']} | {r['valid_nonpositive_pixels']} | "
-                    f"{_f(r['too_near_removed'], '.3f')} ({r['too_near_pixels']}) |")
+                    f"{_f(r['too_near_removed'], '.3f')} ({r['too_near_pixels']}) |"
+                )
     acc = report["acceptance"]
     lines += ["", "Acceptance (docs/motion.md):", ""]
     for key, v in acc.items():
         if isinstance(v, dict):
             lines.append(f"- {key}: {'pass' if v['ok'] else 'FAIL'} — {_acceptance_line(key, v)}")
     lines.append(f"- all: {'pass' if acc.get('all_ok') else 'FAIL'}")
-    lines += ["", "AbsRel and δ1 over every pixel with ground truth (the paper's metrics); valid AbsRel / δ1 over the "
-              "pixels marked valid; coverage = valid fraction of the GT pixels of the non-reset frames; too near = "
-              f"predicted depth < {TOO_NEAR} x GT (in brackets: how many pixels), removed = the fraction not valid. "
-              "Rows: `all` every row of the flights, `hover` / `yaw` the rows inside that segment, `fly` the rows "
-              "inside the fly segments of the same flights."]
+    lines += [
+        "",
+        "AbsRel and δ1 over every pixel with ground truth (the paper's metrics); valid AbsRel / δ1 over the "
+        "pixels marked valid; coverage = valid fraction of the GT pixels of the non-reset frames; too near = "
+        f"predicted depth < {TOO_NEAR} x GT (in brackets: how many pixels), removed = the fraction not valid. "
+        "Rows: `all` every row of the flights, `hover` / `yaw` the rows inside that segment, `fly` the rows "
+        "inside the fly segments of the same flights.",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -358,20 +415,35 @@ def _acceptance_line(key: str, v: dict) -> str:
             f"{r}: valid AbsRel {_f(x['baseline']['segment_valid_abs_rel'])} vs fly {_f(x['baseline']['fly_valid_abs_rel'])}"
             f" = {_f(x['baseline']['ratio'], '.2f')}x (<= {v['max_ratio']}), valid depth <= 0: "
             f"{x['baseline']['valid_nonpositive_pixels']}"
-            for r, x in v.items() if isinstance(x, dict) and "baseline" in x)
+            for r, x in v.items()
+            if isinstance(x, dict) and "baseline" in x
+        )
     if key == "b_speed":
-        return "; ".join(
-            f"{r}: {_f(x['baseline']['valid_ratio'], '.2f')}x (all pixels {_f(x['baseline']['all_pixel_ratio'], '.2f')}x;"
-            f" every-frame {_f(x.get('every-frame', {}).get('valid_ratio'), '.2f')}x / "
-            f"{_f(x.get('every-frame', {}).get('all_pixel_ratio'), '.2f')}x)"
-            for r, x in v.items() if isinstance(x, dict) and "baseline" in x) + f" (<= {v['max_ratio']} for "\
+        return (
+            "; ".join(
+                f"{r}: {_f(x['baseline']['valid_ratio'], '.2f')}x (all pixels {_f(x['baseline']['all_pixel_ratio'], '.2f')}x;"
+                f" every-frame {_f(x.get('every-frame', {}).get('valid_ratio'), '.2f')}x / "
+                f"{_f(x.get('every-frame', {}).get('all_pixel_ratio'), '.2f')}x)"
+                for r, x in v.items()
+                if isinstance(x, dict) and "baseline" in x
+            )
+            + f" (<= {v['max_ratio']} for "
             f"{', '.join(SLOW_REGIMES)})"
+        )
     if key == "c_normal":
-        return (f"AbsRel change {100 * v['abs_rel_relative_change']:.2f} % (< {100 * v['max_change']:.0f} %), "
-                f"coverage {_f(v['coverage_baseline'], '.4f')} (>= {v['min_coverage']})")
+        return (
+            f"AbsRel change {100 * v['abs_rel_relative_change']:.2f} % (< {100 * v['max_change']:.0f} %), "
+            f"coverage {_f(v['coverage_baseline'], '.4f')} (>= {v['min_coverage']})"
+        )
     if key == "d_demo":
-        return "; ".join(f"{p}: {_f(x['too_near_removed'], '.3f')} of {x['too_near_pixels']} too-near pixels removed"
-                         for p, x in v.items() if isinstance(x, dict)) + f" (>= {v['min_removed']}, baseline)"
+        return (
+            "; ".join(
+                f"{p}: {_f(x['too_near_removed'], '.3f')} of {x['too_near_pixels']} too-near pixels removed"
+                for p, x in v.items()
+                if isinstance(x, dict)
+            )
+            + f" (>= {v['min_removed']}, baseline)"
+        )
     return ""
 
 
@@ -393,8 +465,10 @@ def plot(report: dict, path: Path) -> None:
     pols = list(next(iter(res.values())).keys())
     fig, axes = plt.subplots(2, 1, figsize=(max(8, 0.9 * len(cols) + 2), 7), sharex=True)
     width = 0.8 / max(len(pols), 1)
-    for ax, key, title in ((axes[0], "abs_rel", "AbsRel, every pixel with ground truth"),
-                           (axes[1], "valid_abs_rel", "AbsRel over the valid pixels (coverage above the bars)")):
+    for ax, key, title in (
+        (axes[0], "abs_rel", "AbsRel, every pixel with ground truth"),
+        (axes[1], "valid_abs_rel", "AbsRel over the valid pixels (coverage above the bars)"),
+    ):
         for j, pol in enumerate(pols):
             xs = [i + (j - (len(pols) - 1) / 2) * width for i in range(len(cols))]
             vals = [res[r][pol][s][key] for r, s in cols]
@@ -423,22 +497,30 @@ def plot(report: dict, path: Path) -> None:
 
 def to_report(report: dict) -> dict:
     """The JSON written (the benchmark report shape) from the run's ``report`` (what the Markdown reads)."""
-    results = {"regimes": report["results"], "acceptance": report["acceptance"], "per_flight": report["per_flight"],
-               "flights": report["flights"], "wall_seconds": report["wall_seconds"]}
+    results = {
+        "regimes": report["results"],
+        "acceptance": report["acceptance"],
+        "per_flight": report["per_flight"],
+        "flights": report["flights"],
+        "wall_seconds": report["wall_seconds"],
+    }
     return make_report("motion_robustness", report["settings"], results, meta=report["meta"])
 
 
 def main(argv=None) -> int:
-    from cosemdepth.inference.policy import MAX_LOG_RATIO, POLICIES, StreamPolicy
     from cosemdepth.geometry.validity import MAX_CONDITIONING
+    from cosemdepth.inference.policy import MAX_LOG_RATIO, POLICIES, StreamPolicy
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--model", default=str(ROOT / "weights" / "synthair-cosemdepth"), help="model folder")
     p.add_argument("--seeds", type=int, nargs="+", default=list(DEFAULT_SEEDS), help="held-out world seeds")
     p.add_argument("--regimes", nargs="+", choices=list(REGIMES), default=list(REGIMES))
     p.add_argument("--data", help="folder of already generated flights s<seed>-<regime> (nothing is generated)")
-    p.add_argument("--cache", default=str(ROOT / "runs" / "motion_robustness"),
-                   help="where flights are generated and kept (default runs/motion_robustness)")
+    p.add_argument(
+        "--cache",
+        default=str(ROOT / "runs" / "motion_robustness"),
+        help="where flights are generated and kept (default runs/motion_robustness)",
+    )
     p.add_argument("--demo", help="the demo flight (a SynthAir set; default <data or cache>/s1001-demo)")
     p.add_argument("--no-demo", action="store_true", help="skip the demo flight (criterion d)")
     p.add_argument("--policies", nargs="+", choices=list(POLICIES), default=list(POLICY_NAMES))
@@ -446,22 +528,31 @@ def main(argv=None) -> int:
     p.add_argument("--max-conditioning", type=float, default=MAX_CONDITIONING)
     p.add_argument("--max-log-ratio", type=float, default=MAX_LOG_RATIO)
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
-    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "motion_robustness"),
-                   help="output path without extension: OUT.json, OUT.md, OUT.png")
+    p.add_argument(
+        "--out",
+        default=str(ROOT / "benchmarks" / "results" / "motion_robustness"),
+        help="output path without extension: OUT.json, OUT.md, OUT.png",
+    )
     a = p.parse_args(argv)
     if a.threads:
         torch.set_num_threads(a.threads)
 
+    from cosemdepth.checkpoints.model_io import load_model
     from cosemdepth.data import open_dataset
     from cosemdepth.evaluation.evaluator import evaluate
     from cosemdepth.inference.policy import Streamer, policy_info
-    from cosemdepth.checkpoints.model_io import load_model
 
     todo = flights(a)
     model = load_model(a.model, mode="fast")
-    policies = {name: StreamPolicy(mode=name, min_baseline=a.min_baseline if name == "baseline" else None,
-                                   max_conditioning=a.max_conditioning, max_log_ratio=a.max_log_ratio)
-                for name in a.policies}
+    policies = {
+        name: StreamPolicy(
+            mode=name,
+            min_baseline=a.min_baseline if name == "baseline" else None,
+            max_conditioning=a.max_conditioning,
+            max_log_ratio=a.max_log_ratio,
+        )
+        for name in a.policies
+    }
     tallies: dict = {}
     per_flight: dict = {}
     wall = 0.0
@@ -483,27 +574,38 @@ def main(argv=None) -> int:
             m = r.metrics
             per_flight.setdefault(folder.name, {})[name] = {
                 **{k: m[k] for k in ("abs_rel", "delta1", "valid_abs_rel", "valid_delta1", "coverage")},
-                "frames_by_status": r.info["protocol"]["frames_by_status"], "seconds": round(sec, 1),
-                "ms_per_frame": r.ms_per_frame}
-            print(f"{folder.name} {name}: AbsRel {m['abs_rel']:.4f} valid {m['valid_abs_rel']:.4f} coverage "
-                  f"{m['coverage']:.3f} {r.info['protocol']['frames_by_status']} ({sec:.0f} s)", flush=True)
+                "frames_by_status": r.info["protocol"]["frames_by_status"],
+                "seconds": round(sec, 1),
+                "ms_per_frame": r.ms_per_frame,
+            }
+            print(
+                f"{folder.name} {name}: AbsRel {m['abs_rel']:.4f} valid {m['valid_abs_rel']:.4f} coverage "
+                f"{m['coverage']:.3f} {r.info['protocol']['frames_by_status']} ({sec:.0f} s)",
+                flush=True,
+            )
     results: dict = {}
     for (regime, pol, sub), t in tallies.items():
         results.setdefault(regime, {}).setdefault(pol, {})[sub] = t.result()
     report = {
         "benchmark": "motion_robustness",
-        "meta": run_meta(command=command_line(["benchmarks/motion_robustness.py",
-                                               *(argv if argv is not None else sys.argv[1:])])),
+        "meta": run_meta(
+            command=command_line(["benchmarks/motion_robustness.py", *(argv if argv is not None else sys.argv[1:])])
+        ),
         "settings": {
             "model": os.path.relpath(a.model, ROOT) if Path(a.model).is_relative_to(ROOT) else a.model,
-            "seeds": a.seeds, "regimes": {r: {"motion": REGIMES[r][0], "frame_step": REGIMES[r][1]}
-                                          for r in a.regimes},
-            "resolution": SIZE, "batch": 1, "precision": "float32 (fast engine)", "climate": CLIMATE,
+            "seeds": a.seeds,
+            "regimes": {r: {"motion": REGIMES[r][0], "frame_step": REGIMES[r][1]} for r in a.regimes},
+            "resolution": SIZE,
+            "batch": 1,
+            "precision": "float32 (fast engine)",
+            "climate": CLIMATE,
             "supersample": SUPERSAMPLE,
             "policies": {n: policy_info(Streamer(model, pol)) for n, pol in policies.items()},
-            "operating_point_step_translation_m": (model.operating_point.step_translation.to_dict()
-                                                   if model.operating_point and model.operating_point.step_translation
-                                                   else None),
+            "operating_point_step_translation_m": (
+                model.operating_point.step_translation.to_dict()
+                if model.operating_point and model.operating_point.step_translation
+                else None
+            ),
         },
         "flights": {f.name: str(f) for _, _, f in todo},
         "wall_seconds": round(wall, 1),

@@ -25,15 +25,15 @@ from torch.profiler import ProfilerActivity, profile, record_function
 
 from cosemdepth import load_model
 from cosemdepth.bench.harness import make_report, write_report
-from cosemdepth.training.config import RunConfig
+from cosemdepth.data.toy import ToyDataset
 from cosemdepth.devices import retain_freed_host_memory
 from cosemdepth.export.check import synthetic_sequence
-from cosemdepth.output_safety.atomic import atomic_write_text
 from cosemdepth.inference import FastModel
 from cosemdepth.models import build_model
+from cosemdepth.output_safety.atomic import atomic_write_text
+from cosemdepth.training.config import RunConfig
 from cosemdepth.training.data import collate, to_device
 from cosemdepth.training.optim import make_optimizer
-from cosemdepth.data.toy import ToyDataset
 from cosemdepth.training.trainer import bf16_autocast, compute_loss, forward_batch, prepare_for_training
 
 INFER_DOC = """Where a streamed frame's time goes on the fast path: torch.profiler by op, convolutions against everything else.
@@ -58,8 +58,15 @@ number of the forward op that created it).
 
 # --- infer: a streamed frame on the fast path ---
 
-CONV_OPS = ("mkldnn::_convolution_pointwise", "onednn::qconv2d_pointwise", "aten::mkldnn_convolution",
-            "aten::_convolution", "aten::convolution", "aten::conv2d", "quantized::conv2d")
+CONV_OPS = (
+    "mkldnn::_convolution_pointwise",
+    "onednn::qconv2d_pointwise",
+    "aten::mkldnn_convolution",
+    "aten::_convolution",
+    "aten::convolution",
+    "aten::conv2d",
+    "quantized::conv2d",
+)
 PRECISION_DTYPES = {"fp32": "float32", "bf16": "bfloat16", "int8": "int8"}
 
 
@@ -96,29 +103,50 @@ def profile_one(model_path: str, precision: str, size: int, n: int) -> dict:
     for e in prof.key_averages():
         by_op[e.key][0] += e.count
         by_op[e.key][1] += e.self_cpu_time_total / 1e3  # ms
-    ops = sorted(({"op": k, "calls_per_frame": c / n, "self_ms_per_frame": ms / n} for k, (c, ms) in by_op.items()),
-                 key=lambda r: -r["self_ms_per_frame"])
+    ops = sorted(
+        ({"op": k, "calls_per_frame": c / n, "self_ms_per_frame": ms / n} for k, (c, ms) in by_op.items()),
+        key=lambda r: -r["self_ms_per_frame"],
+    )
     total = sum(r["self_ms_per_frame"] for r in ops)
     conv = sum(r["self_ms_per_frame"] for r in ops if r["op"] in CONV_OPS)
-    return {"precision": precision, "wall_ms_per_frame": [round(w * 1e3, 1) for w in walls],
-            "wall_median_ms": round(statistics.median(walls) * 1e3, 1), "profiled_self_ms_per_frame": round(total, 1),
-            "conv_ms_per_frame": round(conv, 1), "other_ms_per_frame": round(total - conv, 1),
-            "conv_share": round(conv / total, 3), "ops": [{**r, "self_ms_per_frame": round(r["self_ms_per_frame"], 2)}
-                                                          for r in ops if r["self_ms_per_frame"] >= 0.05]}
+    return {
+        "precision": precision,
+        "wall_ms_per_frame": [round(w * 1e3, 1) for w in walls],
+        "wall_median_ms": round(statistics.median(walls) * 1e3, 1),
+        "profiled_self_ms_per_frame": round(total, 1),
+        "conv_ms_per_frame": round(conv, 1),
+        "other_ms_per_frame": round(total - conv, 1),
+        "conv_share": round(conv / total, 3),
+        "ops": [
+            {**r, "self_ms_per_frame": round(r["self_ms_per_frame"], 2)} for r in ops if r["self_ms_per_frame"] >= 0.05
+        ],
+    }
 
 
 def infer_markdown(report: dict, top: int = 15) -> str:
     m = report["meta"]
-    lines = [f"# Fast-path frame profile ({report['params']['size']} px, batch 1, {report['params']['threads']} threads) — indicative", "",
-             f"Machine: {m.get('cpu_model')}, load average at start {m.get('loadavg')}; {m['date_utc']}.", "",
-             "| precision | wall ms/frame (median, unprofiled) | profiled self ms/frame | convolutions | other | "
-             "conv share |", "|---|---:|---:|---:|---:|---:|"]
+    lines = [
+        f"# Fast-path frame profile ({report['params']['size']} px, batch 1, {report['params']['threads']} threads) — indicative",
+        "",
+        f"Machine: {m.get('cpu_model')}, load average at start {m.get('loadavg')}; {m['date_utc']}.",
+        "",
+        "| precision | wall ms/frame (median, unprofiled) | profiled self ms/frame | convolutions | other | "
+        "conv share |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
     for r in report["results"]["runs"]:
-        lines.append(f"| {r['precision']} | {r['wall_median_ms']} | {r['profiled_self_ms_per_frame']} | "
-                     f"{r['conv_ms_per_frame']} | {r['other_ms_per_frame']} | {r['conv_share']:.0%} |")
+        lines.append(
+            f"| {r['precision']} | {r['wall_median_ms']} | {r['profiled_self_ms_per_frame']} | "
+            f"{r['conv_ms_per_frame']} | {r['other_ms_per_frame']} | {r['conv_share']:.0%} |"
+        )
     for r in report["results"]["runs"]:
-        lines += ["", f"## {r['precision']}: top ops by self time", "", "| op | calls/frame | self ms/frame |",
-                  "|---|---:|---:|"]
+        lines += [
+            "",
+            f"## {r['precision']}: top ops by self time",
+            "",
+            "| op | calls/frame | self ms/frame |",
+            "|---|---:|---:|",
+        ]
         lines += [f"| `{o['op']}` | {o['calls_per_frame']:g} | {o['self_ms_per_frame']} |" for o in r["ops"][:top]]
     return "\n".join(lines) + "\n"
 
@@ -137,12 +165,22 @@ def infer_main(argv=None) -> int:
     for p in args.precision:
         r = profile_one(args.model, p, args.size, args.frames)
         runs.append(r)
-        print(f"{p}: wall {r['wall_median_ms']} ms/frame; profiled {r['profiled_self_ms_per_frame']} ms = conv "
-              f"{r['conv_ms_per_frame']} + other {r['other_ms_per_frame']}", flush=True)
+        print(
+            f"{p}: wall {r['wall_median_ms']} ms/frame; profiled {r['profiled_self_ms_per_frame']} ms = conv "
+            f"{r['conv_ms_per_frame']} + other {r['other_ms_per_frame']}",
+            flush=True,
+        )
         for o in r["ops"][:12]:
             print(f"    {o['op']:<45} {o['calls_per_frame']:>6g} {o['self_ms_per_frame']:>8.2f}", flush=True)
-    params = {"mode": "infer", "size": args.size, "threads": args.threads, "precision": args.precision,
-              "frames": args.frames, "model": args.model, "batch": 1}
+    params = {
+        "mode": "infer",
+        "size": args.size,
+        "threads": args.threads,
+        "precision": args.precision,
+        "frames": args.frames,
+        "model": args.model,
+        "batch": 1,
+    }
     report = make_report("op_profile", params, {"runs": runs})
     if args.out:
         write_report(Path(args.out + ".json"), report)
@@ -171,6 +209,7 @@ def _wrap(fn, name):
     def inner(*args, **kwargs):
         with record_function(PART_PREFIX + name):
             return fn(*args, **kwargs)
+
     return inner
 
 
@@ -193,8 +232,11 @@ def marked(model):
         ref = pyr.REFERENCE_OPS
         saved.append((pyr, "REFERENCE_OPS", ref))
         pyr.REFERENCE_OPS = dataclasses.replace(
-            ref, pscv=_wrap(ref.pscv, "cost volume: parallax sweep (incl. warp)"),
-            sncv=_wrap(ref.sncv, "cost volume: spatial (SNCV)"), concat=_wrap(ref.concat, "concatenation"))
+            ref,
+            pscv=_wrap(ref.pscv, "cost volume: parallax sweep (incl. warp)"),
+            sncv=_wrap(ref.sncv, "cost volume: spatial (SNCV)"),
+            concat=_wrap(ref.concat, "concatenation"),
+        )
 
     def hook_pair(part):
         state = {}
@@ -206,6 +248,7 @@ def marked(model):
 
         def post(_m, _i, _o):
             state["stack"].pop().__exit__(None, None, None)
+
         return pre, post
 
     from cosemdepth.models.encoder import DINL, Encoder
@@ -269,7 +312,7 @@ def attribute(events) -> dict[str, dict[str, float]]:
         where = top.name if top is not None else "other"
         if where == "forward":
             r = _ancestor(e, lambda x: x.name.startswith(PART_PREFIX))
-            part = r.name[len(PART_PREFIX):] if r is not None else "model, other"
+            part = r.name[len(PART_PREFIX) :] if r is not None else "model, other"
             if e.sequence_nr >= 0:
                 seq_part.setdefault(e.sequence_nr, part)
             out[part]["forward_ms"] += e.self_cpu_time_total / 1e3
@@ -309,8 +352,9 @@ def train_main(argv=None) -> int:
     torch.set_num_threads(a.threads)
     retain_freed_host_memory()  # as the CPU trainer does (train.retain_host_memory)
     torch.manual_seed(0)
-    cfg = RunConfig.from_dict({"data": {"train": [{"name": "toy"}], "size": a.size, "seq_len": a.seq_len},
-                               "train": {"bf16": a.bf16}})
+    cfg = RunConfig.from_dict(
+        {"data": {"train": [{"name": "toy"}], "size": a.size, "seq_len": a.seq_len}, "train": {"bf16": a.bf16}}
+    )
     device = torch.device("cpu")
     model = build_model(cfg.model).train()
     model = prepare_for_training(model, device, a.channels_last)
@@ -319,9 +363,14 @@ def train_main(argv=None) -> int:
     if a.data:
         from cosemdepth.training.data import build_train_dataset, make_loader
 
-        d = {"data": {"train": [{"name": "midair", "root": a.data, **({"split_dir": a.split_dir} if a.split_dir
-                                                                          else {})}],
-                      "size": a.size, "seq_len": a.seq_len, "num_workers": a.workers}}
+        d = {
+            "data": {
+                "train": [{"name": "midair", "root": a.data, **({"split_dir": a.split_dir} if a.split_dir else {})}],
+                "size": a.size,
+                "seq_len": a.seq_len,
+                "num_workers": a.workers,
+            }
+        }
         dcfg = RunConfig.from_dict(d)
         dataset = build_train_dataset(dcfg.data, dcfg.model, 0)
         loader_iter = iter(make_loader(dataset, a.batch, a.workers, seed=0))
@@ -352,8 +401,9 @@ def train_main(argv=None) -> int:
         with record_function("backward"):
             loss.backward()
         with record_function("grad norm + finite check"):
-            norm = torch.linalg.vector_norm(torch.stack(torch._foreach_norm([q.grad for q in model.parameters()
-                                                                            if q.grad is not None])))
+            norm = torch.linalg.vector_norm(
+                torch.stack(torch._foreach_norm([q.grad for q in model.parameters() if q.grad is not None]))
+            )
             ok = bool(torch.isfinite(loss)) and bool(torch.isfinite(norm))
         with record_function("optimizer (Adam)"):
             if ok:
@@ -371,34 +421,72 @@ def train_main(argv=None) -> int:
     events = prof.events()
     parts = attribute(events)
     n = a.steps
-    rows = sorted(({"part": k, "forward_ms": v["forward_ms"] / n, "backward_ms": v["backward_ms"] / n,
-                    "total_ms": (v["forward_ms"] + v["backward_ms"]) / n} for k, v in parts.items()),
-                  key=lambda r: -r["total_ms"])
+    rows = sorted(
+        (
+            {
+                "part": k,
+                "forward_ms": v["forward_ms"] / n,
+                "backward_ms": v["backward_ms"] / n,
+                "total_ms": (v["forward_ms"] + v["backward_ms"]) / n,
+            }
+            for k, v in parts.items()
+        ),
+        key=lambda r: -r["total_ms"],
+    )
     if fetch_s:
-        rows.append({"part": "data loading (DataLoader fetch, %d workers)" % a.workers,
-                     "forward_ms": 1e3 * sum(fetch_s) / len(fetch_s), "backward_ms": 0.0,
-                     "total_ms": 1e3 * sum(fetch_s) / len(fetch_s)})
+        rows.append(
+            {
+                "part": "data loading (DataLoader fetch, %d workers)" % a.workers,
+                "forward_ms": 1e3 * sum(fetch_s) / len(fetch_s),
+                "backward_ms": 0.0,
+                "total_ms": 1e3 * sum(fetch_s) / len(fetch_s),
+            }
+        )
     total_self = sum(r["total_ms"] for r in rows)
     by_op = sorted(prof.key_averages(), key=lambda k: -k.self_cpu_time_total)
-    ops = [{"op": k.key, "calls_per_step": k.count / n, "self_ms": k.self_cpu_time_total / 1e3 / n}
-           for k in by_op if not k.key.startswith(PART_PREFIX)][:25]
-    params = {"mode": "train", "size": a.size, "batch": a.batch, "seq_len": a.seq_len, "threads": a.threads,
-              "bf16": a.bf16, "channels_last": a.channels_last, "steps": a.steps, "data": a.data or "toy batch",
-              "workers": a.workers}
-    results = {"step_wall_s": walls, "step_wall_s_min": min(walls),
-               "note": "profiled steps run slower than unprofiled ones (a few %); shares are what matters",
-               "parts": rows, "parts_total_self_ms": total_self, "top_ops": ops}
+    ops = [
+        {"op": k.key, "calls_per_step": k.count / n, "self_ms": k.self_cpu_time_total / 1e3 / n}
+        for k in by_op
+        if not k.key.startswith(PART_PREFIX)
+    ][:25]
+    params = {
+        "mode": "train",
+        "size": a.size,
+        "batch": a.batch,
+        "seq_len": a.seq_len,
+        "threads": a.threads,
+        "bf16": a.bf16,
+        "channels_last": a.channels_last,
+        "steps": a.steps,
+        "data": a.data or "toy batch",
+        "workers": a.workers,
+    }
+    results = {
+        "step_wall_s": walls,
+        "step_wall_s_min": min(walls),
+        "note": "profiled steps run slower than unprofiled ones (a few %); shares are what matters",
+        "parts": rows,
+        "parts_total_self_ms": total_self,
+        "top_ops": ops,
+    }
     report = make_report("op_profile", params, results)
-    md = [f"# Training step profile ({a.size} px, batch {a.batch}, seq {a.seq_len}, {a.threads} threads, "
-          f"{'bf16 autocast' if a.bf16 else 'fp32'}{', channels-last' if a.channels_last else ''})", "",
-          f"Machine: {report['meta'].get('cpu_model')}, load average at start {report['meta'].get('loadavg')}; "
-          f"steps (profiled) {', '.join(f'{w:.2f}' for w in walls)} s.", "",
-          "| part | forward ms | backward ms | total ms | share |", "|---|---:|---:|---:|---:|"]
+    md = [
+        f"# Training step profile ({a.size} px, batch {a.batch}, seq {a.seq_len}, {a.threads} threads, "
+        f"{'bf16 autocast' if a.bf16 else 'fp32'}{', channels-last' if a.channels_last else ''})",
+        "",
+        f"Machine: {report['meta'].get('cpu_model')}, load average at start {report['meta'].get('loadavg')}; "
+        f"steps (profiled) {', '.join(f'{w:.2f}' for w in walls)} s.",
+        "",
+        "| part | forward ms | backward ms | total ms | share |",
+        "|---|---:|---:|---:|---:|",
+    ]
     for r in rows:
         if r["total_ms"] < 0.5:
             continue
-        md.append(f"| {r['part']} | {r['forward_ms']:.0f} | {r['backward_ms']:.0f} | {r['total_ms']:.0f} | "
-                  f"{100 * r['total_ms'] / total_self:.1f}% |")
+        md.append(
+            f"| {r['part']} | {r['forward_ms']:.0f} | {r['backward_ms']:.0f} | {r['total_ms']:.0f} | "
+            f"{100 * r['total_ms'] / total_self:.1f}% |"
+        )
     md += ["", "| op | calls/step | self ms/step |", "|---|---:|---:|"]
     md += [f"| `{o['op']}` | {o['calls_per_step']:.0f} | {o['self_ms']:.1f} |" for o in ops]
     if a.out:
@@ -415,8 +503,10 @@ MODES = {"infer": infer_main, "train": train_main}
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv or argv[0] not in MODES:
-        print(f"usage: python benchmarks/op_profile.py {{{','.join(MODES)}}} [options]  (-h after the mode for them)",
-              file=sys.stderr)
+        print(
+            f"usage: python benchmarks/op_profile.py {{{','.join(MODES)}}} [options]  (-h after the mode for them)",
+            file=sys.stderr,
+        )
         return 2
     return MODES[argv[0]](argv[1:])
 

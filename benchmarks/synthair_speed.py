@@ -79,10 +79,16 @@ def main(argv=None) -> int:
         for pf in planned.values():
             ks = [frames[i] for i in picks]
             for c in range(0, len(ks), bs):
-                sel = [4 * k for k in ks[c: c + bs]]
+                sel = [4 * k for k in ks[c : c + bs]]
                 w0, c0 = time.perf_counter(), time.process_time()
-                out = render_frames(world, get_climate(climate).with_sun_azimuth(pf.sun_azimuth),
-                                    pf.flight.attitude[sel], pf.flight.position[sel], a.size, a.size)
+                out = render_frames(
+                    world,
+                    get_climate(climate).with_sun_azimuth(pf.sun_azimuth),
+                    pf.flight.attitude[sel],
+                    pf.flight.position[sel],
+                    a.size,
+                    a.size,
+                )
                 w1, c1 = time.perf_counter(), time.process_time()
                 for f in out:
                     encode_jpeg(f.rgb, cfg.jpeg_quality)

@@ -70,8 +70,7 @@ TRAIN_ATTEMPTS, RETRY_WAIT_S = 4, 60
 
 
 def cli(*args: str, log: Path | None = None, threads: int = 1) -> None:
-    env = {**os.environ, "OMP_NUM_THREADS": str(threads),
-           "MKL_NUM_THREADS": str(threads)}
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
     cmd = [sys.executable, "-m", "cosemdepth", *args]
     with open(log, "a") if log else open(os.devnull, "w") as f:
         f.write(" ".join(cmd) + "\n")
@@ -79,16 +78,33 @@ def cli(*args: str, log: Path | None = None, threads: int = 1) -> None:
         subprocess.run(cmd, check=True, env=env, stdout=f, stderr=subprocess.STDOUT)
 
 
-def make_data(work: Path, test_worlds: list[int], log: Path, supersample: int = 1, test_frames: int = 100
-              ) -> tuple[Path, Path, dict[int, tuple[Path, Path]]]:
+def make_data(
+    work: Path, test_worlds: list[int], log: Path, supersample: int = 1, test_frames: int = 100
+) -> tuple[Path, Path, dict[int, tuple[Path, Path]]]:
     """Generate (or reuse) the training world and the held-out flights; returns the training root and split folder
     and, per test world, its root and split folder."""
     ss = ["--supersample", str(supersample)]
     tag = "" if supersample == 1 else f"-ss{supersample}"
     train = work / f"train-s{TRAIN_WORLD}{tag}"
     if not (train / "synthair.json").exists():
-        cli("synth", "--out", str(train), "--trajectories", "2", "--frames", "200", "--size", str(SIZE), "--seed",
-            str(TRAIN_WORLD), "--climates", *TRAIN_CLIMATES, *ss, "--no-progress", log=log)
+        cli(
+            "synth",
+            "--out",
+            str(train),
+            "--trajectories",
+            "2",
+            "--frames",
+            "200",
+            "--size",
+            str(SIZE),
+            "--seed",
+            str(TRAIN_WORLD),
+            "--climates",
+            *TRAIN_CLIMATES,
+            *ss,
+            "--no-progress",
+            log=log,
+        )
     splits = work / f"splits-train-s{TRAIN_WORLD}{tag}"
     if not (splits / "train_data").exists():
         cli("splits", "synthair", str(train), str(splits), "--rule", "train", log=log)
@@ -101,8 +117,24 @@ def make_data(work: Path, test_worlds: list[int], log: Path, supersample: int = 
     for w in test_worlds:
         root, sp = work / f"test-s{w}{test_tag}", work / f"splits-test-s{w}{test_tag}"
         if not (root / "synthair.json").exists():
-            cli("synth", "--out", str(root), "--trajectories", "1", "--frames", str(test_frames), "--size", str(SIZE),
-                "--seed", str(w), "--climates", "sunny", *ss, "--no-progress", log=log)
+            cli(
+                "synth",
+                "--out",
+                str(root),
+                "--trajectories",
+                "1",
+                "--frames",
+                str(test_frames),
+                "--size",
+                str(SIZE),
+                "--seed",
+                str(w),
+                "--climates",
+                "sunny",
+                *ss,
+                "--no-progress",
+                log=log,
+            )
         if not (sp / "test_data").exists():
             cli("splits", "synthair", str(root), str(sp), "--rule", "test", log=log)
         tests[w] = (root, sp)
@@ -127,22 +159,55 @@ def recipe_sets(init: Path | None, lr: float | None) -> list[str]:
     return sets
 
 
-def train_run(run: Path, variant: str, seed: int, steps: int, train: Path, splits: Path, threads: int, log: Path,
-              init: Path | None = None, recipe: list[str] = ()) -> float:
+def train_run(
+    run: Path,
+    variant: str,
+    seed: int,
+    steps: int,
+    train: Path,
+    splits: Path,
+    threads: int,
+    log: Path,
+    init: Path | None = None,
+    recipe: list[str] = (),
+) -> float:
     """Train one run (unless its ``best/`` exists); returns the training wall time in seconds (NaN when reused)."""
     if (run / "best" / "model.safetensors").exists():
         return math.nan
     # epochs high enough that --steps alone ends the run
-    sets = [*VARIANTS[variant][1], *recipe, f"train.num_threads={threads}", "train.epochs=1000",
-            "train.validate_every_epochs=0", f"train.validate_every_steps={steps}", "train.val_max_batches=1"]
+    sets = [
+        *VARIANTS[variant][1],
+        *recipe,
+        f"train.num_threads={threads}",
+        "train.epochs=1000",
+        "train.validate_every_epochs=0",
+        f"train.validate_every_steps={steps}",
+        "train.val_max_batches=1",
+    ]
     if init is not None:
         sets.append(f"train.init_from={init}")
     t0 = time.perf_counter()
     for attempt in range(TRAIN_ATTEMPTS):
         try:
-            cli("train", "--config", "synthair-small", "--data-root", str(train), "--split-dir", str(splits),
-                "--max-steps", str(steps), "--seed", str(seed), "--no-progress", "--out", str(run),
-                *sum((["--set", s] for s in sets), []), log=log, threads=threads)
+            cli(
+                "train",
+                "--config",
+                "synthair-small",
+                "--data-root",
+                str(train),
+                "--split-dir",
+                str(splits),
+                "--max-steps",
+                str(steps),
+                "--seed",
+                str(seed),
+                "--no-progress",
+                "--out",
+                str(run),
+                *sum((["--set", s] for s in sets), []),
+                log=log,
+                threads=threads,
+            )
             break
         except subprocess.CalledProcessError:
             # killed (e.g. out of memory on a shared machine): the run folder resumes from its last checkpoint,
@@ -154,9 +219,9 @@ def train_run(run: Path, variant: str, seed: int, steps: int, train: Path, split
 
 
 def evaluate_run(model_dir: Path, tests: dict, callbacks_for=None) -> dict:
+    from cosemdepth.checkpoints.model_io import load_model
     from cosemdepth.data import open_dataset
     from cosemdepth.evaluation.evaluator import evaluate
-    from cosemdepth.checkpoints.model_io import load_model
 
     model = load_model(model_dir, mode="fast")
     per_flight = {}
@@ -165,20 +230,36 @@ def evaluate_run(model_dir: Path, tests: dict, callbacks_for=None) -> dict:
         cbs = callbacks_for(w) if callbacks_for else []
         res = evaluate(model, ds, warmup=2, callbacks=cbs)
         m = res.metrics
-        per_flight[w] = {k: _num(m.get(k)) for k in ("miou", "flicker", "flicker_median", "flicker_max",
-                                                     "change_recall", "gt_change", "flicker_pairs", "abs_rel")}
+        per_flight[w] = {
+            k: _num(m.get(k))
+            for k in (
+                "miou",
+                "flicker",
+                "flicker_median",
+                "flicker_max",
+                "change_recall",
+                "gt_change",
+                "flicker_pairs",
+                "abs_rel",
+            )
+        }
         per_flight[w]["ms_per_frame"] = res.ms_per_frame
-    mean = {k: _mean([f[k] for f in per_flight.values()]) for k in ("miou", "flicker", "change_recall", "gt_change",
-                                                                    "abs_rel")}
-    return {"per_flight": {str(k): v for k, v in per_flight.items()}, **mean,
-            "params": sum(p.numel() for p in model.parameters())}
+    mean = {
+        k: _mean([f[k] for f in per_flight.values()])
+        for k in ("miou", "flicker", "change_recall", "gt_change", "abs_rel")
+    }
+    return {
+        "per_flight": {str(k): v for k, v in per_flight.items()},
+        **mean,
+        "params": sum(p.numel() for p in model.parameters()),
+    }
 
 
 def time_variants(models: dict[str, Path], tests: dict, rounds: int) -> dict[str, dict]:
     """Interleaved rounds on the first held-out flight: per variant every round's ms per frame and their median."""
+    from cosemdepth.checkpoints.model_io import load_model
     from cosemdepth.data import open_dataset
     from cosemdepth.evaluation.evaluator import evaluate
-    from cosemdepth.checkpoints.model_io import load_model
 
     w = next(iter(tests))
     root, sp = tests[w]
@@ -187,7 +268,7 @@ def time_variants(models: dict[str, Path], tests: dict, rounds: int) -> dict[str
     names = list(loaded)
     times = {v: [] for v in names}
     for r in range(rounds):
-        order = names[r % len(names):] + names[: r % len(names)]
+        order = names[r % len(names) :] + names[: r % len(names)]
         for v in order:
             times[v].append(evaluate(loaded[v], ds, warmup=2).ms_per_frame)
     return {v: {"rounds": t, "median": statistics.median(t)} for v, t in times.items()}
@@ -211,8 +292,13 @@ def summarize(values: list) -> dict:
     xs = [x for x in values if x is not None]
     if not xs:
         return {"mean": None, "std": None, "min": None, "max": None, "n": 0}
-    return {"mean": statistics.fmean(xs), "std": statistics.stdev(xs) if len(xs) > 1 else 0.0, "min": min(xs),
-            "max": max(xs), "n": len(xs)}
+    return {
+        "mean": statistics.fmean(xs),
+        "std": statistics.stdev(xs) if len(xs) > 1 else 0.0,
+        "min": min(xs),
+        "max": max(xs),
+        "n": len(xs),
+    }
 
 
 def acceptance(summary: dict) -> dict:
@@ -224,17 +310,28 @@ def acceptance(summary: dict) -> dict:
     red = 1 - t["flicker"]["mean"] / base["flicker"]["mean"] if base["flicker"]["mean"] else None
     inc = t["ms_per_frame"] / base["ms_per_frame"] - 1
     out = {
-        "miou_gain_points": {"target": f">= +{TARGETS['miou_gain_points']}", "measured": gain,
-                             "met": gain >= TARGETS["miou_gain_points"]},
-        "flicker_reduction": {"target": f">= {TARGETS['flicker_reduction']:.0%}", "measured": red,
-                              "met": red is not None and red >= TARGETS["flicker_reduction"]},
-        "time_increase": {"target": f"<= {TARGETS['time_increase_max']:.0%}", "measured": inc,
-                          "met": inc <= TARGETS["time_increase_max"]},
+        "miou_gain_points": {
+            "target": f">= +{TARGETS['miou_gain_points']}",
+            "measured": gain,
+            "met": gain >= TARGETS["miou_gain_points"],
+        },
+        "flicker_reduction": {
+            "target": f">= {TARGETS['flicker_reduction']:.0%}",
+            "measured": red,
+            "met": red is not None and red >= TARGETS["flicker_reduction"],
+        },
+        "time_increase": {
+            "target": f"<= {TARGETS['time_increase_max']:.0%}",
+            "measured": inc,
+            "met": inc <= TARGETS["time_increase_max"],
+        },
     }
     gt = summary.get("s_prev_gt")
     if gt:
-        out["s_prev_gt_miou_gain_points"] = {"paper": 1.56, "measured": 100 * (gt["miou"]["mean"]
-                                                                                - base["miou"]["mean"])}
+        out["s_prev_gt_miou_gain_points"] = {
+            "paper": 1.56,
+            "measured": 100 * (gt["miou"]["mean"] - base["miou"]["mean"]),
+        }
     return out
 
 
@@ -253,18 +350,24 @@ def markdown(report: dict) -> str:
     ]
     ref = report.get("reference")
     if ref:
-        lines.append(f"| step 0: `{report['init']}` (every variant) | {100 * ref['miou']:.2f} | "
-                     f"{100 * ref['flicker']:.2f} | {100 * ref['change_recall']:.1f} | | {ref['params']:,} |")
+        lines.append(
+            f"| step 0: `{report['init']}` (every variant) | {100 * ref['miou']:.2f} | "
+            f"{100 * ref['flicker']:.2f} | {100 * ref['change_recall']:.1f} | | {ref['params']:,} |"
+        )
     for v, row in s.items():
         mi, fl, cr = row["miou"], row["flicker"], row["change_recall"]
         lines.append(
             f"| {VARIANTS[v][0]} | {100 * mi['mean']:.2f} ± {100 * mi['std']:.2f} ({100 * mi['min']:.2f}-"
             f"{100 * mi['max']:.2f}) | {100 * fl['mean']:.2f} ± {100 * fl['std']:.2f} | {100 * cr['mean']:.1f} | "
-            f"{row['ms_per_frame']:.1f} | {row['params']:,} |")
+            f"{row['ms_per_frame']:.1f} | {row['params']:,} |"
+        )
     gt_change = [r["gt_change"] for r in report["runs"] if r.get("gt_change") is not None]
     if gt_change:
-        lines += ["", f"The ground truth itself changes (warped with the true depth and motion) on "
-                      f"{100 * statistics.fmean(gt_change):.1f} % of the compared pixels."]
+        lines += [
+            "",
+            f"The ground truth itself changes (warped with the true depth and motion) on "
+            f"{100 * statistics.fmean(gt_change):.1f} % of the compared pixels.",
+        ]
     acc = report.get("acceptance") or {}
     if acc:
         lines += ["", "Acceptance (Co-SemDepth-T against Co-SemDepth, means over the seeds):", ""]
@@ -274,12 +377,18 @@ def markdown(report: dict) -> str:
             target = a.get("target", f"paper +{a.get('paper')} points")
             met = "" if "met" not in a else (" (met)" if a["met"] else " (missed)")
             lines.append(f"* {k}: target {target}, measured {txt}{met}")
-    lines += ["", "Per run (mean over the held-out flights):", "", "| variant | seed | mIoU % | flicker % | train s |",
-              "|---|---|---|---|---|"]
+    lines += [
+        "",
+        "Per run (mean over the held-out flights):",
+        "",
+        "| variant | seed | mIoU % | flicker % | train s |",
+        "|---|---|---|---|---|",
+    ]
     for r in report["runs"]:
         ts = "reused" if r["train_seconds"] is None else f"{r['train_seconds']:.0f}"
-        lines.append(f"| {VARIANTS[r['variant']][0]} | {r['seed']} | {100 * r['miou']:.2f} | "
-                     f"{100 * r['flicker']:.2f} | {ts} |")
+        lines.append(
+            f"| {VARIANTS[r['variant']][0]} | {r['seed']} | {100 * r['miou']:.2f} | {100 * r['flicker']:.2f} | {ts} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -292,8 +401,9 @@ def plot(report: dict, path: Path) -> None:
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     for k, v in enumerate(report["summary"]):
         runs = [r for r in report["runs"] if r["variant"] == v]
-        a.scatter([100 * r["flicker"] for r in runs], [100 * r["miou"] for r in runs], label=VARIANTS[v][0],
-                  color=f"C{k}")
+        a.scatter(
+            [100 * r["flicker"] for r in runs], [100 * r["miou"] for r in runs], label=VARIANTS[v][0], color=f"C{k}"
+        )
         b.bar(k, report["summary"][v]["ms_per_frame"], color=f"C{k}")
     a.set_xlabel("flicker % (lower is better)")
     a.set_ylabel("mIoU %")
@@ -336,8 +446,10 @@ def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: 
     _, palette = class_info(num_classes, "synthair")
     any_c = next(iter(collectors.values()))
     frames = sorted(any_c.pred)
-    rows = [("RGB", [rgb_to_uint8(any_c.rgb[f]) for f in frames]),
-            ("ground truth", [colorize_labels(any_c.gt[f], palette) for f in frames])]
+    rows = [
+        ("RGB", [rgb_to_uint8(any_c.rgb[f]) for f in frames]),
+        ("ground truth", [colorize_labels(any_c.gt[f], palette) for f in frames]),
+    ]
     rows += [(_label(v), [colorize_labels(c.pred[f], palette) for f in frames]) for v, c in collectors.items()]
     h, w = rows[0][1][0].shape[:2]
     label_w, gap = 150, 2
@@ -359,13 +471,24 @@ def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, default=Path("runs/temporal_semantics"))
-    ap.add_argument("--init", type=Path, metavar="MODEL_DIR",
-                    help="fine-tune every variant from these weights (train.init_from) instead of training from scratch")
-    ap.add_argument("--lr", type=float, help=f"learning rate (default: synthair-small's 3e-4 from scratch, "
-                                             f"{FINETUNE_LR:g} with --init)")
-    ap.add_argument("--supersample", type=int, choices=(1, 3, 5),
-                    help="SynthAir colour supersampling of the data (default 1; 3 with --init, as the shipped "
-                         "weights' training data)")
+    ap.add_argument(
+        "--init",
+        type=Path,
+        metavar="MODEL_DIR",
+        help="fine-tune every variant from these weights (train.init_from) instead of training from scratch",
+    )
+    ap.add_argument(
+        "--lr",
+        type=float,
+        help=f"learning rate (default: synthair-small's 3e-4 from scratch, {FINETUNE_LR:g} with --init)",
+    )
+    ap.add_argument(
+        "--supersample",
+        type=int,
+        choices=(1, 3, 5),
+        help="SynthAir colour supersampling of the data (default 1; 3 with --init, as the shipped "
+        "weights' training data)",
+    )
     ap.add_argument("--test-frames", type=int, default=100, help="25 Hz frames of each held-out flight (default 100)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--steps", type=int, default=60)
@@ -404,16 +527,22 @@ def main() -> int:
                 cb = lambda w, c=collectors[v]: [c] if w == first_world else []  # noqa: E731
             res = evaluate_run(run / "best", tests, cb)
             runs.append({"variant": v, "seed": seed, "train_seconds": None if math.isnan(secs) else secs, **res})
-            print(f"{v} seed {seed}: miou {res['miou']:.4f} flicker {res['flicker']:.4f} ({secs:.0f} s training)",
-                  flush=True)
+            print(
+                f"{v} seed {seed}: miou {res['miou']:.4f} flicker {res['flicker']:.4f} ({secs:.0f} s training)",
+                flush=True,
+            )
     timing = time_variants({v: runs_dir / f"{v}-s{a.seeds[0]}" / "best" for v in a.variants}, tests, a.rounds)
     summary = {}
     for v in a.variants:
         rs = [r for r in runs if r["variant"] == v]
-        summary[v] = {"label": VARIANTS[v][0], "overrides": VARIANTS[v][1],
-                      **{k: summarize([r[k] for r in rs]) for k in ("miou", "flicker", "change_recall", "abs_rel")},
-                      "ms_per_frame": timing[v]["median"], "ms_per_frame_rounds": timing[v]["rounds"],
-                      "params": rs[0]["params"]}
+        summary[v] = {
+            "label": VARIANTS[v][0],
+            "overrides": VARIANTS[v][1],
+            **{k: summarize([r[k] for r in rs]) for k in ("miou", "flicker", "change_recall", "abs_rel")},
+            "ms_per_frame": timing[v]["median"],
+            "ms_per_frame_rounds": timing[v]["rounds"],
+            "params": rs[0]["params"],
+        }
     meta = run_meta()
     start = "from scratch" if a.init is None else f"fine-tuned from {a.init} (train.init_from)"
     report = {
@@ -421,20 +550,36 @@ def main() -> int:
         "date": meta["date_utc"],
         "machine": {"cpu": meta["cpu_model"], "threads": a.threads, "torch": torch.__version__},
         "recipe": f"cosemdepth train --config synthair-small {' '.join('--set ' + x for x in recipe)} (128 px, "
-                  f"batch 2), {start}, {a.steps} steps, training world {TRAIN_WORLD} "
-                  f"({' + '.join(TRAIN_CLIMATES)}, 2 trajectories each, supersample {supersample})",
-        "init": None if a.init is None else str(a.init), "steps": a.steps, "seeds": a.seeds,
-        "test_worlds": a.test_worlds, "test_frames": a.test_frames, "supersample": supersample,
-        "policy": "every-frame", "reference": reference, "summary": summary, "acceptance": None, "runs": runs,
+        f"batch 2), {start}, {a.steps} steps, training world {TRAIN_WORLD} "
+        f"({' + '.join(TRAIN_CLIMATES)}, 2 trajectories each, supersample {supersample})",
+        "init": None if a.init is None else str(a.init),
+        "steps": a.steps,
+        "seeds": a.seeds,
+        "test_worlds": a.test_worlds,
+        "test_frames": a.test_frames,
+        "supersample": supersample,
+        "policy": "every-frame",
+        "reference": reference,
+        "summary": summary,
+        "acceptance": None,
+        "runs": runs,
     }
     report["acceptance"] = acceptance(summary)
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    params = {k: report[k] for k in ("recipe", "init", "steps", "seeds", "test_worlds", "test_frames", "supersample",
-                                     "policy")}
+    params = {
+        k: report[k]
+        for k in ("recipe", "init", "steps", "seeds", "test_worlds", "test_frames", "supersample", "policy")
+    }
     params.update(variants=a.variants, threads=a.threads, rounds=a.rounds, lr=a.lr)
-    write_report(a.out.with_suffix(".json"), make_report(
-        "temporal_semantics", params, {k: report[k] for k in ("reference", "summary", "acceptance", "runs")},
-        meta=meta))
+    write_report(
+        a.out.with_suffix(".json"),
+        make_report(
+            "temporal_semantics",
+            params,
+            {k: report[k] for k in ("reference", "summary", "acceptance", "runs")},
+            meta=meta,
+        ),
+    )
     atomic_write_text(a.out.with_suffix(".md"), markdown(report))
     plot(report, a.out.with_suffix(".png"))
     if collectors and all(c.pred for c in collectors.values()):

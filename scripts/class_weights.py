@@ -18,9 +18,9 @@ import torch
 
 from cosemdepth.errors import ConfigError, CosemdepthError
 from cosemdepth.output_safety.atomic import atomic_write_text
+from cosemdepth.training.config import resolve_config
 from cosemdepth.training.data import open_source
 from cosemdepth.training.losses import FIRST_SUPERVISED_FRAME, median_frequency_weights
-from cosemdepth.training.config import resolve_config
 
 
 def count_labels(cfg) -> torch.Tensor:
@@ -29,8 +29,18 @@ def count_labels(cfg) -> torch.Tensor:
     counts = torch.zeros(n, dtype=torch.int64)
     d = cfg.data
     for i, src in enumerate(d.train):
-        ds = open_source(src, f"data.train[{i}]", split=d.train_split, seq_len=d.seq_len, size=d.size, augment=False,
-                         mode="train", db_seq_len=d.db_seq_len, seed=cfg.train.seed, num_classes=n)
+        ds = open_source(
+            src,
+            f"data.train[{i}]",
+            split=d.train_split,
+            seq_len=d.seq_len,
+            size=d.size,
+            augment=False,
+            mode="train",
+            db_seq_len=d.db_seq_len,
+            seed=cfg.train.seed,
+            num_classes=n,
+        )
         for j in range(len(ds)):
             labels = torch.as_tensor(ds[j]["semantic"])[FIRST_SUPERVISED_FRAME:]
             counts += torch.bincount(labels.flatten().long(), minlength=n)[:n]
@@ -54,9 +64,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"class_weights.py: error: {e}", file=sys.stderr)
         return 2
     total = int(counts.sum())
-    report = {"config": str(args.config), "overrides": args.set, "power": args.power,
-              "counts": counts.tolist(), "shares": [c / total for c in counts.tolist()],
-              "semantic_class_weights": [round(w, 3) for w in weights]}
+    report = {
+        "config": str(args.config),
+        "overrides": args.set,
+        "power": args.power,
+        "counts": counts.tolist(),
+        "shares": [c / total for c in counts.tolist()],
+        "semantic_class_weights": [round(w, 3) for w in weights],
+    }
     for c, (k, s, w) in enumerate(zip(report["counts"], report["shares"], report["semantic_class_weights"])):
         print(f"class {c}: {k:>12,d} px  {100 * s:6.2f} %  weight {w}")
     print(f"train:\n  semantic_class_weights: {report['semantic_class_weights']}")

@@ -26,14 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
+from cosemdepth.checkpoints.model_io import CONFIG_FILE, OPERATING_POINT, read_config_file
 from cosemdepth.data import open_dataset
 from cosemdepth.data.frames import midair_intrinsics
 from cosemdepth.data.midair.splits import Trajectory, trajectory_rows, write_csv
-from cosemdepth.synthair.writer import ENVIRONMENT, SynthConfig, plan_flights
-from cosemdepth.synthair.world import get_world
-from cosemdepth.output_safety.atomic import atomic_write_text
-from cosemdepth.checkpoints.model_io import CONFIG_FILE, OPERATING_POINT, read_config_file
 from cosemdepth.operating_point import MotionStats, OperatingPoint
+from cosemdepth.output_safety.atomic import atomic_write_text
+from cosemdepth.synthair.world import get_world
+from cosemdepth.synthair.writer import ENVIRONMENT, SynthConfig, plan_flights
 from cosemdepth.training.config import resolve_config
 
 #: The training worlds of scripts/make_demo_weights.sh and their `cosemdepth synth` arguments.
@@ -44,8 +44,14 @@ CLIMATES = ("sunny", "cloudy")
 CONFIG = "synthair-demo"
 
 
-def world_trajectories(seed: int, split_root: Path, *, trajectories: int = TRAJECTORIES, frames: int = FRAMES,
-                       climates: tuple[str, ...] = CLIMATES) -> None:
+def world_trajectories(
+    seed: int,
+    split_root: Path,
+    *,
+    trajectories: int = TRAJECTORIES,
+    frames: int = FRAMES,
+    climates: tuple[str, ...] = CLIMATES,
+) -> None:
     """Write the split CSVs that ``cosemdepth synth --seed SEED --trajectories T --frames F --climates ...`` followed
     by ``cosemdepth splits synthair ... --rule train`` would write, under ``split_root/train_data``, without
     rendering an image (the flights do not depend on the image size)."""
@@ -69,15 +75,27 @@ def demo_operating_point(log=print) -> OperatingPoint:
             log(f"world {seed}: planning {TRAJECTORIES} x {len(CLIMATES)} flights ...")
             split_dir = Path(tmp) / f"s{seed}"
             world_trajectories(seed, split_dir)
-            ds = open_dataset("synthair", tmp, split_dir=split_dir, split="train", seq_len=run.data.seq_len,
-                              size=size, mode="train", db_seq_len=run.data.db_seq_len)
+            ds = open_dataset(
+                "synthair",
+                tmp,
+                split_dir=split_dir,
+                split="train",
+                seq_len=run.data.seq_len,
+                size=size,
+                mode="train",
+                db_seq_len=run.data.db_seq_len,
+            )
             norms.append(ds.step_translations())
     fx, fy = (float(v) for v in midair_intrinsics(size)[:2])
     motion = MotionStats.from_samples(np.concatenate(norms))
-    return OperatingPoint(size, (fx, fy), motion,
-                          f"cosemdepth train: SynthAir worlds {SEEDS[0]}-{SEEDS[-1]} at {size[0]}x{size[1]} "
-                          f"(scripts/make_demo_weights.sh), {motion.count} window steps; recomputed by "
-                          "scripts/demo_motion_stats.py")
+    return OperatingPoint(
+        size,
+        (fx, fy),
+        motion,
+        f"cosemdepth train: SynthAir worlds {SEEDS[0]}-{SEEDS[-1]} at {size[0]}x{size[1]} "
+        f"(scripts/make_demo_weights.sh), {motion.count} window steps; recomputed by "
+        "scripts/demo_motion_stats.py",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

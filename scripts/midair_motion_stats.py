@@ -32,8 +32,16 @@ def midair_motion(split_dir: Path, split: str = "train", seq_len: int = 4, db_se
     """``(MotionStats of the windows, every row's translation [N, 3])`` of the Mid-Air split CSVs in ``split_dir``
     (the folder holding ``<split>_data/``)."""
     with tempfile.TemporaryDirectory() as root:  # the CSVs' image paths are not opened: any folder is a root
-        ds = open_dataset("midair", root, split_dir=split_dir, split=split, seq_len=seq_len, size=384,
-                          mode="train", db_seq_len=db_seq_len)
+        ds = open_dataset(
+            "midair",
+            root,
+            split_dir=split_dir,
+            split=split,
+            seq_len=seq_len,
+            size=384,
+            mode="train",
+            db_seq_len=db_seq_len,
+        )
         rows = np.concatenate([t.trans for t in ds.trajectories]).astype(np.float64)
         return MotionStats.from_samples(ds.step_translations()), rows
 
@@ -49,8 +57,11 @@ def main(argv: list[str] | None = None) -> int:
     stats, rows = midair_motion(split_dir, args.split, args.seq_len, args.db_seq_len)
     norms = np.linalg.norm(rows, axis=1)
     print(json.dumps(stats.to_dict(), indent=2))
-    print(f"all {len(rows)} rows of the {args.split} CSVs: t_z median {np.median(rows[:, 2]):+.3f} m, "
-          f"||t|| from {norms.min():.3f} to {norms.max():.3f} m", file=sys.stderr)
+    print(
+        f"all {len(rows)} rows of the {args.split} CSVs: t_z median {np.median(rows[:, 2]):+.3f} m, "
+        f"||t|| from {norms.min():.3f} to {norms.max():.3f} m",
+        file=sys.stderr,
+    )
     return 0
 
 

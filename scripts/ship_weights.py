@@ -22,8 +22,8 @@ from pathlib import Path
 import torch
 import yaml
 
-from cosemdepth.output_safety.atomic import atomic_path, atomic_write_text
 from cosemdepth.checkpoints.model_io import read_model_files, read_operating_point, save_weights
+from cosemdepth.output_safety.atomic import atomic_path, atomic_write_text
 from cosemdepth.training.events import read_events
 
 
@@ -38,13 +38,27 @@ def curve_rows(events: list[dict]) -> list[dict]:
     rows = []
     for e in events:
         if e.get("kind") == "train":
-            rows.append({"kind": "train", "step": e["step"], "epoch": e["epoch"], "lr": e.get("lr"),
-                         "loss_total": e.get("loss_total"), "loss_depth": e.get("loss_depth"),
-                         "loss_semantic": e.get("loss_semantic")})
+            rows.append(
+                {
+                    "kind": "train",
+                    "step": e["step"],
+                    "epoch": e["epoch"],
+                    "lr": e.get("lr"),
+                    "loss_total": e.get("loss_total"),
+                    "loss_depth": e.get("loss_depth"),
+                    "loss_semantic": e.get("loss_semantic"),
+                }
+            )
         elif e.get("kind") == "validation":
             m = e.get("metrics", {})
-            rows.append({"kind": "validation", "step": e["step"], "epoch": e["epoch"],
-                         **{k: m.get(k) for k in ("abs_rel", "rmse", "delta1", "miou")}})
+            rows.append(
+                {
+                    "kind": "validation",
+                    "step": e["step"],
+                    "epoch": e["epoch"],
+                    **{k: m.get(k) for k in ("abs_rel", "rmse", "delta1", "miou")},
+                }
+            )
     return rows
 
 
@@ -96,12 +110,24 @@ def main() -> int:
         "date": datetime.date.today().isoformat(),
         "trained_from": meta.get("source"),
     }
-    save_weights(state, cfg, args.out_dir, source=source,
-                 operating_point=read_operating_point(meta, str(best / "config.json")))
+    save_weights(
+        state, cfg, args.out_dir, source=source, operating_point=read_operating_point(meta, str(best / "config.json"))
+    )
     rows = curve_rows(events)
     buf = io.StringIO()
-    fields = ["kind", "step", "epoch", "lr", "loss_total", "loss_depth", "loss_semantic", "abs_rel", "rmse",
-              "delta1", "miou"]
+    fields = [
+        "kind",
+        "step",
+        "epoch",
+        "lr",
+        "loss_total",
+        "loss_depth",
+        "loss_semantic",
+        "abs_rel",
+        "rmse",
+        "delta1",
+        "miou",
+    ]
     w = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
     w.writeheader()
     w.writerows(rows)

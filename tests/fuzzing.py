@@ -68,7 +68,7 @@ def mutate_bytes(draw, data: bytes, max_ops: int = 3) -> bytes:
         op = draw(st.sampled_from(("truncate", "flip", "insert", "delete", "overwrite", "huge", "empty")))
         n = len(out)
         if op == "truncate":
-            del out[draw(st.integers(0, n)):]
+            del out[draw(st.integers(0, n)) :]
         elif op == "empty":
             out = bytearray()
         elif op == "flip" and n:
@@ -97,10 +97,37 @@ def mutate_bytes(draw, data: bytes, max_ops: int = 3) -> bytes:
 #: Tokens that replace a field of a text file: non-numbers, NaN/inf, overflowing numbers, odd separators,
 #: control characters, quotes, huge integers.
 BAD_TOKENS = (
-    "", "nan", "NaN", "-inf", "inf", "1e999", "-1e400", "1e38", "1e300", "-1e300", "abc", "0x10", "1_0", "1,5", "--1",
-    "\x00", "\t", " ", '"', '"unterminated', "é", "\u2028", "#", "9" * 30, "-" + "9" * 30,
-    "1e-320", "4.9e-324",
-    "True", "None", "[1]", "x" * 5000,  # longer than a file name may be (ENAMETOOLONG)
+    "",
+    "nan",
+    "NaN",
+    "-inf",
+    "inf",
+    "1e999",
+    "-1e400",
+    "1e38",
+    "1e300",
+    "-1e300",
+    "abc",
+    "0x10",
+    "1_0",
+    "1,5",
+    "--1",
+    "\x00",
+    "\t",
+    " ",
+    '"',
+    '"unterminated',
+    "é",
+    "\u2028",
+    "#",
+    "9" * 30,
+    "-" + "9" * 30,
+    "1e-320",
+    "4.9e-324",
+    "True",
+    "None",
+    "[1]",
+    "x" * 5000,  # longer than a file name may be (ENAMETOOLONG)
 )
 
 
@@ -114,9 +141,11 @@ def mutate_text(draw, text: str, separators: str = " \t,\n", max_ops: int = 3) -
     for _ in range(draw(st.integers(1, max_ops))):
         tokens = re.split(f"([{re.escape(separators)}]+)", text)
         fields = [i for i in range(0, len(tokens), 2)]
-        op = draw(st.sampled_from(
-            ("bad", "bad", "random", "long", "dup_field", "del_field", "sep", "truncate", "dup_line", "del_line")
-        ))
+        op = draw(
+            st.sampled_from(
+                ("bad", "bad", "random", "long", "dup_field", "del_field", "sep", "truncate", "dup_line", "del_line")
+            )
+        )
         if op in ("bad", "random", "long", "dup_field", "del_field", "sep") and fields:
             i = draw(st.sampled_from(fields))
             if op == "bad":
@@ -138,7 +167,7 @@ def mutate_text(draw, text: str, separators: str = " \t,\n", max_ops: int = 3) -
             lines = text.splitlines(keepends=True)
             if lines:
                 k = draw(st.integers(0, len(lines) - 1))
-                lines[k:k + 1] = [lines[k]] * 2 if op == "dup_line" else []
+                lines[k : k + 1] = [lines[k]] * 2 if op == "dup_line" else []
             text = "".join(lines)
     return text
 
@@ -231,7 +260,7 @@ def png_bytes(arr, bit_depth: int, colour_type: int, palette: bytes | None = Non
         rows = a.astype(np.uint8).reshape(h, w * c)
     else:
         rows = np.packbits(
-            np.unpackbits(a.astype(np.uint8).reshape(h, w * c, 1), axis=2)[:, :, 8 - bit_depth:].reshape(h, -1),
+            np.unpackbits(a.astype(np.uint8).reshape(h, w * c, 1), axis=2)[:, :, 8 - bit_depth :].reshape(h, -1),
             axis=1,
         )
     raw = b"".join(b"\x00" + r.tobytes() for r in rows)

@@ -10,8 +10,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "evaluation"))
-from _outputs import leftovers, tiny_midair  # noqa: E402
-from _outputs import _one_thread, model_dir  # noqa: E402, F401 (pytest fixtures)
+from _outputs import leftovers, tiny_midair  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
 
 from cosemdepth import demo as demo_mod  # noqa: E402
 from cosemdepth.cli.main import main  # noqa: E402
@@ -34,11 +33,19 @@ def check_schema(m):
     assert set(m["baselines"]) == {"majority_class", "constant_depth"}
     assert set(m["baselines"]["majority_class"]) == {"miou"}
     assert set(m["baselines"]["constant_depth"]) == {"abs_rel", "rmse", "delta1"}
-    for v in (m["model"]["miou"], m["model"]["delta1"], m["baselines"]["majority_class"]["miou"],
-              m["baselines"]["constant_depth"]["delta1"]):
+    for v in (
+        m["model"]["miou"],
+        m["model"]["delta1"],
+        m["baselines"]["majority_class"]["miou"],
+        m["baselines"]["constant_depth"]["delta1"],
+    ):
         assert isinstance(v, float) and 0.0 <= v <= 1.0
-    for v in (m["model"]["abs_rel"], m["model"]["rmse"], m["baselines"]["constant_depth"]["abs_rel"],
-              m["baselines"]["constant_depth"]["rmse"]):
+    for v in (
+        m["model"]["abs_rel"],
+        m["model"]["rmse"],
+        m["baselines"]["constant_depth"]["abs_rel"],
+        m["baselines"]["constant_depth"]["rmse"],
+    ):
         assert isinstance(v, float) and v >= 0
 
 
@@ -62,12 +69,30 @@ def independent_baselines(root):
 
 def test_demo_end_to_end_on_a_given_dataset(model_dir, data, tmp_path, capsys):
     out = tmp_path / "report"
-    rc = main(["demo", "--out", str(out), "--model", str(model_dir), "--data-root", str(data), "--size", str(SIZE),
-               "--no-progress"])
+    rc = main(
+        [
+            "demo",
+            "--out",
+            str(out),
+            "--model",
+            str(model_dir),
+            "--data-root",
+            str(data),
+            "--size",
+            str(SIZE),
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     assert f"Report: {out / 'report.md'}" in capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == [".cosemdepth-output.json", "flight.mp4", "iou.png",
-                                                     "metrics.json", "qualitative.png", "report.md"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        ".cosemdepth-output.json",
+        "flight.mp4",
+        "iou.png",
+        "metrics.json",
+        "qualitative.png",
+        "report.md",
+    ]
     m = json.loads((out / "metrics.json").read_text())
     check_schema(m)
     assert m["flight"]["root"] == str(Path(data).resolve()) and Path(m["flight"]["root"]).is_dir()
@@ -83,8 +108,9 @@ def test_demo_end_to_end_on_a_given_dataset(model_dir, data, tmp_path, capsys):
     from cosemdepth.evaluation.evaluator import evaluate
 
     # the demo runs the fast inference path by default (load_model's FastModel)
-    ev = evaluate(load_model(model_dir, mode="fast"), open_dataset("synthair", data, split="test", seq_len=1,
-                                                                   size=SIZE))
+    ev = evaluate(
+        load_model(model_dir, mode="fast"), open_dataset("synthair", data, split="test", seq_len=1, size=SIZE)
+    )
     for k in ("miou", "abs_rel", "rmse", "delta1"):
         assert m["model"][k] == pytest.approx(ev.metrics[k], rel=1e-9), k
     import imageio_ffmpeg
@@ -99,8 +125,22 @@ def test_demo_end_to_end_on_a_given_dataset(model_dir, data, tmp_path, capsys):
     assert leftovers(tmp_path) == []
 
     # a second run replaces the report
-    rc = main(["demo", "--out", str(out), "--model", str(model_dir), "--data-root", str(data), "--size", str(SIZE),
-               "--no-progress", "--video", "none"])
+    rc = main(
+        [
+            "demo",
+            "--out",
+            str(out),
+            "--model",
+            str(model_dir),
+            "--data-root",
+            str(data),
+            "--size",
+            str(SIZE),
+            "--no-progress",
+            "--video",
+            "none",
+        ]
+    )
     assert rc == 0 and not (out / "flight.mp4").exists() and leftovers(tmp_path) == []
 
 
@@ -117,10 +157,37 @@ def test_demo_generates_the_flight_with_the_synth_command(model_dir, tmp_path, m
 
     monkeypatch.setattr("cosemdepth.cli.main.main", fake_main)
     monkeypatch.setattr(demo_mod, "synth_available", lambda: True)
-    m = demo_mod.run_demo(tmp_path / "r", model=model_dir, size=SIZE, frames=5, seed=7, climate="foggy",
-                          video=None, progress=False, log=lambda *a: None)
-    assert calls == [["synth", "--out", calls[0][2], "--trajectories", "1", "--frames", "24", "--size", "32",
-                      "--seed", "7", "--climates", "foggy", "--supersample", "3", "--no-progress"]]
+    m = demo_mod.run_demo(
+        tmp_path / "r",
+        model=model_dir,
+        size=SIZE,
+        frames=5,
+        seed=7,
+        climate="foggy",
+        video=None,
+        progress=False,
+        log=lambda *a: None,
+    )
+    assert calls == [
+        [
+            "synth",
+            "--out",
+            calls[0][2],
+            "--trajectories",
+            "1",
+            "--frames",
+            "24",
+            "--size",
+            "32",
+            "--seed",
+            "7",
+            "--climates",
+            "foggy",
+            "--supersample",
+            "3",
+            "--no-progress",
+        ]
+    ]
     assert not Path(calls[0][2]).exists()  # the temporary flight is deleted
     # ... so metrics.json does not name it as the flight's root (a folder that may no longer exist)
     assert m["flight"]["root"] is None and m["flight"]["kept"] is False
@@ -155,8 +222,22 @@ def test_bad_outputs_and_arguments(model_dir, data, tmp_path, capsys):
     f.write_text("mine")
     assert main(["demo", "--out", str(f), "--model", str(model_dir), "--data-root", str(data)]) == 2
     assert "exists and is not a folder" in capsys.readouterr().err and f.read_text() == "mine"
-    assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--data-root", str(data),
-                 "--data-dir", str(tmp_path / "d")]) == 2
+    assert (
+        main(
+            [
+                "demo",
+                "--out",
+                str(tmp_path / "r"),
+                "--model",
+                str(model_dir),
+                "--data-root",
+                str(data),
+                "--data-dir",
+                str(tmp_path / "d"),
+            ]
+        )
+        == 2
+    )
     assert "--data-dir does not apply to --data-root (only to a generated flight" in capsys.readouterr().err
     assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--frames", "1"]) == 2
     assert "--frames" in capsys.readouterr().err
@@ -165,13 +246,16 @@ def test_bad_outputs_and_arguments(model_dir, data, tmp_path, capsys):
 
     assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--frames", str(10**9)]) == 2
     err = capsys.readouterr().err
-    assert err == (f"cosemdepth demo: error: --frames must be an integer in [2, {MAX_FRAMES // 4 - 1}] (the first "
-                   f"frame is a reset; the flight is rendered by cosemdepth synth, at most {MAX_FRAMES} camera "
-                   f"frames), got {10**9}\n")
+    assert err == (
+        f"cosemdepth demo: error: --frames must be an integer in [2, {MAX_FRAMES // 4 - 1}] (the first "
+        f"frame is a reset; the flight is rendered by cosemdepth synth, at most {MAX_FRAMES} camera "
+        f"frames), got {10**9}\n"
+    )
     assert not (tmp_path / "r").exists()
     assert main(["demo", "--out", str(tmp_path / "r"), "--model", str(model_dir), "--climate", "martian"]) == 2
-    assert capsys.readouterr().err == ("cosemdepth demo: error: --climate must be one of sunny, cloudy, foggy, sunset, "
-                                       "got 'martian'\n")
+    assert capsys.readouterr().err == (
+        "cosemdepth demo: error: --climate must be one of sunny, cloudy, foggy, sunset, got 'martian'\n"
+    )
     assert not (tmp_path / "r").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
 
@@ -208,12 +292,13 @@ def test_demo_on_a_given_dataset_without_size_runs_at_the_model_s_focal_length(d
     from cosemdepth.operating_point import OperatingPoint
 
     torch.manual_seed(0)
-    model = save_model(build_model(arch="cosemdepth", levels=2), tmp_path / "m",
-                       operating_point=OperatingPoint((16, 16), (8.0, 8.0)))  # the 32x32 split at half its size
-    m = demo_mod.run_demo(tmp_path / "r", model=model, data_root=data, video=None, progress=False,
-                          log=lambda *a: None)
+    model = save_model(
+        build_model(arch="cosemdepth", levels=2), tmp_path / "m", operating_point=OperatingPoint((16, 16), (8.0, 8.0))
+    )  # the 32x32 split at half its size
+    m = demo_mod.run_demo(tmp_path / "r", model=model, data_root=data, video=None, progress=False, log=lambda *a: None)
     assert m["flight"]["size"] == [16, 16] and "--size" not in m["command"]
     assert "warning" not in capsys.readouterr().err
-    demo_mod.run_demo(tmp_path / "r2", model=model, data_root=data, size=SIZE, video=None, progress=False,
-                      log=lambda *a: None)
+    demo_mod.run_demo(
+        tmp_path / "r2", model=model, data_root=data, size=SIZE, video=None, progress=False, log=lambda *a: None
+    )
     assert "16.0 px, but the model was trained at 8.0 px (16x16)" in capsys.readouterr().err

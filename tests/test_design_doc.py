@@ -21,8 +21,12 @@ def sections() -> set[str]:
 
 def cited() -> dict[str, list[str]]:
     """section -> the places citing it."""
-    files = [ROOT / "README.md"] + [p for d in ("src", "tests", "benchmarks", "scripts", "docs")
-                                    for p in sorted((ROOT / d).rglob("*")) if p.suffix in SUFFIXES and p.is_file()]
+    files = [ROOT / "README.md"] + [
+        p
+        for d in ("src", "tests", "benchmarks", "scripts", "docs")
+        for p in sorted((ROOT / d).rglob("*"))
+        if p.suffix in SUFFIXES and p.is_file()
+    ]
     out: dict[str, list[str]] = {}
     for f in files:
         for m in CITATION.finditer(f.read_text(encoding="utf-8")):

@@ -19,12 +19,15 @@ def test_accepted_names():
         assert resolve_device("cuda:0", "train.device") == torch.device("cuda:0")
 
 
-@pytest.mark.parametrize("name, message", [
-    ("gpu", r"^--device: not a device name: 'gpu' \(auto, cpu, cuda\[:N\] or mps\)$"),
-    ("", r"^--device: not a device name: ''"),
-    ("meta", r"^--device: unsupported device 'meta'"),
-    ("xpu", r"^--device: unsupported device 'xpu'"),
-])
+@pytest.mark.parametrize(
+    "name, message",
+    [
+        ("gpu", r"^--device: not a device name: 'gpu' \(auto, cpu, cuda\[:N\] or mps\)$"),
+        ("", r"^--device: not a device name: ''"),
+        ("meta", r"^--device: unsupported device 'meta'"),
+        ("xpu", r"^--device: unsupported device 'xpu'"),
+    ],
+)
 def test_refused_names(name, message):
     with pytest.raises(ConfigError, match=message) as e:
         resolve_device(name)
@@ -65,10 +68,10 @@ def no_bf16(monkeypatch):
 
 
 def test_without_bf16_convolutions_training_and_the_fast_path_refuse_bf16_in_one_line(no_bf16, tmp_path, capsys):
-    from cosemdepth.cli.main import main
-    from cosemdepth.cli._shared import load
-    from cosemdepth.inference.engine import FastEngine
     from cosemdepth.checkpoints.model_io import save_model
+    from cosemdepth.cli._shared import load
+    from cosemdepth.cli.main import main
+    from cosemdepth.inference.engine import FastEngine
     from cosemdepth.models import build_model
 
     out = tmp_path / "run"

@@ -16,15 +16,39 @@ PACKAGE = "cosemdepth"
 #: ones below. A module belongs to the entry that names it or its longest enclosing package (the root package
 #: ``cosemdepth`` itself, its version and lazy attribute table, only by name).
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("base", ("cosemdepth", "cosemdepth._lazy", "cosemdepth.errors", "cosemdepth.coerce", "cosemdepth.plugins", "cosemdepth.models.config",
-              "cosemdepth.workers", "cosemdepth.devices", "cosemdepth.optional", "cosemdepth.operating_point",
-              "cosemdepth.output_safety")),
+    (
+        "base",
+        (
+            "cosemdepth",
+            "cosemdepth._lazy",
+            "cosemdepth.errors",
+            "cosemdepth.coerce",
+            "cosemdepth.plugins",
+            "cosemdepth.models.config",
+            "cosemdepth.workers",
+            "cosemdepth.devices",
+            "cosemdepth.optional",
+            "cosemdepth.operating_point",
+            "cosemdepth.output_safety",
+        ),
+    ),
     ("maths", ("cosemdepth.geometry", "cosemdepth.ops")),
     ("models", ("cosemdepth.models",)),
-    ("engines, model folders, readers", ("cosemdepth.inference", "cosemdepth.checkpoints", "cosemdepth.data",
-                                         "cosemdepth.synthair")),
-    ("tasks", ("cosemdepth.tasks", "cosemdepth.evaluation", "cosemdepth.training", "cosemdepth.export", "cosemdepth.bench",
-               "cosemdepth.robotics")),
+    (
+        "engines, model folders, readers",
+        ("cosemdepth.inference", "cosemdepth.checkpoints", "cosemdepth.data", "cosemdepth.synthair"),
+    ),
+    (
+        "tasks",
+        (
+            "cosemdepth.tasks",
+            "cosemdepth.evaluation",
+            "cosemdepth.training",
+            "cosemdepth.export",
+            "cosemdepth.bench",
+            "cosemdepth.robotics",
+        ),
+    ),
     ("front ends", ("cosemdepth.cli", "cosemdepth.demo", "cosemdepth.__main__")),
 )
 
@@ -127,7 +151,7 @@ def find_cycle(g) -> list[str] | None:
                 stack.pop()
                 path.pop()
             elif colour.get(nxt) == 1:
-                return path[path.index(nxt):] + [nxt]
+                return path[path.index(nxt) :] + [nxt]
             elif colour.get(nxt) == 0:
                 colour[nxt] = 1
                 path.append(nxt)
@@ -143,13 +167,19 @@ def test_the_scanner_sees_relative_function_local_and_package_imports():
     assert g["cosemdepth.evaluation.tfref_fixture"]["cosemdepth.checkpoints.tf_checkpoint"] is True  # function-local
     assert g["cosemdepth.training.config"]["cosemdepth.data.registry"] is False  # module level
     assert "cosemdepth.models.model" in g["cosemdepth.inference.fast_model"]  # inference sits above models
-    assert not any(m.startswith("cosemdepth.inference") for m in set().union(*(g[m] for m in g if m.startswith("cosemdepth.models"))))
+    assert not any(
+        m.startswith("cosemdepth.inference")
+        for m in set().union(*(g[m] for m in g if m.startswith("cosemdepth.models")))
+    )
 
 
 @pytest.mark.parametrize(
     "edges, cycle",
-    [({"a": {"b"}, "b": {"c"}, "c": set()}, None), ({"a": {"b"}, "b": {"c"}, "c": {"a"}}, ["a", "b", "c", "a"]),
-     ({"a": {"b"}, "b": {"b2"}, "b2": {"b"}}, ["b", "b2", "b"])],
+    [
+        ({"a": {"b"}, "b": {"c"}, "c": set()}, None),
+        ({"a": {"b"}, "b": {"c"}, "c": {"a"}}, ["a", "b", "c", "a"]),
+        ({"a": {"b"}, "b": {"b2"}, "b2": {"b"}}, ["b", "b2", "b"]),
+    ],
 )
 def test_cycle_finder_on_hand_made_graphs(edges, cycle):
     assert find_cycle(edges) == cycle
@@ -212,5 +242,6 @@ def test_the_layer_check_catches_an_upward_function_local_import(tmp_path):
     (pkg / "high.py").write_text("TABLE = {}\n")
     g = graph(tmp_path, "pkg")
     assert find_cycle(g) is None
-    assert upward_imports(g, layers, "pkg")[0] == ("pkg.low (low) imports pkg.high (high) inside a function "
-                                                   "(a function-local import)")
+    assert upward_imports(g, layers, "pkg")[0] == (
+        "pkg.low (low) imports pkg.high (high) inside a function (a function-local import)"
+    )

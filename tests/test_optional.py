@@ -2,10 +2,10 @@
 package is one line naming what needs it and how to install it."""
 
 import re
-import tomllib
 from pathlib import Path
 
 import pytest
+import tomllib
 
 from cosemdepth.errors import ConfigError
 from cosemdepth.optional import OPTIONAL_PACKAGES, install_hint, missing_package, require
@@ -27,8 +27,10 @@ def test_require_imports_or_says_what_to_install(monkeypatch):
     monkeypatch.setitem(__import__("sys").modules, "onnx", None)  # as if onnx were not installed
     with pytest.raises(ConfigError) as e:
         require("onnx", "export")
-    assert str(e.value) == ("export needs the Python package onnx, which is not installed; "
-                            "pip install 'cosemdepth[export]' (or pip install onnx)")
+    assert str(e.value) == (
+        "export needs the Python package onnx, which is not installed; "
+        "pip install 'cosemdepth[export]' (or pip install onnx)"
+    )
     assert install_hint("yaml") == "pip install yaml"
 
 
@@ -39,8 +41,10 @@ def test_missing_package_finds_the_import_error_behind_another_and_leaves_our_ow
         except ImportError as inner:
             raise RuntimeError("while opening the recording") from inner
     except RuntimeError as outer:
-        assert missing_package(outer) == ("this command needs the Python package rerun_not_installed_here, which is "
-                                          "not installed; pip install rerun_not_installed_here")
+        assert missing_package(outer) == (
+            "this command needs the Python package rerun_not_installed_here, which is "
+            "not installed; pip install rerun_not_installed_here"
+        )
     err = ModuleNotFoundError("No module named 'cosemdepth.nope'", name="cosemdepth.nope")
     assert missing_package(err) is None  # a module of this package failing to import is a bug: traceback kept
     assert missing_package(ValueError("x")) is None

@@ -36,8 +36,7 @@ def test_the_environment_names_modules_imported_once_in_order(fresh):
 def test_entry_points_are_loaded(fresh, monkeypatch):
     loaded = []
     point = SimpleNamespace(name="edge", value="plug_a", load=lambda: loaded.append("plug_a"))
-    monkeypatch.setattr(plugins, "entry_points",
-                        lambda group: [point] if group == plugins.ENTRY_POINT_GROUP else [])
+    monkeypatch.setattr(plugins, "entry_points", lambda group: [point] if group == plugins.ENTRY_POINT_GROUP else [])
     assert plugins.load_plugins({}) == ["plug_a"]
     assert plugins.load_plugins({}) == [] and loaded == ["plug_a"]
 

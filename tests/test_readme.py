@@ -48,8 +48,9 @@ def test_the_python_api_lines_run_as_written(monkeypatch):
     assert torch.allclose(out.semantic.sum(1), torch.ones(1, 128, 128), atol=1e-5)  # probabilities
     assert torch.equal(out.labels, out.semantic.argmax(1))
     assert seq.depth.shape == (1, 4, 1, 128, 128) and torch.isfinite(seq.depth).all()
-    assert isinstance(ns["state"], type(ns["model"].step(ns["rgb"], ns["rot"], ns["trans"], ns["intrinsics"],
-                                                         ns["reset"], None)[1]))
+    assert isinstance(
+        ns["state"], type(ns["model"].step(ns["rgb"], ns["rot"], ns["trans"], ns["intrinsics"], ns["reset"], None)[1])
+    )
 
 
 def test_the_data_lines_run_as_written(tmp_path, monkeypatch):
@@ -57,8 +58,12 @@ def test_the_data_lines_run_as_written(tmp_path, monkeypatch):
     # the data the block names: a Mid-Air-format tree (trajectory 0 is a test trajectory by the paper's rule) and
     # the README's command for its split CSVs; a flight of three images named by their stamps with TUM poses
     write_midair(Path("data/MidAir"), {("Kite_training", "sunny"): [0, 1, 2]}, frames=12, size=32)
-    (command,) = [line.split("#")[0] for block in blocks("bash") for line in block.splitlines()
-                  if line.startswith("cosemdepth splits midair")]
+    (command,) = [
+        line.split("#")[0]
+        for block in blocks("bash")
+        for line in block.splitlines()
+        if line.startswith("cosemdepth splits midair")
+    ]
     assert main(shlex.split(command)[1:]) == 0
     images = Path("my_flight/images")
     images.mkdir(parents=True)

@@ -291,8 +291,13 @@ def model_tensors(
             c_in = depth_refiner_inputs(j + 1, sncv, time_recurrence, level_memory, subdivision)
             refiner(f"{dec_d}/levels/{j}", "disp_refiner", "est_d_conv_layers", c_in, 5)
         if semantic:
-            refiner(f"{dec_s}/levels/{j}", "semantic_refiner", "est_s_conv_layers", classes + 4 + ENCODER_CHANNELS[j]
-                    + semantic_extra, classes + 4)
+            refiner(
+                f"{dec_s}/levels/{j}",
+                "semantic_refiner",
+                "est_s_conv_layers",
+                classes + 4 + ENCODER_CHANNELS[j] + semantic_extra,
+                classes + 4,
+            )
     if extras:
         for key in list(t)[:2]:
             var = key[: -len(SUFFIX)]

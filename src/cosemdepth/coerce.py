@@ -44,8 +44,10 @@ def from_mapping(cls: type, d: Any, prefix: str = "") -> Any:
     unknown = [k for k in d if k not in names]
     if unknown:
         keys = ", ".join(repr(join(prefix, str(k))) for k in unknown)
-        raise ConfigError(f"unknown config key{'s' if len(unknown) > 1 else ''} {keys}; valid keys"
-                          f"{' of ' + repr(prefix) if prefix else ''}: {names}")
+        raise ConfigError(
+            f"unknown config key{'s' if len(unknown) > 1 else ''} {keys}; valid keys"
+            f"{' of ' + repr(prefix) if prefix else ''}: {names}"
+        )
     kwargs = {k: coerce(v, hints[k], join(prefix, k)) for k, v in d.items()}
     try:
         return cls(**kwargs)
@@ -127,8 +129,9 @@ def _union(value: Any, args: tuple, key: str) -> Any:
     if value is None and type(None) in args:
         return None
     options = [a for a in args if a is not type(None)]
-    if bool in options and (isinstance(value, bool)
-                            or (isinstance(value, str) and value.strip().lower() in TRUE + FALSE)):
+    if bool in options and (
+        isinstance(value, bool) or (isinstance(value, str) and value.strip().lower() in TRUE + FALSE)
+    ):
         return coerce(value, bool, key)  # a spelling of true/false is the bool, not the string
     errors = []
     for a in options:

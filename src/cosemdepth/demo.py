@@ -45,27 +45,27 @@ import numpy as np
 import torch
 
 from . import __version__
+from .checkpoints.model_io import load_model, read_config_file
 from .cli import main as cli
 from .data import open_dataset
 from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from .data.frames import FocalSize, midair_intrinsics
-from .synthair.climate import CLIMATES
-from .synthair.writer import MAX_FRAMES
 from .errors import CheckpointError, ConfigError, DatasetError
 from .evaluation.classes import class_info
 from .evaluation.evaluator import Evaluator, to_json
 from .evaluation.figures import FlightPictures, frame_maps
-from .evaluation.metrics import ConfusionMatrix, DepthMetrics, EPS, EVAL_MAX_DEPTH
+from .evaluation.metrics import EPS, EVAL_MAX_DEPTH, ConfusionMatrix, DepthMetrics
 from .evaluation.resources import machine_info, resolve_device
 from .evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
-from .output_safety.atomic import atomic_path, atomic_write_text
-from .checkpoints.model_io import load_model, read_config_file
 from .inference.fast_model import reference_model
+from .models.footprint import check_size
 from .operating_point import OperatingPoint
-from .tasks import class_count
+from .output_safety.atomic import atomic_path, atomic_write_text
 from .output_safety.outdir import Input, check_not_input, model_inputs
 from .output_safety.staging import StagedDir
-from .models.footprint import check_size
+from .synthair.climate import CLIMATES
+from .synthair.writer import MAX_FRAMES
+from .tasks import class_count
 
 #: Where the shipped weights live, relative to the repository root (or the current folder).
 DEFAULT_MODEL = Path("weights") / "synthair-cosemdepth"
@@ -135,15 +135,40 @@ def synth_frames(frames: int) -> int:
 MAX_DEMO_FRAMES = MAX_FRAMES // 4 - 1
 
 
-def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climate: str,
-                    supersample: int = DEFAULT_SUPERSAMPLE, quiet: bool = True) -> Path:
+def generate_flight(
+    data_dir: Path,
+    *,
+    size: int,
+    frames: int,
+    seed: int,
+    climate: str,
+    supersample: int = DEFAULT_SUPERSAMPLE,
+    quiet: bool = True,
+) -> Path:
     """Render one SynthAir trajectory of ``frames`` CSV rows with ``cosemdepth synth``; returns the dataset root."""
     if not synth_available():
-        raise ConfigError("this installation has no `cosemdepth synth` command to build the SynthAir flight; pass "
-                          "--data-root ROOT to evaluate on an existing Mid-Air-format dataset (splits in ROOT/splits)")
-    argv = ["synth", "--out", str(data_dir), "--trajectories", "1", "--frames", str(synth_frames(frames)),
-            "--size", str(size), "--seed", str(seed), "--climates", climate, "--supersample", str(supersample),
-            "--no-progress"]
+        raise ConfigError(
+            "this installation has no `cosemdepth synth` command to build the SynthAir flight; pass "
+            "--data-root ROOT to evaluate on an existing Mid-Air-format dataset (splits in ROOT/splits)"
+        )
+    argv = [
+        "synth",
+        "--out",
+        str(data_dir),
+        "--trajectories",
+        "1",
+        "--frames",
+        str(synth_frames(frames)),
+        "--size",
+        str(size),
+        "--seed",
+        str(seed),
+        "--climates",
+        climate,
+        "--supersample",
+        str(supersample),
+        "--no-progress",
+    ]
     sink = io.StringIO()
     with contextlib.redirect_stdout(sink) if quiet else contextlib.nullcontext():
         rc = cli.main(argv)
@@ -152,14 +177,17 @@ def generate_flight(data_dir: Path, *, size: int, frames: int, seed: int, climat
     return data_dir
 
 
-def open_flight_split(root: Path, size: int | FocalSize, split_dir: Path | None = None, jpeg_idct: str = DEFAULT_JPEG_IDCT):
+def open_flight_split(
+    root: Path, size: int | FocalSize, split_dir: Path | None = None, jpeg_idct: str = DEFAULT_JPEG_IDCT
+):
     """The first of the test, val and train splits of ``root`` (splits in ``root/splits``) that has trajectories."""
     split_dir = split_dir or root / "splits"
     errors = []
     for split in ("test", "val", "train"):
         try:
-            return open_dataset("synthair", root, split_dir=split_dir, split=split, seq_len=1, size=size,
-                                jpeg_idct=jpeg_idct), split
+            return open_dataset(
+                "synthair", root, split_dir=split_dir, split=split, seq_len=1, size=size, jpeg_idct=jpeg_idct
+            ), split
         except DatasetError as e:
             errors.append(str(e))
     raise DatasetError(f"{root}: no split with trajectories under {split_dir} ({'; '.join(errors)})")
@@ -190,8 +218,11 @@ class DemoCollector:
         self.targets = sorted({int(round(x)) for x in np.linspace(0.1 * n, n - 1, k)}) if k else []
         if self.num_classes:
             self.label_hist = np.zeros(self.num_classes, dtype=np.int64)
-        self.pictures = FlightPictures(lambda _, image: self.video.write(image) if self.video is not None else None,
-                                       class_names=self.class_names, palette=self.palette)
+        self.pictures = FlightPictures(
+            lambda _, image: self.video.write(image) if self.video is not None else None,
+            class_names=self.class_names,
+            palette=self.palette,
+        )
 
     def _labels_ok(self, gt: np.ndarray) -> bool:
         return self.palette is not None and gt.size > 0 and 0 <= int(gt.min()) and int(gt.max()) < len(self.palette)
@@ -204,8 +235,9 @@ class DemoCollector:
             if inc and batch.gt_depth is not None:
                 self.gt_depths.append(batch.gt_depth[b, 0].detach().float().cpu())
             if inc and batch.gt_labels is not None and self.label_hist is not None:
-                self.label_hist += np.bincount(batch.gt_labels[b].cpu().numpy().ravel(),
-                                               minlength=self.num_classes)[: self.num_classes]
+                self.label_hist += np.bincount(batch.gt_labels[b].cpu().numpy().ravel(), minlength=self.num_classes)[
+                    : self.num_classes
+                ]
             maps = frame_maps(batch, b, title=f"frame {int(batch.frame[b])}", labels_ok=self._labels_ok)
             if self.palette is None:
                 maps.labels = None
@@ -231,8 +263,16 @@ class DemoCollector:
         for gt in self.gt_depths:
             dm.update(gt, torch.full_like(gt, median))
         res = dm.compute()
-        return {"abs_rel": res["abs_rel"], "rmse": res["rmse"], "delta1": res["delta1"], "sq_rel": res["sq_rel"],
-                "rmse_log": res["rmse_log"], "delta2": res["delta2"], "delta3": res["delta3"], "depth_m": median}
+        return {
+            "abs_rel": res["abs_rel"],
+            "rmse": res["rmse"],
+            "delta1": res["delta1"],
+            "sq_rel": res["sq_rel"],
+            "rmse_log": res["rmse_log"],
+            "delta2": res["delta2"],
+            "delta3": res["delta3"],
+            "depth_m": median,
+        }
 
     def majority_class(self) -> dict[str, Any] | None:
         """mIoU (Keras MeanIoU semantics) of predicting the most frequent GT class everywhere."""
@@ -319,14 +359,18 @@ def report_markdown(m: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     em = ev["metrics"]
-    lines.append(f"| **Co-SemDepth** | {_pct(model['miou'])} | {_num(model['abs_rel'])} | {_num(model['rmse'], '.3f')} "
-                 f"| {_pct(model['delta1'])} | {_num(em.get('sq_rel'))} | {_num(em.get('rmse_log'))} | "
-                 f"{_pct(em.get('delta2'))} | {_pct(em.get('delta3'))} |")
+    lines.append(
+        f"| **Co-SemDepth** | {_pct(model['miou'])} | {_num(model['abs_rel'])} | {_num(model['rmse'], '.3f')} "
+        f"| {_pct(model['delta1'])} | {_num(em.get('sq_rel'))} | {_num(em.get('rmse_log'))} | "
+        f"{_pct(em.get('delta2'))} | {_pct(em.get('delta3'))} |"
+    )
     lines.append(f"| majority class ({maj_name} everywhere) | {_pct(maj['miou'])} | – | – | – | – | – | – | – |")
     cd = det.get("constant_depth") or {}
-    lines.append(f"| constant depth ({_num(cd.get('depth_m'), '.2f')} m everywhere) | – | {_num(const['abs_rel'])} | "
-                 f"{_num(const['rmse'], '.3f')} | {_pct(const['delta1'])} | {_num(cd.get('sq_rel'))} | "
-                 f"{_num(cd.get('rmse_log'))} | {_pct(cd.get('delta2'))} | {_pct(cd.get('delta3'))} |")
+    lines.append(
+        f"| constant depth ({_num(cd.get('depth_m'), '.2f')} m everywhere) | – | {_num(const['abs_rel'])} | "
+        f"{_num(const['rmse'], '.3f')} | {_pct(const['delta1'])} | {_num(cd.get('sq_rel'))} | "
+        f"{_num(cd.get('rmse_log'))} | {_pct(cd.get('delta2'))} | {_pct(cd.get('delta3'))} |"
+    )
     valid_line = _validity_line(ev)
     if valid_line:
         lines += ["", valid_line]
@@ -335,33 +379,53 @@ def report_markdown(m: dict[str, Any]) -> str:
     if ratios.get("miou_ratio") is not None:
         lines.append(f"- mIoU is {ratios['miou_ratio']:.2f} x the majority-class baseline's (target: at least 2 x)")
     if ratios.get("abs_rel_ratio") is not None:
-        lines.append(f"- AbsRel is {ratios['abs_rel_ratio']:.2f} x the constant-depth baseline's "
-                     "(target: at most 0.5 x)")
+        lines.append(
+            f"- AbsRel is {ratios['abs_rel_ratio']:.2f} x the constant-depth baseline's (target: at most 0.5 x)"
+        )
     names = det.get("class_names") or []
     if names:
-        lines += ["", "## Per-class IoU", "", "| class | " + " | ".join(names) + " |",
-                  "|---" * (len(names) + 1) + "|",
-                  "| Co-SemDepth | " + " | ".join(_pct(v) for v in det["model_iou"]) + " |",
-                  "| majority class | " + " | ".join(_pct(v) for v in det.get("majority_iou") or []) + " |",
-                  "", "![per-class IoU](iou.png)"]
+        lines += [
+            "",
+            "## Per-class IoU",
+            "",
+            "| class | " + " | ".join(names) + " |",
+            "|---" * (len(names) + 1) + "|",
+            "| Co-SemDepth | " + " | ".join(_pct(v) for v in det["model_iou"]) + " |",
+            "| majority class | " + " | ".join(_pct(v) for v in det.get("majority_iou") or []) + " |",
+            "",
+            "![per-class IoU](iou.png)",
+        ]
     pics = m.get("pictures") or {}
     panels = " | ".join(pics.get("panels") or [])
     lines += ["", "## Qualitative", "", f"![{panels or 'qualitative'}](qualitative.png)", ""]
     if pics.get("depth_range_m"):
         near, far = pics["depth_range_m"]
-        lines.append(f"Depth colours: turbo, linear from {near:g} m (red) to {far:g} m (dark blue), one range for the "
-                     "whole flight (chosen from its first frames); farther depths, the sky among them, "
-                     "are dark blue.")
+        lines.append(
+            f"Depth colours: turbo, linear from {near:g} m (red) to {far:g} m (dark blue), one range for the "
+            "whole flight (chosen from its first frames); farther depths, the sky among them, "
+            "are dark blue."
+        )
     if m.get("files", {}).get("video"):
-        lines.append(f"The whole flight: [{m['files']['video']}]({m['files']['video']}) "
-                     f"(the same panels{': ' + panels if panels else ''}).")
+        lines.append(
+            f"The whole flight: [{m['files']['video']}]({m['files']['video']}) "
+            f"(the same panels{': ' + panels if panels else ''})."
+        )
     lines += ["", "## Timings", "", "| stage | seconds |", "|---|---|"]
     for k, v in tm.items():
         lines.append(f"| {k.replace('_', ' ')} | {v:.1f} |")
-    lines += ["", f"Model speed: {_num(ev['speed']['ms_per_frame'], '.1f')} ms/frame at {_hw(fl['size'])} "
-              f"(model step only, batch 1, float32); peak memory {_num(ev.get('peak_memory_mb'), '.0f')} MiB "
-              f"({ev.get('peak_memory_method')}).", "",
-              "## Reproduce", "", "```bash", m["command"], "```", ""]
+    lines += [
+        "",
+        f"Model speed: {_num(ev['speed']['ms_per_frame'], '.1f')} ms/frame at {_hw(fl['size'])} "
+        f"(model step only, batch 1, float32); peak memory {_num(ev.get('peak_memory_mb'), '.0f')} MiB "
+        f"({ev.get('peak_memory_method')}).",
+        "",
+        "## Reproduce",
+        "",
+        "```bash",
+        m["command"],
+        "```",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -381,9 +445,12 @@ def _validity_line(ev: dict) -> str | None:
         return None
     mb = policy.get("min_baseline_m")
     how = f"streaming policy {policy.get('mode')}" + (f", minimum baseline {mb:.2f} m" if mb else "")
-    return (f"Validity mask ({how}; docs/motion.md): {_pct(em['coverage'])} of the ground-truth pixels valid; on "
-            f"them AbsRel {_num(em.get('valid_abs_rel'))}, δ<1.25 {_pct(em.get('valid_delta1'))}. Evaluated frames: "
-            + ", ".join(f"{v} {k}" for k, v in counts.items()) + ".")
+    return (
+        f"Validity mask ({how}; docs/motion.md): {_pct(em['coverage'])} of the ground-truth pixels valid; on "
+        f"them AbsRel {_num(em.get('valid_abs_rel'))}, δ<1.25 {_pct(em.get('valid_delta1'))}. Evaluated frames: "
+        + ", ".join(f"{v} {k}" for k, v in counts.items())
+        + "."
+    )
 
 
 def run_demo(
@@ -434,9 +501,11 @@ def run_demo(
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     if not isinstance(frames, int) or not 2 <= frames <= MAX_DEMO_FRAMES:
-        raise ConfigError(f"--frames must be an integer in [2, {MAX_DEMO_FRAMES}] (the first frame is a reset; the "
-                          f"flight is rendered by cosemdepth synth, at most {MAX_FRAMES} camera frames), got "
-                          f"{frames!r}")
+        raise ConfigError(
+            f"--frames must be an integer in [2, {MAX_DEMO_FRAMES}] (the first frame is a reset; the "
+            f"flight is rendered by cosemdepth synth, at most {MAX_FRAMES} camera frames), got "
+            f"{frames!r}"
+        )
     if data_root is None and climate not in CLIMATES:  # said here in one line, not by the synth it runs
         raise ConfigError(f"--climate must be one of {', '.join(CLIMATES)}, got {climate!r}")
     if size is not None and (not isinstance(size, int) or size < 32):
@@ -446,8 +515,11 @@ def run_demo(
     if jpeg_idct not in JPEG_IDCTS:
         raise ConfigError(f"--jpeg-idct must be {' or '.join(JPEG_IDCTS)}, got {jpeg_idct!r}")
     model_path = resolve_model_path(model)
-    inputs = [*model_inputs(model_path), Input("--data-root", data_root) if data_root is not None else None,
-              Input("--data-dir", data_dir) if data_dir is not None else None]
+    inputs = [
+        *model_inputs(model_path),
+        Input("--data-root", data_root) if data_root is not None else None,
+        Input("--data-dir", data_dir) if data_dir is not None else None,
+    ]
     staged = StagedDir(out, "demo", overwrite=overwrite, what="--out folder", inputs=inputs)
     staged.check()
     if data_dir is not None:  # the generated flight is an output too: it must not overlap the model or the report
@@ -482,11 +554,15 @@ def run_demo(
             else:
                 root = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cosemdepth-demo-"))) / "synthair"
                 temporary = True
-            log(f"building a held-out SynthAir flight: {frames} frames at {size}x{size}, seed {seed}, {climate} "
-                f"(in {root})")
+            log(
+                f"building a held-out SynthAir flight: {frames} frames at {size}x{size}, seed {seed}, {climate} "
+                f"(in {root})"
+            )
             generate_flight(root, size=size, frames=frames, seed=seed, climate=climate, supersample=supersample)
-            description = (f"SynthAir, world seed {seed}, climate {climate}, one trajectory of {frames} frames at "
-                           f"{size}x{size} ({supersample}x supersampled)")
+            description = (
+                f"SynthAir, world seed {seed}, climate {climate}, one trajectory of {frames} frames at "
+                f"{size}x{size} ({supersample}x supersampled)"
+            )
             timings["generate_flight"] = time.perf_counter() - t
         # an existing dataset without --size: at the model's focal length (its camera, its aspect ratio)
         at_model = data_root is not None and requested is None and op is not None
@@ -501,12 +577,24 @@ def run_demo(
             names, palette = class_info(classes, "synthair") if classes else ((), None)
             writer = VideoWriter(tmp / "flight", fps=DEFAULT_FPS, fmt=video) if video else None
             try:
-                collector = DemoCollector(total_frames=dataset.num_frames if hasattr(dataset, "num_frames")
-                                          else len(dataset), num_classes=classes, palette=palette, video=writer, class_names=tuple(names))
+                collector = DemoCollector(
+                    total_frames=dataset.num_frames if hasattr(dataset, "num_frames") else len(dataset),
+                    num_classes=classes,
+                    palette=palette,
+                    video=writer,
+                    class_names=tuple(names),
+                )
                 t = time.perf_counter()
                 log(f"evaluating on {len(dataset)} frames ({split} split of {root}) ...")
-                evaluator = Evaluator(net, dataset, progress=progress, callbacks=[collector], dataset_name="synthair",
-                                      policy=policy, min_baseline=min_baseline)
+                evaluator = Evaluator(
+                    net,
+                    dataset,
+                    progress=progress,
+                    callbacks=[collector],
+                    dataset_name="synthair",
+                    policy=policy,
+                    min_baseline=min_baseline,
+                )
                 result = evaluator.run()
                 figure = collector.finish()
                 timings["evaluate"] = time.perf_counter() - t
@@ -519,9 +607,15 @@ def run_demo(
             em = result.metrics
             const = collector.constant_depth()
             maj = collector.majority_class()
-            model_block = {"miou": em.get("miou"), "abs_rel": em.get("abs_rel"), "rmse": em.get("rmse"),
-                           "delta1": em.get("delta1"), "coverage": em.get("coverage"),
-                           "valid_abs_rel": em.get("valid_abs_rel"), "valid_delta1": em.get("valid_delta1")}
+            model_block = {
+                "miou": em.get("miou"),
+                "abs_rel": em.get("abs_rel"),
+                "rmse": em.get("rmse"),
+                "delta1": em.get("delta1"),
+                "coverage": em.get("coverage"),
+                "valid_abs_rel": em.get("valid_abs_rel"),
+                "valid_delta1": em.get("valid_delta1"),
+            }
             metrics: dict[str, Any] = {
                 "model": model_block,
                 "baselines": {
@@ -544,15 +638,24 @@ def run_demo(
                     "evaluation": result.to_dict(),
                 },
                 # the generated flight's root only when it is kept (--data-dir); a temporary one is gone by now
-                "flight": {"description": description, "root": None if temporary else str(root.resolve()),
-                           "kept": not temporary, "jpeg_idct": jpeg_idct, "split": split,
-                           "size": result.info["dataset"]["size"] if at_model else size,
-                           "model_operating_point": None if op is None else op.to_dict(),
-                           "frames": frames if data_root is None else None, "seed": seed if data_root is None
-                           else None, "climate": climate if data_root is None else None},
-                "files": {"report": "report.md", "iou_chart": "iou.png" if names else None,
-                          "qualitative": "qualitative.png",
-                          "video": None if video_path is None else video_path.name},
+                "flight": {
+                    "description": description,
+                    "root": None if temporary else str(root.resolve()),
+                    "kept": not temporary,
+                    "jpeg_idct": jpeg_idct,
+                    "split": split,
+                    "size": result.info["dataset"]["size"] if at_model else size,
+                    "model_operating_point": None if op is None else op.to_dict(),
+                    "frames": frames if data_root is None else None,
+                    "seed": seed if data_root is None else None,
+                    "climate": climate if data_root is None else None,
+                },
+                "files": {
+                    "report": "report.md",
+                    "iou_chart": "iou.png" if names else None,
+                    "qualitative": "qualitative.png",
+                    "video": None if video_path is None else video_path.name,
+                },
                 "machine": machine_info(dev),
                 "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
                 "cosemdepth_version": __version__,
@@ -566,9 +669,14 @@ def run_demo(
                 cmd += [f"--frames {frames}", f"--seed {seed}", f"--climate {climate}"]
             metrics["command"] = " ".join(cmd)
             if names:
-                plot_iou(tmp / "iou.png", names, em.get("iou") or [math.nan] * len(names),
-                         None if maj is None else maj["iou"], em.get("miou", math.nan),
-                         math.nan if maj is None else maj["miou"])
+                plot_iou(
+                    tmp / "iou.png",
+                    names,
+                    em.get("iou") or [math.nan] * len(names),
+                    None if maj is None else maj["iou"],
+                    em.get("miou", math.nan),
+                    math.nan if maj is None else maj["miou"],
+                )
             if figure is not None:
                 metrics["pictures"] = figure.metadata()  # what qualitative.png and the video show, the depth range
                 plot_qualitative(tmp / "qualitative.png", figure, collector.picks)

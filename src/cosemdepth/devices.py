@@ -68,8 +68,7 @@ def _onednn_bf16() -> bool:
 
 def no_bf16_reason() -> str:
     """Why bf16 is refused on this CPU, for the one-line errors of the commands that take bf16."""
-    return (f"oneDNN has no bfloat16 convolutions on this CPU ({cpu_capability()}; they need AVX-512 or "
-            "AVX-NE-CONVERT)")
+    return f"oneDNN has no bfloat16 convolutions on this CPU ({cpu_capability()}; they need AVX-512 or AVX-NE-CONVERT)"
 
 
 def cpu_capability() -> str:
@@ -109,8 +108,10 @@ def available_memory(device: torch.device | str = "cpu") -> tuple[int | None, st
     cgroup = _cgroup_room()
     if cgroup is not None:
         candidates.append((cgroup, "the cgroup's memory limit"))
-    for limit, field, name in ((resource.RLIMIT_AS, "VmSize", "ulimit -v"), (resource.RLIMIT_DATA, "VmData",
-                                                                            "RLIMIT_DATA")):
+    for limit, field, name in (
+        (resource.RLIMIT_AS, "VmSize", "ulimit -v"),
+        (resource.RLIMIT_DATA, "VmData", "RLIMIT_DATA"),
+    ):
         soft = resource.getrlimit(limit)[0]
         used = _kib_field(PROC_STATUS, field)
         if soft != resource.RLIM_INFINITY and used is not None:
@@ -201,5 +202,12 @@ def retain_freed_host_memory(limit_bytes: int = 1 << 30) -> bool:
     return ok
 
 
-__all__ = ["available_memory", "bf16_convolutions", "cpu_capability", "no_bf16_reason", "onednn_enabled", "resolve_device",
-           "retain_freed_host_memory"]
+__all__ = [
+    "available_memory",
+    "bf16_convolutions",
+    "cpu_capability",
+    "no_bf16_reason",
+    "onednn_enabled",
+    "resolve_device",
+    "retain_freed_host_memory",
+]

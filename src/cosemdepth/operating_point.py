@@ -137,9 +137,11 @@ class OperatingPoint:
             return None
         h, w = size
         mh, mw = size_for_focal(size, focal_px, self.focal)
-        return (f"warning: {what} {h}x{w} gives a focal length of {focal_px:.1f} px, but the model was trained at "
-                f"{self.focal:.1f} px ({self.size[0]}x{self.size[1]}); parallax and apparent sizes scale with it, "
-                f"so expect worse depth (without {what} this input runs at {mh}x{mw})")
+        return (
+            f"warning: {what} {h}x{w} gives a focal length of {focal_px:.1f} px, but the model was trained at "
+            f"{self.focal:.1f} px ({self.size[0]}x{self.size[1]}); parallax and apparent sizes scale with it, "
+            f"so expect worse depth (without {what} this input runs at {mh}x{mw})"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"size": list(self.size), "focal_px": [float(v) for v in self.focal_px]}
@@ -159,12 +161,14 @@ class OperatingPoint:
         except (KeyError, TypeError, ValueError) as e:
             raise ConfigError(f"operating_point needs size [H, W] and focal_px [fx, fy] ({e})") from None
         if len(size) != 2 or len(focal) != 2:
-            raise ConfigError(f"operating_point size and focal_px need two values each, got {d.get('size')!r}, "
-                              f"{d.get('focal_px')!r}")
+            raise ConfigError(
+                f"operating_point size and focal_px need two values each, got {d.get('size')!r}, {d.get('focal_px')!r}"
+            )
         motion = d.get("step_translation_m")
         extra = {k: v for k, v in d.items() if k not in ("size", "focal_px", "step_translation_m", "source")}
-        return cls(size, focal, None if motion is None else MotionStats.from_dict(motion), str(d.get("source", "")),
-                   extra)
+        return cls(
+            size, focal, None if motion is None else MotionStats.from_dict(motion), str(d.get("source", "")), extra
+        )
 
 
 __all__ = ["FOCAL_WARN_FACTOR", "MOTION_KEYS", "MotionStats", "OperatingPoint", "size_for_focal"]

@@ -38,8 +38,10 @@ def check_workers(n, what: str = "--workers", minimum: int = 0) -> int:
     bound = max_workers()
     if n > bound:
         cores = usable_cores()
-        raise ConfigError(f"{what} {n}: more worker processes than this machine can run (at most {bound}: "
-                          f"{WORKERS_PER_CORE} per CPU core, {cores} core{'s' * (cores != 1)} here); use fewer")
+        raise ConfigError(
+            f"{what} {n}: more worker processes than this machine can run (at most {bound}: "
+            f"{WORKERS_PER_CORE} per CPU core, {cores} core{'s' * (cores != 1)} here); use fewer"
+        )
     return n
 
 

@@ -40,12 +40,16 @@ def test_run_case_joint_vs_separate_and_reports(tmp_path):
     assert s["params"] == build_model(levels=2).num_parameters()
     assert len(s["step_ms"]) == 2 and s["p90_ms_per_frame"] >= s["median_ms_per_frame"] >= s["min_ms_per_frame"] > 0
     assert s["fps"] == pytest.approx(1000 / s["median_ms_per_frame"], rel=1e-2)
-    assert len(s["others_cores_per_step"]) == 2 and all(0 <= o <= (os.cpu_count() or 1) + 0.5 for o in s["others_cores_per_step"])
+    assert len(s["others_cores_per_step"]) == 2 and all(
+        0 <= o <= (os.cpu_count() or 1) + 0.5 for o in s["others_cores_per_step"]
+    )
     assert s["quiet_steps"] == sum(o <= 0.1 for o in s["others_cores_per_step"])
     sep = run_separate(case)
-    assert sep.params == build_model(arch="m4depth", levels=2).num_parameters() + build_model(
-        arch="m4semantic", levels=2
-    ).num_parameters()
+    assert (
+        sep.params
+        == build_model(arch="m4depth", levels=2).num_parameters()
+        + build_model(arch="m4semantic", levels=2).num_parameters()
+    )
     cmp = joint_vs_separate(res, sep)
     assert cmp["joint_fewer_params"] and cmp["joint_params"] == s["params"]
     report = {
@@ -102,8 +106,13 @@ def test_joint_vs_separate_verdict_uses_the_spread():
     assert close["joint_spread_ms_per_frame"]["q75"] == 13 and close["separate_spread_ms_per_frame"]["q25"] == 12.5
     apart = joint_vs_separate(result([10, 11, 12, 13, 14]), result([20, 21, 22, 23, 24], "m4depth+m4semantic"))
     assert apart["joint_faster"] == "yes"
-    md = markdown({"meta": {"date_utc": "d", "cpu_model": "c", "cpu_count": 2, "threads": 2, "torch": "t"},
-                   "results": [], "joint_vs_separate": [close, {**apart, "joint_faster": True}]})
+    md = markdown(
+        {
+            "meta": {"date_utc": "d", "cpu_model": "c", "cpu_count": 2, "threads": 2, "torch": "t"},
+            "results": [],
+            "joint_vs_separate": [close, {**apart, "joint_faster": True}],
+        }
+    )
     assert "| 12.0 (11.0-13.0) | 13.5 (12.5-15.0) |" in md and "| within noise |" in md and "| yes |" in md
 
 

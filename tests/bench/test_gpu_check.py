@@ -27,8 +27,11 @@ def test_compare_outputs_on_hand_computed_frames():
     m = compare_outputs([(ref_d, ref_s), (ref_d, ref_s)], [(reset_d, ref_s), (got_d, got_s)], [True, False])
     assert m["depth_median_rel"] == pytest.approx(0.1)
     assert m["labels_equal"] == 0.75 and m["frames"] == 2
-    assert compare_outputs([(None, ref_s)], [(None, ref_s)], [False]) == {"depth_median_rel": None,
-                                                                           "labels_equal": 1.0, "frames": 1}
+    assert compare_outputs([(None, ref_s)], [(None, ref_s)], [False]) == {
+        "depth_median_rel": None,
+        "labels_equal": 1.0,
+        "frames": 1,
+    }
 
 
 def test_within_applies_both_bounds():
@@ -46,9 +49,14 @@ def rows(report, stage):
 def test_dry_run_of_the_script_plans_every_stage(tmp_path):
     out = tmp_path / "check.json"
     env = {**os.environ, "PYTHON": sys.executable, "OMP_NUM_THREADS": "1"}
-    r = subprocess.run(["bash", str(ROOT / "scripts" / "gpu_check.sh"), "--dry-run", "--model", "", "--size", "32",
-                        "--out", str(out)], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                       timeout=600)
+    r = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "gpu_check.sh"), "--dry-run", "--model", "", "--size", "32", "--out", str(out)],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        timeout=600,
+    )
     report = json.loads(out.read_text())
     assert report["schema"] == gpu_check.SCHEMA and report["meta"]["dry_run"] is True
     assert [s["name"] for s in report["stages"]] == list(STAGES)
@@ -64,8 +72,10 @@ def test_dry_run_of_the_script_plans_every_stage(tmp_path):
     assert "dry run" in rows(report, "cuda_tests")["reason"] and "dry run" in rows(report, "ddp")["reason"]
     streaming = {(x["precision"], x["path"]): x for x in rows(report, "streaming")["results"]}
     assert set(streaming) == {(p, q) for p in ("fp32", "fp16", "bf16") for q in ("fast", "graph")}
-    assert all(streaming[(p, "graph")]["status"] == "not_run" and "CUDA" in streaming[(p, "graph")]["reason"]
-               for p in ("fp32", "fp16", "bf16"))
+    assert all(
+        streaming[(p, "graph")]["status"] == "not_run" and "CUDA" in streaming[(p, "graph")]["reason"]
+        for p in ("fp32", "fp16", "bf16")
+    )
     assert streaming[("fp16", "fast")]["status"] == "not_run"
     # what the CPU can do ran, and float32 agrees with the reference path
     fp32 = streaming[("fp32", "fast")]

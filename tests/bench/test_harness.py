@@ -21,8 +21,15 @@ model name\t: ignored, only the first counts
 
 def test_cpu_model_and_flags_from_cpuinfo_text():
     assert harness.cpu_model(CPUINFO) == "Intel(R) Xeon(R) Platinum 8480+"
-    assert harness.cpu_flags(CPUINFO) == {"avx2": True, "avx512f": True, "avx512_bf16": False, "avx512_vnni": True,
-                                          "amx_tile": True, "amx_bf16": True, "amx_int8": False}
+    assert harness.cpu_flags(CPUINFO) == {
+        "avx2": True,
+        "avx512f": True,
+        "avx512_bf16": False,
+        "avx512_vnni": True,
+        "amx_tile": True,
+        "amx_bf16": True,
+        "amx_int8": False,
+    }
     assert harness.cpu_model("") is None and harness.cpu_flags("processor : 0\n") is None
 
 
@@ -38,7 +45,9 @@ def test_git_state_is_this_checkout_s():
 
 def test_run_meta_has_every_key_and_a_valid_report_round_trips(tmp_path):
     meta = harness.run_meta(command="python benchmarks/x.py --a 1", extra_field=3)
-    assert set(META_KEYS) <= set(meta) and meta["command"] == "python benchmarks/x.py --a 1" and meta["extra_field"] == 3
+    assert (
+        set(META_KEYS) <= set(meta) and meta["command"] == "python benchmarks/x.py --a 1" and meta["extra_field"] == 3
+    )
     assert meta["cpu_flags"] is None or set(meta["cpu_flags"]) == set(CPU_FLAGS)
     rep = make_report("conv_peak", {"threads": [1]}, {"rows": [1.5, float("nan")]}, meta=meta, extra=[1])
     assert validate(rep) == []
@@ -58,9 +67,11 @@ def test_validate_names_what_is_wrong(tmp_path):
     assert validate({**good, "results": 3}) == ["'results' must be an object or a list"]
     assert validate({**good, "meta": {**meta, "torch": None}}) == ["meta 'torch' must not be null"]
     assert validate({**good, "meta": {k: v for k, v in meta.items() if k != "git_commit"}}) == [
-        "meta lacks 'git_commit' (null when not known)"]
+        "meta lacks 'git_commit' (null when not known)"
+    ]
     assert validate({**good, "meta": {**meta, "date_utc": "2026-12-04 10:00 UTC"}}) == [
-        "meta 'date_utc' must be YYYY-MM-DDTHH:MM:SSZ, got '2026-12-04 10:00 UTC'"]
+        "meta 'date_utc' must be YYYY-MM-DDTHH:MM:SSZ, got '2026-12-04 10:00 UTC'"
+    ]
     assert validate({**good, "meta": {**meta, "cpu_flags": {"avx2": True}}})[0].startswith("meta 'cpu_flags'")
     assert validate({**good, "meta": {**meta, "threads": 0}}) == ["meta 'threads' must be a positive integer or null"]
     with pytest.raises(ValueError, match="schema"):
@@ -76,8 +87,13 @@ def test_time_calls_and_summarize():
     assert len(calls) == 5 and len(times) == 3 and all(t >= 0 for t in times)
     with pytest.raises(ValueError):
         harness.time_calls(lambda: None, iters=0)
-    assert harness.summarize([0.001, 0.003, 0.002], scale=1e3) == {"n": 3, "median": 2.0, "min": 1.0, "max": 3.0,
-                                                                  "mean": 2.0}
+    assert harness.summarize([0.001, 0.003, 0.002], scale=1e3) == {
+        "n": 3,
+        "median": 2.0,
+        "min": 1.0,
+        "max": 3.0,
+        "mean": 2.0,
+    }
 
 
 def test_command_line_of_a_script_and_of_the_cli():

@@ -34,8 +34,12 @@ def test_from_scratch_the_recipe_is_synthair_small_unless_lr_is_given(script):
 
 def test_fine_tuning_takes_levels_precision_and_class_weights_from_the_source(script, tmp_path):
     d = _model_dir(tmp_path, {"bf16": True, "semantic_class_weights": [0.5, 2.0]})
-    assert script.recipe_sets(d, None) == [f"train.lr={script.FINETUNE_LR}", "model.levels=5", "train.bf16=true",
-                                           "train.semantic_class_weights=[0.5, 2.0]"]
+    assert script.recipe_sets(d, None) == [
+        f"train.lr={script.FINETUNE_LR}",
+        "model.levels=5",
+        "train.bf16=true",
+        "train.semantic_class_weights=[0.5, 2.0]",
+    ]
 
 
 def test_fine_tuning_a_source_without_a_recorded_run_config_keeps_fp32_and_uniform_weights(script, tmp_path):
@@ -50,8 +54,21 @@ def test_different_recipes_train_into_different_run_folders(script):
 
 def test_init_that_is_not_a_model_folder_exits_2_and_writes_nothing(script, tmp_path, monkeypatch, capsys):
     work = tmp_path / "work"
-    monkeypatch.setattr(sys, "argv", ["temporal_semantics.py", "--init", str(tmp_path / "nope"), "--work", str(work),
-                                      "--out", str(tmp_path / "out" / "r"), "--strip", str(tmp_path / "s.png")])
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        [
+            "temporal_semantics.py",
+            "--init",
+            str(tmp_path / "nope"),
+            "--work",
+            str(work),
+            "--out",
+            str(tmp_path / "out" / "r"),
+            "--strip",
+            str(tmp_path / "s.png"),
+        ],
+    )
     assert script.main() == 2
     err = capsys.readouterr().err
     assert err.strip() == f"--init {tmp_path / 'nope'}: not a model folder (no config.json)"
@@ -63,8 +80,11 @@ def _row(miou, flicker, ms):
 
 
 def test_acceptance_against_hand_computed_differences(script):
-    summary = {"cosemdepth": _row(0.30, 0.10, 100.0), "cosemdepth_t": _row(0.325, 0.065, 111.0),
-               "s_prev_gt": _row(0.31, 0.08, 104.0)}
+    summary = {
+        "cosemdepth": _row(0.30, 0.10, 100.0),
+        "cosemdepth_t": _row(0.325, 0.065, 111.0),
+        "s_prev_gt": _row(0.31, 0.08, 104.0),
+    }
     acc = script.acceptance(summary)
     assert acc["miou_gain_points"]["measured"] == pytest.approx(2.5) and acc["miou_gain_points"]["met"]
     assert acc["flicker_reduction"]["measured"] == pytest.approx(0.35) and acc["flicker_reduction"]["met"]

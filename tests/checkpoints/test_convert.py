@@ -11,9 +11,8 @@ import itertools
 import numpy as np
 import pytest
 import torch
+from tf_bundle_writer import SUFFIX, depth_refiner_inputs, model_tensors, refiner_params, write_bundle
 
-from cosemdepth.models.config import ModelConfig
-from cosemdepth.errors import CheckpointError
 from cosemdepth.checkpoints.convert import (
     convert_checkpoint,
     convert_tensors,
@@ -22,7 +21,8 @@ from cosemdepth.checkpoints.convert import (
     import_checkpoint,
 )
 from cosemdepth.checkpoints.tf_checkpoint import read_checkpoint
-from tf_bundle_writer import SUFFIX, depth_refiner_inputs, model_tensors, refiner_params, write_bundle
+from cosemdepth.errors import CheckpointError
+from cosemdepth.models.config import ModelConfig
 
 # Design 4.1: encoder totals (with the 32 DINL parameters).
 ENCODER = {4: 210_544, 5: 468_848, 6: 1_022_192}
@@ -130,8 +130,9 @@ def test_m4depth_four_levels_from_file(tmp_path):
     assert conv.ignored_keys[f"encoder/conv_layers_s1/0/kernel/.OPTIMIZER_SLOT/optimizer/m{SUFFIX}"] == "optimizer slot"
     w = t[f"d_estimator/levels/3/disp_refiner/prep_conv_layers/0/kernel{SUFFIX}"]
     assert w.shape == (3, 3, 238, 128)
-    np.testing.assert_array_equal(conv.state_dict["depth_decoder.levels.3.refiner.convs.0.weight"].numpy(),
-                                  w.transpose(3, 2, 0, 1))
+    np.testing.assert_array_equal(
+        conv.state_dict["depth_decoder.levels.3.refiner.convs.0.weight"].numpy(), w.transpose(3, 2, 0, 1)
+    )
     assert conv.source["checkpoint"] == str(prefix.resolve())
 
 
@@ -145,7 +146,12 @@ def test_m4depth_six_levels_other_root_names(tmp_path):
     # design 12.1: the original 6-level M4Depth; refiner inputs 64, 122, 122, 238, 238, 470 (design 5.1)
     assert conv.num_parameters == 4_492_238
     assert [conv.state_dict[f"depth_decoder.levels.{j}.refiner.convs.0.weight"].shape[1] for j in range(6)] == [
-        64, 122, 122, 238, 238, 470,
+        64,
+        122,
+        122,
+        238,
+        238,
+        470,
     ]
 
 
@@ -186,12 +192,17 @@ def test_m4depth_four_levels_without_sncv(tmp_path):
 
 
 def test_m4depth_heavily_ablated(tmp_path):
-    t = model_tensors(levels=5, semantic=False, dinl=False, time_recurrence=False, level_memory=False,
-                      subdivision=False, zeros=True)
+    t = model_tensors(
+        levels=5, semantic=False, dinl=False, time_recurrence=False, level_memory=False, subdivision=False, zeros=True
+    )
     conv = import_checkpoint(write_bundle(tmp_path / "cp-0000.ckpt", t))
     cfg = conv.config
     assert (cfg.dinl, cfg.sncv, cfg.time_recurrence, cfg.level_memory, cfg.feature_subdivision) == (
-        False, True, False, False, False,
+        False,
+        True,
+        False,
+        False,
+        False,
     )
     # refiner inputs 9 + 1 + 49 = 59 at every level (K = 1)
     assert conv.num_parameters == ENCODER[5] - 32 + 5 * refiner_params(59, 5) == 2_496_521
@@ -200,8 +211,16 @@ def test_m4depth_heavily_ablated(tmp_path):
 @pytest.mark.parametrize("switches", list(itertools.product((True, False), repeat=4)))
 def test_every_depth_ablation_combination_is_recovered(switches):
     sncv, tr, lm, sub = switches
-    t = model_tensors(levels=3, semantic=False, sncv=sncv, time_recurrence=tr, level_memory=lm, subdivision=sub,
-                      extras=False, zeros=True)
+    t = model_tensors(
+        levels=3,
+        semantic=False,
+        sncv=sncv,
+        time_recurrence=tr,
+        level_memory=lm,
+        subdivision=sub,
+        extras=False,
+        zeros=True,
+    )
     cfg = convert_tensors(t).config
     assert (cfg.sncv, cfg.time_recurrence, cfg.level_memory, cfg.feature_subdivision) == switches
     assert count_parameters(cfg) == ENCODER_L3 + sum(
@@ -262,8 +281,11 @@ def test_wrong_shape_names_the_tf_key():
     t = _small()
     key = f"encoder/conv_layers_s2/1/kernel{SUFFIX}"
     t[key] = np.zeros((3, 3, 32, 33), np.float32)
-    with pytest.raises(CheckpointError, match=r"my\.ckpt: .*wrong shapes: 'encoder/conv_layers_s2/1/kernel.*"
-                                              r"has shape \[3, 3, 32, 33\], expected \[3, 3, 32, 32\]"):
+    with pytest.raises(
+        CheckpointError,
+        match=r"my\.ckpt: .*wrong shapes: 'encoder/conv_layers_s2/1/kernel.*"
+        r"has shape \[3, 3, 32, 33\], expected \[3, 3, 32, 32\]",
+    ):
         convert_tensors(t, origin="my.ckpt")
 
 
@@ -329,8 +351,13 @@ def test_gap_in_levels():
 
 def test_two_encoders_are_ambiguous():
     t = _small()
-    t.update({k.replace("encoder/", "encoder_copy/"): v for k, v in model_tensors(levels=2, zeros=True).items()
-              if k.startswith("encoder/conv")})
+    t.update(
+        {
+            k.replace("encoder/", "encoder_copy/"): v
+            for k, v in model_tensors(levels=2, zeros=True).items()
+            if k.startswith("encoder/conv")
+        }
+    )
     with pytest.raises(CheckpointError, match="encoder weights under several roots"):
         convert_tensors(t)
 
@@ -359,8 +386,10 @@ def test_too_few_classes():
 
 
 def test_float16_weights_are_converted_to_float32():
-    t = {k: (v.astype(np.float16) if isinstance(v, np.ndarray) and v.dtype == np.float32 else v)
-         for k, v in model_tensors(levels=1, seed=5).items()}
+    t = {
+        k: (v.astype(np.float16) if isinstance(v, np.ndarray) and v.dtype == np.float32 else v)
+        for k, v in model_tensors(levels=1, seed=5).items()
+    }
     conv = convert_tensors(t)
     w = conv.state_dict["encoder.conv_s1.0.bias"]
     assert w.dtype == torch.float32

@@ -15,14 +15,13 @@ import shutil
 
 import numpy as np
 import pytest
+from fuzzing import fuzz_settings, mutate_bytes, outcome, write
 from hypothesis import given
 from hypothesis import strategies as st
-
-from cosemdepth.errors import CheckpointError
-from cosemdepth.checkpoints.tf_checkpoint import CheckpointReader, list_entries, read_checkpoint
-
-from fuzzing import fuzz_settings, mutate_bytes, outcome, write
 from tf_bundle_writer import BFloat16, entry_proto, header_proto, pb_bytes, pb_varint, table_bytes, varint, write_bundle
+
+from cosemdepth.checkpoints.tf_checkpoint import CheckpointReader, list_entries, read_checkpoint
+from cosemdepth.errors import CheckpointError
 
 TENSORS = {
     "a/kernel": np.arange(24, dtype=np.float32).reshape(2, 3, 4) - 7.5,
@@ -78,8 +77,7 @@ def test_fuzz_bundle_bytes(tmp_path_factory, bundle, data, which):
     write(folder / "ckpt.index", new_index)
     write(folder / "ckpt.data-00000-of-00001", new_shard)
     unchanged = new_index == index and new_shard[: len(shard)] == shard
-    outcome(lambda: read_everything(prefix), [prefix],
-            lambda r: check_consistent(r, unchanged))
+    outcome(lambda: read_everything(prefix), [prefix], lambda r: check_consistent(r, unchanged))
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -135,8 +133,7 @@ def test_fuzz_bundle_entries(tmp_path_factory, bundle, data):
         header = data.draw(st.sampled_from((header, b""))) + b"".join(data.draw(st.lists(proto_field(), max_size=3)))
     write(folder / "ckpt.index", table_bytes([(b"", header)] + entries, block_size=64, restart_interval=2))
     prefix = folder / "ckpt"
-    outcome(lambda: read_everything(prefix), [prefix],
-            lambda r: check_consistent(r, False))
+    outcome(lambda: read_everything(prefix), [prefix], lambda r: check_consistent(r, False))
 
 
 def test_entry_field_of_wrong_wire_type(tmp_path):
@@ -232,8 +229,10 @@ def model_variant(draw):
         elif op == "rename":
             t[key.replace("/0/", "/7/").replace("kernel", "kernal")] = t.pop(key)
         else:
-            t[draw(st.sampled_from(("encoder/conv_layers_s1/9/kernel", "d_estimator/levels/0/x/bias")))
-              + "/.ATTRIBUTES/VARIABLE_VALUE"] = arr
+            t[
+                draw(st.sampled_from(("encoder/conv_layers_s1/9/kernel", "d_estimator/levels/0/x/bias")))
+                + "/.ATTRIBUTES/VARIABLE_VALUE"
+            ] = arr
     return t
 
 
@@ -258,9 +257,9 @@ def test_fuzz_checkpoint_conversion(tmp_path_factory, tensors):
 @given(data=st.data())
 def test_fuzz_checkpoint_state_file(tmp_path_factory, bundle, data):
     """The ``checkpoint`` text file of a checkpoint folder (which names the prefix), damaged."""
-    from cosemdepth.checkpoints.tf_checkpoint import resolve_checkpoint
-
     from fuzzing import text_file_bytes
+
+    from cosemdepth.checkpoints.tf_checkpoint import resolve_checkpoint
 
     folder = bundle[0].parent
     text = f'model_checkpoint_path: "{bundle[0].name}"\nall_model_checkpoint_paths: "{bundle[0].name}"\n'

@@ -11,14 +11,18 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cosemdepth.models.config import ModelConfig
-from cosemdepth.errors import CheckpointError
-from cosemdepth.checkpoints.model_io import read_config_file, read_model_files, save_weights
 from cosemdepth.checkpoints.convert import expected_param_shapes
+from cosemdepth.checkpoints.model_io import read_config_file, read_model_files, save_weights
+from cosemdepth.errors import CheckpointError
+from cosemdepth.models.config import ModelConfig
 
 CFG = ModelConfig(arch="m4semantic", levels=1, num_classes=3)
-FUZZ = settings(max_examples=40, deadline=None, derandomize=True,
-                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+FUZZ = settings(
+    max_examples=40,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 
 
 def _state(cfg=CFG):
@@ -56,13 +60,26 @@ def _outcome(folder, target: str):
 
 
 json_values = st.recursive(
-    st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats(allow_nan=True, allow_infinity=True)
+    st.none()
+    | st.booleans()
+    | st.integers(-(2**70), 2**70)
+    | st.floats(allow_nan=True, allow_infinity=True)
     | st.text(max_size=8),
     lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=6), inner, max_size=3),
     max_leaves=6,
 )
-MODEL_KEYS = ["arch", "levels", "num_classes", "dinl", "sncv", "time_recurrence", "feature_normalization",
-              "feature_subdivision", "level_memory", "pscv_dtype"]
+MODEL_KEYS = [
+    "arch",
+    "levels",
+    "num_classes",
+    "dinl",
+    "sncv",
+    "time_recurrence",
+    "feature_normalization",
+    "feature_subdivision",
+    "level_memory",
+    "pscv_dtype",
+]
 
 
 @FUZZ
@@ -74,7 +91,7 @@ def test_damaged_config_json(good, tmp_path_factory, data):
         config = config[: data.draw(st.integers(0, len(config) - 1))]
     elif kind == "flip":
         i = data.draw(st.integers(0, len(config) - 1))
-        config = config[:i] + bytes([config[i] ^ data.draw(st.integers(1, 255))]) + config[i + 1:]
+        config = config[:i] + bytes([config[i] ^ data.draw(st.integers(1, 255))]) + config[i + 1 :]
     elif kind in ("field", "model_field"):
         meta = json.loads(config)
         where = meta["model"] if kind == "model_field" else meta
@@ -91,7 +108,8 @@ def test_damaged_config_json(good, tmp_path_factory, data):
     else:
         meta = json.loads(config)
         meta["model"][data.draw(st.sampled_from(["levels", "num_classes"]))] = data.draw(
-            st.sampled_from([math.nan, math.inf, -math.inf, 1e308, 10**30, -1, 0, 2.5, True]))
+            st.sampled_from([math.nan, math.inf, -math.inf, 1e308, 10**30, -1, 0, 2.5, True])
+        )
         config = json.dumps(meta, allow_nan=True).encode()
     folder = _folder(tmp_path_factory, config, weights)
     try:
@@ -105,7 +123,7 @@ def test_damaged_config_json(good, tmp_path_factory, data):
 
 def _header(weights: bytes) -> tuple[dict, bytes]:
     n = struct.unpack("<Q", weights[:8])[0]
-    return json.loads(weights[8:8 + n]), weights[8 + n:]
+    return json.loads(weights[8 : 8 + n]), weights[8 + n :]
 
 
 def _pack(header: dict, body: bytes) -> bytes:
@@ -117,8 +135,22 @@ def _pack(header: dict, body: bytes) -> bytes:
 @given(data=st.data())
 def test_damaged_model_safetensors(good, tmp_path_factory, data):
     config, weights = good
-    kind = data.draw(st.sampled_from(["truncate", "flip", "flip_body", "dtype", "shape", "offsets", "header_size",
-                                      "nan", "empty", "random_header"]))
+    kind = data.draw(
+        st.sampled_from(
+            [
+                "truncate",
+                "flip",
+                "flip_body",
+                "dtype",
+                "shape",
+                "offsets",
+                "header_size",
+                "nan",
+                "empty",
+                "random_header",
+            ]
+        )
+    )
     header, body = _header(weights)
     names = sorted(k for k in header if k != "__metadata__")
     if kind == "truncate":
@@ -126,18 +158,21 @@ def test_damaged_model_safetensors(good, tmp_path_factory, data):
     elif kind in ("flip", "flip_body"):
         lo = len(weights) - len(body) if kind == "flip_body" else 0
         i = data.draw(st.integers(lo, len(weights) - 1))
-        weights = weights[:i] + bytes([weights[i] ^ data.draw(st.integers(1, 255))]) + weights[i + 1:]
+        weights = weights[:i] + bytes([weights[i] ^ data.draw(st.integers(1, 255))]) + weights[i + 1 :]
     elif kind == "dtype":
         header[data.draw(st.sampled_from(names))]["dtype"] = data.draw(
-            st.sampled_from(["I32", "U8", "F16", "BF16", "F64", "BOOL", "XX", 3]))
+            st.sampled_from(["I32", "U8", "F16", "BF16", "F64", "BOOL", "XX", 3])
+        )
         weights = _pack(header, body)
     elif kind == "shape":
         header[data.draw(st.sampled_from(names))]["shape"] = data.draw(
-            st.lists(st.integers(-2, 2**40), max_size=4) | json_values)
+            st.lists(st.integers(-2, 2**40), max_size=4) | json_values
+        )
         weights = _pack(header, body)
     elif kind == "offsets":
         header[data.draw(st.sampled_from(names))]["data_offsets"] = data.draw(
-            st.lists(st.integers(-5, 2**63), min_size=0, max_size=3) | json_values)
+            st.lists(st.integers(-5, 2**63), min_size=0, max_size=3) | json_values
+        )
         weights = _pack(header, body)
     elif kind == "header_size":
         weights = struct.pack("<Q", data.draw(st.integers(0, 2**64 - 1))) + weights[8:]
@@ -146,7 +181,7 @@ def test_damaged_model_safetensors(good, tmp_path_factory, data):
         a, _ = header[name]["data_offsets"]
         k = data.draw(st.integers(0, (header[name]["data_offsets"][1] - a) // 4 - 1))
         value = data.draw(st.sampled_from([math.nan, math.inf, -math.inf]))
-        body = body[: a + 4 * k] + struct.pack("<f", value) + body[a + 4 * k + 4:]
+        body = body[: a + 4 * k] + struct.pack("<f", value) + body[a + 4 * k + 4 :]
         weights = _pack(header, body)
     elif kind == "empty":
         weights = b""
@@ -163,6 +198,9 @@ def test_non_finite_weights_are_named(good, tmp_path):
     key = sorted(sd)[3]
     sd[key].view(-1)[5] = math.nan
     save_weights(sd, CFG, tmp_path / "m")
-    with pytest.raises(CheckpointError, match=rf"{tmp_path / 'm' / 'model.safetensors'}: weights hold NaN/inf: "
-                       rf"{key} \(1 of"):
+    with pytest.raises(
+        CheckpointError,
+        match=rf"{tmp_path / 'm' / 'model.safetensors'}: weights hold NaN/inf: "
+        rf"{key} \(1 of",
+    ):
         read_model_files(tmp_path / "m")

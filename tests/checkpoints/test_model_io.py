@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import torch
 from safetensors.torch import save_file
+from tf_bundle_writer import model_tensors, write_bundle
 
-from cosemdepth.models.config import ModelConfig
-from cosemdepth.errors import CheckpointError, ConfigError
 from cosemdepth.checkpoints.convert import convert_checkpoint, expected_param_shapes
 from cosemdepth.checkpoints.model_io import load_model, read_model_files, save_model, save_weights
-from tf_bundle_writer import model_tensors, write_bundle
+from cosemdepth.errors import CheckpointError, ConfigError
+from cosemdepth.models.config import ModelConfig
 
 SMALL = ModelConfig(arch="cosemdepth", levels=2, num_classes=5)
 
@@ -61,9 +61,18 @@ def test_config_json_content(tmp_path):
     meta = json.loads((tmp_path / "config.json").read_text())
     assert meta["format"] == "cosemdepth" and meta["format_version"] == 1
     assert meta["model"] == {
-        "arch": "m4depth", "levels": 3, "num_classes": 7, "dinl": True, "sncv": False, "time_recurrence": True,
-        "feature_normalization": True, "feature_subdivision": True, "level_memory": True, "pscv_dtype": "float32",
-        "semantic_sncv": False, "semantic_time": "off",
+        "arch": "m4depth",
+        "levels": 3,
+        "num_classes": 7,
+        "dinl": True,
+        "sncv": False,
+        "time_recurrence": True,
+        "feature_normalization": True,
+        "feature_subdivision": True,
+        "level_memory": True,
+        "pscv_dtype": "float32",
+        "semantic_sncv": False,
+        "semantic_time": "off",
     }
     assert meta["source"] == {}
     assert meta["num_parameters"] == sum(s.numel() for s in _random_state(cfg).values())
@@ -175,9 +184,12 @@ def test_weights_not_matching_config(saved):
     sd = _random_state(SMALL)
     sd["semantic_decoder.levels.1.refiner.convs.6.weight"] = torch.zeros(10, 16, 3, 3)
     save_file(sd, str(saved / "model.safetensors"))
-    with pytest.raises(CheckpointError, match=r"model\.safetensors: .*shape mismatch: "
-                                              r"semantic_decoder\.levels\.1\.refiner\.convs\.6\.weight has shape "
-                                              r"\[10, 16, 3, 3\], expected \[9, 16, 3, 3\]"):
+    with pytest.raises(
+        CheckpointError,
+        match=r"model\.safetensors: .*shape mismatch: "
+        r"semantic_decoder\.levels\.1\.refiner\.convs\.6\.weight has shape "
+        r"\[10, 16, 3, 3\], expected \[9, 16, 3, 3\]",
+    ):
         read_model_files(saved)
 
 
@@ -354,8 +366,9 @@ def test_operating_point_round_trip(tmp_path):
     motion = written.pop("step_translation_m")
     assert written == {"size": [96, 128], "focal_px": [64.0, 48.0], "source": "test"}
     # numpy's linear quantiles of 0.5, 1, 1.5, 2 by hand
-    assert motion == pytest.approx({"count": 4, "mean": 1.25, "median": 1.25, "p05": 0.575, "p25": 0.875,
-                                    "p75": 1.625, "p95": 1.925}, rel=1e-12)
+    assert motion == pytest.approx(
+        {"count": 4, "mean": 1.25, "median": 1.25, "p05": 0.575, "p25": 0.875, "p75": 1.625, "p95": 1.925}, rel=1e-12
+    )
     assert read_operating_point(meta) == op and operating_point_of(out) == op
     loaded = load_model(out)
     assert loaded.operating_point == op

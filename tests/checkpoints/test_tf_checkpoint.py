@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tf_bundle_writer import BFloat16, table_bytes, write_bundle
 
-from cosemdepth.errors import CheckpointError
 from cosemdepth.checkpoints.crc32c import crc32c, mask_crc, masked_crc32c, unmask_crc
 from cosemdepth.checkpoints.tf_checkpoint import (
     CheckpointReader,
@@ -18,7 +18,7 @@ from cosemdepth.checkpoints.tf_checkpoint import (
     read_checkpoint,
     resolve_checkpoint,
 )
-from tf_bundle_writer import BFloat16, table_bytes, write_bundle
+from cosemdepth.errors import CheckpointError
 
 # ------------------------------------------------------------------------------------------------------------------
 # CRC32C

@@ -9,8 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
-from _outputs import SIZE, leftovers  # noqa: E402
-from _outputs import _one_thread, data, model_dir  # noqa: E402, F401 (pytest fixtures)
+from _outputs import SIZE, leftovers  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
 from _writers import snapshot  # noqa: E402
 
 from cosemdepth.cli.main import COMMANDS, main  # noqa: E402
@@ -84,25 +83,149 @@ CASES = [
     (["predict", "--model", "{M}", *EVAL, "--out", "{M}", "--overwrite"], "{M}"),
     (["predict", "--model", "{M}", *EVAL, "--out", "{T}/mine", "--overwrite"], "{T}/mine"),
     (["predict", "--model", "{M}", *EVAL, "--out", "{T}/notes.txt"], "{T}/notes.txt"),
-    (["predict", "--model", "{M}", "--flight", "--images", "{T}/notes.txt", "--poses", "{T}/notes.txt", "--hfov",
-      "90", "--out", "{T}/p"], "{T}/notes.txt"),
-    (["predict", "--model", "{M}", "--flight", "--images", "{T}/images", "--poses", "{T}/nope.txt", "--hfov",
-      "90", "--out", "{T}/p"], "{T}/nope.txt"),
-    (["predict", "--model", "{M}", "--flight", "--images", "{T}/images", "--poses", "{T}/mine", "--hfov",
-      "90", "--out", "{T}/p"], "{T}/mine"),
-    (["predict", "--model", "{M}", "--flight", "--images", "{T}/images", "--poses", "{T}/junk.bin", "--hfov",
-      "90", "--out", "{T}/p"], "{T}/junk.bin"),
-    (["predict", "--model", "{M}", "--flight", "--images", "{T}/images", "--poses", "{T}/notes.txt", "--hfov",
-      "200", "--out", "{T}/p"], "--hfov"),
-    (["predict", "--model", "{M}", "--flight", "--images", "{T}/images", "--poses", "{T}/notes.txt", "--hfov",
-      "90", "--out", "{T}/images/p"], "{T}/images"),
+    (
+        [
+            "predict",
+            "--model",
+            "{M}",
+            "--flight",
+            "--images",
+            "{T}/notes.txt",
+            "--poses",
+            "{T}/notes.txt",
+            "--hfov",
+            "90",
+            "--out",
+            "{T}/p",
+        ],
+        "{T}/notes.txt",
+    ),
+    (
+        [
+            "predict",
+            "--model",
+            "{M}",
+            "--flight",
+            "--images",
+            "{T}/images",
+            "--poses",
+            "{T}/nope.txt",
+            "--hfov",
+            "90",
+            "--out",
+            "{T}/p",
+        ],
+        "{T}/nope.txt",
+    ),
+    (
+        [
+            "predict",
+            "--model",
+            "{M}",
+            "--flight",
+            "--images",
+            "{T}/images",
+            "--poses",
+            "{T}/mine",
+            "--hfov",
+            "90",
+            "--out",
+            "{T}/p",
+        ],
+        "{T}/mine",
+    ),
+    (
+        [
+            "predict",
+            "--model",
+            "{M}",
+            "--flight",
+            "--images",
+            "{T}/images",
+            "--poses",
+            "{T}/junk.bin",
+            "--hfov",
+            "90",
+            "--out",
+            "{T}/p",
+        ],
+        "{T}/junk.bin",
+    ),
+    (
+        [
+            "predict",
+            "--model",
+            "{M}",
+            "--flight",
+            "--images",
+            "{T}/images",
+            "--poses",
+            "{T}/notes.txt",
+            "--hfov",
+            "200",
+            "--out",
+            "{T}/p",
+        ],
+        "--hfov",
+    ),
+    (
+        [
+            "predict",
+            "--model",
+            "{M}",
+            "--flight",
+            "--images",
+            "{T}/images",
+            "--poses",
+            "{T}/notes.txt",
+            "--hfov",
+            "90",
+            "--out",
+            "{T}/images/p",
+        ],
+        "{T}/images",
+    ),
     # predict --bag / --rerun, view
-    (["predict", "--model", "{M}", "--bag", "{T}/nope", "--image-topic", "/i", "--pose-topic", "/p", "--hfov", "90",
-      "--out", "{T}/p"], "{T}/nope"),
-    (["predict", "--model", "{M}", "--bag", "{T}/junk.bin", "--image-topic", "/i", "--pose-topic", "/p", "--hfov",
-      "90", "--out", "{T}/p"], "{T}/junk.bin"),
-    (["predict", "--model", "{M}", *EVAL, "--out", "{T}/p", "--rerun", "{T}/notes.rrd", "--overwrite"],
-     "{T}/notes.rrd"),
+    (
+        [
+            "predict",
+            "--model",
+            "{M}",
+            "--bag",
+            "{T}/nope",
+            "--image-topic",
+            "/i",
+            "--pose-topic",
+            "/p",
+            "--hfov",
+            "90",
+            "--out",
+            "{T}/p",
+        ],
+        "{T}/nope",
+    ),
+    (
+        [
+            "predict",
+            "--model",
+            "{M}",
+            "--bag",
+            "{T}/junk.bin",
+            "--image-topic",
+            "/i",
+            "--pose-topic",
+            "/p",
+            "--hfov",
+            "90",
+            "--out",
+            "{T}/p",
+        ],
+        "{T}/junk.bin",
+    ),
+    (
+        ["predict", "--model", "{M}", *EVAL, "--out", "{T}/p", "--rerun", "{T}/notes.rrd", "--overwrite"],
+        "{T}/notes.rrd",
+    ),
     (["predict", "--model", "{M}", *EVAL, "--out", "{T}/p", "--rerun", "{T}/p/x.rrd"], "{T}/p"),
     (["view", "--model", "{M}", *EVAL, "--rrd", "{T}/notes.txt"], "{T}/notes.txt"),
     (["view", "--model", "{M}", *EVAL, "--rrd", "{T}/notes.rrd"], "{T}/notes.rrd"),
@@ -130,8 +253,24 @@ CASES = [
     (["fast-accuracy", "--model", "{M}", *FA, "--out", "{T}/nope/fa.json"], "{T}/nope"),
     (["fast-accuracy", "--model", "{M}", *FA, "--out", "{D}/fa.json"], "{D}"),
     (["fast-accuracy", "--model", "{T}/nope", *FA, "--out", "{T}/fa.json"], "{T}/nope"),
-    (["fast-accuracy", "--model", "{M}", "--dataset", "midair", "--root", "{T}/nope", "--split-dir", "{T}/nope/splits",
-      "--size", S, "--out", "{T}/fa.json"], "{T}/nope"),
+    (
+        [
+            "fast-accuracy",
+            "--model",
+            "{M}",
+            "--dataset",
+            "midair",
+            "--root",
+            "{T}/nope",
+            "--split-dir",
+            "{T}/nope/splits",
+            "--size",
+            S,
+            "--out",
+            "{T}/fa.json",
+        ],
+        "{T}/nope",
+    ),
     # export
     (["export", "--onnx", "{T}/mine"], "{T}/mine"),
     (["export", "--onnx", "{T}/notes.txt/m.onnx"], "{T}/notes.txt"),
@@ -148,8 +287,10 @@ CASES = [
     (["export", "--onnx", "{T}/m.onnx", "--size", "100000", "100000"], "--size: 100000x100000"),
     (["benchmark", "--size", "100000", "100000", "--json", "{T}/b.json", "--md", "{T}/b.md"], "100000x100000"),
     (["demo", "--model", "{M}", "--data-root", "{D}", "--out", "{T}/r", "--size", "100000"], "--size: 100000x100000"),
-    (["train", "--config", "synthair-small", "--data-root", "{D}", "--set", "data.size=100000", "--out", "{T}/run"],
-     "data.size: 100000x100000"),
+    (
+        ["train", "--config", "synthair-small", "--data-root", "{D}", "--set", "data.size=100000", "--out", "{T}/run"],
+        "data.size: 100000x100000",
+    ),
 ]
 
 
@@ -184,8 +325,12 @@ def test_through_the_real_command_line(env):
     """A few of the cases in a fresh interpreter, as a user runs them (no traceback, exit 2, one line)."""
     for argv, names in (CASES[0], CASES[-5], CASES[33]):
         argv = [_fill(a, env) for a in argv]
-        r = subprocess.run([sys.executable, "-m", "cosemdepth", *argv], capture_output=True, text=True,
-                           env={"PYTHONPATH": str(REPO / "src"), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1"})
+        r = subprocess.run(
+            [sys.executable, "-m", "cosemdepth", *argv],
+            capture_output=True,
+            text=True,
+            env={"PYTHONPATH": str(REPO / "src"), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1"},
+        )
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1 and _fill(names, env) in r.stderr, r.stderr
 

@@ -3,8 +3,8 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-import pytest
 import onnxruntime as ort
+import pytest
 from onnx import numpy_helper
 
 from cosemdepth.cli.main import main
@@ -29,7 +29,9 @@ def test_export_command_errors_name_the_argument(tmp_path, capsys):
 
     assert main(["export", "--onnx", str(tmp_path / "a.onnx"), "--opset", "99", "--arch", "m4semantic"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith(f"cosemdepth export: error: --opset must be in [16, {max_opset()}]") and "Traceback" not in err
+    assert (
+        err.startswith(f"cosemdepth export: error: --opset must be in [16, {max_opset()}]") and "Traceback" not in err
+    )
     assert not (tmp_path / "a.onnx").exists()
 
 
@@ -58,14 +60,42 @@ def test_export_command_graph_of_cosemdepth_t_carries_the_semantic_state(tmp_pat
 def test_benchmark_command_writes_json_and_markdown(tmp_path, capsys, bf16_cpu):
     j, md = tmp_path / "b.json", tmp_path / "b.md"
     rc = main(
-        ["benchmark", "--models", "m4semantic", "--levels", "2", "--size", "16", "16", "--batch", "1", "2",
-         "--iters", "2", "--batched-iters", "1", "--warmup", "1", "--json", str(j), "--md", str(md)]
+        [
+            "benchmark",
+            "--models",
+            "m4semantic",
+            "--levels",
+            "2",
+            "--size",
+            "16",
+            "16",
+            "--batch",
+            "1",
+            "2",
+            "--iters",
+            "2",
+            "--batched-iters",
+            "1",
+            "--warmup",
+            "1",
+            "--json",
+            str(j),
+            "--md",
+            str(md),
+        ]
     )
     assert rc == 0
     rep = json.loads(j.read_text())
     rows = {(r["path"], r["precision"], r["batch"]) for r in rep["results"]}
-    assert rows == {("reference", "fp32", 1), ("fast", "fp32", 1), ("fast", "fp32", 2), ("fast", "bf16", 1),
-                    ("fast", "bf16", 2), ("fast", "int8", 1), ("fast", "int8", 2)}
+    assert rows == {
+        ("reference", "fp32", 1),
+        ("fast", "fp32", 1),
+        ("fast", "fp32", 2),
+        ("fast", "bf16", 1),
+        ("fast", "bf16", 2),
+        ("fast", "int8", 1),
+        ("fast", "int8", 2),
+    }
     from cosemdepth.models import build_model
 
     params = build_model(arch="m4semantic", levels=2).num_parameters()
@@ -137,15 +167,43 @@ def test_export_check_reports_what_it_compared_and_fails_a_broken_graph(tmp_path
 
 def test_benchmark_onnxruntime_backend_times_the_exported_graph(tmp_path, capsys):
     js, md = tmp_path / "b.json", tmp_path / "b.md"
-    rc = main(["benchmark", "--backend", "onnxruntime", "--models", "m4depth", "--levels", "2", "--size", "16", "16",
-               "--batch", "1", "2", "--warmup", "1", "--iters", "2", "--batched-iters", "1", "--threads", "1",
-               "--json", str(js), "--md", str(md)])
+    rc = main(
+        [
+            "benchmark",
+            "--backend",
+            "onnxruntime",
+            "--models",
+            "m4depth",
+            "--levels",
+            "2",
+            "--size",
+            "16",
+            "16",
+            "--batch",
+            "1",
+            "2",
+            "--warmup",
+            "1",
+            "--iters",
+            "2",
+            "--batched-iters",
+            "1",
+            "--threads",
+            "1",
+            "--json",
+            str(js),
+            "--md",
+            str(md),
+        ]
+    )
     assert rc == 0
     rep = json.loads(js.read_text())
     assert rep["meta"]["backend"] == "onnxruntime"
     rows = rep["results"]
     assert [(r["arch"], r["path"], r["precision"], r["batch"], r["device"]) for r in rows] == [
-        ("m4depth", "onnxruntime", "fp32", 1, "cpu"), ("m4depth", "onnxruntime", "fp32", 2, "cpu")]
+        ("m4depth", "onnxruntime", "fp32", 1, "cpu"),
+        ("m4depth", "onnxruntime", "fp32", 2, "cpu"),
+    ]
     assert [len(r["step_ms"]) for r in rows] == [2, 1] and all(t > 0 for r in rows for t in r["step_ms"])
     # both are rounded to 1e-3 ms from the same median, so they agree to within that rounding
     assert rows[1]["median_ms_per_frame"] == pytest.approx(rows[1]["median_ms_per_step"] / 2, abs=1e-3)

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 import torch
+from tf_bundle_writer import model_tensors, write_bundle
 
-from cosemdepth.cli.main import main
 from cosemdepth.checkpoints.convert import MIDAIR_STEP_TRANSLATION, convert_checkpoint
 from cosemdepth.checkpoints.model_io import read_model_files
-from tf_bundle_writer import model_tensors, write_bundle
+from cosemdepth.cli.main import main
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 
@@ -104,8 +104,9 @@ def test_folder_without_checkpoint_file(tmp_path, capsys):
 
 def test_other_model_and_impossible_arch(tmp_path, capsys):
     write_bundle(tmp_path / "d" / "cp-0000.ckpt", model_tensors(levels=1, semantic=False, zeros=True))
-    _fails(["convert", str(tmp_path / "d"), str(tmp_path / "o1"), "--arch", "m4semantic"], capsys,
-           "no semantic decoder")
+    _fails(
+        ["convert", str(tmp_path / "d"), str(tmp_path / "o1"), "--arch", "m4semantic"], capsys, "no semantic decoder"
+    )
     import numpy as np
 
     foreign = {"net/dense/kernel/.ATTRIBUTES/VARIABLE_VALUE": np.ones((2, 2), np.float32)}
@@ -118,8 +119,13 @@ def test_command_line_entry_point(tmp_path):
     """The real command line: ``python -m cosemdepth convert`` (success, then a user error without traceback)."""
     write_bundle(tmp_path / "ck" / "cp-0000.ckpt", model_tensors(levels=1, zeros=True))
     env = {**os.environ, "PYTHONPATH": str(SRC)}
-    ok = subprocess.run([sys.executable, "-m", "cosemdepth", "convert", str(tmp_path / "ck"), str(tmp_path / "out")],
-                        capture_output=True, text=True, env=env, timeout=120)
+    ok = subprocess.run(
+        [sys.executable, "-m", "cosemdepth", "convert", str(tmp_path / "ck"), str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
     assert ok.returncode == 0, ok.stderr
     assert (tmp_path / "out" / "model.safetensors").is_file() and (tmp_path / "out" / "config.json").is_file()
     argv = [sys.executable, "-m", "cosemdepth", "convert", str(tmp_path / "nowhere"), str(tmp_path / "o")]

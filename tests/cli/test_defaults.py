@@ -10,16 +10,15 @@ import pytest
 from cosemdepth.bench.runner import BenchCase
 from cosemdepth.cli._shared import MODEL_SIZE_RULE, parse_size_pair
 from cosemdepth.cli.main import COMMANDS, build_parser
-from cosemdepth.models.config import ModelConfig
-from cosemdepth.training.config import DataConfig, RunConfig
-from cosemdepth.robotics.bag_flight import open_bag_flight
 from cosemdepth.data.flight import open_flight
 from cosemdepth.data.registry import DATASETS, split_datasets
-from cosemdepth.synthair.writer import SynthConfig
 from cosemdepth.demo import run_demo
 from cosemdepth.evaluation.predict import predict
 from cosemdepth.export.onnx import export_onnx
-from cosemdepth.training.config import resolve_config
+from cosemdepth.models.config import ModelConfig
+from cosemdepth.robotics.bag_flight import open_bag_flight
+from cosemdepth.synthair.writer import SynthConfig
+from cosemdepth.training.config import DataConfig, RunConfig, resolve_config
 
 
 def parse(command, *argv):
@@ -76,19 +75,33 @@ def test_predict_defaults_are_the_functions_it_calls():
     assert (args.jpeg_idct, args.frame_skip) == (bag["jpeg_idct"], bag["frame_skip"])
     flight = defaults_of(open_flight)
     assert (args.match, args.stamp_unit, args.frame_skip, args.skip_unposed) == (
-        flight["match"], flight["stamp_unit"], flight["frame_skip"], flight["skip_unposed"])
+        flight["match"],
+        flight["stamp_unit"],
+        flight["frame_skip"],
+        flight["skip_unposed"],
+    )
     # --max-pose-gap: each source's own default, stated in the help
     assert args.max_pose_gap is None
     helps = {a.dest: a.help for a in subparser("predict")._actions}
-    assert (f"{flight['max_gap']:g} for --flight, {bag['max_pose_gap']:g} for --bag"
-            in helps["max_pose_gap"])
+    assert f"{flight['max_gap']:g} for --flight, {bag['max_pose_gap']:g} for --bag" in helps["max_pose_gap"]
 
 
 def test_demo_defaults_are_run_demo_s():
     args = parse("demo", "--out", "o")
     fn = defaults_of(run_demo)
-    for name in ("frames", "seed", "climate", "supersample", "video", "jpeg_idct", "model", "size", "data_root",
-                 "data_dir", "device"):
+    for name in (
+        "frames",
+        "seed",
+        "climate",
+        "supersample",
+        "video",
+        "jpeg_idct",
+        "model",
+        "size",
+        "data_root",
+        "data_dir",
+        "device",
+    ):
         assert getattr(args, name) == fn[name], name
 
 
@@ -109,8 +122,11 @@ def test_size_defaults_to_the_model_s_focal_length_then_the_dataset_table(comman
     an operating point; the parsed default stays None (decided when the model is known)."""
     help_text = " ".join({a.dest: a.help for a in subparser(command)._actions}["size"].split())
     assert help_text.startswith(f"network input size, S or HxW (default: {MODEL_SIZE_RULE}; for a model without one:")
-    required = {"evaluate": ["--dataset", "synthair", "--root", "r"], "predict": ["--out", "o"],
-                "view": ["--rrd", "x.rrd"]}[command]
+    required = {
+        "evaluate": ["--dataset", "synthair", "--root", "r"],
+        "predict": ["--out", "o"],
+        "view": ["--rrd", "x.rrd"],
+    }[command]
     assert parse(command, "--model", "m", *required).size is None
 
 
@@ -128,9 +144,14 @@ def test_train_flags_leave_the_defaults_to_the_config():
     # the help of each shortcut states the config's default
     cfg = RunConfig()
     helps = {a.dest: a.help for a in subparser("train")._actions}
-    for dest, value in (("epochs", cfg.train.epochs), ("batch_size", cfg.train.batch_size),
-                        ("seed", cfg.train.seed), ("model", cfg.model.arch), ("device", cfg.train.device),
-                        ("dataset", cfg.data.train[0].name)):
+    for dest, value in (
+        ("epochs", cfg.train.epochs),
+        ("batch_size", cfg.train.batch_size),
+        ("seed", cfg.train.seed),
+        ("model", cfg.model.arch),
+        ("device", cfg.train.device),
+        ("dataset", cfg.data.train[0].name),
+    ):
         assert getattr(args, dest) is None
         assert f"(default {value})" in helps[dest], dest
 

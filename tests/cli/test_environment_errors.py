@@ -10,8 +10,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
-from _outputs import SIZE, leftovers, unwritable_folder  # noqa: E402
-from _outputs import _one_thread, data, model_dir  # noqa: E402, F401 (pytest fixtures)
+from _outputs import SIZE, leftovers, unwritable_folder  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
 
 import cosemdepth.cli.predict as predict_cli  # noqa: E402
 from cosemdepth.cli.main import main  # noqa: E402
@@ -34,8 +33,9 @@ def cli_without(tmp_path: Path, blocked: str, *argv) -> subprocess.CompletedProc
     hook.mkdir(exist_ok=True)
     (hook / "sitecustomize.py").write_text(SITECUSTOMIZE)
     env = {"PYTHONPATH": f"{hook}:{SRC}", "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1", "BLOCK_MODULES": blocked}
-    return subprocess.run([sys.executable, "-m", "cosemdepth", *map(str, argv)], capture_output=True, text=True,
-                          env=env, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "cosemdepth", *map(str, argv)], capture_output=True, text=True, env=env, timeout=300
+    )
 
 
 def test_the_hook_really_blocks_the_import(tmp_path):
@@ -49,16 +49,36 @@ def test_the_hook_really_blocks_the_import(tmp_path):
     assert probe.returncode == 1 and "ModuleNotFoundError" in probe.stderr
 
 
-@pytest.mark.parametrize("blocked, extra, message", [
-    ("onnx", (), "export needs the Python package onnx, which is not installed; pip install 'cosemdepth[export]'"),
-    ("onnxruntime", ("--check",), "export --check needs the Python package onnxruntime, which is not installed; "
-                                  "pip install 'cosemdepth[export]'"),
-])
+@pytest.mark.parametrize(
+    "blocked, extra, message",
+    [
+        ("onnx", (), "export needs the Python package onnx, which is not installed; pip install 'cosemdepth[export]'"),
+        (
+            "onnxruntime",
+            ("--check",),
+            "export --check needs the Python package onnxruntime, which is not installed; "
+            "pip install 'cosemdepth[export]'",
+        ),
+    ],
+)
 def test_export_without_onnx_or_onnxruntime_writes_nothing(tmp_path, blocked, extra, message):
     out = tmp_path / "out"
     out.mkdir()
-    r = cli_without(tmp_path, blocked, "export", "--onnx", out / "m.onnx", "--arch", "m4semantic", "--levels", 2,
-                    "--size", 16, 24, *extra)
+    r = cli_without(
+        tmp_path,
+        blocked,
+        "export",
+        "--onnx",
+        out / "m.onnx",
+        "--arch",
+        "m4semantic",
+        "--levels",
+        2,
+        "--size",
+        16,
+        24,
+        *extra,
+    )
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert r.stderr.strip().splitlines() == [f"cosemdepth export: error: {message} (or pip install {blocked})"]
     assert list(out.iterdir()) == []
@@ -68,8 +88,10 @@ def test_view_and_predict_rerun_without_rerun_sdk_write_nothing(tmp_path, data, 
     split = ["--dataset", "midair", "--root", data, "--split-dir", data / "splits", "--size", SIZE, "--no-progress"]
     out = tmp_path / "out"
     out.mkdir()
-    for argv in (["view", "--model", model_dir, *split, "--rrd", out / "v.rrd"],
-                 ["predict", "--model", model_dir, *split, "--out", out / "p", "--rerun", out / "p.rrd"]):
+    for argv in (
+        ["view", "--model", model_dir, *split, "--rrd", out / "v.rrd"],
+        ["predict", "--model", model_dir, *split, "--out", out / "p", "--rerun", out / "p.rrd"],
+    ):
         r = cli_without(tmp_path, "rerun", *argv)
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
         lines = r.stderr.strip().splitlines()
@@ -84,16 +106,40 @@ def test_predict_and_benchmark_onnxruntime_backend_without_onnxruntime_write_not
     out = tmp_path / "out"
     out.mkdir()
     for argv, what in (
-            (["predict", "--model", model_dir, *split, "--out", out / "p", "--backend", "onnxruntime", "--onnx", graph],
-             "predict"),
-            (["benchmark", "--backend", "onnxruntime", "--models", "m4depth", "--levels", 2, "--size", 16, 16,
-              "--batch", 1, "--json", out / "b.json", "--md", out / "b.md"], "benchmark")):
+        (
+            ["predict", "--model", model_dir, *split, "--out", out / "p", "--backend", "onnxruntime", "--onnx", graph],
+            "predict",
+        ),
+        (
+            [
+                "benchmark",
+                "--backend",
+                "onnxruntime",
+                "--models",
+                "m4depth",
+                "--levels",
+                2,
+                "--size",
+                16,
+                16,
+                "--batch",
+                1,
+                "--json",
+                out / "b.json",
+                "--md",
+                out / "b.md",
+            ],
+            "benchmark",
+        ),
+    ):
         r = cli_without(tmp_path, "onnxruntime", *argv)
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
         lines = r.stderr.strip().splitlines()
-        assert lines == [f"cosemdepth {what}: error: {what} --backend onnxruntime needs the Python package "
-                         "onnxruntime, which is not installed; pip install 'cosemdepth[export]' (or pip install "
-                         "onnxruntime)"], lines
+        assert lines == [
+            f"cosemdepth {what}: error: {what} --backend onnxruntime needs the Python package "
+            "onnxruntime, which is not installed; pip install 'cosemdepth[export]' (or pip install "
+            "onnxruntime)"
+        ], lines
         assert list(out.iterdir()) == []
 
 
@@ -101,8 +147,23 @@ def test_predict_bag_without_rosbags_writes_nothing(tmp_path, model_dir):
     bag = tmp_path / "flight_bag"
     bag.mkdir()
     out = tmp_path / "out"
-    r = cli_without(tmp_path, "rosbags", "predict", "--model", model_dir, "--bag", bag, "--image-topic", "/cam",
-                    "--pose-topic", "/odom", "--hfov", 90, "--out", out)
+    r = cli_without(
+        tmp_path,
+        "rosbags",
+        "predict",
+        "--model",
+        model_dir,
+        "--bag",
+        bag,
+        "--image-topic",
+        "/cam",
+        "--pose-topic",
+        "/odom",
+        "--hfov",
+        90,
+        "--out",
+        out,
+    )
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "needs the Python package rosbags, which is not installed" in lines[0], lines
@@ -145,8 +206,21 @@ def test_a_previous_output_in_a_read_only_folder_is_replaced_in_place(tmp_path, 
 
 
 def _split(data):
-    return ["--dataset", "midair", "--root", str(data), "--split-dir", str(data / "splits"), "--size", str(SIZE),
-            "--no-progress", "--video", "none", "--max-frames", "2"]
+    return [
+        "--dataset",
+        "midair",
+        "--root",
+        str(data),
+        "--split-dir",
+        str(data / "splits"),
+        "--size",
+        str(SIZE),
+        "--no-progress",
+        "--video",
+        "none",
+        "--max-frames",
+        "2",
+    ]
 
 
 def test_a_library_os_error_with_line_breaks_is_one_line():
@@ -155,9 +229,12 @@ def test_a_library_os_error_with_line_breaks_is_one_line():
 
     from cosemdepth.cli._boundary import error_line
 
-    e = OSError(errno.ENOSPC, "Unable to synchronously create file (file write failed: time = Wed Dec  3 2026\n"
-                ", filename = 'out/.sensor_records.tmp.hdf5', errno = 28, error message = 'No space left on device')",
-                "out/.sensor_records.tmp.hdf5")
+    e = OSError(
+        errno.ENOSPC,
+        "Unable to synchronously create file (file write failed: time = Wed Dec  3 2026\n"
+        ", filename = 'out/.sensor_records.tmp.hdf5', errno = 28, error message = 'No space left on device')",
+        "out/.sensor_records.tmp.hdf5",
+    )
     line = error_line(e)
     assert "\n" not in line and line.startswith("out/.sensor_records.tmp.hdf5: Unable to synchronously create file")
     assert line.endswith("the disk is full: free some space, or write the output to another disk")

@@ -8,15 +8,29 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
-from _outputs import SIZE, leftovers, tiny_model, unwritable_folder  # noqa: E402
-from _outputs import _one_thread, data, model_dir  # noqa: E402, F401 (pytest fixtures)
+from _outputs import SIZE, leftovers, tiny_model, unwritable_folder  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
 
 from cosemdepth.cli.main import main  # noqa: E402
 
 
 def evaluate(model, root, *extra):
-    return main(["evaluate", "--model", str(model), "--dataset", "midair", "--root", str(root), "--split-dir",
-                 str(Path(root) / "splits"), "--size", str(SIZE), "--no-progress", *map(str, extra)])
+    return main(
+        [
+            "evaluate",
+            "--model",
+            str(model),
+            "--dataset",
+            "midair",
+            "--root",
+            str(root),
+            "--split-dir",
+            str(Path(root) / "splits"),
+            "--size",
+            str(SIZE),
+            "--no-progress",
+            *map(str, extra),
+        ]
+    )
 
 
 def test_without_out_nothing_is_written(model_dir, data, tmp_path, capsys, monkeypatch):
@@ -29,8 +43,12 @@ def test_without_out_nothing_is_written(model_dir, data, tmp_path, capsys, monke
 def test_out_in_an_existing_folder_keeps_other_files(model_dir, data, tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
     assert evaluate(model_dir, data, "--out", tmp_path, "--max-frames", 2) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".cosemdepth-output.json", "metrics.json", "metrics.md",
-                                                          "notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        ".cosemdepth-output.json",
+        "metrics.json",
+        "metrics.md",
+        "notes.txt",
+    ]
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["protocol"]["frames_streamed"] == 2 and m["protocol"]["frames_evaluated"] == 1
 
@@ -61,12 +79,16 @@ def test_missing_model_or_dataset_creates_nothing(model_dir, data, tmp_path, cap
     assert evaluate(model_dir, tmp_path / "nodata", "--out", out) == 2
     assert "not found" in capsys.readouterr().err
     for command in ("evaluate", "predict"):
-        assert main([command, "--model", str(model_dir), "--dataset", "midair", "--root", str(data),
-                     "--out", str(out)]) == 2
+        assert (
+            main([command, "--model", str(model_dir), "--dataset", "midair", "--root", str(data), "--out", str(out)])
+            == 2
+        )
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "split_dir" not in err  # one line naming the flag, not the Python argument
-        assert ("--dataset midair needs --split-dir D, the folder of its split files (<split>_data/**/*.csv); "
-                "write them with: cosemdepth splits midair ROOT D") in err
+        assert (
+            "--dataset midair needs --split-dir D, the folder of its split files (<split>_data/**/*.csv); "
+            "write them with: cosemdepth splits midair ROOT D"
+        ) in err
     assert list(tmp_path.iterdir()) == []
 
 
@@ -93,15 +115,18 @@ def test_a_corrupt_frame_mid_run_writes_nothing(model_dir, data, tmp_path, capsy
     assert list(out.iterdir()) == [] and leftovers(tmp_path) == []
 
 
-@pytest.mark.parametrize("command, preset, expected", [("evaluate", None, "PASSIVE"), ("demo", "ACTIVE", "ACTIVE"),
-                                                       ("convert", None, None)])
+@pytest.mark.parametrize(
+    "command, preset, expected", [("evaluate", None, "PASSIVE"), ("demo", "ACTIVE", "ACTIVE"), ("convert", None, None)]
+)
 def test_openmp_threads_sleep_while_waiting(command, preset, expected):
     """evaluate/predict/demo set OMP_WAIT_POLICY=PASSIVE before torch loads (unless the user chose a policy)."""
     import os
     import subprocess
 
-    code = ("import os, sys\nfrom cosemdepth.cli.main import main\ntry:\n    main([sys.argv[1], '--help'])\n"
-            "except SystemExit:\n    pass\nprint(os.environ.get('OMP_WAIT_POLICY'))")
+    code = (
+        "import os, sys\nfrom cosemdepth.cli.main import main\ntry:\n    main([sys.argv[1], '--help'])\n"
+        "except SystemExit:\n    pass\nprint(os.environ.get('OMP_WAIT_POLICY'))"
+    )
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     if preset:
         env["OMP_WAIT_POLICY"] = preset
@@ -136,8 +161,25 @@ def test_semantic_only_dataset_aeroscapes(tmp_path, capsys):
     torch.manual_seed(0)
     save_model(build_model(arch="m4semantic", levels=2, num_classes=12), tmp_path / "sem12")
     out = tmp_path / "out"
-    assert main(["evaluate", "--model", str(tmp_path / "sem12"), "--dataset", "aeroscapes", "--root", str(root),
-                 "--size", "32x64", "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                str(tmp_path / "sem12"),
+                "--dataset",
+                "aeroscapes",
+                "--root",
+                str(root),
+                "--size",
+                "32x64",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     m = json.loads((out / "metrics.json").read_text())
     assert m["metrics"]["semantic_frames"] == 3 and "rmse" not in m["metrics"]
     assert m["protocol"]["reset_frames_excluded"] is False and m["dataset"]["split"] == "val"

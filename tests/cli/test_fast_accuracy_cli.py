@@ -8,8 +8,12 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
-from _outputs import SIZE  # noqa: E402
-from _outputs import _one_thread, data, model_dir  # noqa: E402, F401 (pytest fixtures)
+from _outputs import (  # noqa: E402, F401 (pytest fixtures)
+    SIZE,  # noqa: E402
+    _one_thread,
+    data,
+    model_dir,
+)
 
 import cosemdepth.bench.accuracy as accuracy  # noqa: E402
 from cosemdepth.bench.harness import validate  # noqa: E402
@@ -19,15 +23,45 @@ DATA = ["--dataset", "midair", "--size", str(SIZE), "--threads", "1"]
 
 
 def fast_accuracy(model, root, out, *extra):
-    return main(["fast-accuracy", "--model", str(model), "--root", str(root), "--split-dir", str(Path(root) / "splits"),
-                 *DATA, "--out", str(out), *map(str, extra)])
+    return main(
+        [
+            "fast-accuracy",
+            "--model",
+            str(model),
+            "--root",
+            str(root),
+            "--split-dir",
+            str(Path(root) / "splits"),
+            *DATA,
+            "--out",
+            str(out),
+            *map(str, extra),
+        ]
+    )
 
 
 @pytest.fixture(scope="module")
 def reference_metrics(model_dir, data, tmp_path_factory):
     out = tmp_path_factory.mktemp("eval") / "ev"
-    assert main(["evaluate", "--model", str(model_dir), "--root", str(data), "--split-dir", str(data / "splits"),
-                 *DATA, "--reference", "--no-progress", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                str(model_dir),
+                "--root",
+                str(data),
+                "--split-dir",
+                str(data / "splits"),
+                *DATA,
+                "--reference",
+                "--no-progress",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return json.loads((out / "metrics.json").read_text())["metrics"]
 
 
@@ -77,12 +111,16 @@ def test_a_file_it_did_not_write_is_kept(model_dir, data, tmp_path, capsys):
 def test_verdicts_by_hand():
     ref = {"miou": 0.40, "abs_rel": 0.2000}
     assert accuracy.verdict({"miou": 0.404, "abs_rel": 0.2019}, ref) == pytest.approx(
-        {"miou_diff_points": 0.4, "miou_ok": True, "abs_rel_rel_diff": 0.0095, "abs_rel_ok": True, "ok": True})
+        {"miou_diff_points": 0.4, "miou_ok": True, "abs_rel_rel_diff": 0.0095, "abs_rel_ok": True, "ok": True}
+    )
     v = accuracy.verdict({"miou": 0.406, "abs_rel": 0.1979}, ref)
     assert v["miou_diff_points"] == pytest.approx(0.6) and not v["miou_ok"]
     assert v["abs_rel_rel_diff"] == pytest.approx(-0.0105) and not v["abs_rel_ok"] and not v["ok"]
-    assert accuracy.verdict({"abs_rel": 0.2}, {"abs_rel": 0.2}) == {"abs_rel_rel_diff": 0.0, "abs_rel_ok": True,
-                                                                     "ok": True}
+    assert accuracy.verdict({"abs_rel": 0.2}, {"abs_rel": 0.2}) == {
+        "abs_rel_rel_diff": 0.0,
+        "abs_rel_ok": True,
+        "ok": True,
+    }
 
 
 def test_a_report_changed_since_is_kept(model_dir, data, tmp_path, capsys):

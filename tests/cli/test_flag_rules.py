@@ -52,8 +52,12 @@ def base_flags(command: str, source: str) -> set[str]:
 
 
 CASES = [(c, s.label) for c, rules in RULES.items() for s in rules.sources]
-REFUSED = [(c, s, flag) for c, s in CASES for flag, where in RULES[c].applies.items()
-           if s not in where and flag not in RULES[c].not_taken and flag not in base_flags(c, s)]
+REFUSED = [
+    (c, s, flag)
+    for c, s in CASES
+    for flag, where in RULES[c].applies.items()
+    if s not in where and flag not in RULES[c].not_taken and flag not in base_flags(c, s)
+]
 NOT_TAKEN = [(c, flag) for c, rules in RULES.items() for flag in rules.not_taken]
 
 
@@ -100,8 +104,14 @@ def test_given_is_not_judged_by_the_value():
     """A flag given with its default value is given; a flag left out is not, whatever its default."""
     parse = build_parser(only="predict").parse_args
     args = parse(["predict", *BASE["predict", "--dataset"], "--frame-skip", "1", "--max-frames", "3"])
-    assert list(flag_rules.explicit(args)) == ["--model", "--dataset", "--root", "--out", "--frame-skip",
-                                               "--max-frames"]
+    assert list(flag_rules.explicit(args)) == [
+        "--model",
+        "--dataset",
+        "--root",
+        "--out",
+        "--frame-skip",
+        "--max-frames",
+    ]
     with pytest.raises(ConfigError, match=r"^--frame-skip does not apply to --dataset \(only to --flight, --bag\)$"):
         flag_rules.check("predict", args)
     args = parse(["predict", *BASE["predict", "--dataset"]])
@@ -111,8 +121,9 @@ def test_given_is_not_judged_by_the_value():
 
 def test_two_sources_and_abbreviations(capsys):
     assert main(["predict", "--model", "M", "--flight", "--bag", "B", "--out", "O"]) == 2
-    assert capsys.readouterr().err.strip() == ("cosemdepth predict: error: give only one of --dataset, --flight, "
-                                               "--bag (got --flight and --bag)")
+    assert capsys.readouterr().err.strip() == (
+        "cosemdepth predict: error: give only one of --dataset, --flight, --bag (got --flight and --bag)"
+    )
     # an abbreviated flag is recorded under its full name
     assert main(["predict", *BASE["predict", "--dataset"], "--hf", "90"]) == 2
     assert "--hfov does not apply to --dataset" in capsys.readouterr().err

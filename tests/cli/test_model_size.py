@@ -27,8 +27,9 @@ OP = OperatingPoint((32, 32), (16.0, 16.0), None, "test")
 @pytest.fixture(scope="module")
 def model(tmp_path_factory):
     torch.manual_seed(0)
-    return save_model(build_model(arch="cosemdepth", levels=2), tmp_path_factory.mktemp("m") / "at32",
-                      operating_point=OP)
+    return save_model(
+        build_model(arch="cosemdepth", levels=2), tmp_path_factory.mktemp("m") / "at32", operating_point=OP
+    )
 
 
 @pytest.fixture(scope="module")
@@ -43,8 +44,25 @@ def data(tmp_path_factory):
 
 
 def evaluate(model, data, out, *extra):
-    assert main(["evaluate", "--model", str(model), "--dataset", "synthair", "--root", str(data), "--out", str(out),
-                 "--no-progress", "--reference", *map(str, extra)]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                str(model),
+                "--dataset",
+                "synthair",
+                "--root",
+                str(data),
+                "--out",
+                str(out),
+                "--no-progress",
+                "--reference",
+                *map(str, extra),
+            ]
+        )
+        == 0
+    )
     return json.loads((out / "metrics.json").read_text())
 
 
@@ -71,8 +89,27 @@ def test_predict_on_a_dataset_without_size_gives_the_outputs_of_the_model_s_size
     outs = []
     for name, extra in (("default", []), ("at32", ["--size", "32"])):
         out = tmp_path / name
-        assert main(["predict", "--model", str(model), "--dataset", "synthair", "--root", str(data), "--out",
-                     str(out), "--video", "none", "--no-progress", "--reference", *extra]) == 0
+        assert (
+            main(
+                [
+                    "predict",
+                    "--model",
+                    str(model),
+                    "--dataset",
+                    "synthair",
+                    "--root",
+                    str(data),
+                    "--out",
+                    str(out),
+                    "--video",
+                    "none",
+                    "--no-progress",
+                    "--reference",
+                    *extra,
+                ]
+            )
+            == 0
+        )
         outs.append((out, json.loads((out / "predictions.json").read_text())))
     (a, ma), (b, mb) = outs
     assert len(ma["frames"]) == len(mb["frames"]) == 6
@@ -107,8 +144,23 @@ def test_a_flight_with_hfov_gets_the_model_s_focal_length_at_its_aspect_ratio(mo
     outs = []
     for name, extra in (("default", []), ("explicit", ["--size", "24x32"])):
         out = tmp_path / name
-        assert main(["predict", "--model", str(model), *map(str, flight[:-1]), str(out), "--video", "none",
-                     "--no-progress", "--reference", *extra]) == 0
+        assert (
+            main(
+                [
+                    "predict",
+                    "--model",
+                    str(model),
+                    *map(str, flight[:-1]),
+                    str(out),
+                    "--video",
+                    "none",
+                    "--no-progress",
+                    "--reference",
+                    *extra,
+                ]
+            )
+            == 0
+        )
         outs.append((out, json.loads((out / "predictions.json").read_text())))
     (a, ma), (b, mb) = outs
     for fa, fb in zip(ma["frames"], mb["frames"]):

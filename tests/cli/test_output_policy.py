@@ -16,8 +16,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
-from _outputs import SIZE, leftovers  # noqa: E402
-from _outputs import _one_thread, data, model_dir  # noqa: E402, F401 (pytest fixtures)
+from _outputs import SIZE, leftovers  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
 from _writers import snapshot  # noqa: E402
 
 from cosemdepth.cli.main import main  # noqa: E402
@@ -33,9 +32,29 @@ def work(tmp_path, data, model_dir):
 
 
 def predict(ds, model, out, *extra):
-    return main(["predict", "--model", str(model), "--dataset", "midair", "--root", str(ds), "--split-dir",
-                 str(ds / "splits"), "--size", str(SIZE), "--video", "none", "--max-frames", "2", "--no-progress",
-                 "--out", str(out), *map(str, extra)])
+    return main(
+        [
+            "predict",
+            "--model",
+            str(model),
+            "--dataset",
+            "midair",
+            "--root",
+            str(ds),
+            "--split-dir",
+            str(ds / "splits"),
+            "--size",
+            str(SIZE),
+            "--video",
+            "none",
+            "--max-frames",
+            "2",
+            "--no-progress",
+            "--out",
+            str(out),
+            *map(str, extra),
+        ]
+    )
 
 
 def err_line(capsys) -> str:
@@ -46,14 +65,17 @@ def err_line(capsys) -> str:
     return lines[0]
 
 
-@pytest.mark.parametrize("target, why", [
-    ("ds", "is the --root"),                  # the dataset folder itself (never deleted)
-    (".", "contains the --model"),           # a folder above the inputs (model and dataset)
-    ("model", "is the --model"),             # the model folder
-    ("ds/splits", "lies inside the --root"),  # the split folder (also an input)
-    ("ds/new", "lies inside the --root"),    # a new folder inside the dataset
-    ("model/preds", "lies inside the --model"),
-])
+@pytest.mark.parametrize(
+    "target, why",
+    [
+        ("ds", "is the --root"),  # the dataset folder itself (never deleted)
+        (".", "contains the --model"),  # a folder above the inputs (model and dataset)
+        ("model", "is the --model"),  # the model folder
+        ("ds/splits", "lies inside the --root"),  # the split folder (also an input)
+        ("ds/new", "lies inside the --root"),  # a new folder inside the dataset
+        ("model/preds", "lies inside the --model"),
+    ],
+)
 def test_predict_never_writes_into_or_over_its_inputs(work, capsys, target, why):
     tmp, ds, model = work
     before = snapshot(tmp)
@@ -67,13 +89,13 @@ def test_predict_never_writes_into_or_over_its_inputs(work, capsys, target, why)
 def test_aliases_of_an_input_are_recognised(work, capsys, monkeypatch):
     tmp, ds, model = work
     before = snapshot(ds)
-    os.symlink(ds, tmp / "alias")                       # a symlink to the dataset
+    os.symlink(ds, tmp / "alias")  # a symlink to the dataset
     assert predict(ds, model, tmp / "alias", "--overwrite") == 2
     assert "is the --root" in err_line(capsys)
-    assert predict(ds, model, ds / "splits" / ".." / "..", "--overwrite") == 2   # .. above the inputs
+    assert predict(ds, model, ds / "splits" / ".." / "..", "--overwrite") == 2  # .. above the inputs
     assert "contains the --model" in err_line(capsys)
     monkeypatch.chdir(tmp / "model")
-    assert predict(ds, model, Path("..") / "ds", "--overwrite") == 2                 # relative
+    assert predict(ds, model, Path("..") / "ds", "--overwrite") == 2  # relative
     assert "is the --root" in err_line(capsys)
     assert snapshot(ds) == before
 
@@ -100,8 +122,9 @@ def test_rerun_into_its_own_output_replaces_it(work, capsys):
     assert predict(ds, model, out) == 0
     marker = json.loads((out / MARKER).read_text())
     assert marker["command"] == "predict" and "predictions.json" in marker["files"]
-    assert sorted(marker["files"]) == sorted(p.relative_to(out).as_posix() for p in out.rglob("*")
-                                             if p.is_file() and p.name != MARKER)
+    assert sorted(marker["files"]) == sorted(
+        p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file() and p.name != MARKER
+    )
     (out / "depth" / "stale.npy").parent.mkdir(exist_ok=True)
     first = (out / "predictions.json").read_text()
     for extra in ((), ("--overwrite",)):
@@ -119,9 +142,29 @@ def test_rerun_into_its_own_output_replaces_it(work, capsys):
 def test_another_commands_output_needs_overwrite(work, capsys):
     tmp, ds, model = work
     out = tmp / "metrics"
-    assert main(["evaluate", "--model", str(model), "--dataset", "midair", "--root", str(ds), "--split-dir",
-                 str(ds / "splits"), "--size", str(SIZE), "--max-frames", "2", "--no-progress", "--out",
-                 str(out)]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                str(model),
+                "--dataset",
+                "midair",
+                "--root",
+                str(ds),
+                "--split-dir",
+                str(ds / "splits"),
+                "--size",
+                str(SIZE),
+                "--max-frames",
+                "2",
+                "--no-progress",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     assert predict(ds, model, out) == 2
     assert "holds the output of `cosemdepth evaluate`" in err_line(capsys)
@@ -131,8 +174,23 @@ def test_another_commands_output_needs_overwrite(work, capsys):
 
 def test_evaluate_never_overwrites_a_file_it_did_not_write(work, capsys):
     tmp, ds, model = work
-    args = ["evaluate", "--model", str(model), "--dataset", "midair", "--root", str(ds), "--split-dir",
-            str(ds / "splits"), "--size", str(SIZE), "--max-frames", "2", "--no-progress", "--out"]
+    args = [
+        "evaluate",
+        "--model",
+        str(model),
+        "--dataset",
+        "midair",
+        "--root",
+        str(ds),
+        "--split-dir",
+        str(ds / "splits"),
+        "--size",
+        str(SIZE),
+        "--max-frames",
+        "2",
+        "--no-progress",
+        "--out",
+    ]
     mine = tmp / "report"
     mine.mkdir()
     (mine / "metrics.json").write_text("my own")
@@ -143,23 +201,56 @@ def test_evaluate_never_overwrites_a_file_it_did_not_write(work, capsys):
     assert main(args + [str(ds)]) == 2 and "is the --root" in err_line(capsys)
     assert main(args + [str(model / "eval")]) == 2 and "lies inside the --model" in err_line(capsys)
     out = tmp / "ok"
-    assert main(args + [str(out)]) == 0 and main(args + [str(out)]) == 0   # its own files are replaced
+    assert main(args + [str(out)]) == 0 and main(args + [str(out)]) == 0  # its own files are replaced
 
 
 def test_other_commands_refuse_outputs_over_their_inputs(work, capsys, tmp_path):
     tmp, ds, model = work
     before = snapshot(tmp)
     cases = [
-        (["demo", "--out", str(ds), "--model", str(model), "--data-root", str(ds), "--overwrite"], "is the --data-root"),
+        (
+            ["demo", "--out", str(ds), "--model", str(model), "--data-root", str(ds), "--overwrite"],
+            "is the --data-root",
+        ),
         (["demo", "--out", str(model), "--model", str(model), "--data-root", str(ds), "--overwrite"], "is the --model"),
         (["splits", "midair", str(ds), str(ds / "more")], "lies inside the ROOT"),
         (["splits", "midair", str(ds), str(tmp)], "contains the ROOT"),
-        (["train", "--config", "synthair-small", "--dataset", "midair", "--data-root", str(ds), "--split-dir",
-          str(ds / "splits"), "--out", str(ds / "run")], "lies inside the data.train.0.root"),
-        (["train", "--config", "synthair-small", "--dataset", "midair", "--data-root", str(ds), "--split-dir",
-          str(ds / "splits"), "--out", str(tmp)], "contains the data.train.0.root"),
-        (["export", "--onnx", str(model / "m.onnx"), "--model", str(model), "--size", "32", "32"],
-         "lies inside the --model"),
+        (
+            [
+                "train",
+                "--config",
+                "synthair-small",
+                "--dataset",
+                "midair",
+                "--data-root",
+                str(ds),
+                "--split-dir",
+                str(ds / "splits"),
+                "--out",
+                str(ds / "run"),
+            ],
+            "lies inside the data.train.0.root",
+        ),
+        (
+            [
+                "train",
+                "--config",
+                "synthair-small",
+                "--dataset",
+                "midair",
+                "--data-root",
+                str(ds),
+                "--split-dir",
+                str(ds / "splits"),
+                "--out",
+                str(tmp),
+            ],
+            "contains the data.train.0.root",
+        ),
+        (
+            ["export", "--onnx", str(model / "m.onnx"), "--model", str(model), "--size", "32", "32"],
+            "lies inside the --model",
+        ),
         (["export", "--onnx", str(model / "model.safetensors"), "--model", str(model)], "lies inside the --model"),
         (["convert", str(model), str(model)], "is the TF_CHECKPOINT"),
     ]
@@ -176,19 +267,84 @@ def test_other_commands_refuse_outputs_over_their_inputs(work, capsys, tmp_path)
 def _cli_cases(x: Path, ds: Path, model: Path) -> dict[str, list[str]]:
     """Every command with ``x`` as its output (the inputs: the work dataset and model, not ``x``)."""
     return {
-        "predict": ["predict", "--model", str(model), "--dataset", "midair", "--root", str(ds), "--split-dir",
-                    str(ds / "splits"), "--size", str(SIZE), "--max-frames", "2", "--no-progress", "--out", str(x),
-                    "--overwrite"],
-        "demo": ["demo", "--model", str(model), "--data-root", str(ds), "--size", str(SIZE), "--no-progress",
-                 "--out", str(x), "--overwrite"],
-        "evaluate": ["evaluate", "--model", str(model), "--dataset", "midair", "--root", str(ds), "--split-dir",
-                     str(ds / "splits"), "--size", str(SIZE), "--max-frames", "2", "--no-progress", "--out", str(x)],
-        "train": ["train", "--config", "synthair-small", "--dataset", "midair", "--data-root", str(ds),
-                  "--split-dir", str(ds / "splits"), "--out", str(x)],
+        "predict": [
+            "predict",
+            "--model",
+            str(model),
+            "--dataset",
+            "midair",
+            "--root",
+            str(ds),
+            "--split-dir",
+            str(ds / "splits"),
+            "--size",
+            str(SIZE),
+            "--max-frames",
+            "2",
+            "--no-progress",
+            "--out",
+            str(x),
+            "--overwrite",
+        ],
+        "demo": [
+            "demo",
+            "--model",
+            str(model),
+            "--data-root",
+            str(ds),
+            "--size",
+            str(SIZE),
+            "--no-progress",
+            "--out",
+            str(x),
+            "--overwrite",
+        ],
+        "evaluate": [
+            "evaluate",
+            "--model",
+            str(model),
+            "--dataset",
+            "midair",
+            "--root",
+            str(ds),
+            "--split-dir",
+            str(ds / "splits"),
+            "--size",
+            str(SIZE),
+            "--max-frames",
+            "2",
+            "--no-progress",
+            "--out",
+            str(x),
+        ],
+        "train": [
+            "train",
+            "--config",
+            "synthair-small",
+            "--dataset",
+            "midair",
+            "--data-root",
+            str(ds),
+            "--split-dir",
+            str(ds / "splits"),
+            "--out",
+            str(x),
+        ],
         "export": ["export", "--onnx", str(x / "m.onnx"), "--model", str(model), "--size", "32", "32"],
         "splits": ["splits", "midair", str(ds), str(x)],
-        "synth": ["synth", "--out", str(x), "--size", "32", "--frames", "16", "--trajectories", "1", "--climates",
-                  "sunny"],
+        "synth": [
+            "synth",
+            "--out",
+            str(x),
+            "--size",
+            "32",
+            "--frames",
+            "16",
+            "--trajectories",
+            "1",
+            "--climates",
+            "sunny",
+        ],
     }
 
 
@@ -207,8 +363,10 @@ def test_no_command_writes_over_or_into_another_commands_input(work, capsys):
             cases = _cli_cases(x, ds, model)
             cases["convert"] = ["convert", str(folders["a TensorFlow checkpoint folder"]), str(x)]
             for name, argv in cases.items():
-                if (name, kind, relation) in (("train", "a training run folder", "is"),
-                                              ("splits", "a split folder", "is")):
+                if (name, kind, relation) in (
+                    ("train", "a training run folder", "is"),
+                    ("splits", "a split folder", "is"),
+                ):
                     continue  # its own kind (resumed / replaced under the marker rules)
                 if name == "export" and relation != "is":
                     continue  # an output file goes into an existing folder: x/m.onnx is the case
@@ -260,8 +418,24 @@ def test_an_output_file_edited_since_is_the_users(work, capsys):
     assert predict(ds, model, out, "--overwrite") == 2
     assert f"{label}: changed since" in err_line(capsys) and label.read_bytes() == edited
     # evaluate's files likewise
-    ev = ["evaluate", "--model", str(model), "--dataset", "midair", "--root", str(ds), "--split-dir",
-          str(ds / "splits"), "--size", str(SIZE), "--max-frames", "2", "--no-progress", "--out", str(tmp / "ev")]
+    ev = [
+        "evaluate",
+        "--model",
+        str(model),
+        "--dataset",
+        "midair",
+        "--root",
+        str(ds),
+        "--split-dir",
+        str(ds / "splits"),
+        "--size",
+        str(SIZE),
+        "--max-frames",
+        "2",
+        "--no-progress",
+        "--out",
+        str(tmp / "ev"),
+    ]
     assert main(ev) == 0
     (tmp / "ev" / "metrics.md").write_text("my notes on the metrics")
     capsys.readouterr()
@@ -341,8 +515,12 @@ def _checkpoint(tmp: Path) -> Path:
     model = build_model(arch="cosemdepth", levels=2)
     opt = torch.optim.Adam(model.parameters())
     return CheckpointManager(tmp / "run" / "checkpoints").save(
-        model_state=model.state_dict(), model_config=model.config, optimizer_state=opt.state_dict(),
-        trainer_state={"step": 3, "epoch": 0}, rng_state=get_rng_state())
+        model_state=model.state_dict(),
+        model_config=model.config,
+        optimizer_state=opt.state_dict(),
+        trainer_state={"step": 3, "epoch": 0},
+        rng_state=get_rng_state(),
+    )
 
 
 def test_a_damaged_checkpoint_is_refused_naming_the_file(work, capsys):
@@ -397,12 +575,50 @@ def test_non_finite_outputs_stop_every_runner_naming_the_frame(work, capsys):
     before = snapshot(tmp)
     first_image = "Kite_training/sunny/color_left/trajectory_0000/000004.JPEG"  # the first CSV row: frame 4
     runs = {
-        "predict": ["predict", "--model", str(bad), "--dataset", "midair", "--root", str(ds), "--split-dir",
-                    str(ds / "splits"), "--size", str(SIZE), "--no-progress", "--out", str(tmp / "p")],
-        "evaluate": ["evaluate", "--model", str(bad), "--dataset", "midair", "--root", str(ds), "--split-dir",
-                     str(ds / "splits"), "--size", str(SIZE), "--no-progress", "--out", str(tmp / "e")],
-        "demo": ["demo", "--model", str(bad), "--data-root", str(ds), "--size", str(SIZE), "--no-progress",
-                 "--out", str(tmp / "d")],
+        "predict": [
+            "predict",
+            "--model",
+            str(bad),
+            "--dataset",
+            "midair",
+            "--root",
+            str(ds),
+            "--split-dir",
+            str(ds / "splits"),
+            "--size",
+            str(SIZE),
+            "--no-progress",
+            "--out",
+            str(tmp / "p"),
+        ],
+        "evaluate": [
+            "evaluate",
+            "--model",
+            str(bad),
+            "--dataset",
+            "midair",
+            "--root",
+            str(ds),
+            "--split-dir",
+            str(ds / "splits"),
+            "--size",
+            str(SIZE),
+            "--no-progress",
+            "--out",
+            str(tmp / "e"),
+        ],
+        "demo": [
+            "demo",
+            "--model",
+            str(bad),
+            "--data-root",
+            str(ds),
+            "--size",
+            str(SIZE),
+            "--no-progress",
+            "--out",
+            str(tmp / "d"),
+        ],
     }
     for name, argv in runs.items():
         assert main(argv) == 2, name
@@ -418,8 +634,20 @@ def test_export_replaces_only_its_own_onnx_file(tmp_path, capsys):
     import onnx
 
     out = tmp_path / "m.onnx"
-    argv = ["export", "--onnx", str(out), "--arch", "m4semantic", "--levels", "1", "--classes", "3", "--size",
-            "16", "16"]
+    argv = [
+        "export",
+        "--onnx",
+        str(out),
+        "--arch",
+        "m4semantic",
+        "--levels",
+        "1",
+        "--classes",
+        "3",
+        "--size",
+        "16",
+        "16",
+    ]
     assert main(argv) == 0 and main(argv) == 0  # the second run replaces the file the first one wrote
     props = {p.key for p in onnx.load(str(out)).metadata_props}
     assert "cosemdepth_export" in props
@@ -439,18 +667,47 @@ def test_export_replaces_only_its_own_onnx_file(tmp_path, capsys):
 
 def test_benchmark_replaces_its_reports_only_while_unchanged(tmp_path, capsys):
     j, md = tmp_path / "b.json", tmp_path / "b.md"
-    argv = ["benchmark", "--models", "m4semantic", "--levels", "1", "--size", "16", "16", "--batch", "1",
-            "--iters", "1", "--batched-iters", "1", "--warmup", "0", "--batched-warmup", "0", "--no-reference",
-            "--no-joint", "--precision", "fp32", "--json", str(j), "--md", str(md)]
+    argv = [
+        "benchmark",
+        "--models",
+        "m4semantic",
+        "--levels",
+        "1",
+        "--size",
+        "16",
+        "16",
+        "--batch",
+        "1",
+        "--iters",
+        "1",
+        "--batched-iters",
+        "1",
+        "--warmup",
+        "0",
+        "--batched-warmup",
+        "0",
+        "--no-reference",
+        "--no-joint",
+        "--precision",
+        "fp32",
+        "--json",
+        str(j),
+        "--md",
+        str(md),
+    ]
     assert main(argv) == 0 and main(argv) == 0  # the second run replaces the reports the first one wrote
     capsys.readouterr()
-    for path, edit in ((md, lambda t: t + "My note: checked by hand.\n"),  # the header line stays
-                       (j, lambda t: json.dumps({**json.loads(t), "note": "mine"}))):  # still a benchmark report
+    for path, edit in (
+        (md, lambda t: t + "My note: checked by hand.\n"),  # the header line stays
+        (j, lambda t: json.dumps({**json.loads(t), "note": "mine"})),
+    ):  # still a benchmark report
         path.write_text(edit(path.read_text()))
         before = path.read_bytes()
         assert main(argv) == 2
-        assert err_line(capsys).startswith(f"cosemdepth benchmark: error: {path}: the --{path.suffix[1:]} file exists "
-                                           "and cannot be replaced: changed since cosemdepth benchmark wrote it")
+        assert err_line(capsys).startswith(
+            f"cosemdepth benchmark: error: {path}: the --{path.suffix[1:]} file exists "
+            "and cannot be replaced: changed since cosemdepth benchmark wrote it"
+        )
         assert path.read_bytes() == before
         path.unlink()  # moved away: the next run writes it again
 
@@ -461,8 +718,11 @@ def test_tensorflow_checkpoint_inputs(tmp_path, capsys):
     ck.mkdir()
     for name in ("checkpoint", "cp-0001.ckpt.index", "cp-0001.ckpt.data-00000-of-00001"):
         (ck / name).write_bytes(b"x")
-    for out, why in ((ck / "converted", "lies inside the TF_CHECKPOINT"), (tmp_path, "contains the TF_CHECKPOINT"),
-                     (ck, "is the TF_CHECKPOINT")):
+    for out, why in (
+        (ck / "converted", "lies inside the TF_CHECKPOINT"),
+        (tmp_path, "contains the TF_CHECKPOINT"),
+        (ck, "is the TF_CHECKPOINT"),
+    ):
         assert main(["convert", str(ck / "cp-0001.ckpt"), str(out)]) == 2
         assert why in err_line(capsys)
     (ck / "checkpoint").unlink()
@@ -472,4 +732,7 @@ def test_tensorflow_checkpoint_inputs(tmp_path, capsys):
     assert "contains the TF_CHECKPOINT" in err_line(capsys)
     # nothing was written: only the files made above are there
     assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == [
-        "train", "train/cp-0001.ckpt.data-00000-of-00001", "train/cp-0001.ckpt.index"]
+        "train",
+        "train/cp-0001.ckpt.data-00000-of-00001",
+        "train/cp-0001.ckpt.index",
+    ]

@@ -12,8 +12,11 @@ import pytest
 from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
-from _outputs import leftovers  # noqa: E402
-from _outputs import _one_thread, model_dir  # noqa: E402, F401 (pytest fixtures)
+from _outputs import (  # noqa: E402, F401 (pytest fixtures)
+    _one_thread,
+    leftovers,  # noqa: E402
+    model_dir,
+)
 
 from cosemdepth.cli.main import main  # noqa: E402
 
@@ -31,8 +34,26 @@ def flight(folder: Path, stems, stamps) -> tuple[Path, Path]:
 
 
 def predict(model_dir, images, poses, out, *extra):
-    return main(["predict", "--model", str(model_dir), "--flight", "--images", str(images), "--poses", str(poses),
-                 "--hfov", "90", "--out", str(out), "--video", "none", "--no-progress", *map(str, extra)])
+    return main(
+        [
+            "predict",
+            "--model",
+            str(model_dir),
+            "--flight",
+            "--images",
+            str(images),
+            "--poses",
+            str(poses),
+            "--hfov",
+            "90",
+            "--out",
+            str(out),
+            "--video",
+            "none",
+            "--no-progress",
+            *map(str, extra),
+        ]
+    )
 
 
 def manifest(out: Path) -> dict:
@@ -43,21 +64,26 @@ def test_frame_numbers_with_stamps_from_zero(model_dir, tmp_path, capsys):
     images, poses = flight(tmp_path / "f", [f"{k:06d}" for k in range(4)], [f"{0.04 * k:.2f}" for k in range(4)])
     assert predict(model_dir, images, poses, tmp_path / "o") == 0
     line = capsys.readouterr().out
-    assert ("flight: 4 of 4 images matched to poses by order (auto: image names are zero-padded frame numbers; one "
-            "pose per image)") in line
+    assert (
+        "flight: 4 of 4 images matched to poses by order (auto: image names are zero-padded frame numbers; one "
+        "pose per image)"
+    ) in line
     info = manifest(tmp_path / "o")["dataset"]["pose_matching"]
     assert (info["match"], info["chosen_by"], info["posed"]) == ("order", "auto", 4)
 
 
 def test_index_and_skip_unposed(model_dir, tmp_path, capsys):
-    images, poses = flight(tmp_path / "f", ["000000", "000002", "000004", "000009"], [f"{0.04 * k:.2f}"
-                                                                                   for k in range(8)])
+    images, poses = flight(
+        tmp_path / "f", ["000000", "000002", "000004", "000009"], [f"{0.04 * k:.2f}" for k in range(8)]
+    )
     assert predict(model_dir, images, poses, tmp_path / "o") == 2
     assert "pass --match index" in capsys.readouterr().err
     assert predict(model_dir, images, poses, tmp_path / "o", "--match", "index") == 2
     err = capsys.readouterr().err.strip()
-    assert err.endswith("000009.png: frame number 9 has no pose: " + str(poses) + " has 8 pose rows, numbered from 0 "
-                        "(--match index); --skip-unposed leaves such images out")
+    assert err.endswith(
+        "000009.png: frame number 9 has no pose: " + str(poses) + " has 8 pose rows, numbered from 0 "
+        "(--match index); --skip-unposed leaves such images out"
+    )
     assert predict(model_dir, images, poses, tmp_path / "o", "--match", "index", "--skip-unposed") == 0
     man = manifest(tmp_path / "o")
     assert man["frames_written"] == 3 and man["dataset"]["pose_matching"]["skipped"] == 1
@@ -88,8 +114,9 @@ def test_max_pose_gap_and_skip_unposed_work_for_flights(model_dir, tmp_path, cap
 
 def test_nanosecond_stamps(model_dir, tmp_path, capsys):
     # image names and pose stamps in ns counted from 0, each image between two poses 10 ms apart
-    images, poses = flight(tmp_path / "f", [k * 40_000_000 + 5_000_000 for k in range(3)],
-                           [i * 10_000_000 for i in range(12)])
+    images, poses = flight(
+        tmp_path / "f", [k * 40_000_000 + 5_000_000 for k in range(3)], [i * 10_000_000 for i in range(12)]
+    )
     assert predict(model_dir, images, poses, tmp_path / "o") == 2
     assert capsys.readouterr().err.strip().endswith("pass --stamp-unit ns")
     assert predict(model_dir, images, poses, tmp_path / "o", "--stamp-unit", "ns") == 0

@@ -31,11 +31,13 @@ def test_the_graph_streams_like_pytorch_held_frames_included(model_dir, graph, t
     images, poses = flight(tmp_path / "f", [0, 0.5, 1.0, 1.0, 1.0, 1.5, 2.0])
     flags = ("--policy", "baseline", "--min-baseline", 0.3, "--size", 16)
     assert predict(model_dir, images, poses, tmp_path / "pt", *flags) == 0
-    assert predict(model_dir, images, poses, tmp_path / "ort", *flags, "--backend", "onnxruntime",
-                   "--onnx", graph) == 0
+    assert predict(model_dir, images, poses, tmp_path / "ort", *flags, "--backend", "onnxruntime", "--onnx", graph) == 0
     pt, ort = (json.loads((tmp_path / d / "predictions.json").read_text()) for d in ("pt", "ort"))
-    assert [f["status"] for f in ort["frames"]] == [f["status"] for f in pt["frames"]] == [
-        "reset", "estimated", "estimated", "held", "held", "estimated", "estimated"]
+    assert (
+        [f["status"] for f in ort["frames"]]
+        == [f["status"] for f in pt["frames"]]
+        == ["reset", "estimated", "estimated", "held", "held", "estimated", "estimated"]
+    )
     assert ort["run"]["path"] == "onnxruntime" and ort["run"]["onnx"] == str(graph)
     for a, b in zip(pt["frames"], ort["frames"]):
         d0, d1 = (np.load(tmp_path / r / f["files"]["depth"]) for r, f in (("pt", a), ("ort", b)))
@@ -43,11 +45,14 @@ def test_the_graph_streams_like_pytorch_held_frames_included(model_dir, graph, t
         assert a["valid_fraction"] == pytest.approx(b["valid_fraction"], abs=0.02)
 
 
-@pytest.mark.parametrize("extra, message", [
-    ((), "--backend onnxruntime needs --onnx FILE"),
-    (("--reference",), "drop --reference / --precision"),
-    (("--onnx", "missing.onnx"), "--onnx missing.onnx: no such file"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ((), "--backend onnxruntime needs --onnx FILE"),
+        (("--reference",), "drop --reference / --precision"),
+        (("--onnx", "missing.onnx"), "--onnx missing.onnx: no such file"),
+    ],
+)
 def test_misuse_fails_in_one_line(model_dir, tmp_path, capsys, extra, message):
     images, poses = flight(tmp_path / "f", [0, 0.5])
     assert predict(model_dir, images, poses, tmp_path / "out", "--backend", "onnxruntime", *extra) == 2
@@ -58,8 +63,7 @@ def test_misuse_fails_in_one_line(model_dir, tmp_path, capsys, extra, message):
 
 def test_a_graph_of_another_size_is_refused_before_any_frame(model_dir, graph, tmp_path, capsys):
     images, poses = flight(tmp_path / "f", [0, 0.5])
-    rc = predict(model_dir, images, poses, tmp_path / "out", "--size", 32, "--backend", "onnxruntime",
-                 "--onnx", graph)
+    rc = predict(model_dir, images, poses, tmp_path / "out", "--size", 32, "--backend", "onnxruntime", "--onnx", graph)
     assert rc == 2
     assert "the graph takes 16x16 images, the input is read at 32x32" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()

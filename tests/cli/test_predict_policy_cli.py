@@ -11,8 +11,11 @@ import numpy as np
 from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
-from _outputs import leftovers  # noqa: E402
-from _outputs import _one_thread, model_dir  # noqa: E402, F401 (pytest fixtures)
+from _outputs import (  # noqa: E402, F401 (pytest fixtures)
+    _one_thread,
+    leftovers,  # noqa: E402
+    model_dir,
+)
 
 from cosemdepth.cli.main import main  # noqa: E402
 
@@ -30,8 +33,26 @@ def flight(folder: Path, z) -> tuple[Path, Path]:
 
 
 def predict(model_dir, images, poses, out, *extra):
-    return main(["predict", "--model", str(model_dir), "--flight", "--images", str(images), "--poses", str(poses),
-                 "--hfov", "90", "--out", str(out), "--video", "none", "--no-progress", *map(str, extra)])
+    return main(
+        [
+            "predict",
+            "--model",
+            str(model_dir),
+            "--flight",
+            "--images",
+            str(images),
+            "--poses",
+            str(poses),
+            "--hfov",
+            "90",
+            "--out",
+            str(out),
+            "--video",
+            "none",
+            "--no-progress",
+            *map(str, extra),
+        ]
+    )
 
 
 def test_a_hover_is_held_and_the_summary_says_so(model_dir, tmp_path, capsys):
@@ -41,8 +62,15 @@ def test_a_hover_is_held_and_the_summary_says_so(model_dir, tmp_path, capsys):
     assert predict(model_dir, images, poses, out, "--policy", "baseline", "--min-baseline", 0.3) == 0
     printed = capsys.readouterr().out
     man = json.loads((out / "predictions.json").read_text())
-    assert [f["status"] for f in man["frames"]] == ["reset", "estimated", "estimated", "held", "held", "held",
-                                                  "estimated"]
+    assert [f["status"] for f in man["frames"]] == [
+        "reset",
+        "estimated",
+        "estimated",
+        "held",
+        "held",
+        "held",
+        "estimated",
+    ]
     assert "3 frames held: the camera moved less than 0.30 m from its reference frame" in printed
     assert "depth (policy baseline): 3 frames estimated, 1 reset (no depth)" in printed
     assert man["policy"] == {**man["policy"], "mode": "baseline", "min_baseline_m": 0.3}
@@ -76,13 +104,31 @@ def test_a_one_frame_flight_says_it_produced_no_depth(model_dir, tmp_path, capsy
 def test_bad_policy_flags_fail_with_one_line_and_write_nothing(model_dir, tmp_path, capsys):
     images, poses = flight(tmp_path / "f", [0, 1])
     out = tmp_path / "out"
-    for extra, message in ((["--policy", "every-frame", "--min-baseline", 1], "--min-baseline applies to --policy"),
-                           (["--min-baseline", -1], "--min-baseline must be a number of metres >= 0"),
-                           (["--policy", "baseline"], "baseline-aware streaming needs a minimum baseline")):
+    for extra, message in (
+        (["--policy", "every-frame", "--min-baseline", 1], "--min-baseline applies to --policy"),
+        (["--min-baseline", -1], "--min-baseline must be a number of metres >= 0"),
+        (["--policy", "baseline"], "baseline-aware streaming needs a minimum baseline"),
+    ):
         assert predict(model_dir, images, poses, out, *extra) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err
         assert not out.exists() and leftovers(tmp_path) == []
-    rc = main(["view", "--model", str(model_dir), "--flight", "--images", str(images), "--poses", str(poses),
-               "--hfov", "90", "--rrd", str(tmp_path / "a.rrd"), "--invalid", "nan"])
+    rc = main(
+        [
+            "view",
+            "--model",
+            str(model_dir),
+            "--flight",
+            "--images",
+            str(images),
+            "--poses",
+            str(poses),
+            "--hfov",
+            "90",
+            "--rrd",
+            str(tmp_path / "a.rrd"),
+            "--invalid",
+            "nan",
+        ]
+    )
     assert rc == 2 and "--invalid does not apply to view" in capsys.readouterr().err

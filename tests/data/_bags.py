@@ -23,8 +23,15 @@ def _header(ts, ns: int, frame_id: str, ros1: bool):
     return t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
 
 
-def image_msg(ts, ns: int, rgb: np.ndarray, encoding: str = "rgb8", ros1: bool = False, frame_id: str = "cam",
-              bigendian: bool = False):
+def image_msg(
+    ts,
+    ns: int,
+    rgb: np.ndarray,
+    encoding: str = "rgb8",
+    ros1: bool = False,
+    frame_id: str = "cam",
+    bigendian: bool = False,
+):
     """``rgb``: uint8 (scaled by 257 for the 16-bit encodings) or uint16 (16-bit encodings, stored as is)."""
     h, w = rgb.shape[:2]
     if encoding.endswith("16"):
@@ -40,9 +47,15 @@ def image_msg(ts, ns: int, rgb: np.ndarray, encoding: str = "rgb8", ros1: bool =
     if encoding.endswith("16"):
         px = px.astype(">u2" if bigendian else "<u2")
     data = np.ascontiguousarray(px).view(np.uint8).reshape(-1)
-    return ts.types["sensor_msgs/msg/Image"](header=_header(ts, ns, frame_id, ros1), height=h, width=w,
-                                             encoding=encoding, is_bigendian=int(bigendian), step=data.size // h,
-                                             data=data)
+    return ts.types["sensor_msgs/msg/Image"](
+        header=_header(ts, ns, frame_id, ros1),
+        height=h,
+        width=w,
+        encoding=encoding,
+        is_bigendian=int(bigendian),
+        step=data.size // h,
+        data=data,
+    )
 
 
 def png_bytes(rgb: np.ndarray) -> bytes:
@@ -61,8 +74,10 @@ def compressed_msg(ts, ns: int, rgb: np.ndarray, ros1: bool = False, frame_id: s
 def pose_msg(ts, msgtype: str, ns: int, p, q, ros1: bool = False, frame_id: str = "map"):
     """``q`` is (w, x, y, z)."""
     t = ts.types
-    pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
-                                       orientation=t["geometry_msgs/msg/Quaternion"](x=q[1], y=q[2], z=q[3], w=q[0]))
+    pose = t["geometry_msgs/msg/Pose"](
+        position=t["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
+        orientation=t["geometry_msgs/msg/Quaternion"](x=q[1], y=q[2], z=q[3], w=q[0]),
+    )
     hdr = _header(ts, ns, frame_id, ros1)
     if msgtype == "geometry_msgs/msg/PoseStamped":
         return t[msgtype](header=hdr, pose=pose)
@@ -70,8 +85,9 @@ def pose_msg(ts, msgtype: str, ns: int, p, q, ros1: bool = False, frame_id: str 
     if msgtype == "geometry_msgs/msg/PoseWithCovarianceStamped":
         return t[msgtype](header=hdr, pose=cov)
     z = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
-    twist = t["geometry_msgs/msg/TwistWithCovariance"](twist=t["geometry_msgs/msg/Twist"](linear=z, angular=z),
-                                                       covariance=np.zeros(36))
+    twist = t["geometry_msgs/msg/TwistWithCovariance"](
+        twist=t["geometry_msgs/msg/Twist"](linear=z, angular=z), covariance=np.zeros(36)
+    )
     return t["nav_msgs/msg/Odometry"](header=hdr, child_frame_id="base_link", pose=cov, twist=twist)
 
 
@@ -81,13 +97,22 @@ def camera_info_msg(ts, ns: int, h: int, w: int, k, d=(), ros1: bool = False):
     kk = np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1], dtype=np.float64)
     pp = np.array([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0], dtype=np.float64)
     roi = t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-    common = dict(header=_header(ts, ns, "cam", ros1), height=h, width=w,
-                  distortion_model="plumb_bob" if len(d) else "", binning_x=0, binning_y=0, roi=roi)
+    common = dict(
+        header=_header(ts, ns, "cam", ros1),
+        height=h,
+        width=w,
+        distortion_model="plumb_bob" if len(d) else "",
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
+    )
     if ros1:
-        return t["sensor_msgs/msg/CameraInfo"](**common, D=np.asarray(d, dtype=np.float64), K=kk, R=np.eye(3).reshape(-1),
-                                               P=pp)
-    return t["sensor_msgs/msg/CameraInfo"](**common, d=np.asarray(d, dtype=np.float64), k=kk, r=np.eye(3).reshape(-1),
-                                           p=pp)
+        return t["sensor_msgs/msg/CameraInfo"](
+            **common, D=np.asarray(d, dtype=np.float64), K=kk, R=np.eye(3).reshape(-1), P=pp
+        )
+    return t["sensor_msgs/msg/CameraInfo"](
+        **common, d=np.asarray(d, dtype=np.float64), k=kk, r=np.eye(3).reshape(-1), p=pp
+    )
 
 
 def write_bag(path: Path, messages: list[tuple[str, object, int]], kind: str = "mcap") -> Path:
@@ -103,8 +128,7 @@ def write_bag(path: Path, messages: list[tuple[str, object, int]], kind: str = "
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
-        writer = Writer(path, version=9,
-                        storage_plugin=StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3)
+        writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3)
     conns = {}
     with writer:
         for topic, msg, t in messages:
@@ -136,5 +160,15 @@ def frames(n: int, size: int = 32, seed: int = 0) -> list[np.ndarray]:
     return out
 
 
-__all__ = ["camera_info_msg", "compressed_msg", "frames", "image_msg", "png_bytes", "pose_msg", "trajectory",
-           "typestore", "write_bag", "yaw_quat"]
+__all__ = [
+    "camera_info_msg",
+    "compressed_msg",
+    "frames",
+    "image_msg",
+    "png_bytes",
+    "pose_msg",
+    "trajectory",
+    "typestore",
+    "write_bag",
+    "yaw_quat",
+]

@@ -43,21 +43,26 @@ def rotation(axis, angle) -> np.ndarray:
 
 def rot_matrix(q) -> np.ndarray:
     w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def texture(p: np.ndarray) -> np.ndarray:
     """Smooth RGB texture of a point on the plane (previous-camera coordinates) -> [..., 3]."""
     x, y = p[..., 0], p[..., 1]
-    return np.stack([
-        0.5 + 0.4 * np.sin(0.9 * x + 0.3 * y),
-        0.5 + 0.4 * np.cos(0.5 * x - 0.8 * y),
-        0.5 + 0.3 * np.sin(0.4 * x + 0.6 * y + 1.0),
-    ], axis=-1)
+    return np.stack(
+        [
+            0.5 + 0.4 * np.sin(0.9 * x + 0.3 * y),
+            0.5 + 0.4 * np.cos(0.5 * x - 0.8 * y),
+            0.5 + 0.3 * np.sin(0.4 * x + 0.6 * y + 1.0),
+        ],
+        axis=-1,
+    )
 
 
 def render(q, t, k=K, size=S):
@@ -184,9 +189,7 @@ def test_brightness_is_additive_and_unclipped():
 def test_contrast_uses_per_frame_per_channel_means():
     x = torch.tensor([[[[0.0, 1.0]], [[0.2, 0.4]], [[0.5, 0.5]]], [[[0.2, 0.2]], [[0.0, 0.8]], [[1.0, 0.0]]]])
     out = adjust_contrast(x, 2.0)
-    expected = torch.tensor(
-        [[[[-0.5, 1.5]], [[0.1, 0.5]], [[0.5, 0.5]]], [[[0.2, 0.2]], [[-0.4, 1.2]], [[1.5, -0.5]]]]
-    )
+    expected = torch.tensor([[[[-0.5, 1.5]], [[0.1, 0.5]], [[0.5, 0.5]]], [[[0.2, 0.2]], [[-0.4, 1.2]], [[1.5, -0.5]]]])
     close(out, expected)
 
 
@@ -230,7 +233,9 @@ def test_colour_adjustments_match_python_colorsys():
         got = adjust_hue(x, delta).movedim(-3, -1).reshape(-1, 3)
         torch.testing.assert_close(got, torch.tensor(want, dtype=torch.float64), rtol=0, atol=1e-12)
     for factor in (0.0, 0.4, 1.7):
-        want = [colorsys.hsv_to_rgb(h, min(s * factor, 1.0), v) for h, s, v in (colorsys.rgb_to_hsv(*p) for p in pixels)]
+        want = [
+            colorsys.hsv_to_rgb(h, min(s * factor, 1.0), v) for h, s, v in (colorsys.rgb_to_hsv(*p) for p in pixels)
+        ]
         got = adjust_saturation(x, factor).movedim(-3, -1).reshape(-1, 3)
         torch.testing.assert_close(got, torch.tensor(want, dtype=torch.float64), rtol=0, atol=1e-12)
 
@@ -252,8 +257,12 @@ def test_saturation_turns_all_negative_pixels_grey_as_tf():
 
 def test_inversion_and_full_pipeline_by_hand():
     close(invert(px(0.25, 1.2, -0.1)), px(0.75, -0.2, 1.1))
-    s = {"rgb": px(0.7, 0.3, 0.1)[None].repeat(2, 1, 1, 1), "rot": torch.zeros(2, 4), "trans": torch.zeros(2, 3),
-         "intrinsics": torch.zeros(4)}
+    s = {
+        "rgb": px(0.7, 0.3, 0.1)[None].repeat(2, 1, 1, 1),
+        "rot": torch.zeros(2, 4),
+        "trans": torch.zeros(2, 3),
+        "intrinsics": torch.zeros(4),
+    }
     p = AugmentParams(brightness=0.1, contrast=1.5, saturation=0.5, hue=1 / 3, invert=True)
     out = apply_params(s, p)["rgb"]
     # brightness: (0.8, 0.4, 0.2); contrast on a 1x1 image is a no-op; saturation x0.5: (0.8, 0.6, 0.5);
@@ -330,8 +339,13 @@ def test_fused_colour_pass_equals_the_sequential_operations(on):
     rgb = torch.rand(2, 3, 9, 7, generator=g) * 1.6 - 0.3
     rgb[0, :, 0, 0] = -0.2  # a pixel with every channel negative
     rgb[1, :, 1, 1] = 0.5  # a grey pixel (no hue)
-    p = AugmentParams(brightness=0.13 if on[0] else 0.0, contrast=1.21 if on[1] else 1.0,
-                      saturation=0.8 if on[2] else 1.0, hue=-0.37 if on[3] else 0.0, invert=on[4])
+    p = AugmentParams(
+        brightness=0.13 if on[0] else 0.0,
+        contrast=1.21 if on[1] else 1.0,
+        saturation=0.8 if on[2] else 1.0,
+        hue=-0.37 if on[3] else 0.0,
+        invert=on[4],
+    )
     out = apply_params({"rgb": rgb}, p)["rgb"]
     torch.testing.assert_close(out, _sequential(rgb, p), rtol=0, atol=2e-6)
 

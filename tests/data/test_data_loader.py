@@ -22,8 +22,17 @@ def roots(tmp_path_factory):
 
 
 def train_set(roots, **kw):
-    return open_dataset("midair", roots / "a", split_dir=roots / "a_splits", split="train", seq_len=2,
-                        db_seq_len=4, size=8, augment=True, **kw)
+    return open_dataset(
+        "midair",
+        roots / "a",
+        split_dir=roots / "a_splits",
+        split="train",
+        seq_len=2,
+        db_seq_len=4,
+        size=8,
+        augment=True,
+        **kw,
+    )
 
 
 def batches(loader):

@@ -27,10 +27,10 @@ def read_pnm(path: Path) -> np.ndarray:
     data = path.read_bytes()
     fields, pos = [], 0
     while len(fields) < 4:  # magic, width, height, maxval (djpeg writes no comments)
-        while data[pos:pos + 1].isspace():
+        while data[pos : pos + 1].isspace():
             pos += 1
         end = pos
-        while not data[end:end + 1].isspace():
+        while not data[end : end + 1].isspace():
             end += 1
         fields.append(data[pos:end])
         pos = end
@@ -70,12 +70,15 @@ def test_png_colour_images_still_decode_with_pillow(tmp_path):
     np.testing.assert_array_equal(read_rgb(tmp_path / "a.png"), rgb)
 
 
-@pytest.mark.parametrize("content,pattern", [
-    (b"", "not a JPEG"),
-    (b"hello, not an image", "not a JPEG"),
-    (b"\x89PNG\r\n\x1a\n" + b"\0" * 40, "not a JPEG"),
-    (b"\xff\xd8\xff", "corrupt JPEG"),
-])
+@pytest.mark.parametrize(
+    "content,pattern",
+    [
+        (b"", "not a JPEG"),
+        (b"hello, not an image", "not a JPEG"),
+        (b"\x89PNG\r\n\x1a\n" + b"\0" * 40, "not a JPEG"),
+        (b"\xff\xd8\xff", "corrupt JPEG"),
+    ],
+)
 def test_bad_jpeg_files_are_dataset_errors_naming_the_file(tmp_path, content, pattern):
     p = tmp_path / "bad.JPEG"
     p.write_bytes(content)
@@ -229,8 +232,12 @@ def png16(arr: np.ndarray) -> bytes:
         rows.append(bytes([f]) + ((cur - pred) % 256).astype(np.uint8).tobytes())
         prior = cur
     ihdr = struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, 0)
-    return (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", zlib.compress(b"".join(rows)))
-            + _chunk(b"IEND", b""))
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + _chunk(b"IHDR", ihdr)
+        + _chunk(b"IDAT", zlib.compress(b"".join(rows)))
+        + _chunk(b"IEND", b"")
+    )
 
 
 RGB16 = np.random.default_rng(1).integers(0, 65536, (9, 11, 3), dtype=np.uint16)
@@ -301,9 +308,18 @@ def _smooth_jpeg(h=48, w=64) -> bytes:
     return buf.getvalue()
 
 
-@pytest.mark.parametrize("min_size,shape", [((16, 16), (18, 24)), ((18, 24), (18, 24)), ((19, 24), (24, 32)),
-                                            ((1, 1), (6, 8)), ((40, 10), (42, 56)), ((48, 64), (48, 64)),
-                                            ((100, 100), (48, 64))])
+@pytest.mark.parametrize(
+    "min_size,shape",
+    [
+        ((16, 16), (18, 24)),
+        ((18, 24), (18, 24)),
+        ((19, 24), (24, 32)),
+        ((1, 1), (6, 8)),
+        ((40, 10), (42, 56)),
+        ((48, 64), (48, 64)),
+        ((100, 100), (48, 64)),
+    ],
+)
 def test_reduced_decoding_picks_the_smallest_eighth_scale_at_least_the_size(min_size, shape):
     """48 x 64 at M/8 is ceil(6 M) x 8 M: the smallest M with both sides at least ``min_size`` (full size when none
     is smaller)."""
@@ -348,8 +364,9 @@ def test_training_decodes_reduced_and_validation_exactly(tmp_path):
     model = ModelConfig()
 
     def loaders(**kw):
-        data = DataConfig(train=(src,), val=src, size=(16, 16), augment=False, seq_len=2, val_seq_len=2,
-                          val_split="test", **kw)
+        data = DataConfig(
+            train=(src,), val=src, size=(16, 16), augment=False, seq_len=2, val_seq_len=2, val_split="test", **kw
+        )
         return build_train_dataset(data, model, 0), build_val_dataset(data, model, 0)
 
     train, val = loaders()
@@ -366,8 +383,9 @@ def test_training_decodes_reduced_and_validation_exactly(tmp_path):
     assert torch_equal(exact_train.load_frame(rec)["rgb"], rgb_to_tensor(read_rgb(rec.rgb), (16, 16)))
     with pytest.raises(ConfigError, match="data.train_decode"):
         DataConfig(train=(src,), train_decode="fast")
-    bad = DatasetSource(name="synthair", root=str(root), split_dir=str(root / "splits"),
-                        options={"reduced_decode": True})
+    bad = DatasetSource(
+        name="synthair", root=str(root), split_dir=str(root / "splits"), options={"reduced_decode": True}
+    )
     with pytest.raises(ConfigError, match=r"options.reduced_decode"):
         build_train_dataset(DataConfig(train=(bad,), size=(16, 16), augment=False), model, 0)
 

@@ -43,8 +43,11 @@ def write_tum(path, times=TIMES, poses=POSES):
 
 def motions(ds):
     items = list(ds)
-    return (np.array([it["rot"][0].tolist() for it in items]), np.array([it["trans"][0].tolist() for it in items]),
-            [bool(it["reset"][0]) for it in items])
+    return (
+        np.array([it["rot"][0].tolist() for it in items]),
+        np.array([it["trans"][0].tolist() for it in items]),
+        [bool(it["reset"][0]) for it in items],
+    )
 
 
 @pytest.fixture
@@ -77,8 +80,10 @@ def test_a_focal_size_rule_gives_the_flight_that_focal_length_at_its_aspect_rati
     assert ds[0]["rgb"].shape[-2:] == (15, 20) and ds.intrinsics.tolist() == [5.0, 6.0, 10.0, 7.5]
 
 
-@pytest.mark.parametrize("columns", [("timestamp", "tx", "ty", "tz", "qw", "qx", "qy", "qz"),
-                                     ("qx", "tz", "timestamp", "qw", "ty", "qz", "tx", "qy")])
+@pytest.mark.parametrize(
+    "columns",
+    [("timestamp", "tx", "ty", "tz", "qw", "qx", "qy", "qz"), ("qx", "tz", "timestamp", "qw", "ty", "qz", "tx", "qy")],
+)
 def test_csv_poses_any_column_order(flight, columns):
     lines = [",".join(columns)]
     for t, (p, q) in zip(TIMES, POSES):
@@ -92,8 +97,12 @@ def test_csv_poses_any_column_order(flight, columns):
 
 def test_ned_body_poses(flight):
     # Mid-Air-like body poses: 3 m north, then a 90-degree yaw to the right (about body z, down) and 1 m east
-    poses = [((0, 0, -10), (1, 0, 0, 0)), ((3, 0, -10), (1, 0, 0, 0)), ((3, 1, -10), (C, 0, 0, S)),
-             ((3, 2, -10), (C, 0, 0, S))]
+    poses = [
+        ((0, 0, -10), (1, 0, 0, 0)),
+        ((3, 0, -10), (1, 0, 0, 0)),
+        ((3, 1, -10), (C, 0, 0, S)),
+        ((3, 2, -10), (C, 0, 0, S)),
+    ]
     write_tum(flight / "poses.txt", poses=poses)
     q, t, _ = motions(open_dataset("flight", flight, fov=90.0, convention="ned"))
     np.testing.assert_allclose(q, [(1, 0, 0, 0), (1, 0, 0, 0), (C, 0, S, 0), (1, 0, 0, 0)], atol=1e-6)
@@ -155,8 +164,9 @@ def test_optional_depth_and_labels(flight):
     for k, t in enumerate(TIMES):
         np.save(flight / "depth" / f"{t:.6f}.npy", np.full((H, W), 5.0 + k, np.float32))
         Image.fromarray(np.full((H, W), k, np.uint8)).save(flight / "labels" / f"{t:.6f}.png")
-    ds = open_dataset("flight", flight, seq_len=2, fov=90.0, depth_dir=flight / "depth", semantic_dir=flight / "labels",
-                      size=(15, 20))
+    ds = open_dataset(
+        "flight", flight, seq_len=2, fov=90.0, depth_dir=flight / "depth", semantic_dir=flight / "labels", size=(15, 20)
+    )
     it = ds[1]
     assert it["depth"].shape == (2, 1, 15, 20) and float(it["depth"][1].mean()) == 8.0
     assert it["semantic"].shape == (2, 15, 20) and int(it["semantic"][0, 0, 0]) == 2

@@ -14,6 +14,7 @@ import io
 
 import numpy as np
 import pytest
+from fuzzing import fuzz_settings, jpeg_with_size, mutate_bytes, outcome, png_bytes, png_with_size, write
 from hypothesis import event, given
 from hypothesis import strategies as st
 from PIL import Image
@@ -26,16 +27,35 @@ from cosemdepth.data.sequence import FrameRecord
 from cosemdepth.data.topair import read_depth8
 from cosemdepth.errors import DatasetError
 
-from fuzzing import fuzz_settings, jpeg_with_size, mutate_bytes, outcome, png_bytes, png_with_size, write
-
 GRAY, RGB, PALETTE, GRAY_ALPHA, RGBA = 0, 2, 3, 4, 6
 CHANNELS = {GRAY: 1, RGB: 3, PALETTE: 1, GRAY_ALPHA: 2, RGBA: 4}
 #: (bit depth, colour type) pairs the PNG standard allows.
-PNG_FORMATS = [(1, GRAY), (2, GRAY), (4, GRAY), (8, GRAY), (16, GRAY), (8, RGB), (16, RGB), (1, PALETTE),
-               (4, PALETTE), (8, PALETTE), (8, GRAY_ALPHA), (16, GRAY_ALPHA), (8, RGBA), (16, RGBA)]
+PNG_FORMATS = [
+    (1, GRAY),
+    (2, GRAY),
+    (4, GRAY),
+    (8, GRAY),
+    (16, GRAY),
+    (8, RGB),
+    (16, RGB),
+    (1, PALETTE),
+    (4, PALETTE),
+    (8, PALETTE),
+    (8, GRAY_ALPHA),
+    (16, GRAY_ALPHA),
+    (8, RGBA),
+    (16, RGBA),
+]
 #: Declared sizes (width, height) of the "huge header" variant: each would need from hundreds of MB to many GB.
-HUGE_SIZES = [(65535, 65535), (20000, 20000), (100_000, 2000), (2000, 100_000_000), (2**31 - 1, 2**31 - 1),
-              (0, 5), (5, 0)]
+HUGE_SIZES = [
+    (65535, 65535),
+    (20000, 20000),
+    (100_000, 2000),
+    (2000, 100_000_000),
+    (2**31 - 1, 2**31 - 1),
+    (0, 5),
+    (5, 0),
+]
 
 
 def sizes():
@@ -86,9 +106,12 @@ def test_fuzz_rgb(tmp_path_factory, data, jpeg):
     else:
         good, samples, (bit_depth, colour) = data.draw(png_file(st.integers(0, 65535)))
         # what a valid file must give: its samples as written (16-bit ones with every bit, gray replicated)
-        truth = {(8, RGB): samples.astype(np.uint8), (16, RGB): samples.astype(np.uint16),
-                 (16, RGBA): samples[..., :3].astype(np.uint16),
-                 (16, GRAY): np.repeat(samples, 3, axis=2).astype(np.uint16)}.get((bit_depth, colour))
+        truth = {
+            (8, RGB): samples.astype(np.uint8),
+            (16, RGB): samples.astype(np.uint16),
+            (16, RGBA): samples[..., :3].astype(np.uint16),
+            (16, GRAY): np.repeat(samples, 3, axis=2).astype(np.uint16),
+        }.get((bit_depth, colour))
         path = folder / "000004.png"
     raw = data.draw(damaged(good, not jpeg))
     write(path, raw)
@@ -152,6 +175,7 @@ def test_fuzz_label_and_8bit_maps(tmp_path_factory, data, which):
         values = values * (255 // ((1 << fmt[0]) - 1))
 
     if which == "topair_depth":
+
         def check(depth) -> None:
             assert depth.dtype == np.float32 and depth.ndim == 2
             assert np.isfinite(depth).all() and (depth >= 0).all() and (depth <= 100).all()
@@ -223,11 +247,20 @@ def _npy_bytes(a: np.ndarray) -> bytes:
 @st.composite
 def depth_arrays(draw):
     h, w = draw(sizes())
-    kind = draw(st.sampled_from(("float32", "float64", "float16", "uint16", "int32", "bool", "complex64", "U3",
-                                 "3d", "1d", "0d", "special")))
+    kind = draw(
+        st.sampled_from(
+            ("float32", "float64", "float16", "uint16", "int32", "bool", "complex64", "U3", "3d", "1d", "0d", "special")
+        )
+    )
     if kind == "special":
-        a = np.array(draw(st.lists(st.sampled_from([np.nan, np.inf, -np.inf, -1.0, 0.0, 1e30, 5.0]),
-                                   min_size=h * w, max_size=h * w)), dtype=np.float32).reshape(h, w)
+        a = np.array(
+            draw(
+                st.lists(
+                    st.sampled_from([np.nan, np.inf, -np.inf, -1.0, 0.0, 1e30, 5.0]), min_size=h * w, max_size=h * w
+                )
+            ),
+            dtype=np.float32,
+        ).reshape(h, w)
     elif kind == "3d":
         a = np.ones((h, w, 2), np.float32)
     elif kind == "1d":

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from fuzzing import fuzz_settings, outcome, text_file_bytes, write
 from hypothesis import example, given
 from hypothesis import strategies as st
 from PIL import Image
@@ -15,8 +16,6 @@ from PIL import Image
 from cosemdepth.data.flight import open_flight
 from cosemdepth.data.poses import read_pose_csv, read_tum
 from cosemdepth.errors import DatasetError
-
-from fuzzing import fuzz_settings, outcome, text_file_bytes, write
 
 
 @st.composite
@@ -98,8 +97,11 @@ def _flight_images(folder, n: int) -> None:
 @fuzz_settings(max_examples=30)
 @given(truth=poses(max_n=3), data=st.data())
 @example(  # positions far apart: finite in the file, but their difference overflows
-    truth=(np.array([1.0, 2.0, 3.0]), np.array([[1e308, 0, 0], [-1e308, 0, 0], [0, 0, 0]]),
-           np.tile([1.0, 0, 0, 0], (3, 1))),
+    truth=(
+        np.array([1.0, 2.0, 3.0]),
+        np.array([[1e308, 0, 0], [-1e308, 0, 0], [0, 0, 0]]),
+        np.tile([1.0, 0, 0, 0], (3, 1)),
+    ),
     data=None,
 )
 @example(  # finite in float64, out of float32's range (the dataset's motion arrays)

@@ -13,13 +13,12 @@ import shutil
 import h5py
 import numpy as np
 import pytest
+from fuzzing import fuzz_settings, mutate_bytes, outcome, write
 from hypothesis import given
 from hypothesis import strategies as st
 
 from cosemdepth.data.midair.splits import generate_splits, read_csv
 from cosemdepth.errors import DatasetError
-
-from fuzzing import fuzz_settings, mutate_bytes, outcome, write
 
 
 @st.composite
@@ -56,8 +55,22 @@ def groundtruth(draw):
 def sensor_records(draw):
     """A function writing a ``sensor_records.hdf5`` with the drawn layout."""
     gt = draw(groundtruth())
-    layout = draw(st.sampled_from(("ok", "ok", "ok", "no_gt", "traj_dataset", "gt_dataset", "attitude_group",
-                                   "huge_declared", "dangling_link", "extra_traj")))
+    layout = draw(
+        st.sampled_from(
+            (
+                "ok",
+                "ok",
+                "ok",
+                "no_gt",
+                "traj_dataset",
+                "gt_dataset",
+                "attitude_group",
+                "huge_declared",
+                "dangling_link",
+                "extra_traj",
+            )
+        )
+    )
 
     def build(path) -> None:
         with h5py.File(path, "w") as h5:

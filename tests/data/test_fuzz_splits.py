@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from fuzzing import fuzz_settings, outcome, text_file_bytes, write
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -17,8 +18,6 @@ from cosemdepth.data.midair.dataset import open_midair
 from cosemdepth.data.topair import open_topair
 from cosemdepth.data.topair_splits import read_airsim_rec
 from cosemdepth.errors import DatasetError
-
-from fuzzing import fuzz_settings, outcome, text_file_bytes, write
 
 MIDAIR_COLUMNS = ("id", "camera_l", "disp", "semantic", "qw", "qx", "qy", "qz", "tx", "ty", "tz")
 #: The original generator's CSVs have no semantic column: the reader derives it from camera_l.
@@ -120,8 +119,10 @@ def test_fuzz_airsim_recording(tmp_path_factory, rows, data):
 
 
 @fuzz_settings(max_examples=40)
-@given(names=st.lists(st.from_regex(r"[0-9]{6}_[0-9]{3}", fullmatch=True), min_size=1, max_size=4, unique=True),
-       data=st.data())
+@given(
+    names=st.lists(st.from_regex(r"[0-9]{6}_[0-9]{3}", fullmatch=True), min_size=1, max_size=4, unique=True),
+    data=st.data(),
+)
 def test_fuzz_aeroscapes_imagesets(tmp_path_factory, names, data):
     root = tmp_path_factory.getbasetemp() / "fuzz_aeroscapes"
     root.mkdir(exist_ok=True)

@@ -64,6 +64,7 @@ def test_resize_rules_bl2_for_colour_and_depth_nearest_for_labels(dataset):
     truth, root, splits = dataset
     native = open_dataset("midair", root, split_dir=splits, split="test", seq_len=1, size=SIZE)[2]
     half = open_dataset("midair", root, split_dir=splits, split="test", seq_len=1, size=16)[2]
+
     # an exact 2x downsampling with half-pixel bilinear is the mean of each 2x2 block
     def block_mean(x):
         return x.reshape(*x.shape[:-2], 16, 2, 16, 2).mean(dim=(-3, -1))
@@ -92,8 +93,7 @@ def test_seq_len_1_on_test_split_yields_every_csv_row_in_order(dataset):
         assert item["id"].tolist() == [int(row["id"])]
         assert item["reset"].tolist() == [row["id"] == "0"]
     # the colour of each item is the image its row names
-    native = open_dataset("midair", root, split_dir=splits, split="test", seq_len=1, size=SIZE,
-                          jpeg_idct="accurate")
+    native = open_dataset("midair", root, split_dir=splits, split="test", seq_len=1, size=SIZE, jpeg_idct="accurate")
     for item, (_, row) in zip(native, expected):
         np.testing.assert_array_equal(item["rgb"][0].permute(1, 2, 0).numpy(), decoded_jpeg(root / row["camera_l"]))
 
@@ -163,8 +163,10 @@ def test_a_focal_size_rule_opens_the_split_where_its_camera_has_that_focal_lengt
     ref = open_dataset("midair", root, split_dir=splits, split="test", seq_len=1, size=16)
     assert ds.intrinsics.tolist() == [8.0, 8.0, 8.0, 8.0]
     assert torch.equal(ds[1]["rgb"], ref[1]["rgb"]) and ds[1]["rgb"].shape[-2:] == (16, 16)
-    assert open_dataset("midair", root, split_dir=splits, split="test", size=FocalSize(20.0))[0]["rgb"].shape[-2:] \
-        == (40, 40)
+    assert open_dataset("midair", root, split_dir=splits, split="test", size=FocalSize(20.0))[0]["rgb"].shape[-2:] == (
+        40,
+        40,
+    )
 
 
 def test_val_split_uses_windows_with_reset_first(dataset):
@@ -182,7 +184,9 @@ def test_label_modes(dataset, tmp_path):
     raw = open_dataset("midair", root, split_dir=splits, split="test", size=SIZE, labels="raw")[0]
     row = read_split_rows(splits / "test_data" / f"{raw['trajectory']}.csv")[0]
     np.testing.assert_array_equal(raw["semantic"][0].numpy(), truth.labels[row["semantic"]])
-    with pytest.raises(DatasetError, match=r"segmentation/trajectory_\d{4}/000004\.PNG: label ID 1[0-3] out of range 0\.\.6"):
+    with pytest.raises(
+        DatasetError, match=r"segmentation/trajectory_\d{4}/000004\.PNG: label ID 1[0-3] out of range 0\.\.6"
+    ):
         open_dataset("midair", root, split_dir=splits, split="test", size=SIZE, labels="mapped")[0]
     seven = write_midair(tmp_path / "root7", {("Kite_training", "sunny"): [0]}, frames=8, label_ids=7)
     generate_splits(tmp_path / "root7", tmp_path / "splits7")
@@ -282,7 +286,9 @@ def test_label_out_of_range_names_the_file(copy):
     ids = np.zeros((SIZE, SIZE), np.uint8)
     ids[3, 4] = 14
     Image.fromarray(ids).save(root / row["semantic"])
-    with pytest.raises(DatasetError, match=r"segmentation/trajectory_0000/000004\.PNG: label ID 14 out of range 0\.\.13"):
+    with pytest.raises(
+        DatasetError, match=r"segmentation/trajectory_0000/000004\.PNG: label ID 14 out of range 0\.\.13"
+    ):
         open_dataset("midair", root, split_dir=splits, split="test", size=8)[0]
 
 
@@ -339,4 +345,6 @@ def test_val_split_with_seq_len_1_streams_with_csv_resets(dataset):
     ds = open_dataset("midair", root, split_dir=splits, split="val", seq_len=1, size=8)
     assert ds.mode == "stream"
     assert [bool(it["reset"][0]) for it in ds] == [True, False, False, False]
-    assert open_dataset("midair", root, split_dir=splits, split="val", seq_len=2, size=8, mode="stream").mode == "stream"
+    assert (
+        open_dataset("midair", root, split_dir=splits, split="val", seq_len=2, size=8, mode="stream").mode == "stream"
+    )

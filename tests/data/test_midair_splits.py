@@ -114,7 +114,9 @@ def test_cli_single_split_rule_puts_every_trajectory_in_that_split(tmp_path):
     assert main(["splits", "synthair", str(tmp_path / "root"), str(tmp_path / "all"), "--rule", "train"]) == 0
     generic = sorted(p.name for p in (tmp_path / "generic").rglob("*.csv"))
     every = sorted(p.relative_to(tmp_path / "all").as_posix() for p in (tmp_path / "all").rglob("*.csv"))
-    assert every == sorted(f"train_data/Synth_world/{c}/traj_{i:04d}.csv" for (_, c), ids in layout.items() for i in ids)
+    assert every == sorted(
+        f"train_data/Synth_world/{c}/traj_{i:04d}.csv" for (_, c), ids in layout.items() for i in ids
+    )
     assert len(every) == len(generic) == 6
     for p in (tmp_path / "generic").rglob("*.csv"):  # the same rows, only the split differs
         clim, name = p.parent.name, p.name

@@ -41,9 +41,12 @@ def test_frame_numbers_with_stamps_from_zero_are_matched_by_order(tmp_path):
 
 def test_auto_never_guesses_index(tmp_path):
     track = read_poses(tum(tmp_path / "p.txt", [f"{0.01 * i:.2f}" for i in range(64)]))
-    with pytest.raises(DatasetError, match=r"p\.txt: cannot tell how the 8 images of imgs go with its 64 poses: "
-                       r"image names are zero-padded frame numbers, and the counts differ .*if image k goes with "
-                       r"pose row k \(rows numbered from 0\), pass --match index"):
+    with pytest.raises(
+        DatasetError,
+        match=r"p\.txt: cannot tell how the 8 images of imgs go with its 64 poses: "
+        r"image names are zero-padded frame numbers, and the counts differ .*if image k goes with "
+        r"pose row k \(rows numbered from 0\), pass --match index",
+    ):
         match_images(names(*(f"{k:06d}" for k in range(0, 16, 2))), track)
 
 
@@ -55,8 +58,11 @@ def test_index_takes_the_row_of_each_frame_number(tmp_path):
     np.testing.assert_allclose(m.times, [0.0, 0.08, 0.16, 0.24])
     # a frame number past the last row: an error naming the image, or skipped and counted
     frames = names(*(f"{k:06d}" for k in (0, 15, 16, 20)))
-    with pytest.raises(DatasetError, match=r"000016\.png: frame number 16 has no pose: .*p\.txt has 16 pose rows, "
-                       r"numbered from 0"):
+    with pytest.raises(
+        DatasetError,
+        match=r"000016\.png: frame number 16 has no pose: .*p\.txt has 16 pose rows, "
+        r"numbered from 0",
+    ):
         match_images(frames, track, match="index")
     m = match_images(frames, track, match="index", skip_unposed=True)
     assert rows(m) == [0, 15] and [p.name for p in m.skipped] == ["000016.png", "000020.png"]
@@ -71,8 +77,11 @@ def test_auto_takes_stamps_only_when_every_name_is_in_range(tmp_path):
     assert m.match == "stamp" and m.reason == "every image name is a stamp within the poses' time range"
     np.testing.assert_allclose(rows(m), [0.5, 2.5, 4.0])  # interpolated halfway, and exact
     # one name out of range: not stamps; 3 images for 5 poses: not order either
-    with pytest.raises(DatasetError, match=r"1 of 3 image names are outside the poses' time range as stamps, and the "
-                       "counts differ"):
+    with pytest.raises(
+        DatasetError,
+        match=r"1 of 3 image names are outside the poses' time range as stamps, and the "
+        "counts differ",
+    ):
         match_images(names("1.05", "1.25", "9.0"), track)
     # asked for explicitly, the image out of range is an error naming it, or skipped
     with pytest.raises(DatasetError, match=r"9\.0\.png: no pose for timestamp 9\.000000"):
@@ -83,9 +92,12 @@ def test_auto_takes_stamps_only_when_every_name_is_in_range(tmp_path):
 
 def test_max_gap_is_the_one_given_and_the_message_says_it(tmp_path):
     track = read_poses(tum(tmp_path / "p.txt", ["1.0", "1.3"]))
-    with pytest.raises(DatasetError, match=r"1\.1\.png: no pose for timestamp 1\.100000 .*poses 0\.100000 s before "
-                       r"and 0\.200000 s after, 0\.300000 s apart; .*interpolation only across gaps <= 0\.25 s: "
-                       r"--max-pose-gap, or --skip-unposed\)$"):
+    with pytest.raises(
+        DatasetError,
+        match=r"1\.1\.png: no pose for timestamp 1\.100000 .*poses 0\.100000 s before "
+        r"and 0\.200000 s after, 0\.300000 s apart; .*interpolation only across gaps <= 0\.25 s: "
+        r"--max-pose-gap, or --skip-unposed\)$",
+    ):
         match_images(names("1.1"), track, match="stamp", max_gap=0.25)
     m = match_images(names("1.1"), track, match="stamp", max_gap=0.3)
     np.testing.assert_allclose(rows(m), [1 / 3])
@@ -109,8 +121,11 @@ def test_nanosecond_names_match_poses_in_seconds_or_nanoseconds(tmp_path):
 def test_nanoseconds_from_zero_need_the_unit_and_the_error_says_so(tmp_path):
     images = names(*(k * 40_000_000 + 5_000_000 for k in range(3)))
     track = read_poses(tum(tmp_path / "p.txt", [i * 10_000_000 for i in range(16)]))
-    with pytest.raises(DatasetError, match=r"5000000\.png: no pose for timestamp 5000000\.000000 .*interpolation "
-                       r"only across gaps <= 0\.1 s.*read as s \(the default.*pass --stamp-unit ns$"):
+    with pytest.raises(
+        DatasetError,
+        match=r"5000000\.png: no pose for timestamp 5000000\.000000 .*interpolation "
+        r"only across gaps <= 0\.1 s.*read as s \(the default.*pass --stamp-unit ns$",
+    ):
         match_images(images, track)
     m = match_images(images, track, stamp_unit="ns")
     np.testing.assert_allclose(rows(m), [0.5, 4.5, 8.5])
@@ -153,10 +168,17 @@ def test_open_flight_keeps_what_was_matched(tmp_path):
     assert [f.id for f in traj.frames] == [0, 1, 4]  # the image's place among all images
     info = ds.pose_matching
     assert (info["match"], info["chosen_by"], info["images"], info["posed"], info["skipped"]) == (
-        "stamp", "auto", 5, 3, 2)
-    assert info["describe"] == ("3 of 5 images matched to poses by stamp (auto: every image name is a stamp within "
-                                "the poses' time range; image names in s, pose stamps in s, interpolation across "
-                                "gaps <= 0.1 s), 2 skipped without a pose (first: 0.2.png)")
+        "stamp",
+        "auto",
+        5,
+        3,
+        2,
+    )
+    assert info["describe"] == (
+        "3 of 5 images matched to poses by stamp (auto: every image name is a stamp within "
+        "the poses' time range; image names in s, pose stamps in s, interpolation across "
+        "gaps <= 0.1 s), 2 skipped without a pose (first: 0.2.png)"
+    )
     ds = open_dataset("flight", tmp_path / "f", fov=90.0, max_gap=0.25)
     assert len(ds.trajectories[0].frames) == 5 and ds.pose_matching["skipped"] == 0
     with pytest.raises(ConfigError, match="match must be one of auto, stamp, order, index"):
@@ -165,8 +187,11 @@ def test_open_flight_keeps_what_was_matched(tmp_path):
 
 def test_frame_numbers_read_as_stamps_say_so(tmp_path):
     track = read_poses(tum(tmp_path / "p.txt", [f"{0.04 * k:.2f}" for k in range(16)]))
-    with pytest.raises(DatasetError, match=r"000001\.png: no pose for timestamp 1\.000000 .*; the image names look "
-                       r"like zero-padded frame numbers: --match order \(one pose per image\) or index$"):
+    with pytest.raises(
+        DatasetError,
+        match=r"000001\.png: no pose for timestamp 1\.000000 .*; the image names look "
+        r"like zero-padded frame numbers: --match order \(one pose per image\) or index$",
+    ):
         match_images(names(*(f"{k:06d}" for k in range(16))), track, match="stamp")
     # frame numbers past the end of a longer track: index is suggested only for names that can be row numbers
     with pytest.raises(DatasetError) as e:

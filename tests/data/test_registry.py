@@ -16,8 +16,15 @@ PALETTE = [[10, 20, 30], [40, 50, 60], [70, 80, 90]]
 
 
 def _open_toy(root, split_dir, split, seq_len, size, augment, *, scale: float = 1.0):
-    return {"root": root, "split_dir": split_dir, "split": split, "seq_len": seq_len, "size": size,
-            "augment": augment, "scale": scale}
+    return {
+        "root": root,
+        "split_dir": split_dir,
+        "split": split,
+        "seq_len": seq_len,
+        "size": size,
+        "augment": augment,
+        "scale": scale,
+    }
 
 
 def _toy_splits(root, out_dir, rule=None):
@@ -27,8 +34,17 @@ def _toy_splits(root, out_dir, rule=None):
 @pytest.fixture
 def toyset():
     saved = dict(DATASETS)
-    register_dataset("toyset", _open_toy, split="val", size=(96, 128), split_dir="lists", classes=CLASSES,
-                     palette=PALETTE, has_depth=False, split_generator=_toy_splits)
+    register_dataset(
+        "toyset",
+        _open_toy,
+        split="val",
+        size=(96, 128),
+        split_dir="lists",
+        classes=CLASSES,
+        palette=PALETTE,
+        has_depth=False,
+        split_generator=_toy_splits,
+    )
     yield "toyset"
     DATASETS.clear()
     DATASETS.update(saved)
@@ -36,8 +52,15 @@ def toyset():
 
 def test_open_dataset_uses_the_entry_and_its_defaults(toyset, tmp_path):
     got = open_dataset(toyset, tmp_path, seq_len=2, scale=0.5)
-    assert got == {"root": tmp_path, "split_dir": tmp_path / "lists", "split": "val", "seq_len": 2,
-                   "size": (96, 128), "augment": False, "scale": 0.5}
+    assert got == {
+        "root": tmp_path,
+        "split_dir": tmp_path / "lists",
+        "split": "val",
+        "seq_len": 2,
+        "size": (96, 128),
+        "augment": False,
+        "scale": 0.5,
+    }
     got = open_dataset(toyset, tmp_path, split_dir=tmp_path / "x", split="test", size=64)
     assert (got["split_dir"], got["split"], got["size"]) == (tmp_path / "x", "test", 64)
     with pytest.raises(ConfigError, match=r"unknown option\(s\) \['labels'\] for dataset 'toyset'.*\['scale'\]"):
@@ -49,7 +72,8 @@ def test_config_and_cli_choices_include_it(toyset, tmp_path):
     DatasetSource(name=toyset).check("data.train[0]")
     for command, extra in (("evaluate", []), ("predict", ["--out", "o"])):
         args = build_parser(only=command).parse_args(
-            [command, "--model", "m", "--dataset", toyset, "--root", str(tmp_path), *extra])
+            [command, "--model", "m", "--dataset", toyset, "--root", str(tmp_path), *extra]
+        )
         assert args.dataset == toyset
     args = build_parser(only="splits").parse_args(["splits", toyset, str(tmp_path)])
     assert args.dataset == toyset
@@ -78,18 +102,26 @@ def test_builtin_entries_keep_todays_defaults():
     assert tuple(DATASETS) == ("midair", "synthair", "topair", "aeroscapes", "flight", "toy")
     assert dataset_classes() == {"midair": 7, "synthair": 7, "topair": 9, "aeroscapes": 12}
     assert {n: (s.split, s.size) for n, s in DATASETS.items()} == {
-        "midair": ("test", 384), "synthair": ("test", 384), "topair": ("test", 384), "aeroscapes": ("val", None),
-        "flight": (None, None), "toy": ("train", (32, 32))}
+        "midair": ("test", 384),
+        "synthair": ("test", 384),
+        "topair": ("test", 384),
+        "aeroscapes": ("val", None),
+        "flight": (None, None),
+        "toy": ("train", (32, 32)),
+    }
     assert [n for n, s in DATASETS.items() if not s.windows] == ["aeroscapes", "toy"]
     assert [n for n, s in DATASETS.items() if not s.needs_root or s.model_classes] == ["toy"]
     assert class_info(7, "midair")[0] == ("sky", "water", "trees", "land", "boulders", "road", "others")
 
 
-@pytest.mark.parametrize("name, kwargs, message", [
-    ("bad name", {}, "dataset name must be an identifier"),
-    (3, {}, "dataset name must be an identifier"),
-    ("ok", {"classes": ("a", "b"), "palette": [[0, 0, 0]]}, r"palette must have shape \(2, 3\)"),
-])
+@pytest.mark.parametrize(
+    "name, kwargs, message",
+    [
+        ("bad name", {}, "dataset name must be an identifier"),
+        (3, {}, "dataset name must be an identifier"),
+        ("ok", {"classes": ("a", "b"), "palette": [[0, 0, 0]]}, r"palette must have shape \(2, 3\)"),
+    ],
+)
 def test_register_refuses_bad_entries(name, kwargs, message):
     with pytest.raises(ConfigError, match=message):
         register_dataset(name, _open_toy, **kwargs)

@@ -5,8 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cosemdepth.data.stamps import (epoch_unit, parse_stamp, parse_stamp_unit, posed_count, read_side, to_seconds,
-                                    unit_hint)
+from cosemdepth.data.stamps import (
+    epoch_unit,
+    parse_stamp,
+    parse_stamp_unit,
+    posed_count,
+    read_side,
+    to_seconds,
+    unit_hint,
+)
 from cosemdepth.errors import ConfigError
 
 # 2023-11-14 22:13:20 UTC in each unit

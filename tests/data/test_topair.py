@@ -30,12 +30,17 @@ def write_topair(root, env="OakForest_3", size=16, seed=0):
         write_png_gray(root / env / "depth" / name, depth)
         write_png_gray(root / env / "seg_id" / name, labels)
         truth[i] = (rgb, depth, labels)
-    rows = [HEADER, f"-1\t{env}/images/000000.png\t{env}/depth/000000.png\t{env}/seg_id/000000.png\t"
-            "1.000000\t0.000000\t0.000000\t0.000000\t0.000100\t0.000100\t0.000100"]
+    rows = [
+        HEADER,
+        f"-1\t{env}/images/000000.png\t{env}/depth/000000.png\t{env}/seg_id/000000.png\t"
+        "1.000000\t0.000000\t0.000000\t0.000000\t0.000100\t0.000100\t0.000100",
+    ]
     for k in range(N - 1):
         name = f"{k + 1:06d}.png"
-        rows.append(f"{k}\t{env}/images/{name}\t{env}/depth/{name}\t{env}/seg_id/{name}\t"
-                    f"1.000000\t0.000000\t0.000000\t0.000000\t0.1\t0.0\t{1.0 + k}")
+        rows.append(
+            f"{k}\t{env}/images/{name}\t{env}/depth/{name}\t{env}/seg_id/{name}\t"
+            f"1.000000\t0.000000\t0.000000\t0.000000\t0.1\t0.0\t{1.0 + k}"
+        )
     (root / "splits" / "test_data").mkdir(parents=True, exist_ok=True)
     (root / "splits" / "test_data" / "traj_0011.csv").write_text("\n".join(rows) + "\n")
     return truth
@@ -95,7 +100,9 @@ def test_topair_split_generator_from_airsim_recordings(tmp_path):
     out = tmp_path / "out"
     assert main(["splits", "topair", str(root), str(out)]) == 0
     assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*.csv")) == [
-        "test_data/traj_0013.csv", "train_data/traj_0001.csv"]
+        "test_data/traj_0013.csv",
+        "train_data/traj_0001.csv",
+    ]
     lines = [ln.split("\t") for ln in (out / "test_data" / "traj_0013.csv").read_text().splitlines()]
     assert lines[0] == HEADER.split("\t")
     # RuralAust3_1 has frame skip 2: rows for images 0 (id -1), 2, 4

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from cosemdepth.models.config import ModelConfig
 from cosemdepth.data.sequence import SequenceDataset, Trajectory
 from cosemdepth.models import StepOutput, StreamState
+from cosemdepth.models.config import ModelConfig
 
 GT_DEPTH = np.array([[10.0, 20.0], [40.0, 0.0]], dtype=np.float32)  # the 0 is an invalid pixel
 GT_LABELS = np.array([[0, 1], [2, 2]], dtype=np.int64)
@@ -51,22 +51,35 @@ class FakeModel(torch.nn.Module):
         probs = torch.nn.functional.one_hot(labels, self.config.num_classes).permute(0, 3, 1, 2).float()
         code_t = torch.tensor(codes, dtype=torch.float32).view(n, 1, 1, 1)
         new_state = StreamState((code_t,), (code_t.clone(),))
-        return StepOutput(depth if self.config.has_depth else None, probs if self.config.has_semantic else None), \
-            new_state
+        return StepOutput(
+            depth if self.config.has_depth else None, probs if self.config.has_semantic else None
+        ), new_state
 
 
-def fake_dataset(trajectories: dict[str, list[int]] = TRAJECTORIES, *, depth: bool = True, labels: bool = True,
-                 all_reset: bool = False, name: str = "fake") -> SequenceDataset:
+def fake_dataset(
+    trajectories: dict[str, list[int]] = TRAJECTORIES,
+    *,
+    depth: bool = True,
+    labels: bool = True,
+    all_reset: bool = False,
+    name: str = "fake",
+) -> SequenceDataset:
     """Frames of size 2x2 whose RGB encodes their code; GT depth/labels the same in every frame."""
     trajs = []
     for tname, codes in trajectories.items():
         n = len(codes)
-        trajs.append(Trajectory(
-            tname, [str(c) for c in codes], np.tile([1.0, 0, 0, 0], (n, 1)), np.tile([0, 0, 1.0], (n, 1)),
-            np.arange(n), depth=[str(c) for c in codes] if depth else None,
-            semantic=[str(c) for c in codes] if labels else None,
-            reset=np.ones(n, dtype=bool) if all_reset else None,
-        ))
+        trajs.append(
+            Trajectory(
+                tname,
+                [str(c) for c in codes],
+                np.tile([1.0, 0, 0, 0], (n, 1)),
+                np.tile([0, 0, 1.0], (n, 1)),
+                np.arange(n),
+                depth=[str(c) for c in codes] if depth else None,
+                semantic=[str(c) for c in codes] if labels else None,
+                reset=np.ones(n, dtype=bool) if all_reset else None,
+            )
+        )
 
     def load(rec):
         code = int(str(rec.rgb))

@@ -44,8 +44,11 @@ def tiny_midair(root: Path, trajectories=(0, 1), frames: int = 16, size: int = S
 
 def leftovers(folder: Path) -> list[str]:
     """Hidden temporary files/folders our atomic writers leave behind if something goes wrong."""
-    return sorted(p.name for p in folder.iterdir() if p.name.startswith(".") and
-                  (p.name.endswith((".partial", ".old", ".tmp")) or ".tmp" in p.name))
+    return sorted(
+        p.name
+        for p in folder.iterdir()
+        if p.name.startswith(".") and (p.name.endswith((".partial", ".old", ".tmp")) or ".tmp" in p.name)
+    )
 
 
 def _writable(folder: Path) -> bool:

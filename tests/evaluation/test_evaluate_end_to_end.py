@@ -10,8 +10,11 @@ import math
 import numpy as np
 import pytest
 import torch
-from _outputs import SIZE, tiny_midair
-from _outputs import _one_thread  # noqa: F401 (pytest fixture)
+from _outputs import (
+    SIZE,
+    _one_thread,  # noqa: F401 (pytest fixture)
+    tiny_midair,
+)
 
 from cosemdepth.cli.main import main
 from cosemdepth.data import open_dataset
@@ -82,8 +85,22 @@ def test_evaluate_cli_on_the_converted_tf_model(converted, split, expected, tmp_
     # --reference runs the same modules as the independent loop (float-exact); the default fast path agrees up to
     # float rounding amplified by the time recurrence of an untrained network
     out = tmp_path / "eval"
-    rc = run_cli("--model", converted, "--dataset", "midair", "--root", split, "--split-dir", split / "splits",
-                 "--size", SIZE, "--out", out, "--no-progress", *(["--reference"] if path == "reference" else []))
+    rc = run_cli(
+        "--model",
+        converted,
+        "--dataset",
+        "midair",
+        "--root",
+        split,
+        "--split-dir",
+        split / "splits",
+        "--size",
+        SIZE,
+        "--out",
+        out,
+        "--no-progress",
+        *(["--reference"] if path == "reference" else []),
+    )
     assert rc == 0
     printed = capsys.readouterr().out
     assert "| model | params | ms/frame | mIoU |" in printed
@@ -106,8 +123,21 @@ def test_evaluate_cli_on_the_converted_tf_model(converted, split, expected, tmp_
 def test_two_trajectories_per_batch_and_the_synthair_reader(converted, split, expected, tmp_path):
     # the same files read as SynthAir (splits in ROOT/splits), two trajectories streamed as one batch
     out = tmp_path / "eval2"
-    rc = run_cli("--model", converted, "--dataset", "synthair", "--root", split, "--size", SIZE,
-                 "--trajectories-per-batch", 2, "--out", out, "--no-progress")
+    rc = run_cli(
+        "--model",
+        converted,
+        "--dataset",
+        "synthair",
+        "--root",
+        split,
+        "--size",
+        SIZE,
+        "--trajectories-per-batch",
+        2,
+        "--out",
+        out,
+        "--no-progress",
+    )
     assert rc == 0
     m = json.loads((out / "metrics.json").read_text())["metrics"]
     for k in ("abs_rel", "rmse", "delta1"):

@@ -6,11 +6,10 @@ import math
 import numpy as np
 import pytest
 import torch
+from _fakes import FakeModel, fake_dataset
 
 from cosemdepth.errors import ConfigError
 from cosemdepth.evaluation.evaluator import evaluate, to_json
-
-from _fakes import FakeModel, fake_dataset
 
 # Hand computation (reset frames A0 and B0 excluded; GT [[10, 20], [40, 0]], the 0 pixel invalid):
 #   A1 pred [[10, 20], [40, 5]]: every valid error 0      -> AbsRel 0,   RMSE 0,                    d1 1
@@ -83,8 +82,12 @@ def test_a_lane_takes_the_next_trajectory_with_a_reset():
     finally:
         _fakes.PREDICTIONS.clear()
         _fakes.PREDICTIONS.update(preds)
-    assert model.calls == [([0, 10], [True, True]), ([1, 11], [False, False]), ([2, 20], [False, True]),
-                           ([21], [False])]
+    assert model.calls == [
+        ([0, 10], [True, True]),
+        ([1, 11], [False, False]),
+        ([2, 20], [False, True]),
+        ([21], [False]),
+    ]
     assert res.metrics["depth_frames"] == 4
 
 
@@ -129,8 +132,11 @@ def test_result_json_and_markdown():
     res = evaluate(FakeModel(), fake_dataset())
     d = json.loads(res.to_json())
     assert d["metrics"]["abs_rel"] == pytest.approx(ABS_REL, rel=1e-5)
-    assert d["per_class_iou"] == {"class 0": pytest.approx(0.5), "class 1": pytest.approx(0.4),
-                                  "class 2": pytest.approx(5 / 6)}
+    assert d["per_class_iou"] == {
+        "class 0": pytest.approx(0.5),
+        "class 1": pytest.approx(0.4),
+        "class 2": pytest.approx(5 / 6),
+    }
     assert d["confusion_matrix"] == CONFUSION
     assert d["params"] == 3 and d["speed"]["ms_per_frame"] >= 0
     md = res.to_markdown("fake")

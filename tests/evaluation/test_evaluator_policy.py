@@ -7,19 +7,31 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from test_predict_validity import H, K, Plane, W
 
 from cosemdepth.data.sequence import SequenceDataset, Trajectory
 from cosemdepth.evaluation.evaluator import evaluate
 
-from test_predict_validity import H, K, W, Plane
-
 
 def dataset(motion):
     n = len(motion)
-    traj = Trajectory("t", [str(k) for k in range(n)], np.tile([1.0, 0, 0, 0], (n, 1)), np.array(motion),
-                      np.arange(n), depth=[str(k) for k in range(n)], semantic=[str(k) for k in range(n)])
-    load = lambda rec: {"rgb": torch.full((3, H, W), 0.5), "depth": torch.full((1, H, W), 10.0),  # noqa: E731
-                        "semantic": torch.zeros(H, W, dtype=torch.long)}
+    traj = Trajectory(
+        "t",
+        [str(k) for k in range(n)],
+        np.tile([1.0, 0, 0, 0], (n, 1)),
+        np.array(motion),
+        np.arange(n),
+        depth=[str(k) for k in range(n)],
+        semantic=[str(k) for k in range(n)],
+    )
+
+    def load(rec):
+        return {
+            "rgb": torch.full((3, H, W), 0.5),
+            "depth": torch.full((1, H, W), 10.0),
+            "semantic": torch.zeros(H, W, dtype=torch.long),
+        }
+
     return SequenceDataset([traj], load, torch.tensor(K), name="t")
 
 

@@ -24,8 +24,13 @@ def maps(h=128, w=128, depth=None, seed=0, keys=ALL, title=""):
     rng = np.random.default_rng(seed)
     d = rng.uniform(2.0, 70.0, (h, w)).astype(np.float32) if depth is None else depth
     lab = rng.integers(0, 7, (h, w)).astype(np.uint8)
-    full = dict(rgb=rng.integers(0, 256, (h, w, 3), dtype=np.uint8), depth=d, gt_depth=d * 1.1, labels=lab,
-                gt_labels=(lab + 1) % 7)
+    full = dict(
+        rgb=rng.integers(0, 256, (h, w, 3), dtype=np.uint8),
+        depth=d,
+        gt_depth=d * 1.1,
+        labels=lab,
+        gt_labels=(lab + 1) % 7,
+    )
     return FrameMaps(**{k: full[k] for k in keys}, title=title)
 
 
@@ -55,7 +60,7 @@ def test_auto_depth_range_by_hand():
     assert auto_depth_range([np.array([np.nan, 0.0, -1.0, np.inf])]) == (0.0, 80.0)
 
 
-@pytest.mark.parametrize("h, w, k", [(8, 100000, 2), (100000, 8, 2), (8, 8192, 8), (16, 200000, 1), (8, 2 ** 20, 1)])
+@pytest.mark.parametrize("h, w, k", [(8, 100000, 2), (100000, 8, 2), (8, 8192, 8), (16, 200000, 1), (8, 2**20, 1)])
 def test_a_map_of_an_extreme_aspect_ratio_is_upscaled_less(h, w, k):
     """48x (384 / 8) would make a 100000x8 map's panel 4.8 million pixels long: 15 GB of canvas for one picture.
     The factor is the largest whose panel keeps to MAX_UPSCALED_PANEL (2048^2) pixels, and never below 1."""
@@ -64,7 +69,9 @@ def test_a_map_of_an_extreme_aspect_ratio_is_upscaled_less(h, w, k):
     assert panel_scale(h, w) == k
     assert h * w * k * k <= MAX_UPSCALED_PANEL or k == 1
     assert k == 1 or h * w * (k + 1) ** 2 > MAX_UPSCALED_PANEL  # the largest such factor
-    if h > w and h * w <= 800_000:  # draw a tall one: every panel at k x the map, the colour bar and legend under panels 16 px wide
+    if (
+        h > w and h * w <= 800_000
+    ):  # draw a tall one: every panel at k x the map, the colour bar and legend under panels 16 px wide
         m = maps(h, w)
         f = figure(m)
         img = f.frame(m)
@@ -88,14 +95,18 @@ def test_every_panel_is_at_least_384_px_and_the_frame_size_adds_up(h, w, k):
 
 
 def test_panel_order_and_captions_do_not_depend_on_the_order_given():
-    f = FlightFigure(["gt_labels", "labels", "rgb", "gt_depth", "depth"], (32, 32), class_names=NAMES,
-                     palette=PALETTE)
-    assert f.metadata()["panels"] == ["RGB", "predicted depth", "ground-truth depth", "predicted labels",
-                                      "ground-truth labels"]
+    f = FlightFigure(["gt_labels", "labels", "rgb", "gt_depth", "depth"], (32, 32), class_names=NAMES, palette=PALETTE)
+    assert f.metadata()["panels"] == [
+        "RGB",
+        "predicted depth",
+        "ground-truth depth",
+        "predicted labels",
+        "ground-truth labels",
+    ]
     m = maps(32, 32)
     # the caption strip of a one-frame picture and of a multi-row strip are the same pixels
-    assert np.array_equal(f.frame(m)[:f.caption_height], f.rows([m, m, m])[:f.caption_height])
-    assert np.array_equal(f.frame(m)[-f.footer_height:], f.rows([m, m])[-f.footer_height:])
+    assert np.array_equal(f.frame(m)[: f.caption_height], f.rows([m, m, m])[: f.caption_height])
+    assert np.array_equal(f.frame(m)[-f.footer_height :], f.rows([m, m])[-f.footer_height :])
     assert f.rows([m, m, m]).shape == (*f.rows_size(3), 3)
 
 
@@ -180,8 +191,7 @@ def test_flight_pictures_fix_the_range_from_the_first_frames_and_keep_the_order(
     assert fig.depth_range == (0.0, 25.0) and all(img.shape == (*fig.frame_size, 3) for _, img in got)
     # a given range is used at once; a frame without ground truth draws an empty panel in its place
     got.clear()
-    pics = FlightPictures(lambda ctx, img: got.append(img), class_names=NAMES, palette=PALETTE,
-                          depth_range=(0.0, 50.0))
+    pics = FlightPictures(lambda ctx, img: got.append(img), class_names=NAMES, palette=PALETTE, depth_range=(0.0, 50.0))
     pics.add(maps(32, 32))
     m = maps(32, 32)
     m.gt_labels = None
@@ -208,8 +218,7 @@ def test_a_video_frame_is_the_picture(tmp_path):
 
 # ---------------------------------------------------------------------------------------------------- the commands
 
-from _outputs import SIZE, tiny_midair  # noqa: E402
-from _outputs import _one_thread, model_dir  # noqa: E402, F401 (pytest fixtures)
+from _outputs import SIZE, tiny_midair  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
 
 
 @pytest.fixture(scope="module")
@@ -242,13 +251,29 @@ def test_predict_pictures_video_and_metadata_agree(model_dir, flight, tmp_path):
     from cosemdepth.cli.main import main
 
     out = tmp_path / "pred"
-    assert main(["predict", "--model", str(model_dir), "--dataset", "synthair", "--root", str(flight), "--size",
-                 str(SIZE), "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "predict",
+                "--model",
+                str(model_dir),
+                "--dataset",
+                "synthair",
+                "--root",
+                str(flight),
+                "--size",
+                str(SIZE),
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     man = json.loads((out / "predictions.json").read_text())
     traj = man["trajectories"][0]
     pics = traj["pictures"]
-    assert pics["panels"] == ["RGB", "predicted depth", "ground-truth depth", "predicted labels",
-                              "ground-truth labels"]
+    assert pics["panels"] == ["RGB", "predicted depth", "ground-truth depth", "predicted labels", "ground-truth labels"]
     assert pics["classes"] == list(NAMES) == man["class_names"]
     frames = [f for f in man["frames"] if f["trajectory"] == traj["name"]]
     video = iio.imread(out / traj["video"])  # every frame
@@ -278,12 +303,26 @@ def test_demo_strip_and_video_share_the_layout(model_dir, flight, tmp_path):
     from cosemdepth.cli.main import main
 
     out = tmp_path / "report"
-    assert main(["demo", "--out", str(out), "--model", str(model_dir), "--data-root", str(flight), "--size",
-                 str(SIZE), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "demo",
+                "--out",
+                str(out),
+                "--model",
+                str(model_dir),
+                "--data-root",
+                str(flight),
+                "--size",
+                str(SIZE),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     m = json.loads((out / "metrics.json").read_text())
     pics = m["pictures"]
-    assert pics["panels"] == ["RGB", "predicted depth", "ground-truth depth", "predicted labels",
-                              "ground-truth labels"]
+    assert pics["panels"] == ["RGB", "predicted depth", "ground-truth depth", "predicted labels", "ground-truth labels"]
     assert pics["panel_size"] == [384, 384] and pics["classes"] == list(NAMES)
     strip = _read(out / "qualitative.png")
     video = iio.imread(out / "flight.mp4")
@@ -296,10 +335,14 @@ def test_demo_strip_and_video_share_the_layout(model_dir, flight, tmp_path):
     # the same captions (panel order) and the same footer (colour bar and legend) in the strip and the video
     for frame in video:
         assert np.abs(frame[:cap].astype(int) - strip[:cap]).mean() < 3
-        assert np.abs(frame[h - footer:].astype(int) - strip[-footer:]).mean() < 3
+        assert np.abs(frame[h - footer :].astype(int) - strip[-footer:]).mean() < 3
     y0 = pics["colorbar_box"][1] - h  # the colour bar, counted from the bottom
-    box = [pics["colorbar_box"][0], strip.shape[0] + y0, pics["colorbar_box"][2],
-           strip.shape[0] + y0 + pics["colorbar_box"][3] - pics["colorbar_box"][1]]
+    box = [
+        pics["colorbar_box"][0],
+        strip.shape[0] + y0,
+        pics["colorbar_box"][2],
+        strip.shape[0] + y0 + pics["colorbar_box"][3] - pics["colorbar_box"][1],
+    ]
     near, far = pics["depth_range_m"]
     bar = _bar_depths(strip, box, (near, far))
     assert np.abs(bar - np.linspace(near, far, len(bar))).max() <= (far - near) / 255 + 1e-6

@@ -9,8 +9,8 @@ import torch
 
 from cosemdepth.errors import ConfigError, DatasetError
 from cosemdepth.evaluation.metrics import (
-    ConfusionMatrix,
     DEPTH_METRICS,
+    ConfusionMatrix,
     DepthMetrics,
     EvaluationMetrics,
     LabelRangeError,
@@ -193,8 +193,13 @@ def test_evaluation_metrics_both_tasks():
     gt_labels = torch.stack([torch.full((2, 2), 3), GT_L])  # [B, H, W]
     probs = torch.nn.functional.one_hot(torch.stack([torch.zeros(2, 2, dtype=torch.long), PRED_L]), 4)
     probs = probs.permute(0, 3, 1, 2).float() * 0.7 + 0.075  # argmax = PRED_L for frame 1
-    ev.update(gt_depth=gt_depth, pred_depth=pred_depth, gt_labels=gt_labels, pred_semantic=probs,
-              include=torch.tensor([False, True]))
+    ev.update(
+        gt_depth=gt_depth,
+        pred_depth=pred_depth,
+        gt_labels=gt_labels,
+        pred_semantic=probs,
+        include=torch.tensor([False, True]),
+    )
     res = ev.compute()
     assert res["rmse"] == pytest.approx(EXPECTED_A["rmse"], rel=1e-6)
     assert res["miou"] == pytest.approx((1 / 2 + 1 / 3 + 0.0) / 3)
@@ -211,8 +216,16 @@ def test_evaluation_metrics_both_tasks():
 
 # --- best-checkpoint selection -----------------------------------------------------------------------------------
 
-BEST = {"abs_rel": 0.1, "sq_rel": 1.0, "rmse": 7.0, "rmse_log": 0.2, "delta1": 0.9, "delta2": 0.95, "delta3": 0.97,
-        "miou": 0.7}
+BEST = {
+    "abs_rel": 0.1,
+    "sq_rel": 1.0,
+    "rmse": 7.0,
+    "rmse_log": 0.2,
+    "delta1": 0.9,
+    "delta2": 0.95,
+    "delta3": 0.97,
+    "miou": 0.7,
+}
 
 
 def _new(improve: tuple[str, ...], miou: float = 0.71) -> dict[str, float]:
@@ -242,8 +255,9 @@ def test_is_better_paper_rule():
 
 def test_is_better_single_task_restrictions():
     depth_keys = {k: v for k, v in BEST.items() if k != "miou"}
-    assert is_better({k: v for k, v in _new(("abs_rel", "sq_rel", "rmse", "rmse_log")).items() if k != "miou"},
-                     depth_keys)
+    assert is_better(
+        {k: v for k, v in _new(("abs_rel", "sq_rel", "rmse", "rmse_log")).items() if k != "miou"}, depth_keys
+    )
     assert not is_better({k: v for k, v in _new(("abs_rel", "sq_rel", "rmse")).items() if k != "miou"}, depth_keys)
     assert is_better({"miou": 0.71, "rmse": None}, {"miou": 0.7})
     assert not is_better({"miou": 0.7}, {"miou": 0.7})
@@ -284,11 +298,26 @@ def test_is_better_by_one_metric():
 def test_markdown_table_like_the_paper():
     classes = ["Sky", "Water", "Trees", "Land", "Boulders", "Road", "Others"]
     results = {
-        "Co-SemDepth": {"params": 5_202_528, "ms_per_frame": 49.6, "miou": 0.7424, "rmse": 7.15, "abs_rel": 0.103,
-                        "delta1": 0.921, "delta2": 0.954, "delta3": 0.9694,
-                        "iou": [0.885, 0.837, 0.794, 0.817, 0.344, 0.947, 0.6012]},
-        "M4Depth": {"params": 3_060_000, "ms_per_frame": 44.9, "rmse": 6.821, "abs_rel": 0.0973,
-                    "delta1": 0.9226, "delta2": 0.9562, "delta3": 0.9718},
+        "Co-SemDepth": {
+            "params": 5_202_528,
+            "ms_per_frame": 49.6,
+            "miou": 0.7424,
+            "rmse": 7.15,
+            "abs_rel": 0.103,
+            "delta1": 0.921,
+            "delta2": 0.954,
+            "delta3": 0.9694,
+            "iou": [0.885, 0.837, 0.794, 0.817, 0.344, 0.947, 0.6012],
+        },
+        "M4Depth": {
+            "params": 3_060_000,
+            "ms_per_frame": 44.9,
+            "rmse": 6.821,
+            "abs_rel": 0.0973,
+            "delta1": 0.9226,
+            "delta2": 0.9562,
+            "delta3": 0.9718,
+        },
     }
     text = format_markdown_table(results, classes)
     lines = text.splitlines()

@@ -1,15 +1,14 @@
 """``cosemdepth predict``: every artefact is written and reads back; own flights; bad inputs leave nothing behind."""
 
 import json
-from pathlib import Path
 import shutil
+from pathlib import Path
 
 import numpy as np
 import torch
+from _outputs import SIZE, _one_thread, data, leftovers, model_dir, unwritable_folder  # noqa: F401 (pytest fixtures)
 from PIL import Image
 
-from _outputs import SIZE, leftovers, unwritable_folder
-from _outputs import _one_thread, data, model_dir  # noqa: F401 (pytest fixtures)
 from cosemdepth.cli.main import main
 from cosemdepth.data import open_dataset
 from cosemdepth.data.midair.format import PALETTE_7
@@ -49,9 +48,16 @@ def test_predict_writes_every_artefact_and_they_read_back(model_dir, data, tmp_p
     run = man["run"]  # Mid-Air's 90-degree pinhole at the 32x32 input: f = c = 16; no pose settings of our own
     assert run["input_size"] == [SIZE, SIZE] and run["intrinsics"] == [16.0, 16.0, 16.0, 16.0]
     assert (run["path"], run["precision"], run["convention"], run["frame_skip"], run["poses"]) == (
-        "reference", "fp32", None, None, None)
-    assert [t["name"] for t in man["trajectories"]] == ["Kite_training/sunny/traj_0000",
-                                                        "Kite_training/sunny/traj_0001"]
+        "reference",
+        "fp32",
+        None,
+        None,
+        None,
+    )
+    assert [t["name"] for t in man["trajectories"]] == [
+        "Kite_training/sunny/traj_0000",
+        "Kite_training/sunny/traj_0001",
+    ]
     assert man["palette"] == PALETTE_7.tolist()
     assert leftovers(tmp_path) == []
 
@@ -66,10 +72,13 @@ def test_predict_writes_every_artefact_and_they_read_back(model_dir, data, tmp_p
         # split datasets: the output stem is the colour image's (Mid-Air row 0 is camera frame 000004)
         assert [Path(f["files"]["depth"]).stem for f in frames] == [Path(f["source"]).stem for f in frames]
         assert [Path(f["source"]).name for f in frames] == ["000004.JPEG", "000008.JPEG", "000012.JPEG"]
-        its = items[3 * t: 3 * t + 3]
+        its = items[3 * t : 3 * t + 3]
         # an independent path: the whole-sequence API
-        ref = model.infer(torch.cat([it["rgb"] for it in its]), (torch.cat([it["rot"] for it in its]),
-                          torch.cat([it["trans"] for it in its])), its[0]["intrinsics"])
+        ref = model.infer(
+            torch.cat([it["rgb"] for it in its]),
+            (torch.cat([it["rot"] for it in its]), torch.cat([it["trans"] for it in its])),
+            its[0]["intrinsics"],
+        )
         for k, f in enumerate(frames):
             files = {key: out / rel for key, rel in f["files"].items()}
             depth = np.load(files["depth"])
@@ -90,8 +99,13 @@ def test_predict_writes_every_artefact_and_they_read_back(model_dir, data, tmp_p
             sbs = read_png(files["side_by_side"])
             # 5 panels of 384 px (SIZE = 32 upscaled 12 x), 4 px gaps, captions above, colour bar and legend below
             pics = traj["pictures"]
-            assert pics["panels"] == ["RGB", "predicted depth", "ground-truth depth", "predicted labels",
-                                      "ground-truth labels"]
+            assert pics["panels"] == [
+                "RGB",
+                "predicted depth",
+                "ground-truth depth",
+                "predicted labels",
+                "ground-truth labels",
+            ]
             assert pics["panel_size"] == [384, 384] and 384 == 12 * SIZE
             assert sbs.shape == (*pics["frame_size"], 3) and sbs.shape[1] == 5 * 384 + 4 * 4
             assert sbs.shape[0] > 384 + 40
@@ -103,7 +117,7 @@ def test_predict_writes_every_artefact_and_they_read_back(model_dir, data, tmp_p
             x0, y0, x1, y1 = boxes["RGB"]
             rgb = rgb_to_uint8(its[k]["rgb"][0].numpy()).astype(int)
             # bilinear: the centre of each 12 x 12 block lies between its pixel and a neighbour (title box excluded)
-            centre = sbs[y0 + 6:y1:12, x0 + 6:x1:12].astype(int)
+            centre = sbs[y0 + 6 : y1 : 12, x0 + 6 : x1 : 12].astype(int)
             lo = np.minimum(rgb, np.minimum(np.roll(rgb, -1, 0), np.roll(rgb, -1, 1)))
             hi = np.maximum(rgb, np.maximum(np.roll(rgb, -1, 0), np.roll(rgb, -1, 1)))
             body = (slice(4, SIZE - 1), slice(0, SIZE - 1))
@@ -133,8 +147,23 @@ def test_own_flight_with_a_gif(model_dir, tmp_path):
     poses = tmp_path / "flight" / "poses.txt"
     poses.write_text("".join(f"{k * 0.1:.3f} 0 0 {k * 0.5} 0 0 0 1\n" for k in range(4)))  # TUM, forward 0.5 m
     out = tmp_path / "out"
-    rc = predict("--model", model_dir, "--flight", "--images", images, "--poses", poses, "--hfov", 90,
-                 "--size", "32x64", "--out", out, "--video", "gif")
+    rc = predict(
+        "--model",
+        model_dir,
+        "--flight",
+        "--images",
+        images,
+        "--poses",
+        poses,
+        "--hfov",
+        90,
+        "--size",
+        "32x64",
+        "--out",
+        out,
+        "--video",
+        "gif",
+    )
     assert rc == 0
     man = json.loads((out / "predictions.json").read_text())
     # the settings behind the outputs: hfov 90 on the 48x64 images gives fx = fy = 64 / 2 = 32, cx = 32, cy = 24,
@@ -207,8 +236,21 @@ def test_missing_model_and_missing_dataset(model_dir, data, tmp_path, capsys):
     out = tmp_path / "out"
     assert predict("--model", tmp_path / "nope", *split_args(data), "--out", out) == 2
     assert "model folder not found" in capsys.readouterr().err
-    assert predict("--model", model_dir, "--dataset", "midair", "--root", tmp_path / "nodata", "--split-dir",
-                   tmp_path / "nodata" / "splits", "--out", out) == 2
+    assert (
+        predict(
+            "--model",
+            model_dir,
+            "--dataset",
+            "midair",
+            "--root",
+            tmp_path / "nodata",
+            "--split-dir",
+            tmp_path / "nodata" / "splits",
+            "--out",
+            out,
+        )
+        == 2
+    )
     assert "not found" in capsys.readouterr().err
     assert predict("--model", model_dir, "--flight", "--images", tmp_path, "--out", out) == 2
     assert "--poses" in capsys.readouterr().err
@@ -221,8 +263,23 @@ def test_a_corrupt_frame_mid_run_leaves_nothing(model_dir, data, tmp_path, capsy
     jpeg = bad / "Kite_training/sunny/color_left/trajectory_0001/000008.JPEG"  # row 1 of the second trajectory
     jpeg.write_bytes(jpeg.read_bytes()[:40])
     out = tmp_path / "deep" / "out"
-    assert predict("--model", model_dir, "--dataset", "midair", "--root", bad, "--split-dir", bad / "splits",
-                   "--size", SIZE, "--out", out) == 2
+    assert (
+        predict(
+            "--model",
+            model_dir,
+            "--dataset",
+            "midair",
+            "--root",
+            bad,
+            "--split-dir",
+            bad / "splits",
+            "--size",
+            SIZE,
+            "--out",
+            out,
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "000008.JPEG" in err
     assert not (tmp_path / "deep").exists()  # nor the parent folder it created
@@ -232,15 +289,18 @@ def test_a_corrupt_frame_mid_run_leaves_nothing(model_dir, data, tmp_path, capsy
 def test_two_trajectories_per_batch_give_the_same_files(model_dir, data, tmp_path):
     one, two = tmp_path / "one", tmp_path / "two"
     assert predict("--model", model_dir, *split_args(data), "--out", one, "--video", "none") == 0
-    assert predict("--model", model_dir, *split_args(data), "--out", two, "--video", "mp4",
-                   "--trajectories-per-batch", 2) == 0
+    assert (
+        predict("--model", model_dir, *split_args(data), "--out", two, "--video", "mp4", "--trajectories-per-batch", 2)
+        == 0
+    )
     a = json.loads((one / "predictions.json").read_text())
     b = json.loads((two / "predictions.json").read_text())
     key = lambda f: (f["trajectory"], f["frame"])  # noqa: E731
     assert sorted(map(key, a["frames"])) == sorted(map(key, b["frames"]))
     for f in b["frames"]:
-        np.testing.assert_allclose(np.load(two / f["files"]["depth"]), np.load(one / f["files"]["depth"]),
-                                   rtol=1e-4, atol=1e-4)
+        np.testing.assert_allclose(
+            np.load(two / f["files"]["depth"]), np.load(one / f["files"]["depth"]), rtol=1e-4, atol=1e-4
+        )
     import imageio_ffmpeg
 
     assert [imageio_ffmpeg.count_frames_and_secs(str(two / t["video"]))[0] for t in b["trajectories"]] == [3, 3]

@@ -8,10 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from _outputs import leftovers  # (puts tests/data on the path)
-from _outputs import _one_thread, model_dir  # noqa: F401 (pytest fixtures)
 from _bags import camera_info_msg, compressed_msg, frames, image_msg, pose_msg, trajectory, typestore, write_bag
+from _outputs import (  # noqa: F401 (pytest fixtures)
+    _one_thread,
+    leftovers,  # (puts tests/data on the path)
+    model_dir,
+)
+
 from cosemdepth.cli.main import main
 
 N = 6  # images
@@ -36,9 +39,17 @@ def pose_stamps(gap: tuple[float, float] | None = None) -> list[int]:
     return out
 
 
-def make_bag(path: Path, kind: str = "mcap", *, compressed: bool = False, encoding: str = "rgb8",
-             pose_type: str = "geometry_msgs/msg/PoseStamped", info: bool = True, distortion=(),
-             gap=None) -> Path:
+def make_bag(
+    path: Path,
+    kind: str = "mcap",
+    *,
+    compressed: bool = False,
+    encoding: str = "rgb8",
+    pose_type: str = "geometry_msgs/msg/PoseStamped",
+    info: bool = True,
+    distortion=(),
+    gap=None,
+) -> Path:
     ros1 = kind == "ros1"
     ts = typestore(ros1)
     msgs = []
@@ -99,8 +110,26 @@ def flight_depth(model_dir, tmp_path_factory):
     """Depth of ``predict --flight`` (convention flu, intrinsics = the camera_info's + 0.5, output 16x16)."""
     tmp = tmp_path_factory.mktemp("flight")
     images, poses = make_flight(tmp / "flight")
-    rc = predict("--model", model_dir, "--flight", "--images", images, "--poses", poses, "--convention", "flu",
-                 "--intrinsics", 16, 16, 16, 16, "--size", 16, "--out", tmp / "out")
+    rc = predict(
+        "--model",
+        model_dir,
+        "--flight",
+        "--images",
+        images,
+        "--poses",
+        poses,
+        "--convention",
+        "flu",
+        "--intrinsics",
+        16,
+        16,
+        16,
+        16,
+        "--size",
+        16,
+        "--out",
+        tmp / "out",
+    )
     assert rc == 0
     man = json.loads((tmp / "out" / "predictions.json").read_text())
     return [np.load(tmp / "out" / f["files"]["depth"]) for f in man["frames"]]
@@ -114,12 +143,15 @@ CASES = [
 
 
 @pytest.mark.parametrize("kind,compressed,encoding,pose_type", CASES)
-def test_bag_depth_equals_flight_depth_and_output_bag_reads_back(model_dir, flight_depth, tmp_path, capsys, kind,
-                                                                 compressed, encoding, pose_type):
+def test_bag_depth_equals_flight_depth_and_output_bag_reads_back(
+    model_dir, flight_depth, tmp_path, capsys, kind, compressed, encoding, pose_type
+):
     bag = make_bag(tmp_path / "in", kind, compressed=compressed, encoding=encoding, pose_type=pose_type)
     out = tmp_path / "out"
-    assert predict("--model", model_dir, *bag_args(bag, "--camera-info-topic", "/cam/info"), "--size", 16,
-                   "--out", out) == 0
+    assert (
+        predict("--model", model_dir, *bag_args(bag, "--camera-info-topic", "/cam/info"), "--size", 16, "--out", out)
+        == 0
+    )
     assert f"bag: {N} of {N} images" in capsys.readouterr().out
     man = json.loads((out / "predictions.json").read_text())
     files = [np.load(out / f["files"]["depth"]) for f in man["frames"]]
@@ -129,18 +161,27 @@ def test_bag_depth_equals_flight_depth_and_output_bag_reads_back(model_dir, flig
     assert not np.allclose(files[1], files[2])  # the frames differ (the comparison is not vacuous)
 
     msgs = read_bag(out / "bag")
-    assert sorted(msgs) == ["/cosemdepth/camera_info", "/cosemdepth/depth", "/cosemdepth/depth_status",
-                            "/cosemdepth/depth_valid", "/cosemdepth/labels", "/cosemdepth/labels_color"]
+    assert sorted(msgs) == [
+        "/cosemdepth/camera_info",
+        "/cosemdepth/depth",
+        "/cosemdepth/depth_status",
+        "/cosemdepth/depth_valid",
+        "/cosemdepth/labels",
+        "/cosemdepth/labels_color",
+    ]
     assert (out / "bag" / "bag.mcap").is_file()
     stamps = image_stamps()
     for topic, items in msgs.items():
         assert [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in items] == stamps, topic
         assert [t for t, _ in items] == stamps
         assert {m.header.frame_id for _, m in items} == {"cam"}
-    masks = [np.array(__import__("PIL.Image", fromlist=["Image"]).open(out / f["files"]["depth_valid"])) == 255
-             for f in man["frames"]]
-    for i, ((_, m), (_, v), (_, st)) in enumerate(zip(msgs["/cosemdepth/depth"], msgs["/cosemdepth/depth_valid"],
-                                                      msgs["/cosemdepth/depth_status"])):
+    masks = [
+        np.array(__import__("PIL.Image", fromlist=["Image"]).open(out / f["files"]["depth_valid"])) == 255
+        for f in man["frames"]
+    ]
+    for i, ((_, m), (_, v), (_, st)) in enumerate(
+        zip(msgs["/cosemdepth/depth"], msgs["/cosemdepth/depth_valid"], msgs["/cosemdepth/depth_status"])
+    ):
         assert m.encoding == "32FC1" and (m.height, m.width) == (16, 16)
         # REP 118: NaN where the depth is not an estimate (the mask predict wrote), the .npy's values elsewhere
         d = image_array(m)
@@ -148,8 +189,9 @@ def test_bag_depth_equals_flight_depth_and_output_bag_reads_back(model_dir, flig
         np.testing.assert_array_equal(d[masks[i]], files[i][masks[i]])
         assert st.status[0].message == man["frames"][i]["status"]
     assert np.isnan(image_array(msgs["/cosemdepth/depth"][0][1])).all()  # the first frame: a reset
-    labels = [np.array(__import__("PIL.Image", fromlist=["Image"]).open(out / f["files"]["labels"]))
-              for f in man["frames"]]
+    labels = [
+        np.array(__import__("PIL.Image", fromlist=["Image"]).open(out / f["files"]["labels"])) for f in man["frames"]
+    ]
     palette = np.asarray(man["palette"], np.uint8)
     for i, ((_, lm), (_, cm)) in enumerate(zip(msgs["/cosemdepth/labels"], msgs["/cosemdepth/labels_color"])):
         assert lm.encoding == "mono8" and cm.encoding == "rgb8"
@@ -169,11 +211,25 @@ def man_run(out: Path) -> dict:
 def test_out_namespace_frame_skip_and_hfov(model_dir, tmp_path):
     bag = make_bag(tmp_path / "in", info=False)
     out = tmp_path / "out"
-    assert predict("--model", model_dir, *bag_args(bag, "--hfov", 90, "--frame-skip", 2, "--out-namespace", "/uav1/cd"),
-                   "--out", out) == 0
+    assert (
+        predict(
+            "--model",
+            model_dir,
+            *bag_args(bag, "--hfov", 90, "--frame-skip", 2, "--out-namespace", "/uav1/cd"),
+            "--out",
+            out,
+        )
+        == 0
+    )
     msgs = read_bag(out / "bag")
-    assert sorted(msgs) == ["/uav1/cd/camera_info", "/uav1/cd/depth", "/uav1/cd/depth_status", "/uav1/cd/depth_valid",
-                            "/uav1/cd/labels", "/uav1/cd/labels_color"]
+    assert sorted(msgs) == [
+        "/uav1/cd/camera_info",
+        "/uav1/cd/depth",
+        "/uav1/cd/depth_status",
+        "/uav1/cd/depth_valid",
+        "/uav1/cd/labels",
+        "/uav1/cd/labels_color",
+    ]
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in msgs["/uav1/cd/depth"]]
     assert stamps == image_stamps()[::2]
     np.testing.assert_allclose(msgs["/uav1/cd/camera_info"][0][1].k, [16, 0, 15.5, 0, 16, 15.5, 0, 0, 1])
@@ -197,8 +253,12 @@ def test_gap_in_the_poses_fails_naming_the_stamp_or_is_skipped(model_dir, tmp_pa
     assert err.count("\n") == 0
     assert f"{bag}: topic /cam/image: no pose for the image at stamp 100.117000000" in err
     assert not out.exists() and not leftovers(tmp_path)
-    assert predict("--model", model_dir, *bag_args(bag, "--camera-info-topic", "/cam/info", "--skip-unposed"),
-                   "--out", out) == 0
+    assert (
+        predict(
+            "--model", model_dir, *bag_args(bag, "--camera-info-topic", "/cam/info", "--skip-unposed"), "--out", out
+        )
+        == 0
+    )
     assert f"bag: {N - 2} of {N} images, 2 skipped without a pose" in capsys.readouterr().out
     msgs = read_bag(out / "bag")
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in msgs["/cosemdepth/depth"]]
@@ -224,14 +284,25 @@ def _garbage_ros1(tmp_path: Path) -> Path:
 
 
 BAD = [
-    ("unknown image topic", lambda t: make_bag(t / "in"), ["--image-topic", "/nope"],
-     "topic '/nope' (--image-topic)"),
-    ("unknown camera_info topic", lambda t: make_bag(t / "in", info=False), ["--camera-info-topic", "/cam/info"],
-     "no topic '/cam/info' (--camera-info-topic)"),
-    ("wrong message type", lambda t: make_bag(t / "in"), ["--pose-topic", "/cam/image"],
-     "topic /cam/image (--pose-topic) holds sensor_msgs/msg/Image"),
-    ("distortion", lambda t: make_bag(t / "in", distortion=(0.1, 0.01, 0, 0, 0)), [],
-     "topic /cam/info at stamp 100.003000000: camera_info has a non-zero distortion"),
+    ("unknown image topic", lambda t: make_bag(t / "in"), ["--image-topic", "/nope"], "topic '/nope' (--image-topic)"),
+    (
+        "unknown camera_info topic",
+        lambda t: make_bag(t / "in", info=False),
+        ["--camera-info-topic", "/cam/info"],
+        "no topic '/cam/info' (--camera-info-topic)",
+    ),
+    (
+        "wrong message type",
+        lambda t: make_bag(t / "in"),
+        ["--pose-topic", "/cam/image"],
+        "topic /cam/image (--pose-topic) holds sensor_msgs/msg/Image",
+    ),
+    (
+        "distortion",
+        lambda t: make_bag(t / "in", distortion=(0.1, 0.01, 0, 0, 0)),
+        [],
+        "topic /cam/info at stamp 100.003000000: camera_info has a non-zero distortion",
+    ),
     ("empty bag", _empty_bag, [], "no topic '/cam/info' (--camera-info-topic); topics in the bag: none"),
     ("corrupt bag", _corrupt_bag, [], "cannot read the bag"),
     ("corrupt ROS 1 bag", _garbage_ros1, [], "cannot read the bag"),
@@ -247,7 +318,7 @@ def test_bad_bags_fail_with_one_line_and_leave_nothing(model_dir, tmp_path, caps
     for i in range(0, len(extra), 2):  # override an option
         j = args.index(extra[i]) if extra[i] in args else None
         if j is None:
-            args += extra[i:i + 2]
+            args += extra[i : i + 2]
         else:
             args[j + 1] = extra[i + 1]
     assert predict("--model", model_dir, *args, "--out", out) == 2, what
@@ -268,8 +339,11 @@ def test_empty_image_topic_and_bad_arguments(model_dir, tmp_path, capsys):
     with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
         w.add_connection("/cam/image", "sensor_msgs/msg/Image", typestore=ts)
         c = w.add_connection("/odom", "geometry_msgs/msg/PoseStamped", typestore=ts)
-        w.write(c, 1, ts.serialize_cdr(pose_msg(ts, "geometry_msgs/msg/PoseStamped", 1, p, q),
-                                       "geometry_msgs/msg/PoseStamped"))
+        w.write(
+            c,
+            1,
+            ts.serialize_cdr(pose_msg(ts, "geometry_msgs/msg/PoseStamped", 1, p, q), "geometry_msgs/msg/PoseStamped"),
+        )
     out = tmp_path / "out"
     assert predict("--model", model_dir, *bag_args(bag, "--hfov", 90), "--out", out) == 2
     assert f"{bag}: topic /cam/image (--image-topic) holds no messages" in capsys.readouterr().err
@@ -298,10 +372,18 @@ def test_jpeg_compressed_bag_decodes_like_a_jpeg_flight(model_dir, tmp_path, cap
         p, q = trajectory(ns / 1e9 - BASE)
         msgs.append(("/odom", pose_msg(ts, "geometry_msgs/msg/PoseStamped", ns, p, q), ns))
     for ns, data in zip(image_stamps(), jpegs):
-        hdr = ts.types["std_msgs/msg/Header"](stamp=ts.types["builtin_interfaces/msg/Time"](
-            sec=ns // 10**9, nanosec=ns % 10**9), frame_id="cam")
-        msgs.append(("/cam/image", ts.types["sensor_msgs/msg/CompressedImage"](
-            header=hdr, format="jpeg", data=np.frombuffer(data, np.uint8)), ns))
+        hdr = ts.types["std_msgs/msg/Header"](
+            stamp=ts.types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9), frame_id="cam"
+        )
+        msgs.append(
+            (
+                "/cam/image",
+                ts.types["sensor_msgs/msg/CompressedImage"](
+                    header=hdr, format="jpeg", data=np.frombuffer(data, np.uint8)
+                ),
+                ns,
+            )
+        )
     bag = write_bag(tmp_path / "in", msgs, "mcap")
     images, poses = make_flight(tmp_path / "flight")
     for f in images.iterdir():
@@ -310,9 +392,10 @@ def test_jpeg_compressed_bag_decodes_like_a_jpeg_flight(model_dir, tmp_path, cap
         (images / f"{ns / 1e9:.6f}.jpg").write_bytes(data)
     depth = {}
     for idct in ("fast", "accurate"):
-        for how, args in (("bag", bag_args(bag, "--hfov", 90)),
-                          ("flight", ["--flight", "--images", images, "--poses", poses, "--hfov", 90,
-                                      "--convention", "flu"])):
+        for how, args in (
+            ("bag", bag_args(bag, "--hfov", 90)),
+            ("flight", ["--flight", "--images", images, "--poses", poses, "--hfov", 90, "--convention", "flu"]),
+        ):
             out = tmp_path / f"{how}-{idct}"
             assert predict("--model", model_dir, *args, "--size", 16, "--jpeg-idct", idct, "--out", out) == 0
             man = json.loads((out / "predictions.json").read_text())
@@ -327,8 +410,9 @@ def test_a_bag_runs_at_the_model_s_focal_length_from_its_camera_info(tmp_path):
     from cosemdepth.cli.predict import _open
     from cosemdepth.operating_point import OperatingPoint
 
-    model = save_model(build_model(arch="cosemdepth", levels=2), tmp_path / "m",
-                       operating_point=OperatingPoint((16, 16), (8.0, 8.0)))
+    model = save_model(
+        build_model(arch="cosemdepth", levels=2), tmp_path / "m", operating_point=OperatingPoint((16, 16), (8.0, 8.0))
+    )
     bag = make_bag(tmp_path / "in")
     argv = ["predict", "--model", model, *bag_args(bag, "--camera-info-topic", "/cam/info"), "--out", tmp_path / "o"]
     ds = _open(build_parser(only="predict").parse_args([str(a) for a in argv]))

@@ -15,11 +15,11 @@ import pytest
 import torch
 from PIL import Image
 
-from cosemdepth.models.config import ModelConfig
 from cosemdepth.data.sequence import SequenceDataset, Trajectory
 from cosemdepth.evaluation.predict import predict
 from cosemdepth.evaluation.visualize import DEPTH_PNG_SCALE
 from cosemdepth.models import StepOutput, StreamState
+from cosemdepth.models.config import ModelConfig
 
 H = W = 9
 K = [8.0, 8.0, 4.5, 4.5]
@@ -46,8 +46,9 @@ class Plane(torch.nn.Module):
 
 
 def flight(n=len(MOTION)) -> SequenceDataset:
-    traj = Trajectory("hover", [str(k) for k in range(n)], np.tile([1.0, 0, 0, 0], (n, 1)), np.array(MOTION[:n]),
-                      np.arange(n))
+    traj = Trajectory(
+        "hover", [str(k) for k in range(n)], np.tile([1.0, 0, 0, 0], (n, 1)), np.array(MOTION[:n]), np.arange(n)
+    )
     return SequenceDataset([traj], lambda rec: {"rgb": torch.full((3, H, W), 0.5)}, torch.tensor(K), name="own")
 
 

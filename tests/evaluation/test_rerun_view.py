@@ -4,11 +4,15 @@
 import json
 
 import numpy as np
-
-from _outputs import leftovers  # (puts tests/data on the path)
-from _outputs import _one_thread, data, model_dir  # noqa: F401 (pytest fixtures)
-from cosemdepth.cli.main import main
+from _outputs import (  # noqa: F401 (pytest fixtures)
+    _one_thread,
+    data,
+    leftovers,  # (puts tests/data on the path)
+    model_dir,
+)
 from test_predict_bag import N, bag_args, image_stamps, make_bag
+
+from cosemdepth.cli.main import main
 
 
 def read_rrd(path) -> dict[str, list]:
@@ -36,8 +40,24 @@ def column(batches, suffix: str) -> list:
 def test_predict_bag_with_rerun(model_dir, tmp_path):
     bag = make_bag(tmp_path / "in")
     out, rrd = tmp_path / "out", tmp_path / "flight.rrd"
-    assert main(["predict", "--model", str(model_dir), *map(str, bag_args(bag, "--camera-info-topic", "/cam/info")),
-                 "--out", str(out), "--rerun", str(rrd), "--video", "none", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "predict",
+                "--model",
+                str(model_dir),
+                *map(str, bag_args(bag, "--camera-info-topic", "/cam/info")),
+                "--out",
+                str(out),
+                "--rerun",
+                str(rrd),
+                "--video",
+                "none",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     ent = read_rrd(rrd)
     for e in ("/world/camera", "/world/camera/image/rgb", "/world/camera/image/depth", "/world/camera/image/labels"):
         assert rows(ent[e]) == N, e
@@ -69,8 +89,24 @@ def test_predict_bag_with_rerun(model_dir, tmp_path):
 
 def test_view_a_dataset_with_metrics(model_dir, data, tmp_path, capsys):
     rrd = tmp_path / "v.rrd"
-    argv = ["view", "--model", str(model_dir), "--dataset", "midair", "--root", str(data), "--split-dir",
-            str(data / "splits"), "--size", "32", "--max-frames", "4", "--rrd", str(rrd), "--no-progress"]
+    argv = [
+        "view",
+        "--model",
+        str(model_dir),
+        "--dataset",
+        "midair",
+        "--root",
+        str(data),
+        "--split-dir",
+        str(data / "splits"),
+        "--size",
+        "32",
+        "--max-frames",
+        "4",
+        "--rrd",
+        str(rrd),
+        "--no-progress",
+    ]
     assert main(argv) == 0
     assert f"open it with: rerun {rrd}" in capsys.readouterr().out
     ent = read_rrd(rrd)
@@ -89,9 +125,10 @@ def test_view_a_dataset_with_metrics(model_dir, data, tmp_path, capsys):
     assert main(argv) == 0
     capsys.readouterr()
     rrd.write_bytes(b"my own notes")
-    for extra, message in (([], f"{rrd}: the --rrd recording exists and cannot be replaced: changed since "
-                                "cosemdepth view wrote it"),
-                           (["--overwrite"], "--overwrite does not apply to view")):  # view has no --overwrite
+    for extra, message in (
+        ([], f"{rrd}: the --rrd recording exists and cannot be replaced: changed since cosemdepth view wrote it"),
+        (["--overwrite"], "--overwrite does not apply to view"),
+    ):  # view has no --overwrite
         assert main([*argv, *extra]) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith(f"cosemdepth view: error: {message}") and "\n" not in err
@@ -102,8 +139,15 @@ def test_view_a_dataset_with_metrics(model_dir, data, tmp_path, capsys):
 def test_rerun_bad_name_and_failure_leaves_nothing(model_dir, tmp_path, capsys):
     bag = make_bag(tmp_path / "in", gap=(100.095, 100.185))
     rrd = tmp_path / "x.rrd"
-    argv = ["predict", "--model", str(model_dir), *map(str, bag_args(bag, "--camera-info-topic", "/cam/info")),
-            "--out", str(tmp_path / "out"), "--no-progress"]
+    argv = [
+        "predict",
+        "--model",
+        str(model_dir),
+        *map(str, bag_args(bag, "--camera-info-topic", "/cam/info")),
+        "--out",
+        str(tmp_path / "out"),
+        "--no-progress",
+    ]
     assert main([*argv, "--rerun", str(tmp_path / "x.txt")]) == 2
     assert "a rerun recording's name must end with .rrd" in capsys.readouterr().err
     assert main([*argv, "--rerun", str(rrd)]) == 2  # no poses around two images

@@ -1,15 +1,19 @@
 import pytest
+from _fakes import fake_dataset
 
 from cosemdepth.errors import ConfigError
 from cosemdepth.evaluation.streaming import StepPlan, make_schedule, trajectory_rows
 
-from _fakes import fake_dataset
-
 
 def test_one_lane_runs_trajectories_one_after_the_other():
     steps = make_schedule([[0, 1, 2], [3, 4]], lanes=1)
-    assert steps == [StepPlan((0,), (0,), (True,)), StepPlan((1,), (0,), (False,)), StepPlan((2,), (0,), (False,)),
-                     StepPlan((3,), (0,), (True,)), StepPlan((4,), (0,), (False,))]
+    assert steps == [
+        StepPlan((0,), (0,), (True,)),
+        StepPlan((1,), (0,), (False,)),
+        StepPlan((2,), (0,), (False,)),
+        StepPlan((3,), (0,), (True,)),
+        StepPlan((4,), (0,), (False,)),
+    ]
 
 
 def test_lanes_refill_then_shrink():

@@ -4,11 +4,10 @@ import json
 import math
 
 import torch
+from _fakes import FakeModel, fake_dataset
 
 from cosemdepth.evaluation.evaluator import evaluate
 from cosemdepth.evaluation.temporal import PairCounts, TemporalConsistency, pair_counts, warp_previous_labels
-
-from _fakes import FakeModel, fake_dataset
 
 IDENTITY = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
 
@@ -28,8 +27,9 @@ def test_no_motion_keeps_every_label_and_no_depth_keeps_none():
     K = torch.tensor([[1.0, 1.0, 1.0, 1.0]])
     warped, valid = warp_previous_labels(prev, torch.full((1, 1, 2, 2), 7.0), IDENTITY, torch.zeros(1, 3), K)
     assert torch.equal(warped, prev) and bool(valid.all())
-    _, valid = warp_previous_labels(prev, torch.tensor([[[[0.0, math.nan], [-1.0, 0.0]]]]), IDENTITY,
-                                    torch.zeros(1, 3), K)
+    _, valid = warp_previous_labels(
+        prev, torch.tensor([[[[0.0, math.nan], [-1.0, 0.0]]]]), IDENTITY, torch.zeros(1, 3), K
+    )
     assert not bool(valid.any())
 
 

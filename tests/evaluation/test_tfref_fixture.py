@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tf_bundle_writer import write_bundle
 
+from cosemdepth.checkpoints.tf_checkpoint import CheckpointReader
 from cosemdepth.errors import CheckpointError
 from cosemdepth.evaluation.tfref_fixture import (
     LAYOUT,
@@ -19,8 +21,6 @@ from cosemdepth.evaluation.tfref_fixture import (
     rebuild_fixture,
     seeded_weight,
 )
-from cosemdepth.checkpoints.tf_checkpoint import CheckpointReader
-from tf_bundle_writer import write_bundle
 
 IN_REPO = Path(__file__).resolve().parents[1] / "fixtures" / "tfref-64x96"
 SHARD = "cp-0000.ckpt.data-00000-of-00001"
@@ -79,8 +79,9 @@ def _full_fixture(folder: Path) -> dict[str, object]:
     tensors["_CHECKPOINTABLE_OBJECT_GRAPH"] = b"an object graph"
     write_bundle(folder / "ckpt" / "cp-0000.ckpt", tensors)
     trainable = [*rule, "enc/conv/1/kernel/.ATTRIBUTES/VARIABLE_VALUE"]
-    (folder / "weights.json").write_text(json.dumps({"variables": [{"checkpoint_key": k, "trainable": True}
-                                                                   for k in trainable]}))
+    (folder / "weights.json").write_text(
+        json.dumps({"variables": [{"checkpoint_key": k, "trainable": True} for k in trainable]})
+    )
     (folder / "meta.json").write_text(json.dumps({"config": {"seed": 4, "bias_std": 0.02}}))
     np.savez(folder / "reference.npz", rgb=np.zeros((1, 1, 2, 2, 3), np.float32))
     return tensors
@@ -90,8 +91,12 @@ def test_compact_and_rebuild_round_trip(tmp_path):
     _full_fixture(tmp_path / "full")
     layout = compact_fixture(tmp_path / "full", tmp_path / "compact")
     assert [p[0] for p in layout["pieces"] if p[3] == "rule"] == sorted(
-        ["enc/conv/0/kernel/.ATTRIBUTES/VARIABLE_VALUE", "enc/conv/0/bias/.ATTRIBUTES/VARIABLE_VALUE",
-         "enc/dn_layers/0/scale/.ATTRIBUTES/VARIABLE_VALUE"])
+        [
+            "enc/conv/0/kernel/.ATTRIBUTES/VARIABLE_VALUE",
+            "enc/conv/0/bias/.ATTRIBUTES/VARIABLE_VALUE",
+            "enc/dn_layers/0/scale/.ATTRIBUTES/VARIABLE_VALUE",
+        ]
+    )
     stored = (tmp_path / "compact" / STORED).read_bytes()
     assert b"an object graph" in stored and np.float32(0.5).tobytes() * 8 in stored
     assert not (tmp_path / "compact" / "ckpt" / SHARD).exists()

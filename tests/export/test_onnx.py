@@ -8,7 +8,6 @@ import torch
 
 from cosemdepth.errors import ConfigError
 from cosemdepth.export import export_onnx, state_names
-from cosemdepth.inference import FastModel
 from cosemdepth.export.check import (
     ABSOLUTE_FLOOR,
     CRITERIA,
@@ -23,6 +22,7 @@ from cosemdepth.export.check import (
     synthetic_sequence,
     valid_depth,
 )
+from cosemdepth.inference import FastModel
 from cosemdepth.models import build_model
 
 H, W = 32, 48
@@ -66,8 +66,13 @@ def test_onnxruntime_matches_pytorch_over_streamed_frames_with_a_reset(exported)
     with torch.no_grad():
         for k in range(t):
             ref, state = m.step(rgb[:, k], rot[:, k], trans[:, k], K, reset[:, k], state)
-            feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy(),
-                     "intrinsics": K.numpy(), "reset": reset[:, k].numpy()}
+            feeds = {
+                "rgb": rgb[:, k].numpy(),
+                "rot": rot[:, k].numpy(),
+                "trans": trans[:, k].numpy(),
+                "intrinsics": K.numpy(),
+                "reset": reset[:, k].numpy(),
+            }
             res, ort_state = run_onnx_stream(sess, feeds, ort_state)
             d = ref.depth.numpy()
             assert np.max(np.abs(res["depth"] - d) / np.abs(d)) < 1e-3, k
@@ -84,8 +89,13 @@ def test_single_task_graphs_and_bad_opset(tmp_path):
     assert [i.name for i in sess.get_inputs()] == ["rgb"]  # no temporal input: the unused ones are dropped
     assert [o.name for o in sess.get_outputs()] == ["semantic"]
     x = torch.rand(1, 3, 16, 16)
-    feeds = {"rgb": x.numpy(), "rot": np.array([[1, 0, 0, 0]], np.float32), "trans": np.zeros((1, 3), np.float32),
-             "intrinsics": np.array([[8, 8, 8, 8]], np.float32), "reset": np.array([True])}
+    feeds = {
+        "rgb": x.numpy(),
+        "rot": np.array([[1, 0, 0, 0]], np.float32),
+        "trans": np.zeros((1, 3), np.float32),
+        "intrinsics": np.array([[8, 8, 8, 8]], np.float32),
+        "reset": np.array([True]),
+    }
     with torch.no_grad():
         ref = sem.step(x, torch.tensor([[1.0, 0, 0, 0]]), torch.zeros(1, 3), torch.tensor([[8.0, 8, 8, 8]]))[0]
     res, state = run_onnx_stream(sess, feeds, [])
@@ -109,8 +119,13 @@ def test_float_reset_input_for_runtimes_without_bool(tmp_path):
     state = [np.zeros(i.shape, np.float32) for i in sess.get_inputs() if i.name.startswith("state_")]
     depths = []
     for k, r in enumerate([1.0, 0.0]):
-        feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy(),
-                 "intrinsics": K.numpy(), "reset": np.array([r], np.float32)}
+        feeds = {
+            "rgb": rgb[:, k].numpy(),
+            "rot": rot[:, k].numpy(),
+            "trans": trans[:, k].numpy(),
+            "intrinsics": K.numpy(),
+            "reset": np.array([r], np.float32),
+        }
         res, state = run_onnx_stream(sess, feeds, state)
         depths.append(res["depth"])
     assert np.all(depths[0] == 1000.0) and not np.all(depths[1] == 1000.0)
@@ -248,7 +263,7 @@ def test_sequential_spatial_mean_sums_in_float32_chains():
     assert sequential_spatial_mean(x, lanes=1).item() == np.float32(1.0) / np.float32(18)
     # lane 0: 1 + 4 tiny terms (all lost); lanes 1-3: 13 tiny terms exactly (5+4+4); 1 + 13 * 2^-24 rounds to
     # 1 + 12 * 2^-24 (float32 spacing at 1 is 2^-23, ties to even)
-    four = (np.float32(1.0) + np.float32(5 * 2.0**-24) + np.float32(4 * 2.0**-24) + np.float32(4 * 2.0**-24))
+    four = np.float32(1.0) + np.float32(5 * 2.0**-24) + np.float32(4 * 2.0**-24) + np.float32(4 * 2.0**-24)
     assert four == np.float32(1 + 12 * 2.0**-24)
     assert sequential_spatial_mean(x, lanes=4).item() == four / np.float32(18)
     assert sequential_spatial_mean(x.double(), lanes=4).item() == (1.0 + 17 * 2.0**-24) / 18

@@ -12,8 +12,9 @@ IDENTITY = torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=torch.float64)
 
 
 def grid(h, w):
-    rows, cols = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64),
-                                indexing="ij")
+    rows, cols = torch.meshgrid(
+        torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij"
+    )
     return cols, rows
 
 
@@ -34,8 +35,10 @@ def test_rotation_and_translation_agree_with_direct_projection():
     h, w = 5, 7
     K = torch.tensor([[6.0, 5.0, 3.3, 2.6]], dtype=torch.float64)
     angle = 0.05
-    q = torch.tensor([[math.cos(angle / 2), 0.3 * math.sin(angle / 2), math.sqrt(1 - 0.09) * math.sin(angle / 2), 0]],
-                     dtype=torch.float64)
+    q = torch.tensor(
+        [[math.cos(angle / 2), 0.3 * math.sin(angle / 2), math.sqrt(1 - 0.09) * math.sin(angle / 2), 0]],
+        dtype=torch.float64,
+    )
     t = torch.tensor([[0.2, -0.1, 0.8]], dtype=torch.float64)
     g = np.random.default_rng(0)
     depth = torch.from_numpy(g.uniform(3.0, 30.0, (1, 1, h, w)))

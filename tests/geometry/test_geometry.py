@@ -36,7 +36,9 @@ def test_quaternion_matrix_is_rotation_and_matches_axis_angle():
     # 90 degrees about z: x -> y
     s = math.sqrt(0.5)
     Rz = quaternion_to_matrix(torch.tensor([s, 0, 0, s], dtype=torch.float64))
-    torch.testing.assert_close(Rz @ torch.tensor([1.0, 0, 0], dtype=torch.float64), torch.tensor([0.0, 1, 0], dtype=torch.float64))
+    torch.testing.assert_close(
+        Rz @ torch.tensor([1.0, 0, 0], dtype=torch.float64), torch.tensor([0.0, 1, 0], dtype=torch.float64)
+    )
 
 
 def test_small_angle_matrix():

@@ -7,11 +7,11 @@ import copy
 import pytest
 import torch
 
-from cosemdepth.models.config import ModelConfig
 from cosemdepth.export.check import synthetic_sequence
 from cosemdepth.inference import FastModel
 from cosemdepth.inference.graphs import make_streamer
 from cosemdepth.models import build_model
+from cosemdepth.models.config import ModelConfig
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 B, T, H, W = 1, 4, 32, 32
@@ -64,8 +64,10 @@ def test_fp32_paths_stream_like_the_reference_on_the_cpu(model, reference, devic
             torch.testing.assert_close(out.semantic.cpu(), ref[k][1], rtol=0, atol=1e-4)
 
 
-@pytest.mark.parametrize("device,dtype", [(d, t) for d in DEVICES for t in
-                                          ((torch.bfloat16,) if d == "cpu" else (torch.float16, torch.bfloat16))])
+@pytest.mark.parametrize(
+    "device,dtype",
+    [(d, t) for d in DEVICES for t in ((torch.bfloat16,) if d == "cpu" else (torch.float16, torch.bfloat16))],
+)
 def test_reduced_precision_stays_close_to_fp32(model, reference, device, dtype):
     from cosemdepth.devices import bf16_convolutions
 

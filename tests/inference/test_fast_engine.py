@@ -5,8 +5,8 @@ from cosemdepth.inference import FastEngine, FastModel
 from cosemdepth.inference.convs import HAS_MKLDNN_POINTWISE, PackedConv
 from cosemdepth.models import SceneModel, StreamState, build_model
 from cosemdepth.models.pyramid import decode_step
-from cosemdepth.ops.resample import resize_nn2
 from cosemdepth.ops.padding import Conv2dSame
+from cosemdepth.ops.resample import resize_nn2
 
 
 def sequence(b=2, t=4, h=32, w=48, seed=0):
@@ -114,7 +114,9 @@ def test_fp32_fast_streams_like_the_reference_over_frames_with_a_reset():
         for p in (0.5, 0.99):  # the bulk of the pixels: the same rounding error as the reference
             assert torch.quantile(err_fast, p) <= 2 * torch.quantile(err_ref, p) + 1e-7, (k, p)
         worst_ref = max(err_ref.max(), rel_errors(c.depth.double(), e).max())
-        assert err_fast.max() <= 5 * worst_ref + 1e-4, k  # worst pixel: the same order (+1e-4: a lucky worst pixel of the reference, 1.2e-5 vs 6.3e-5 seen once)
+        assert err_fast.max() <= 5 * worst_ref + 1e-4, (
+            k
+        )  # worst pixel: the same order (+1e-4: a lucky worst pixel of the reference, 1.2e-5 vs 6.3e-5 seen once)
         assert rel(a.depth, b.depth) < 1e-2, k
         torch.testing.assert_close(a.semantic, b.semantic, rtol=0, atol=1e-5)
     assert torch.all(outs["fast"][3].depth[1] == 1000.0)  # the reset sample outputs the init depth
@@ -147,8 +149,11 @@ def test_bf16_keeps_the_coarse_depth_levels_in_float32_and_all_float32_levels_is
         for lvl, o in zip(dec.levels, default.ops[name]):
             want = torch.float32 if name == "depth" and lvl.level >= 3 else torch.bfloat16
             assert [c.weight.dtype for c in o.refiner.hidden] == [want] * 6, (name, lvl.level)
-    assert all(c.weight.dtype == torch.bfloat16 for o in FastEngine(m, dtype="bf16", float32_levels={}).ops["depth"]
-               for c in o.refiner.hidden)
+    assert all(
+        c.weight.dtype == torch.bfloat16
+        for o in FastEngine(m, dtype="bf16", float32_levels={}).ops["depth"]
+        for c in o.refiner.hidden
+    )
     # every level float32: the bf16 engine is the fp32 engine, bit for bit
     every = {name: tuple(lvl.level for lvl in dec.levels) for name, dec in m.decoders.items()}
     mixed, fp32 = FastEngine(m, dtype="bf16", float32_levels=every), FastEngine(m)
@@ -208,8 +213,11 @@ def test_the_fast_model_checks_its_inputs_and_decoders_as_the_model_does(models)
     fm = FastModel(m)
     rgb, q, tr, K = sequence(b=2, t=1)
     good = (rgb[:, 0], q[:, 0], tr[:, 0], K)
-    bad = [((rgb[:, 0, :2], *good[1:]), "argument rgb"), ((good[0], q[:1, 0], *good[2:]), "argument rot"),
-           ((*good[:3], K[:, :3]), "argument intrinsics")]
+    bad = [
+        ((rgb[:, 0, :2], *good[1:]), "argument rgb"),
+        ((good[0], q[:1, 0], *good[2:]), "argument rot"),
+        ((*good[:3], K[:, :3]), "argument intrinsics"),
+    ]
     for args, message in bad:
         for path in (m, fm):
             with pytest.raises(ValueError, match=message):
@@ -250,7 +258,13 @@ def test_static_engine_needs_a_state_and_gives_zero_state_shapes(models):
     with pytest.raises(ValueError, match="explicit state"):
         engine.step(rgb[:, 0], q[:, 0], tr[:, 0], K, torch.tensor([True]), None)
     zero = engine.zero_state(1, 40, 56)
-    assert [tuple(f.shape) for f in zero.features] == [(1, 16, 20, 28), (1, 32, 10, 14), (1, 64, 5, 7), (1, 96, 3, 4), (1, 128, 2, 2)]
+    assert [tuple(f.shape) for f in zero.features] == [
+        (1, 16, 20, 28),
+        (1, 32, 10, 14),
+        (1, 64, 5, 7),
+        (1, 96, 3, 4),
+        (1, 128, 2, 2),
+    ]
     out, state = engine.step(rgb[:, 0], q[:, 0], tr[:, 0], K, torch.tensor([True]), zero)
     assert torch.all(out.depth == 1000.0) and torch.all(state.depths[1] == 1000.0)
     with pytest.raises(ValueError, match="dtype"):

@@ -8,7 +8,6 @@ from cosemdepth.models import build_model
 from cosemdepth.ops.padding import Conv2dSame
 
 
-
 def sequence(b=2, t=4, h=32, w=48, seed=0):
     g = torch.Generator().manual_seed(seed)
     coarse = torch.rand(b * t, 3, h // 8, w // 8, generator=g)
@@ -33,6 +32,7 @@ def resets(b, t, extra=()):
     for i, k in extra:
         r[i, k] = True
     return r
+
 
 pytestmark = pytest.mark.skipif(not has_int8(), reason="this PyTorch build has no oneDNN quantized convolution")
 
@@ -60,8 +60,25 @@ def test_activation_qmax_is_the_largest_input_whose_convolution_is_exact():
     w = torch.full((1, 16, 3, 3), 127, dtype=torch.int8)
     one = torch.ones(1)
     packed = torch.ops.onednn.qconv_prepack(w, one, 1.0, 0, [1, 1], [0, 0], [1, 1], 1, list(x.shape))
-    y = torch.ops.onednn.qconv2d_pointwise(x, 1.0, 0, packed, one, torch.zeros(1, dtype=torch.int32), None,
-                                           [1, 1], [0, 0], [1, 1], 1, 1e5, 0, None, "none", [], "")
+    y = torch.ops.onednn.qconv2d_pointwise(
+        x,
+        1.0,
+        0,
+        packed,
+        one,
+        torch.zeros(1, dtype=torch.int32),
+        None,
+        [1, 1],
+        [0, 0],
+        [1, 1],
+        1,
+        1e5,
+        0,
+        None,
+        "none",
+        [],
+        "",
+    )
     assert int(y.flatten()[0]) == round(qmax * 127 * 144 / 1e5)
 
 
@@ -236,6 +253,7 @@ def test_equalized_chain_computes_the_same_function_with_even_channel_ranges():
     x2 = x * in_mult
     assert torch.allclose(xr2[0].hi, x2.amax(dim=(0, 2, 3)), rtol=1e-5)
     assert torch.allclose(yr2[0].lo, eq[0](x2).amin(dim=(0, 2, 3)).detach(), rtol=1e-4, atol=1e-5)
+
     # alpha 0.5: the input channels' ranges become sqrt(|x_c| max|w[:, c]|): their spread about the square root of
     # the 1e4 before (the weights' per-channel maxima of a fresh layer are within a factor ~2 of each other)
     def spread(r):

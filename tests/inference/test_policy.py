@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from cosemdepth.errors import ConfigError
-from cosemdepth.inference.policy import BASELINE, EVERY_FRAME, StreamPolicy, Streamer, policy_info
+from cosemdepth.inference.policy import BASELINE, EVERY_FRAME, Streamer, StreamPolicy, policy_info
 from cosemdepth.models import StepOutput, StreamState
 
 N = 33  # odd: pixel (16, 16) lies on the optical axis
@@ -79,8 +79,14 @@ def test_hover_frames_are_held_with_the_reference_depth_and_the_next_estimate_us
     outs = run(model, [fwd(0), fwd(2.0), fwd(0), fwd(0), fwd(0), fwd(2.0)])
     assert [o.status[0] for o in outs] == ["reset", "estimated", "held", "held", "held", "estimated"]
     # the depth decoder ran on the reset and the two estimates only; the last one against frame 1, the reference
-    assert [(f, ran) for f, ran, _, _ in model.calls] == [(0, True), (1, True), (2, False), (3, False), (4, False),
-                                                          (5, True)]
+    assert [(f, ran) for f, ran, _, _ in model.calls] == [
+        (0, True),
+        (1, True),
+        (2, False),
+        (3, False),
+        (4, False),
+        (5, True),
+    ]
     assert model.calls[5][2] == pytest.approx([0, 0, 2.0]) and model.calls[5][3] == 1
     for o in outs[2:5]:  # no motion: the reference's depth exactly, with its mask
         assert torch.equal(o.depth, outs[1].depth) and torch.equal(o.valid, outs[1].valid)

@@ -8,7 +8,9 @@ from cosemdepth.models import build_model
 
 def sequence(b, t, h, w, seed=0):
     g = torch.Generator().manual_seed(seed)
-    rgb = torch.nn.functional.interpolate(torch.rand(b * t, 3, h // 8, w // 8, generator=g), size=(h, w), mode="bilinear")
+    rgb = torch.nn.functional.interpolate(
+        torch.rand(b * t, 3, h // 8, w // 8, generator=g), size=(h, w), mode="bilinear"
+    )
     q = torch.nn.functional.normalize(torch.tensor([1.0, 0, 0, 0]) + 0.01 * torch.randn(b, t, 4, generator=g), dim=-1)
     tr = torch.tensor([0.05, -0.02, 1.0]) + 0.1 * torch.randn(b, t, 3, generator=g)
     return rgb.view(b, t, 3, h, w), q, tr, torch.tensor([w / 2, h / 2, w / 2, h / 2]).expand(b, 4).contiguous()

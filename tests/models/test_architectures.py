@@ -10,13 +10,13 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from cosemdepth.models.config import ARCHITECTURES
+from cosemdepth.checkpoints.model_io import load_model, save_model
 from cosemdepth.errors import ConfigError
 from cosemdepth.export import export_onnx
 from cosemdepth.export.check import run_onnx_stream, synthetic_sequence
-from cosemdepth.checkpoints.model_io import load_model, save_model
 from cosemdepth.inference import FastModel
 from cosemdepth.models import build_model
+from cosemdepth.models.config import ARCHITECTURES
 from cosemdepth.models.layers import Refiner
 from cosemdepth.models.pyramid import PyramidDecoder, PyramidLevel
 from cosemdepth.models.registry import DECODERS, register_architecture, register_decoder
@@ -76,8 +76,10 @@ def toy_registered():
 
 
 #: Model-config variants that go through the same checks: name -> build_model keywords.
-SWITCHES = {"cosemdepth+sncv": dict(arch="cosemdepth", semantic_sncv=True),
-            "cosemdepth+s_prev_gt": dict(arch="cosemdepth", semantic_time="gt")}
+SWITCHES = {
+    "cosemdepth+sncv": dict(arch="cosemdepth", semantic_sncv=True),
+    "cosemdepth+s_prev_gt": dict(arch="cosemdepth", semantic_time="gt"),
+}
 ARCHS = [*BUILTIN, "cosemtoy", *SWITCHES]
 
 
@@ -200,8 +202,13 @@ def test_onnx_export_runs_in_onnxruntime_like_pytorch(models, arch, tmp_path):
     ort_state = [np.zeros(i.shape, np.float32) for i in sess.get_inputs() if i.name.startswith("state_")]
     ref, _ = stream(m, rgb, rot, trans, K, reset)
     for k in range(T):
-        feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy(),
-                 "intrinsics": K.numpy(), "reset": reset[:, k].numpy()}
+        feeds = {
+            "rgb": rgb[:, k].numpy(),
+            "rot": rot[:, k].numpy(),
+            "trans": trans[:, k].numpy(),
+            "intrinsics": K.numpy(),
+            "reset": reset[:, k].numpy(),
+        }
         res, ort_state = run_onnx_stream(sess, feeds, ort_state)
         for h in heads:
             want = ref[k].heads[h].numpy()

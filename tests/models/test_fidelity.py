@@ -10,10 +10,9 @@ must also meet the bar.
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
-
-from pathlib import Path
 
 from cosemdepth.evaluation.fidelity import compare_with_reference
 

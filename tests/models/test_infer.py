@@ -24,8 +24,9 @@ def model():
 def inputs(b=2, t=5, h=32, w=48, seed=1):
     g = torch.Generator().manual_seed(seed)
     rgb = torch.rand(b, t, 3, h, w, generator=g)
-    q = torch.nn.functional.normalize(torch.tensor([1.0, 0.0, 0.0, 0.0]) + 0.02 * torch.randn(b, t, 4, generator=g),
-                                      dim=-1)
+    q = torch.nn.functional.normalize(
+        torch.tensor([1.0, 0.0, 0.0, 0.0]) + 0.02 * torch.randn(b, t, 4, generator=g), dim=-1
+    )
     tr = torch.tensor([0.0, 0.0, 1.0]) + 0.1 * torch.randn(b, t, 3, generator=g)
     K = torch.tensor([w / 2, h / 2, w / 2, h / 2]).expand(b, 4).contiguous()
     return rgb, q, tr, K
@@ -81,7 +82,7 @@ def test_the_five_lines_on_a_saved_model(model, tmp_path):
     save_model(model, tmp_path / "m")
     rgb, q, tr, K = inputs(b=1, t=3)
     loaded = load_model(tmp_path / "m", mode="reference")  # bit-identical to `model`; the default fast path:
-    state = None                                            # tests/inference/test_fast_engine.py
+    state = None  # tests/inference/test_fast_engine.py
     for k in range(3):
         out, state = loaded.step(rgb[:, k], q[:, k], tr[:, k], K, torch.tensor([k == 0]), state)
     ref = model.infer(rgb, (q, tr), K)

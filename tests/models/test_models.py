@@ -3,8 +3,8 @@ import copy
 import pytest
 import torch
 
-from cosemdepth.models.config import ModelConfig
 from cosemdepth.models import DINL, Refiner, StreamState, build_model
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.models.depth_decoder import refiner_in_channels
 
 

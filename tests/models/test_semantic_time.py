@@ -6,8 +6,8 @@ import torch
 
 from cosemdepth.errors import ConfigError
 from cosemdepth.export.check import synthetic_sequence
-from cosemdepth.models.config import ModelConfig
 from cosemdepth.models import build_model
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.models.semantic_decoder import SemanticFrame, SemanticLevel, semantic_refiner_in_channels
 
 N = 7
@@ -18,8 +18,13 @@ def level1():
 
 
 def frame(trans, depth, fresh=None, intrinsics=(8.0, 8.0, 4.0, 2.0)):
-    return SemanticFrame(torch.eye(3).unsqueeze(0), torch.tensor([trans]), torch.tensor([intrinsics]), fresh,
-                         None if depth is None else [depth])
+    return SemanticFrame(
+        torch.eye(3).unsqueeze(0),
+        torch.tensor([trans]),
+        torch.tensor([intrinsics]),
+        fresh,
+        None if depth is None else [depth],
+    )
 
 
 def test_a_sideways_step_reads_the_previous_probabilities_one_pixel_over_and_nothing_outside_the_view():
@@ -38,8 +43,13 @@ def test_no_previous_frame_or_a_reset_gives_an_empty_temporal_input():
     lvl, f_hat = level1(), torch.zeros(2, 16, h, w)
     prev = torch.rand(2, N, h, w)
     depth = torch.full((2, 1, h, w), 4.0)
-    fr = SemanticFrame(torch.eye(3).expand(2, 3, 3), torch.zeros(2, 3), torch.tensor([[8.0, 8.0, 4.0, 2.0]] * 2),
-                       torch.tensor([True, False]), [depth])
+    fr = SemanticFrame(
+        torch.eye(3).expand(2, 3, 3),
+        torch.zeros(2, 3),
+        torch.tensor([[8.0, 8.0, 4.0, 2.0]] * 2),
+        torch.tensor([True, False]),
+        [depth],
+    )
     warped, valid = lvl.previous_probs(f_hat, fr, prev)
     assert not valid[0].any() and not warped[0].any()  # sample 0 resets
     assert valid[1].all() and torch.allclose(warped[1], prev[1])  # no motion: the previous map itself
@@ -89,5 +99,6 @@ def test_the_ground_truth_variant_needs_a_depth_and_the_others_refuse_one():
     with torch.no_grad(), pytest.raises(ValueError, match="guide_depth.*needs its depth"):
         gt.step(rgb[:, 0], rot[:, 0], trans[:, 0], K, torch.tensor([True]), None)
     with torch.no_grad(), pytest.raises(ValueError, match="takes no ground-truth depth"):
-        build_model(arch="cosemdepth-t", levels=2).step(rgb[:, 0], rot[:, 0], trans[:, 0], K, None, None,
-                                                        guide_depth=torch.ones(1, 1, 32, 32))
+        build_model(arch="cosemdepth-t", levels=2).step(
+            rgb[:, 0], rot[:, 0], trans[:, 0], K, None, None, guide_depth=torch.ones(1, 1, 32, 32)
+        )

@@ -22,7 +22,9 @@ def test_values_layout_and_gradients_fp32():
     assert y.is_contiguous(memory_format=CL) and y.dtype == torch.float32
     g = torch.arange(y.numel(), dtype=torch.float32).view(y.shape)
     y.backward(g)
-    assert torch.equal(xs[0].grad, g[:, :3]) and torch.equal(xs[1].grad, g[:, 3:4]) and torch.equal(xs[2].grad, g[:, 4:])
+    assert (
+        torch.equal(xs[0].grad, g[:, :3]) and torch.equal(xs[1].grad, g[:, 3:4]) and torch.equal(xs[2].grad, g[:, 4:])
+    )
 
 
 def test_contiguous_when_no_block_is_channels_last():

@@ -104,7 +104,7 @@ def test_pscv_backward_matches_finite_differences(groups):
     b, c, h, w, s = 1, 4, 4, 5, 3
     f = torch.randn(b, c, h, w, generator=g, dtype=torch.float64, requires_grad=True)
     prev = torch.randn(b, c + 1, h, w, generator=g, dtype=torch.float64, requires_grad=True)
-    pts = (_grid_points(b, s, h, w).double() + 0.37 + 0.2 * torch.rand(b, s, 2, h, w, generator=g, dtype=torch.float64))
+    pts = _grid_points(b, s, h, w).double() + 0.37 + 0.2 * torch.rand(b, s, 2, h, w, generator=g, dtype=torch.float64)
     pts.requires_grad_()
     assert torch.autograd.gradcheck(lambda *t: parallax_sweep_cost_volume(*t, groups), (f, prev, pts))
 
@@ -119,8 +119,12 @@ def test_pscv_equals_the_product_and_group_mean():
     pts = _grid_points(b, s, h, w) + 2 * torch.randn(b, s, 2, h, w, generator=g)
     pscv, para = parallax_sweep_cost_volume(f, prev, pts, k)
     warped = torch.nn.functional.grid_sample(  # the sampler by hand: positions in pixels -> [-1, 1], border clamp
-        prev, torch.stack([pts[:, :, 0] * 2 / (w - 1) - 1, pts[:, :, 1] * 2 / (h - 1) - 1], -1).flatten(1, 2),
-        mode="bilinear", padding_mode="border", align_corners=True).view(b, c + 1, s, h, w)
+        prev,
+        torch.stack([pts[:, :, 0] * 2 / (w - 1) - 1, pts[:, :, 1] * 2 / (h - 1) - 1], -1).flatten(1, 2),
+        mode="bilinear",
+        padding_mode="border",
+        align_corners=True,
+    ).view(b, c + 1, s, h, w)
     want = (f.unsqueeze(2) * warped[:, :c]).view(b, k, c // k, s, h, w).mean(2).reshape(b, k * s, h, w)
     torch.testing.assert_close(pscv, want, rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(para, warped[:, c])
@@ -132,7 +136,8 @@ def test_pscv_equals_the_product_and_group_mean():
 
 
 @pytest.mark.parametrize(
-    "shape, groups, radius", [((2, 16, 9, 13), 1, 3), ((1, 32, 6, 5), 2, 3), ((1, 8, 1, 1), 2, 3), ((2, 6, 7, 4), 3, 1)])
+    "shape, groups, radius", [((2, 16, 9, 13), 1, 3), ((1, 32, 6, 5), 2, 3), ((1, 8, 1, 1), 2, 3), ((2, 6, 7, 4), 3, 1)]
+)
 def test_sncv_export_form_equals_the_channel_loop(shape, groups, radius):
     """The form the ONNX export records (channels-last sums) is the same SNCV: same channels, same values."""
     from cosemdepth.ops.cost_volume import _sncv_channel_loop, _spatial_correlation_traceable

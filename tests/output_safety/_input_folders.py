@@ -33,9 +33,12 @@ def _model_and_checkpoint(root: Path) -> tuple[Path, Path]:
 
     create_run_dir(root / "run", RunConfig())
     ckpt = CheckpointManager(root / "run" / "checkpoints").save(
-        model_state=model.state_dict(), model_config=model.config,
-        optimizer_state=torch.optim.Adam(model.parameters()).state_dict(), trainer_state={"step": 1, "epoch": 0},
-        rng_state=get_rng_state())
+        model_state=model.state_dict(),
+        model_config=model.config,
+        optimizer_state=torch.optim.Adam(model.parameters()).state_dict(),
+        trainer_state={"step": 1, "epoch": 0},
+        rng_state=get_rng_state(),
+    )
     return root / "model", ckpt
 
 
@@ -80,8 +83,13 @@ def make_input_folders(root: Path) -> dict[str, Path]:
     (flight / "poses.txt").write_text("0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n")
     out["a flight (images and a pose file)"] = flight
     ts = typestore(False)
-    bag = write_bag(root / "bag", [("/cam/image", image_msg(ts, 1, np.zeros((4, 4, 3), np.uint8)), 1),
-                                   ("/cam/info", camera_info_msg(ts, 1, 4, 4, (2, 2, 2, 2)), 1)])
+    bag = write_bag(
+        root / "bag",
+        [
+            ("/cam/image", image_msg(ts, 1, np.zeros((4, 4, 3), np.uint8)), 1),
+            ("/cam/info", camera_info_msg(ts, 1, 4, 4, (2, 2, 2, 2)), 1),
+        ],
+    )
     out["a ROS 2 bag"] = bag
     return out
 

@@ -33,21 +33,32 @@ def _markers() -> set[str]:
 
 
 def test_the_markers_are_the_owners_names():
+    from cosemdepth.checkpoints import model_io
     from cosemdepth.data import flight, topair_splits
     from cosemdepth.data.midair import format as fmt
     from cosemdepth.data.midair.splits import SPLITS
     from cosemdepth.data.registry import dataset_spec
-    from cosemdepth.synthair import writer
-    from cosemdepth.checkpoints import model_io
     from cosemdepth.output_safety import manifest
+    from cosemdepth.synthair import writer
     from cosemdepth.training import checkpoint, rundir
 
     markers = _markers()
     parts = {p for m in markers for p in m.split("/")}
-    for name in (writer.METADATA, rundir.CONFIG_NAME, rundir.EVENTS_NAME, rundir.CHECKPOINTS_NAME, rundir.BEST_NAME,
-                 manifest.MANIFEST_FILE, checkpoint.WEIGHTS_FILE, model_io.CONFIG_FILE, model_io.WEIGHTS_FILE,
-                 fmt.SENSOR_RECORDS, topair_splits.REC_FILE, *flight.DEFAULT_POSE_FILES,
-                 *(f"{s}_data" for s in SPLITS)):
+    for name in (
+        writer.METADATA,
+        rundir.CONFIG_NAME,
+        rundir.EVENTS_NAME,
+        rundir.CHECKPOINTS_NAME,
+        rundir.BEST_NAME,
+        manifest.MANIFEST_FILE,
+        checkpoint.WEIGHTS_FILE,
+        model_io.CONFIG_FILE,
+        model_io.WEIGHTS_FILE,
+        fmt.SENSOR_RECORDS,
+        topair_splits.REC_FILE,
+        *flight.DEFAULT_POSE_FILES,
+        *(f"{s}_data" for s in SPLITS),
+    ):
         assert name in parts, name
     assert "ckpt-*" in parts and checkpoint.checkpoint_name(7).startswith("ckpt-")
     # the sub-folder that dataset roots open to `cosemdepth splits` is the registry's split folder
@@ -55,8 +66,10 @@ def test_the_markers_are_the_owners_names():
     assert opened == {dataset_spec("synthair").split_dir, dataset_spec("topair").split_dir} == {writer.SPLITS_DIR}
     # every image extension the flight reader takes counts as a flight's images, in any case
     import fnmatch
-    image_globs = [m for k in INPUT_KINDS if k.name.startswith("a flight") for alt in k.markers for m in alt
-                   if m.startswith("*.")]
+
+    image_globs = [
+        m for k in INPUT_KINDS if k.name.startswith("a flight") for alt in k.markers for m in alt if m.startswith("*.")
+    ]
     for ext in flight.IMAGE_EXTENSIONS:
         for name in (f"a{ext}", f"a{ext.upper()}"):
             assert any(fnmatch.fnmatchcase(name, g) for g in image_globs), name

@@ -14,12 +14,26 @@ from _input_folders import make_input_folders  # noqa: E402
 
 from cosemdepth.errors import ConfigError  # noqa: E402
 from cosemdepth.output_safety.input_kinds import INPUT_KINDS  # noqa: E402
-from cosemdepth.output_safety.outdir import (MARKER, check_files_replaceable, check_output_dir, check_output_file,  # noqa: E402
-                                  file_problem, read_marker, write_marker)
+from cosemdepth.output_safety.outdir import (  # noqa: E402
+    MARKER,
+    check_files_replaceable,
+    check_output_dir,
+    check_output_file,
+    file_problem,
+    read_marker,
+    write_marker,
+)
 
 COMMANDS = ("predict", "demo", "evaluate", "splits", "convert", "synth", "train")
-MODES = {"predict": "replace", "demo": "replace", "splits": "replace", "evaluate": "into", "convert": "into",
-         "synth": "resume", "train": "resume"}
+MODES = {
+    "predict": "replace",
+    "demo": "replace",
+    "splits": "replace",
+    "evaluate": "into",
+    "convert": "into",
+    "synth": "resume",
+    "train": "resume",
+}
 
 
 @pytest.fixture(scope="module")
@@ -108,8 +122,9 @@ def test_a_changed_file_is_the_users(tmp_path):
 
 def test_a_marker_without_checksums_proves_nothing(tmp_path):
     (tmp_path / "predictions.json").write_text("{}")
-    (tmp_path / MARKER).write_text(json.dumps({"format": "cosemdepth-output", "command": "predict",
-                                               "files": ["predictions.json"]}))
+    (tmp_path / MARKER).write_text(
+        json.dumps({"format": "cosemdepth-output", "command": "predict", "files": ["predictions.json"]})
+    )
     with pytest.raises(ConfigError, match="predictions.json: listed in .* without a checksum"):
         check_output_dir(tmp_path, command="predict")
 
@@ -159,17 +174,25 @@ def test_a_single_output_file_is_replaced_only_while_its_recorded_content_is_unc
     report = tmp_path / "benchmark.md"
     report.write_text("Measured on a CPU, PyTorch 2\n| a | b |\n")
     looks_ours = lambda p: p.read_text().startswith("Measured ")  # noqa: E731 - what the command recognises
-    with pytest.raises(ConfigError, match=rf"^{report}: the --md file exists and cannot be replaced: not written by "
-                                          rf"cosemdepth \(no {MARKER} in {tmp_path}\); nothing was overwritten"):
+    with pytest.raises(
+        ConfigError,
+        match=rf"^{report}: the --md file exists and cannot be replaced: not written by "
+        rf"cosemdepth \(no {MARKER} in {tmp_path}\); nothing was overwritten",
+    ):
         check_output_file(report, what="--md file", recognize=looks_ours)  # written by nobody we know of
     record_output_file(report, "benchmark")
     assert read_marker(tmp_path)["files"]["benchmark.md"] == {
-        "size": report.stat().st_size, "sha256": hashlib.sha256(report.read_bytes()).hexdigest()}
+        "size": report.stat().st_size,
+        "sha256": hashlib.sha256(report.read_bytes()).hexdigest(),
+    }
     check_output_file(report, what="--md file", recognize=looks_ours)  # ours and unchanged: may be replaced
     with open(report, "a") as f:
         f.write("My note: checked by hand.\n")  # still starts as the command's reports do
-    with pytest.raises(ConfigError, match=rf"{report}: the --md file exists and cannot be replaced: changed since "
-                                          "cosemdepth benchmark wrote it"):
+    with pytest.raises(
+        ConfigError,
+        match=rf"{report}: the --md file exists and cannot be replaced: changed since "
+        "cosemdepth benchmark wrote it",
+    ):
         check_output_file(report, what="--md file", recognize=looks_ours)
     link = tmp_path / "link.md"  # a symlink names where to write: its target's record decides
     os.symlink(report, link)

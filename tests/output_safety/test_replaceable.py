@@ -51,8 +51,11 @@ def test_an_immutable_entry_is_named(tmp_path, immutable):
     out = previous_output(tmp_path)
     entry = immutable(out / "traj" / "depth" / "0.npy")
     assert fs_flags(entry) & FS_IMMUTABLE_FL
-    with pytest.raises(ConfigError, match=rf"^{entry}: cannot replace the --out folder: this entry in it is "
-                                          r"immutable \(chattr -i removes that\); nothing was written$"):
+    with pytest.raises(
+        ConfigError,
+        match=rf"^{entry}: cannot replace the --out folder: this entry in it is "
+        r"immutable \(chattr -i removes that\); nothing was written$",
+    ):
         check_replaceable(out, "--out folder")
 
 
@@ -89,10 +92,14 @@ def test_an_append_only_folder_is_refused_without_leaving_a_probe_in_it(tmp_path
     (tmp_path / "q").mkdir()
     folder = append_only(tmp_path / "q")
     assert fs_flags(folder) & FS_APPEND_FL
-    assert probe_folder(folder) == ("the folder is append-only: entries can be added but not removed "
-                                    "(chattr -a removes that)")
-    with pytest.raises(ConfigError, match=rf"^{folder}: cannot write the --out folder \({folder}: the folder is "
-                                          "append-only"):
+    assert probe_folder(folder) == (
+        "the folder is append-only: entries can be added but not removed (chattr -a removes that)"
+    )
+    with pytest.raises(
+        ConfigError,
+        match=rf"^{folder}: cannot write the --out folder \({folder}: the folder is "
+        "append-only",
+    ):
         probe_writable(folder, f"{folder}: cannot write the --out folder")
     with pytest.raises(ConfigError, match="append-only"):
         with OutputFiles(folder, "--out folder", command="evaluate") as out:

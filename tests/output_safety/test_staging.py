@@ -22,8 +22,11 @@ def _write(out: Path, files: dict[str, str], command: str = "predict", **kw) -> 
 
 
 def _contents(folder: Path) -> dict[str, str]:
-    return {p.relative_to(folder).as_posix(): p.read_text() for p in sorted(folder.rglob("*"))
-            if p.is_file() and p.name != MARKER}
+    return {
+        p.relative_to(folder).as_posix(): p.read_text()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name != MARKER
+    }
 
 
 def _hidden(folder: Path) -> list[str]:
@@ -150,7 +153,7 @@ def test_a_run_killed_at_any_point_of_the_replacement_leaves_one_whole_output(tm
     old = {"depth/1.npy": "old1", "depth/2.npy": "old2", "predictions.json": "old"}
     new = {"depth/1.npy": "new1", "labels/1.png": "new", "predictions.json": "new"}
     _write(tmp_path / "probe", old)
-    total = _killed_run(tmp_path / "probe", new, after=10 ** 6)
+    total = _killed_run(tmp_path / "probe", new, after=10**6)
     # out: the marker, depth/, predictions.json; the aside folder renamed; in: depth/, labels/, predictions.json, marker
     assert total == 3 + 1 + 4
     outcomes = set()

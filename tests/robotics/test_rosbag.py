@@ -9,10 +9,11 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from _bags import camera_info_msg, compressed_msg, image_msg, typestore, yaw_quat
+
 from cosemdepth.data.frames import rgb_to_tensor
 from cosemdepth.data.poses import interpolate_pose, slerp
-from cosemdepth.robotics.rosbag import camera_info_intrinsics, image_to_rgb, pose_at_images
 from cosemdepth.errors import DatasetError
+from cosemdepth.robotics.rosbag import camera_info_intrinsics, image_to_rgb, pose_at_images
 
 S = 1_000_000_000
 
@@ -38,8 +39,7 @@ def _poses(stamps):
 
 def test_pairing_exact_interpolated_and_skipped():
     poses = _poses([10 * S, 10 * S + S // 100, 10 * S + 2 * S // 100, 11 * S])  # 10.00, 10.01, 10.02, 11.00
-    images = [(0, 10 * S + 500, "a"), (1, 10 * S + 5_000_000, "b"), (2, 10 * S + 30_000_000, "c"),
-              (3, 11 * S, "d")]
+    images = [(0, 10 * S + 500, "a"), (1, 10 * S + 5_000_000, "b"), (2, 10 * S + 30_000_000, "c"), (3, 11 * S, "d")]
     out = list(pose_at_images(images, poses, 50_000_000, skip_unposed=True))
     assert [o.index for o in out] == [0, 1, 2, 3]
     np.testing.assert_allclose(out[0].position, [0, 0, 0])  # within 1 us: the pose itself
@@ -96,7 +96,7 @@ def test_raw_image_encodings(encoding):
     np.testing.assert_array_equal(got, RGB)
 
 
-RGB16 = (np.arange(4 * 5 * 3, dtype=np.uint16).reshape(4, 5, 3) * 1021 + 3)  # low bytes vary: not 8-bit * 257
+RGB16 = np.arange(4 * 5 * 3, dtype=np.uint16).reshape(4, 5, 3) * 1021 + 3  # low bytes vary: not 8-bit * 257
 
 
 @pytest.mark.parametrize("bigendian", [False, True])
@@ -116,13 +116,15 @@ def test_mono_padded_rows_and_compressed():
     msg = image_msg(ts, 0, RGB, "mono8")
     padded = np.zeros((4, 8), np.uint8)
     padded[:, :5] = RGB[:, :, 0]
-    msg = type(msg)(header=msg.header, height=4, width=5, encoding="mono8", is_bigendian=0, step=8,
-                    data=padded.reshape(-1))
+    msg = type(msg)(
+        header=msg.header, height=4, width=5, encoding="mono8", is_bigendian=0, step=8, data=padded.reshape(-1)
+    )
     np.testing.assert_array_equal(image_to_rgb(msg.__msgtype__, msg, "x"), np.repeat(RGB[:, :, :1], 3, axis=2))
     c = compressed_msg(ts, 0, RGB)
     np.testing.assert_array_equal(image_to_rgb(c.__msgtype__, c, "x"), RGB)
-    bad = type(msg)(header=msg.header, height=4, width=5, encoding="32FC1", is_bigendian=0, step=20,
-                    data=np.zeros(80, np.uint8))
+    bad = type(msg)(
+        header=msg.header, height=4, width=5, encoding="32FC1", is_bigendian=0, step=20, data=np.zeros(80, np.uint8)
+    )
     with pytest.raises(DatasetError, match=r"WHERE: image encoding '32FC1' is not supported"):
         image_to_rgb(bad.__msgtype__, bad, "WHERE")
 

@@ -24,8 +24,28 @@ def _script():
 
 def test_the_csvs_without_rendering_are_those_of_synth_and_splits(world, tmp_path, capsys):
     data, splits, derived = tmp_path / "ds", tmp_path / "splits", tmp_path / "derived"
-    assert main(["synth", "--out", str(data), "--trajectories", "2", "--frames", "24", "--size", "16", "--seed", "0",
-                 "--climates", "sunny", "cloudy", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "synth",
+                "--out",
+                str(data),
+                "--trajectories",
+                "2",
+                "--frames",
+                "24",
+                "--size",
+                "16",
+                "--seed",
+                "0",
+                "--climates",
+                "sunny",
+                "cloudy",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert main(["splits", "synthair", str(data), str(splits), "--rule", "train"]) == 0
     _script().world_trajectories(0, derived, trajectories=2, frames=24, climates=("sunny", "cloudy"))
 
@@ -36,8 +56,9 @@ def test_the_csvs_without_rendering_are_those_of_synth_and_splits(world, tmp_pat
 
     # and the training windows of both give the same per-step translations (4-row chunks, rows 1-3 of each)
     def steps(split_dir):
-        return open_dataset("synthair", data, split_dir=split_dir, split="train", seq_len=4, size=16,
-                            mode="train", db_seq_len=4).step_translations()
+        return open_dataset(
+            "synthair", data, split_dir=split_dir, split="train", seq_len=4, size=16, mode="train", db_seq_len=4
+        ).step_translations()
 
     a = steps(splits)
     assert len(a) == 4 * 3  # 4 trajectories of 5 rows: one chunk each, its rows 1..3

@@ -36,8 +36,14 @@ def default_like(world):
             bs = batch_size(SIZE)
             for i in range(0, len(js), bs):
                 sel = js[i : i + bs]
-                frames = render_frames(world, get_climate(climate).with_sun_azimuth(p.sun_azimuth),
-                                       p.flight.attitude[sel], p.flight.position[sel], SIZE, SIZE)
+                frames = render_frames(
+                    world,
+                    get_climate(climate).with_sun_azimuth(p.sun_azimuth),
+                    p.flight.attitude[sel],
+                    p.flight.position[sel],
+                    SIZE,
+                    SIZE,
+                )
                 for j, f in zip(sel, frames):
                     counts += np.bincount(f.labels.ravel(), minlength=14)
                     down_comp = (body @ qmatrix(p.flight.attitude[j]).T)[..., 2]

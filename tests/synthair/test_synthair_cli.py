@@ -11,8 +11,24 @@ from cosemdepth.cli.main import main
 
 def test_synth_writes_a_dataset_and_says_where_the_splits_are(world, tmp_path, capsys):
     out = tmp_path / "ds"
-    rc = main(["synth", "--out", str(out), "--trajectories", "1", "--frames", "12", "--size", "16", "--seed", "0",
-               "--climates", "sunny", "cloudy"])
+    rc = main(
+        [
+            "synth",
+            "--out",
+            str(out),
+            "--trajectories",
+            "1",
+            "--frames",
+            "12",
+            "--size",
+            "16",
+            "--seed",
+            "0",
+            "--climates",
+            "sunny",
+            "cloudy",
+        ]
+    )
     assert rc == 0
     captured = capsys.readouterr()
     summary = json.loads(captured.out.splitlines()[0])

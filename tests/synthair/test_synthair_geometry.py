@@ -12,21 +12,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from synthair_helpers import bilinear_sample
 
 from cosemdepth.data.midair.splits import read_csv
 from cosemdepth.synthair.climate import CLIMATES
 from cosemdepth.synthair.writer import SynthConfig, generate
-
-from synthair_helpers import bilinear_sample
 
 SIZE = 192
 
 
 def _rotation(q):
     w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _depth(path: Path) -> np.ndarray:

@@ -13,17 +13,18 @@ import torch
 
 from cosemdepth.data.midair.splits import Trajectory, relative_motions, trajectory_rows
 from cosemdepth.data.quaternion import qmatrix
+from cosemdepth.errors import ConfigError
 from cosemdepth.synthair.motion import parse_motion, timeline
 from cosemdepth.synthair.raymarch import surface_height
 from cosemdepth.synthair.writer import SynthConfig, check_output_folder, plan_flights, rendered_frames
-from cosemdepth.errors import ConfigError
 
 CAM_FROM_BODY = np.array([[0, 1, 0], [0, 0, 1], [1, 0, 0]])  # camera x = body y, y = body z, z = body x
 
 
 def _flights(world, motion=None, frames=None, climates=("sunny",), trajectories=1, **kw):
-    cfg = SynthConfig(out=Path("unused"), trajectories=trajectories, frames=frames, climates=climates,
-                      motion=motion, **kw)
+    cfg = SynthConfig(
+        out=Path("unused"), trajectories=trajectories, frames=frames, climates=climates, motion=motion, **kw
+    )
     cfg.validate()
     return cfg, [p.flight for fl in plan_flights(cfg, world).values() for p in fl.values()]
 
@@ -48,22 +49,42 @@ def _angle_deg(q):
 def test_specs_parse_to_segments_with_a_canonical_form():
     p = parse_motion(" fly:20, hover:8,yaw:8,yaw:4@-30.5,fly*0.25:16,fly*2:4,ramp*0-1.5:10,fly*1:2")
     assert [(s.kind, s.frames, s.speed, s.degrees) for s in p.segments] == [
-        ("fly", 20, (1.0, 1.0), 0.0), ("hover", 8, (0.0, 0.0), 0.0), ("yaw", 8, (0.0, 0.0), 90.0),
-        ("yaw", 4, (0.0, 0.0), -30.5), ("fly", 16, (0.25, 0.25), 0.0), ("fly", 4, (2.0, 2.0), 0.0),
-        ("ramp", 10, (0.0, 1.5), 0.0), ("fly", 2, (1.0, 1.0), 0.0)]
+        ("fly", 20, (1.0, 1.0), 0.0),
+        ("hover", 8, (0.0, 0.0), 0.0),
+        ("yaw", 8, (0.0, 0.0), 90.0),
+        ("yaw", 4, (0.0, 0.0), -30.5),
+        ("fly", 16, (0.25, 0.25), 0.0),
+        ("fly", 4, (2.0, 2.0), 0.0),
+        ("ramp", 10, (0.0, 1.5), 0.0),
+        ("fly", 2, (1.0, 1.0), 0.0),
+    ]
     assert p.frames == 20 + 8 + 8 + 4 + 16 + 4 + 10 + 2
     assert p.spec == "fly:20,hover:8,yaw:8@90,yaw:4@-30.5,fly*0.25:16,fly*2:4,ramp*0-1.5:10,fly:2"
     assert parse_motion(p.spec) == p
-    assert p.metadata()["segments"][:3] == [{"segment": "fly:20", "frames": [0, 20]},
-                                           {"segment": "hover:8", "frames": [20, 28]},
-                                           {"segment": "yaw:8@90", "frames": [28, 36]}]
+    assert p.metadata()["segments"][:3] == [
+        {"segment": "fly:20", "frames": [0, 20]},
+        {"segment": "hover:8", "frames": [20, 28]},
+        {"segment": "yaw:8@90", "frames": [28, 36]},
+    ]
 
 
-@pytest.mark.parametrize("spec, bad", [
-    ("fly:20,hover", "hover"), ("fly:20,hover:0", "hover:0"), ("fly*0:10", "fly*0:10"), ("fly*-1:10", "fly*-1:10"),
-    ("fly*11:10", "fly*11:10"), ("walk:5", "walk:5"), ("fly:20,,fly:3", "''"), ("yaw:2@-200", "yaw:2@-200"),
-    ("ramp*1:10", "ramp*1:10"), ("ramp*1-20:10", "ramp*1-20:10"), ("fly:2.5", "fly:2.5"), ("yaw:4@nan", "yaw:4@nan"),
-])
+@pytest.mark.parametrize(
+    "spec, bad",
+    [
+        ("fly:20,hover", "hover"),
+        ("fly:20,hover:0", "hover:0"),
+        ("fly*0:10", "fly*0:10"),
+        ("fly*-1:10", "fly*-1:10"),
+        ("fly*11:10", "fly*11:10"),
+        ("walk:5", "walk:5"),
+        ("fly:20,,fly:3", "''"),
+        ("yaw:2@-200", "yaw:2@-200"),
+        ("ramp*1:10", "ramp*1:10"),
+        ("ramp*1-20:10", "ramp*1-20:10"),
+        ("fly:2.5", "fly:2.5"),
+        ("yaw:4@nan", "yaw:4@nan"),
+    ],
+)
 def test_bad_specs_name_the_option_and_the_segment(spec, bad):
     with pytest.raises(ConfigError) as e:
         parse_motion(spec)
@@ -127,7 +148,7 @@ def test_a_hover_holds_position_and_attitude_exactly(world):
     still = slice(48, 81)  # samples 4 * 12 .. 4 * 20
     assert (f.position[still] == f.position[48]).all() and (f.attitude[still] == f.attitude[48]).all()
     inside = slice(49, 80)
-    assert (f.velocity[inside] == 0).all() and (f.acceleration[inside.start + 1:inside.stop - 1] == 0).all()
+    assert (f.velocity[inside] == 0).all() and (f.acceleration[inside.start + 1 : inside.stop - 1] == 0).all()
     assert (f.angular_velocity[inside] == 0).all()
     frames, q, t = _rows(f)
     hover = (frames > 12) & (frames <= 20)
@@ -244,8 +265,10 @@ def test_the_metadata_records_motion_and_frame_step_and_resuming_compares_them(t
     cfg = SynthConfig(out=tmp_path / "ds", size=16, motion="fly:8,hover:8", frame_step=2)
     meta = cfg.metadata()
     assert meta["frame_step"] == 2 and meta["frames"] == 16
-    assert meta["motion"] == {"spec": "fly:8,hover:8", "segments": [{"segment": "fly:8", "frames": [0, 8]},
-                                                                     {"segment": "hover:8", "frames": [8, 16]}]}
+    assert meta["motion"] == {
+        "spec": "fly:8,hover:8",
+        "segments": [{"segment": "fly:8", "frames": [0, 8]}, {"segment": "hover:8", "frames": [8, 16]}],
+    }
     import json
 
     (tmp_path / "ds").mkdir()
@@ -270,8 +293,27 @@ def test_synth_writes_a_profile_at_another_frame_step_that_the_reader_streams(wo
 
     out = tmp_path / "ds"
     spec = "fly:8,hover:4,yaw:4@40,fly*0.5:8"
-    assert main(["synth", "--out", str(out), "--trajectories", "1", "--size", "16", "--climates", "sunny",
-                 "--motion", spec, "--frame-step", "2", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "synth",
+                "--out",
+                str(out),
+                "--trajectories",
+                "1",
+                "--size",
+                "16",
+                "--climates",
+                "sunny",
+                "--motion",
+                spec,
+                "--frame-step",
+                "2",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     meta = json.loads((out / "synthair.json").read_text())
     assert meta["frames"] == 24 and meta["frame_step"] == 2 and meta["motion"]["spec"] == spec

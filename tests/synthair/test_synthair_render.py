@@ -5,13 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from synthair_helpers import euler_matrix, matrix_to_quaternion
 
 from cosemdepth.synthair.climate import CLIMATES, get_climate
 from cosemdepth.synthair.raymarch import Lod, surface_height
 from cosemdepth.synthair.render import SKY_DEPTH, render_frame
 from cosemdepth.synthair.terrain import CELL, GRID
-
-from synthair_helpers import euler_matrix, matrix_to_quaternion
 
 MIDAIR_IDS_USED = {0, 2, 3, 4, 5, 6, 8, 9, 10}
 

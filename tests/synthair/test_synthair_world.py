@@ -48,9 +48,9 @@ def test_the_max_pyramid_bounds_the_surface_from_above_and_the_min_from_below(wo
     # every level bounds the level below it
     for k in range(LEVELS):
         n, off = int(world.level_cells[k]), int(world.level_offset[k])
-        child = world.env_max[off: off + n * n].view(n // 2, 2, n // 2, 2).amax(dim=(1, 3))
+        child = world.env_max[off : off + n * n].view(n // 2, 2, n // 2, 2).amax(dim=(1, 3))
         parent_off = int(world.level_offset[k + 1])
-        parent = world.env_max[parent_off: parent_off + (n // 2) ** 2].view(n // 2, n // 2)
+        parent = world.env_max[parent_off : parent_off + (n // 2) ** 2].view(n // 2, n // 2)
         assert torch.equal(parent, child)
 
 

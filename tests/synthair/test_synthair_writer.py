@@ -12,10 +12,10 @@ import pytest
 from PIL import Image
 
 from cosemdepth.data.midair.splits import read_csv
+from cosemdepth.errors import ConfigError
 from cosemdepth.synthair.climate import get_climate
 from cosemdepth.synthair.render import SKY_DEPTH, render_frame
 from cosemdepth.synthair.writer import SynthConfig, encode_jpeg, generate, plan_flights
-from cosemdepth.errors import ConfigError
 
 SIZE, FRAMES = 48, 20  # 20 camera frames -> 4 CSV rows (frames 4, 8, 12, 16)
 
@@ -50,7 +50,8 @@ def test_layout_is_the_mid_air_tree(small):
     assert not [p for p in root.rglob("*") if p.name.startswith(".") and p.name != ".cosemdepth-output.json"]
     marker = json.loads((root / "splits" / ".cosemdepth-output.json").read_text())
     assert marker["command"] == "splits" and sorted(marker["files"]) == sorted(
-        p.relative_to(root / "splits").as_posix() for p in (root / "splits").rglob("*.csv"))
+        p.relative_to(root / "splits").as_posix() for p in (root / "splits").rglob("*.csv")
+    )
 
 
 def test_a_generated_dataset_is_an_input_of_other_commands(small):
@@ -88,15 +89,25 @@ def test_sensor_records_hold_100hz_ground_truth_and_camera_lists(small):
 def _hamilton(a, b):
     aw, ax, ay, az = a
     bw, bx, by, bz = b
-    return np.array([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw])
+    return np.array(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
 
 
 def _rot(q):
     w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def test_split_csv_motions_match_the_hdf5_ground_truth(small):
@@ -141,8 +152,14 @@ def test_files_decode_to_what_the_renderer_produced(small, world):
         planned = flights[climate][number]
         for k in (4, 12):
             j = 4 * k
-            frame = render_frame(world, get_climate(climate).with_sun_azimuth(planned.sun_azimuth),
-                                 planned.flight.attitude[j], planned.flight.position[j], SIZE, SIZE)
+            frame = render_frame(
+                world,
+                get_climate(climate).with_sun_azimuth(planned.sun_azimuth),
+                planned.flight.attitude[j],
+                planned.flight.position[j],
+                SIZE,
+                SIZE,
+            )
             base = root / "SynthAir" / climate
             disp_img = Image.open(base / f"stereo_disparity/trajectory_{number:04d}/{k:06d}.PNG")
             assert disp_img.mode == "I;16"
@@ -166,8 +183,9 @@ def test_files_decode_to_what_the_renderer_produced(small, world):
 def test_generation_is_deterministic_and_resumable(small, tmp_path):
     cfg, _ = small
     first = _files(Path(cfg.out))
-    again = SynthConfig(out=tmp_path / "again", trajectories=1, frames=FRAMES, size=SIZE, seed=0,
-                        climates=("sunny", "foggy"), workers=2)
+    again = SynthConfig(
+        out=tmp_path / "again", trajectories=1, frames=FRAMES, size=SIZE, seed=0, climates=("sunny", "foggy"), workers=2
+    )
     generate(again, progress=False)
     assert _files(tmp_path / "again") == first
     # resume: an interrupted run (a frame missing) is completed with the same bytes
@@ -179,8 +197,9 @@ def test_generation_is_deterministic_and_resumable(small, tmp_path):
 
 
 def test_all_frames_option_renders_every_25hz_frame(world, tmp_path):
-    cfg = SynthConfig(out=tmp_path / "all", trajectories=1, frames=10, size=16, seed=0, climates=("cloudy",),
-                      all_frames=True)
+    cfg = SynthConfig(
+        out=tmp_path / "all", trajectories=1, frames=10, size=16, seed=0, climates=("cloudy",), all_frames=True
+    )
     generate(cfg, progress=False)
     names = sorted(p.name for p in (tmp_path / "all/SynthAir/cloudy/color_left/trajectory_3000").iterdir())
     assert names == [f"{k:06d}.JPEG" for k in range(10)]
@@ -192,10 +211,15 @@ def test_trajectories_are_split_like_mid_air(world, tmp_path):
     """Index % 3 == 0 -> test, the rest train; with two test trajectories the last one goes to validation."""
     cfg = SynthConfig(out=tmp_path / "s", trajectories=4, frames=8, size=16, seed=0, climates=("sunset",))
     generate(cfg, progress=False)
-    found = {p.parent.parent.parent.name: sorted(q.name for q in p.parent.iterdir())
-             for p in (tmp_path / "s/splits").rglob("*.csv")}
-    assert found == {"test_data": ["traj_0000.csv"], "val_data": ["traj_0003.csv"],
-                     "train_data": ["traj_0001.csv", "traj_0002.csv"]}
+    found = {
+        p.parent.parent.parent.name: sorted(q.name for q in p.parent.iterdir())
+        for p in (tmp_path / "s/splits").rglob("*.csv")
+    }
+    assert found == {
+        "test_data": ["traj_0000.csv"],
+        "val_data": ["traj_0003.csv"],
+        "train_data": ["traj_0001.csv", "traj_0002.csv"],
+    }
     trajs = sorted(p.name for p in (tmp_path / "s/SynthAir/sunset/color_left").iterdir())
     assert trajs == ["trajectory_1000", "trajectory_1001", "trajectory_1002", "trajectory_1003"]
 
@@ -213,8 +237,10 @@ def test_output_folder_checks(world, tmp_path, small):
         generate(SynthConfig(out=other, frames=8, size=16), progress=False)
     assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
     with pytest.raises(ConfigError, match="another SynthAir dataset.*size"):
-        generate(SynthConfig(out=cfg.out, trajectories=1, frames=FRAMES, size=SIZE * 2, seed=0,
-                             climates=("sunny", "foggy")), progress=False)
+        generate(
+            SynthConfig(out=cfg.out, trajectories=1, frames=FRAMES, size=SIZE * 2, seed=0, climates=("sunny", "foggy")),
+            progress=False,
+        )
 
 
 @pytest.mark.parametrize(
@@ -248,8 +274,14 @@ def test_a_128px_set_read_by_an_independent_mid_air_reader_gives_the_rendered_de
     generate(cfg, progress=False)
     planned = plan_flights(cfg, world)["sunny"][0]
     for k in (4,):  # camera frame 4 (ground-truth sample 16): the first CSV row
-        frame = render_frame(world, get_climate("sunny").with_sun_azimuth(planned.sun_azimuth),
-                             planned.flight.attitude[4 * k], planned.flight.position[4 * k], 128, 128)
+        frame = render_frame(
+            world,
+            get_climate("sunny").with_sun_azimuth(planned.sun_azimuth),
+            planned.flight.attitude[4 * k],
+            planned.flight.position[4 * k],
+            128,
+            128,
+        )
         with Image.open(tmp_path / f"s128/SynthAir/sunny/stereo_disparity/trajectory_0000/{k:06d}.PNG") as im:
             raw = np.array(im, dtype=np.uint16)
         depth = 512.0 / raw.view(np.float16).astype(np.float64)

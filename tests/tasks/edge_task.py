@@ -16,10 +16,10 @@ import torch
 import torch.nn.functional as F
 
 from cosemdepth.evaluation.visualize import save_png
-from cosemdepth.training.losses import FIRST_SUPERVISED_FRAME
 from cosemdepth.models.layers import Refiner
 from cosemdepth.models.pyramid import PyramidDecoder, PyramidLevel
 from cosemdepth.tasks import DecoderTask, Frames, MetricContext, TaskMetrics, TaskWriter, WriteOptions, register_task
+from cosemdepth.training.losses import FIRST_SUPERVISED_FRAME
 
 ARCH = "depth-edge"
 
@@ -118,8 +118,11 @@ class EdgeTask(DecoderTask):
         return out
 
     def strip_panels(self, example, model) -> list[np.ndarray]:
-        return [np.repeat((np.clip(e.reshape(e.shape[-2:]).numpy(), 0, 1) * 255).astype(np.uint8)[..., None], 3, -1)
-                for e in (example.get("edge"), example.get("pred_edge")) if e is not None]
+        return [
+            np.repeat((np.clip(e.reshape(e.shape[-2:]).numpy(), 0, 1) * 255).astype(np.uint8)[..., None], 3, -1)
+            for e in (example.get("edge"), example.get("pred_edge"))
+            if e is not None
+        ]
 
     def writer(self, options: WriteOptions) -> EdgeWriter:
         return EdgeWriter()

@@ -37,15 +37,28 @@ def _env() -> dict:
 
 
 def _cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "cosemdepth", *args], env=env or _env(), capture_output=True,
-                          text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "cosemdepth", *args], env=env or _env(), capture_output=True, text=True, timeout=600
+    )
 
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("synth") / "data"
-    done = _cli("synth", "--out", str(root), "--trajectories", "1", "--frames", "24", "--size", str(SIZE),
-                "--climates", "sunny", "--no-progress")
+    done = _cli(
+        "synth",
+        "--out",
+        str(root),
+        "--trajectories",
+        "1",
+        "--frames",
+        "24",
+        "--size",
+        str(SIZE),
+        "--climates",
+        "sunny",
+        "--no-progress",
+    )
     assert done.returncode == 0, done.stderr
     return root
 
@@ -53,10 +66,21 @@ def flight(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory) -> Path:
     run = tmp_path_factory.mktemp("train") / "run"
-    sets = {"model.arch": edge_task.ARCH, "model.levels": 3, "data.train.0.name": "toy",
-            "data.train.0.options": '{"length": 4}', "data.size": 16, "data.num_workers": 0, "train.batch_size": 2,
-            "train.epochs": 1, "train.num_threads": 1, "train.log_every": 1, "train.progress": "false", "train.image_every": 1,
-            "train.validate_every_epochs": 1}
+    sets = {
+        "model.arch": edge_task.ARCH,
+        "model.levels": 3,
+        "data.train.0.name": "toy",
+        "data.train.0.options": '{"length": 4}',
+        "data.size": 16,
+        "data.num_workers": 0,
+        "train.batch_size": 2,
+        "train.epochs": 1,
+        "train.num_threads": 1,
+        "train.log_every": 1,
+        "train.progress": "false",
+        "train.image_every": 1,
+        "train.validate_every_epochs": 1,
+    }
     done = _cli("train", "--out", str(run), *[a for k, v in sets.items() for a in ("--set", f"{k}={v}")])
     assert done.returncode == 0, done.stdout + done.stderr
     return run
@@ -77,8 +101,18 @@ def test_training_runs_the_edge_loss_and_validates_the_edge_metric(trained):
 
 
 def test_evaluate_and_predict_write_the_edge_metric_and_files(trained, flight, tmp_path):
-    data = ["--dataset", "synthair", "--root", str(flight), "--split-dir", str(flight / "splits"), "--split", "test",
-            "--size", str(SIZE)]
+    data = [
+        "--dataset",
+        "synthair",
+        "--root",
+        str(flight),
+        "--split-dir",
+        str(flight / "splits"),
+        "--split",
+        "test",
+        "--size",
+        str(SIZE),
+    ]
     done = _cli("evaluate", "--model", str(trained / "best"), *data, "--out", str(tmp_path / "eval"))
     assert done.returncode == 0, done.stderr
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from cosemdepth.models.config import ModelConfig
 from cosemdepth.errors import CheckpointError
 from cosemdepth.models import build_model
+from cosemdepth.models.config import ModelConfig
 from cosemdepth.training.checkpoint import (
-    CheckpointManager,
     REQUIRED_FILES,
+    CheckpointManager,
     get_rng_state,
     load_checkpoint,
     read_model_state,
@@ -30,16 +30,22 @@ def _model_and_optimizer():
     model = build_model(CFG)
     opt = torch.optim.Adam(model.parameters(), lr=1e-3)
     x = torch.rand(1, 2, 3, 16, 16)
-    out = model.forward_sequence(x, torch.tensor([[[1.0, 0, 0, 0]] * 2]), torch.zeros(1, 2, 3),
-                                 torch.tensor([[8.0, 8, 8, 8]]))
+    out = model.forward_sequence(
+        x, torch.tensor([[[1.0, 0, 0, 0]] * 2]), torch.zeros(1, 2, 3), torch.tensor([[8.0, 8, 8, 8]])
+    )
     out.semantic[0].sum().backward()
     opt.step()
     return model, opt
 
 
 def _save(mgr, model, opt, step, **state):
-    return mgr.save(model_state=model.state_dict(), model_config=CFG, optimizer_state=opt.state_dict(),
-                    trainer_state={"step": step, "epoch": 0, **state}, rng_state=get_rng_state())
+    return mgr.save(
+        model_state=model.state_dict(),
+        model_config=CFG,
+        optimizer_state=opt.state_dict(),
+        trainer_state={"step": step, "epoch": 0, **state},
+        rng_state=get_rng_state(),
+    )
 
 
 def test_round_trip(tmp_path):

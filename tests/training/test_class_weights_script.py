@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from cosemdepth.training.losses import median_frequency_weights
 from cosemdepth.data.toy import ToyDataset
+from cosemdepth.training.losses import median_frequency_weights
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "class_weights.py"
 
@@ -25,8 +25,9 @@ def _script():
 def test_counts_every_supervised_frame_of_the_training_windows(tmp_path, capsys):
     out = tmp_path / "weights.json"
     sets = ["data.train=[{name: toy, options: {length: 5}}]", "data.size=[32, 32]", "train.seed=3"]
-    rc = _script().main(["--config", "synthair-demo", *sum((["--set", s] for s in sets), []), "--power", "1",
-                         "--out", str(out)])
+    rc = _script().main(
+        ["--config", "synthair-demo", *sum((["--set", s] for s in sets), []), "--power", "1", "--out", str(out)]
+    )
     assert rc == 0
     report = json.loads(out.read_text())
     # Independently: the same toy windows (the seed of the run), frames 1.. of each, counted by numpy-free torch.
@@ -36,8 +37,7 @@ def test_counts_every_supervised_frame_of_the_training_windows(tmp_path, capsys)
         expected += torch.bincount(torch.as_tensor(toy[i]["semantic"])[1:].flatten().long(), minlength=7)
     assert report["counts"] == expected.tolist()
     assert sum(report["shares"]) == pytest.approx(1.0)
-    assert report["semantic_class_weights"] == pytest.approx(median_frequency_weights(expected.tolist(), 1.0),
-                                                             abs=5e-4)
+    assert report["semantic_class_weights"] == pytest.approx(median_frequency_weights(expected.tolist(), 1.0), abs=5e-4)
     assert "semantic_class_weights: [" in capsys.readouterr().out
 
 

@@ -55,8 +55,14 @@ def test_sigkill_while_training_and_while_writing_a_checkpoint_then_resume(tmp_p
     # 1. killed while the checkpoint of step 4 is being written (the writer sleeps after each file)
     slow = dict(cli_env, **{DELAY_ENV: "0.2"})
     p = subprocess.Popen(cmd, env=slow, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    _wait_for(lambda: ck.exists() and any(x.name.startswith(".tmp-ckpt-00000004") and (x / "optimizer.pt").exists()
-                                          for x in ck.iterdir()), p, what="the checkpoint of step 4 being written")
+    _wait_for(
+        lambda: (
+            ck.exists()
+            and any(x.name.startswith(".tmp-ckpt-00000004") and (x / "optimizer.pt").exists() for x in ck.iterdir())
+        ),
+        p,
+        what="the checkpoint of step 4 being written",
+    )
     _kill(p)
     assert sorted(_checkpoints(run)) == [0, 2]  # the half-written one never got its final name
     assert any(x.name.startswith(".tmp-ckpt-00000004") for x in ck.iterdir())
@@ -67,9 +73,14 @@ def test_sigkill_while_training_and_while_writing_a_checkpoint_then_resume(tmp_p
     #    (no delay: the kill lands wherever the run is after step 7)
     p = subprocess.Popen(cmd, env=cli_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     events_file = run / "events.jsonl"
-    _wait_for(lambda: any(e["kind"] == "train" and e["step"] >= 7 for e in read_events(events_file)
-                          if e.get("time", 0) > 0) and 6 in _checkpoints(run), p,
-              what="step 7 after the checkpoint of step 6")
+    _wait_for(
+        lambda: (
+            any(e["kind"] == "train" and e["step"] >= 7 for e in read_events(events_file) if e.get("time", 0) > 0)
+            and 6 in _checkpoints(run)
+        ),
+        p,
+        what="step 7 after the checkpoint of step 6",
+    )
     _kill(p)
     events = read_events(events_file)
     resumes = [e for e in events if e["kind"] == "resume"]
@@ -79,8 +90,7 @@ def test_sigkill_while_training_and_while_writing_a_checkpoint_then_resume(tmp_p
     assert newest >= 6
 
     # 3. the same command again: resumes from the newest complete checkpoint and finishes
-    done = subprocess.run(cmd, env=cli_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                          timeout=300)
+    done = subprocess.run(cmd, env=cli_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
     assert done.returncode == 0, done.stdout
     events = read_events(events_file)
     resumes = [e for e in events if e["kind"] == "resume"]
@@ -189,20 +199,24 @@ def test_bf16_flag_and_key_round_trip(capsys, tmp_path):
     assert on["train"]["bf16"] is True and RunConfig.from_dict(on).train.bf16 is True
     assert main(["train", "--out", str(tmp_path / "x"), "--dataset", "toy", "--print-config"]) == 0
     assert yaml.safe_load(capsys.readouterr().out)["train"]["bf16"] is False
-    assert main(["train", "--out", str(tmp_path / "x"), "--dataset", "toy", "--set", "train.bf16=true",
-                 "--print-config"]) == 0
+    assert (
+        main(["train", "--out", str(tmp_path / "x"), "--dataset", "toy", "--set", "train.bf16=true", "--print-config"])
+        == 0
+    )
     assert yaml.safe_load(capsys.readouterr().out)["train"]["bf16"] is True
     assert not (tmp_path / "x").exists()
 
 
 def test_init_weights_flag_sets_the_key(capsys, tmp_path):
-    assert main(["train", "--out", str(tmp_path / "x"), "--dataset", "toy", "--init-weights", "w/best",
-                 "--print-config"]) == 0
+    assert (
+        main(["train", "--out", str(tmp_path / "x"), "--dataset", "toy", "--init-weights", "w/best", "--print-config"])
+        == 0
+    )
     assert yaml.safe_load(capsys.readouterr().out)["train"]["init_weights"] == "w/best"
 
 
 def test_the_module_runs_as_a_command(python, cli_env):
-    r = subprocess.run([python, "-m", "cosemdepth", "train", "--help"], env=cli_env, capture_output=True, text=True,
-                       timeout=120)
+    r = subprocess.run(
+        [python, "-m", "cosemdepth", "train", "--help"], env=cli_env, capture_output=True, text=True, timeout=120
+    )
     assert r.returncode == 0 and "--out" in r.stdout and "KEY=VALUE" in r.stdout
-

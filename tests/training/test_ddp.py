@@ -20,10 +20,27 @@ def test_two_process_ddp_matches_one_process_with_double_batch(tmp_path, python,
     # per-channel mean, so its true gradient is zero and what is left is float rounding noise (~1e-9) that depends
     # on how the batch is split. With eps = 1e-7 Adam turns that noise into full +-lr steps; with 1e-3 it stays
     # noise, while every real gradient still gets an Adam step. The weights then agree to ~3e-8 (moves ~3e-4).
-    settings = dict(data__augment=False, train__max_steps=STEPS, train__checkpoint_every=100, train__eps=1e-3,
-                    train__validate_every_epochs=1)
-    cmd = [python, "-m", "torch.distributed.run", "--standalone", "--nnodes=1", "--nproc_per_node=2",
-           "-m", "cosemdepth", "train", "--out", str(run), *tiny_cli(train__batch_size=1, **settings)]
+    settings = dict(
+        data__augment=False,
+        train__max_steps=STEPS,
+        train__checkpoint_every=100,
+        train__eps=1e-3,
+        train__validate_every_epochs=1,
+    )
+    cmd = [
+        python,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        "--nnodes=1",
+        "--nproc_per_node=2",
+        "-m",
+        "cosemdepth",
+        "train",
+        "--out",
+        str(run),
+        *tiny_cli(train__batch_size=1, **settings),
+    ]
     r = subprocess.run(cmd, env=cli_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
     assert r.returncode == 0, r.stdout[-4000:]
 

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import torch
 
+from cosemdepth.checkpoints.convert import convert_tensors
 from cosemdepth.evaluation.fidelity import inputs_from_reference
 from cosemdepth.evaluation.tfref_fixture import seeded_weight
-from cosemdepth.checkpoints.convert import convert_tensors
 from cosemdepth.models import build_model
 from cosemdepth.training.trainer import compute_loss, forward_batch, prepare_for_training
 
@@ -50,8 +50,11 @@ def our_step(channels_last: bool = False):
     ref = np.load(FIXTURE / "batch.npz")
     inp = inputs_from_reference(ref)
     batch = {
-        "rgb": torch.stack(inp["rgb"], 1), "rot": torch.stack(inp["rot"], 1), "trans": torch.stack(inp["trans"], 1),
-        "reset": torch.stack(inp["reset"], 1), "intrinsics": inp["intrinsics"],
+        "rgb": torch.stack(inp["rgb"], 1),
+        "rot": torch.stack(inp["rot"], 1),
+        "trans": torch.stack(inp["trans"], 1),
+        "reset": torch.stack(inp["reset"], 1),
+        "intrinsics": inp["intrinsics"],
         "depth": torch.from_numpy(ref["depth"]).permute(1, 0, 4, 2, 3).contiguous(),
         "semantic": torch.from_numpy(ref["semantic"][..., 0].astype(np.int64)).permute(1, 0, 2, 3).contiguous(),
     }
@@ -91,10 +94,13 @@ def _grad_errors(got: dict, ref, key: str) -> tuple[float, float]:
 def test_loss_equals_the_originals(step):
     terms, _, ref, _, _ = step
     eigen = json.loads((FIXTURE / "meta_eigen.json").read_text())
-    for ours, theirs, field in ((terms.total, ref["loss"], "loss"), (terms.depth, ref["loss_depth"], "loss_depth"),
-                                (terms.semantic, ref["loss_semantic"], "loss_semantic")):
+    for ours, theirs, field in (
+        (terms.total, ref["loss"], "loss"),
+        (terms.depth, ref["loss_depth"], "loss_depth"),
+        (terms.semantic, ref["loss_semantic"], "loss_semantic"),
+    ):
         ours = ours.detach()
-        noise = max(abs(eigen[field] - float(theirs)) / abs(float(theirs)), 2.0 ** -24)
+        noise = max(abs(eigen[field] - float(theirs)) / abs(float(theirs)), 2.0**-24)
         assert abs(float(ours) - float(theirs)) / abs(float(theirs)) <= NOISE_FACTOR * noise, field
     assert terms.total.dtype == torch.float32
 

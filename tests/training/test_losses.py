@@ -82,7 +82,9 @@ def test_depth_loss_first_frame_is_configurable():
 def test_depth_loss_logs_before_resizing():
     # GT 2x2 of (1, e^2) per row resized to 1x1: the log-first mean is 1, i.e. exp(1) = 2.718 m; resizing the depth
     # first would give (1 + e^2) / 2 = 4.19 m. A prediction of exactly e m must have zero loss.
-    gt = _seq(torch.ones(2, 2, dtype=torch.float64), torch.tensor([[1.0, math.e**2], [1.0, math.e**2]], dtype=torch.float64))
+    gt = _seq(
+        torch.ones(2, 2, dtype=torch.float64), torch.tensor([[1.0, math.e**2], [1.0, math.e**2]], dtype=torch.float64)
+    )
     pred = _seq(torch.ones(1, 1, dtype=torch.float64), torch.full((1, 1), math.e, dtype=torch.float64))
     assert float(depth_loss([pred], gt)) == pytest.approx(0.0, abs=1e-12)
 
@@ -233,7 +235,8 @@ def test_semantic_loss_class_weights_hand_computed():
     ref = torch.nn.functional.nll_loss(log_p, labels[:, 1], weight=torch.tensor([2.0, 1.0, 0.5], dtype=p.dtype))
     assert float(loss) == pytest.approx(float(ref), abs=1e-12)
     assert float(semantic_loss([_sem_seq(p)], labels, class_weights=[3.0] * 3)) == pytest.approx(
-        float(semantic_loss([_sem_seq(p)], labels)), abs=1e-12)
+        float(semantic_loss([_sem_seq(p)], labels)), abs=1e-12
+    )
     for bad in ([1.0, 1.0], [1.0, -1.0, 1.0], [1.0, math.nan, 1.0]):
         with pytest.raises(ValueError, match="class_weights"):
             semantic_loss([_sem_seq(p)], labels, class_weights=bad)
@@ -242,7 +245,7 @@ def test_semantic_loss_class_weights_hand_computed():
 def test_median_frequency_weights_hand_computed():
     # Shares 1/8, 1/8, 1/4, 1/2: median 3/16.
     assert median_frequency_weights([1, 1, 2, 4], power=1.0) == pytest.approx([1.5, 1.5, 0.75, 0.375])
-    assert median_frequency_weights([1, 1, 2, 4]) == pytest.approx([1.5 ** 0.5, 1.5 ** 0.5, 0.75 ** 0.5, 0.375 ** 0.5])
+    assert median_frequency_weights([1, 1, 2, 4]) == pytest.approx([1.5**0.5, 1.5**0.5, 0.75**0.5, 0.375**0.5])
     # An absent class gets 1 and does not move the median (of 1/4, 3/4: 1/2).
     assert median_frequency_weights([1, 0, 3], power=1.0) == pytest.approx([2.0, 1.0, 2 / 3])
     assert median_frequency_weights([5, 5, 5], power=0.0) == [1.0, 1.0, 1.0]
@@ -286,8 +289,9 @@ def test_total_loss_cosemdepth_m4depth_m4semantic():
     assert float(joint.depth) == pytest.approx(FRAME_LOSS, abs=1e-12)
     assert float(joint.semantic) == pytest.approx(math.log(2), abs=1e-12)
     assert float(joint.total) == pytest.approx(FRAME_LOSS + 0.1 * math.log(2), abs=1e-12)
-    assert joint.as_dict() == pytest.approx({"total": FRAME_LOSS + 0.1 * math.log(2), "depth": FRAME_LOSS,
-                                             "semantic": math.log(2)})
+    assert joint.as_dict() == pytest.approx(
+        {"total": FRAME_LOSS + 0.1 * math.log(2), "depth": FRAME_LOSS, "semantic": math.log(2)}
+    )
 
     depth_only = total_loss(preds, gt)
     assert depth_only.semantic is None and float(depth_only.total) == pytest.approx(FRAME_LOSS, abs=1e-12)

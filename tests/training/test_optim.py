@@ -6,8 +6,8 @@ import math
 import pytest
 import torch
 
-from cosemdepth.training.config import TrainConfig
 from cosemdepth.errors import ConfigError
+from cosemdepth.training.config import TrainConfig
 from cosemdepth.training.optim import KerasAdam, make_optimizer
 
 
@@ -36,10 +36,10 @@ def test_matches_keras2_formula_over_steps():
     grads = [0.5, -0.25, 1e-6, 3.0, -2e-7, 0.0, 0.125]
     lr, b1, b2, eps = 1e-3, 0.9, 0.999, 1e-7
     p, m, v, want = 1.0, 0.0, 0.0, []
-    for t, g in enumerate(grads, start=1):      # tf_keras/optimizers/adam.py update_step, written out
+    for t, g in enumerate(grads, start=1):  # tf_keras/optimizers/adam.py update_step, written out
         m = m + (g - m) * (1 - b1)
         v = v + (g * g - v) * (1 - b2)
-        alpha = lr * math.sqrt(1 - b2 ** t) / (1 - b1 ** t)
+        alpha = lr * math.sqrt(1 - b2**t) / (1 - b1**t)
         p = p - m * alpha / (math.sqrt(v) + eps)
         want.append(p)
     got = _run(KerasAdam, grads, lr=lr, betas=(b1, b2), eps=eps)
@@ -69,7 +69,8 @@ def test_large_gradients_agree_with_torch():
 def test_weight_decay_adds_to_the_gradient():
     # wd 0.5 on p = 1 with g = 0: effective g = 0.5 -> same as g = 0.5 without decay at step 1
     assert _run(KerasAdam, [0.0], lr=0.1, eps=0.01, weight_decay=0.5)[0] == pytest.approx(
-        _run(KerasAdam, [0.5], lr=0.1, eps=0.01)[0], abs=1e-12)
+        _run(KerasAdam, [0.5], lr=0.1, eps=0.01)[0], abs=1e-12
+    )
 
 
 def test_state_dict_resumes_with_torch_adam_names():
@@ -82,7 +83,7 @@ def test_state_dict_resumes_with_torch_adam_names():
     assert float(sd["state"][0]["step"]) == 1.0
     assert torch.allclose(sd["state"][0]["exp_avg"], torch.tensor([0.1, -0.2, 0.3]))
     other = torch.optim.Adam([torch.nn.Parameter(torch.ones(3))], lr=0.1)
-    other.load_state_dict(sd)                      # and back
+    other.load_state_dict(sd)  # and back
     again = KerasAdam([torch.nn.Parameter(torch.ones(3))], lr=0.1)
     again.load_state_dict(other.state_dict())
     assert torch.equal(again.state_dict()["state"][0]["exp_avg_sq"], sd["state"][0]["exp_avg_sq"])
@@ -110,7 +111,7 @@ def _keras_by_hand(p, grads, lr, b1, b2, eps, wd):
         t += 1
         m = m + (g - m) * (1 - b1)
         v = v + (g * g - v) * (1 - b2)
-        p = p - m * lr * math.sqrt(1 - b2 ** t) / (1 - b1 ** t) / (math.sqrt(v) + eps)
+        p = p - m * lr * math.sqrt(1 - b2**t) / (1 - b1**t) / (math.sqrt(v) + eps)
     return p
 
 
@@ -119,8 +120,11 @@ def test_multi_tensor_update_equals_the_formula_per_parameter():
     at some steps (so the parameters' step counts differ), with weight decay: each element as the formula."""
     lr, b1, b2, eps, wd = 1e-2, 0.8, 0.99, 1e-3, 0.05
     f64 = torch.float64
-    start = [torch.tensor([[1.0, -2.0], [0.5, 3.0]], dtype=f64), torch.tensor([0.25, -1.5], dtype=f64),
-             torch.tensor([4.0], dtype=f64)]
+    start = [
+        torch.tensor([[1.0, -2.0], [0.5, 3.0]], dtype=f64),
+        torch.tensor([0.25, -1.5], dtype=f64),
+        torch.tensor([4.0], dtype=f64),
+    ]
     params = [torch.nn.Parameter(s.clone()) for s in start]
     grads = [  # step -> per-parameter gradient (None: no gradient this step)
         [torch.tensor([[0.5, -0.1], [2.0, 0.0]]), torch.tensor([1e-4, -3.0]), torch.tensor([0.7])],

@@ -5,9 +5,12 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from cosemdepth.training.config import DataConfig, DatasetSource, RunConfig, TrainConfig
 from cosemdepth.errors import ConfigError
 from cosemdepth.training.config import (
+    DataConfig,
+    DatasetSource,
+    RunConfig,
+    TrainConfig,
     apply_override,
     builtin_configs,
     dump_config,
@@ -36,11 +39,20 @@ def test_shipped_configs_load_and_midair_is_the_default_recipe():
 
 
 def test_overrides_convert_types_and_index_lists():
-    cfg = resolve_config(None, [
-        "data.train.0.name=toy", "train.lr=3e-4", "train.betas=[0.8, 0.99]", "train.bf16=true",
-        "data.train.1.name=toy", "data.train.1.weight=0.25", "data.size=64", "debug.inject_nonfinite_steps=5",
-        "data.augment=geometric",
-    ])
+    cfg = resolve_config(
+        None,
+        [
+            "data.train.0.name=toy",
+            "train.lr=3e-4",
+            "train.betas=[0.8, 0.99]",
+            "train.bf16=true",
+            "data.train.1.name=toy",
+            "data.train.1.weight=0.25",
+            "data.size=64",
+            "debug.inject_nonfinite_steps=5",
+            "data.augment=geometric",
+        ],
+    )
     assert cfg.train.lr == 3e-4 and isinstance(cfg.train.lr, float)  # YAML reads "3e-4" as a string
     assert cfg.train.betas == (0.8, 0.99) and cfg.train.bf16 is True
     assert [s.weight for s in cfg.data.train] == [1.0, 0.25]
@@ -58,8 +70,16 @@ def test_precedence_file_then_values_then_overrides(tmp_path):
 
 
 def test_dump_loads_back_to_the_same_config():
-    cfg = resolve_config(None, ["data.train.0.name=toy", "data.train.0.options={length: 5}", "train.lr=2e-4",
-                                "data.val.name=toy", "train.lr_decay_epochs=[3, 5]"])
+    cfg = resolve_config(
+        None,
+        [
+            "data.train.0.name=toy",
+            "data.train.0.options={length: 5}",
+            "train.lr=2e-4",
+            "data.val.name=toy",
+            "train.lr_decay_epochs=[3, 5]",
+        ],
+    )
     again = RunConfig.from_dict(yaml.safe_load(dump_config(cfg)))
     assert again == cfg
 

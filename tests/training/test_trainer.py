@@ -11,11 +11,11 @@ import time
 import pytest
 import torch
 
-from cosemdepth.errors import CheckpointError
 from cosemdepth.checkpoints.convert import convert_checkpoint
+from cosemdepth.data.toy import ToyDataset
+from cosemdepth.errors import CheckpointError
 from cosemdepth.training.checkpoint import load_checkpoint, read_model_state, validate_checkpoint
 from cosemdepth.training.events import read_events
-from cosemdepth.data.toy import ToyDataset
 from cosemdepth.training.trainer import NonFiniteGuard, Trainer, TrainingDiverged, learning_rate
 
 
@@ -60,8 +60,13 @@ def test_same_seed_same_weights_and_exact_resume(tmp_path, tiny_config):
 
 def test_nonfinite_steps_are_skipped_then_rolled_back(tmp_path, tiny_config):
     """Injected NaN losses at steps 2, 4 (isolated: skipped) and 6, 7, 8 (three in a row: rollback)."""
-    cfg = tiny_config(train__epochs=3, train__max_steps=10, train__checkpoint_every=4, train__nonfinite_patience=3,
-                      debug__inject_nonfinite_steps=[2, 4, 6, 7, 8])
+    cfg = tiny_config(
+        train__epochs=3,
+        train__max_steps=10,
+        train__checkpoint_every=4,
+        train__nonfinite_patience=3,
+        debug__inject_nonfinite_steps=[2, 4, 6, 7, 8],
+    )
     checks = []
     trainer = None
     last_weights = {}
@@ -104,8 +109,9 @@ def test_nonfinite_steps_are_skipped_then_rolled_back(tmp_path, tiny_config):
 
 
 def test_gives_up_after_max_rollbacks(tmp_path, tiny_config):
-    cfg = tiny_config(train__max_steps=8, train__nonfinite_patience=2, train__max_rollbacks=0,
-                      debug__inject_nonfinite_steps=[2, 3])
+    cfg = tiny_config(
+        train__max_steps=8, train__nonfinite_patience=2, train__max_rollbacks=0, debug__inject_nonfinite_steps=[2, 3]
+    )
     with pytest.raises(TrainingDiverged, match="rollback"):
         Trainer(cfg, tmp_path / "run", console=False).fit()
     events = read_events(tmp_path / "run" / "events.jsonl")
@@ -114,16 +120,25 @@ def test_gives_up_after_max_rollbacks(tmp_path, tiny_config):
 
 def test_validation_best_model_and_checkpoints(tmp_path, tiny_config):
     """Validation after each epoch, on 4-frame windows, last frame only; the best model is a model folder."""
-    cfg = tiny_config(train__max_steps=8, train__validate_every_epochs=1, train__checkpoint_every=0,
-                      train__keep_last=2, train__best="abs_rel", train__image_every=4, train__log_every=2)
+    cfg = tiny_config(
+        train__max_steps=8,
+        train__validate_every_epochs=1,
+        train__checkpoint_every=0,
+        train__keep_last=2,
+        train__best="abs_rel",
+        train__image_every=4,
+        train__log_every=2,
+    )
     trainer = Trainer(cfg, tmp_path / "run", console=False)
     trainer.fit()
     events = read_events(tmp_path / "run" / "events.jsonl")
     vals = [e for e in events if e["kind"] == "validation"]
     assert [v["step"] for v in vals] == [4, 8]
     # 8 windows of 4 frames: one metric frame per window
-    assert all(v["metrics"]["frames"] == 8 and v["metrics"]["depth_frames"] == 8
-               and v["metrics"]["semantic_frames"] == 8 for v in vals)
+    assert all(
+        v["metrics"]["frames"] == 8 and v["metrics"]["depth_frames"] == 8 and v["metrics"]["semantic_frames"] == 8
+        for v in vals
+    )
     bests = [e for e in events if e["kind"] == "best"]
     expected = [4] + ([8] if vals[1]["metrics"]["abs_rel"] < vals[0]["metrics"]["abs_rel"] else [])
     assert [b["step"] for b in bests] == expected
@@ -143,8 +158,16 @@ def test_validation_best_model_and_checkpoints(tmp_path, tiny_config):
 
     acc = EventAccumulator(str(tmp_path / "run" / "tensorboard")).Reload()
     scalars = set(acc.Tags()["scalars"])
-    assert {"train/loss_total", "train/loss_depth", "train/loss_semantic", "train/lr", "val/abs_rel", "val/miou",
-            "val/rmse", "val/iou/0"} <= scalars
+    assert {
+        "train/loss_total",
+        "train/loss_depth",
+        "train/loss_semantic",
+        "train/lr",
+        "val/abs_rel",
+        "val/miou",
+        "val/rmse",
+        "val/iou/0",
+    } <= scalars
     assert [e.step for e in acc.Scalars("train/loss_total")] == [2, 4, 6, 8]
     images = acc.Tags()["images"]
     train_tag = next(t for t in images if t.startswith("train/"))
@@ -156,10 +179,10 @@ def test_validation_best_model_and_checkpoints(tmp_path, tiny_config):
 
 def test_validation_uses_only_the_last_frame_of_each_window(tiny_config):
     """run_window's output is the streaming model's last frame, equal to the sequence forward at that frame."""
+    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.models import build_model
     from cosemdepth.ops.resample import resize_nn2
     from cosemdepth.training.data import collate
-    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.training.validation import run_window
 
     cfg = tiny_config()
@@ -182,8 +205,13 @@ def test_single_task_models_train(tmp_path, tiny_config, arch):
 
 
 def test_weighted_mix_of_two_datasets(tmp_path, tiny_config):
-    cfg = tiny_config(train__max_steps=2, data__train__1__name="toy", data__train__1__weight=3.0,
-                      data__train__1__options={"length": 4, "shift": 1}, data__mix_length=12)
+    cfg = tiny_config(
+        train__max_steps=2,
+        data__train__1__name="toy",
+        data__train__1__weight=3.0,
+        data__train__1__options={"length": 4, "shift": 1},
+        data__mix_length=12,
+    )
     trainer = Trainer(cfg, tmp_path / "mix", console=False)
     assert len(trainer.train_set) == 12
     sources = [int(trainer.train_set[i]["source"]) for i in range(12)]
@@ -193,9 +221,9 @@ def test_weighted_mix_of_two_datasets(tmp_path, tiny_config):
 
 def test_bf16_autocast_keeps_the_loss_in_float32(tiny_config, bf16_cpu):
     """The model and the loss work under bf16 autocast; the loss stays float32 (CPU autocast, as train.bf16 uses)."""
+    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
-    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.training.trainer import compute_loss
 
     cfg = tiny_config(train__bf16=True)
@@ -212,10 +240,10 @@ def test_bf16_autocast_keeps_the_loss_in_float32(tiny_config, bf16_cpu):
 
 def test_compute_loss_applies_the_configured_class_weights(tiny_config):
     """train.semantic_class_weights reaches the semantic loss: the trainer's loss is the weighted one."""
+    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
     from cosemdepth.training.losses import semantic_loss
-    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.training.trainer import compute_loss
 
     cfg = tiny_config()
@@ -233,7 +261,7 @@ def test_compute_loss_applies_the_configured_class_weights(tiny_config):
 
 
 #: bfloat16's unit roundoff: 8 significant bits.
-BF16_U = 2.0 ** -8
+BF16_U = 2.0**-8
 
 
 def _loss_and_grads(model, batch, cfg, bf16: bool):
@@ -261,9 +289,9 @@ def test_bf16_cpu_training_step_is_close_to_float32(tiny_config, bf16_cpu):
     bias followed by a normalisation) are why no per-parameter bound is used."""
     import math
 
+    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
-    from cosemdepth.data.toy import ToyDataset
 
     cfg = tiny_config(data__size=32)
     torch.manual_seed(0)
@@ -288,9 +316,9 @@ def test_bf16_cpu_training_step_is_close_to_float32(tiny_config, bf16_cpu):
 def test_loss_is_float32_even_inside_autocast(tiny_config, bf16_cpu):
     """compute_loss switches autocast off: inside a bf16 autocast region it returns the same float32 value as
     outside it, for bf16 predictions."""
+    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
-    from cosemdepth.data.toy import ToyDataset
     from cosemdepth.training.trainer import compute_loss
 
     cfg = tiny_config()
@@ -321,6 +349,7 @@ def test_trainer_bf16_on_cpu_runs_and_keeps_float32_weights(tmp_path, tiny_confi
 
 def test_train_events_log_the_wait_for_data(tmp_path, tiny_config):
     """A loader that takes at least 0.05 s per item (batch 2, no workers): every step waited at least 0.1 s."""
+
     class Slow(ToyDataset):
         def __getitem__(self, i):
             time.sleep(0.05)
@@ -337,8 +366,14 @@ def test_worker_processes_and_resume_give_the_batches_of_the_main_process(tmp_pa
     """Three epochs of a weighted mix (items drawn by epoch) in one continuous stream: with 2 long-lived worker
     processes, stopped in the middle of epoch 1 and resumed, the losses and weights are bitwise those of a run that
     loads in the main process."""
-    mix = dict(train__epochs=3, train__checkpoint_every=100, data__train__1__name="toy",
-               data__train__1__weight=2.0, data__train__1__options={"length": 4, "shift": 1}, data__mix_length=8)
+    mix = dict(
+        train__epochs=3,
+        train__checkpoint_every=100,
+        data__train__1__name="toy",
+        data__train__1__weight=2.0,
+        data__train__1__options={"length": 4, "shift": 1},
+        data__mix_length=8,
+    )
     ref = Trainer(tiny_config(**mix), tmp_path / "ref", console=False)
     ref.fit()
     Trainer(tiny_config(data__num_workers=2, train__max_steps=6, **mix), tmp_path / "w", console=False).fit()
@@ -347,7 +382,9 @@ def test_worker_processes_and_resume_give_the_batches_of_the_main_process(tmp_pa
     assert _equal(_weights(resumed), _weights(ref))
 
     def losses(run):
-        return {e["step"]: e["loss_total"] for e in read_events(tmp_path / run / "events.jsonl") if e["kind"] == "train"}
+        return {
+            e["step"]: e["loss_total"] for e in read_events(tmp_path / run / "events.jsonl") if e["kind"] == "train"
+        }
 
     want = losses("ref")
     assert sorted(want) == list(range(1, 13)) and losses("w") == want
@@ -372,8 +409,9 @@ def test_init_weights_start_a_new_run_from_given_weights_and_a_resume_ignores_th
 
     for p in source_dir.iterdir():  # the weights are gone: a resume must not need them
         p.unlink()
-    resumed = Trainer(tiny_config(train__max_steps=4, train__init_weights=str(source_dir)), tmp_path / "ft",
-                      console=False)
+    resumed = Trainer(
+        tiny_config(train__max_steps=4, train__init_weights=str(source_dir)), tmp_path / "ft", console=False
+    )
     assert resumed.resuming
     assert resumed.fit()["step"] == 4
 
@@ -381,9 +419,11 @@ def test_init_weights_start_a_new_run_from_given_weights_and_a_resume_ignores_th
 def test_init_weights_of_another_model_or_missing_fail_before_writing(tmp_path, tiny_config):
     Trainer(tiny_config(train__max_steps=1), tmp_path / "src", console=False).fit()
     source_dir = tmp_path / "src" / "checkpoints" / "ckpt-00000001"
-    for overrides, expected in (({"model__arch": "m4depth"}, "arch 'cosemdepth' (run: 'm4depth')"),
-                                ({"model__levels": 2}, "levels 3 (run: 2)"),
-                                ({"model__num_classes": 5}, "num_classes 7 (run: 5)")):
+    for overrides, expected in (
+        ({"model__arch": "m4depth"}, "arch 'cosemdepth' (run: 'm4depth')"),
+        ({"model__levels": 2}, "levels 3 (run: 2)"),
+        ({"model__num_classes": 5}, "num_classes 7 (run: 5)"),
+    ):
         with pytest.raises(CheckpointError, match=re.escape(expected)) as e:
             Trainer(tiny_config(train__init_weights=str(source_dir), **overrides), tmp_path / "bad", console=False)
         assert str(e.value).startswith("train.init_weights: ")
@@ -395,8 +435,7 @@ def test_init_weights_of_another_model_or_missing_fail_before_writing(tmp_path, 
 def test_init_weights_from_an_official_tensorflow_checkpoint(tmp_path, tiny_config, tfref_dir):
     """The authors' checkpoint of the fixture, converted on the fly, is the new run's starting point."""
     expected, _ = convert_checkpoint(tfref_dir / "ckpt")
-    cfg = tiny_config(model__levels=5, data__size=32, train__max_steps=1,
-                      train__init_weights=str(tfref_dir / "ckpt"))
+    cfg = tiny_config(model__levels=5, data__size=32, train__max_steps=1, train__init_weights=str(tfref_dir / "ckpt"))
     Trainer(cfg, tmp_path / "ft", console=False).fit()
     got = read_model_state(tmp_path / "ft" / "checkpoints" / "ckpt-00000000")
     assert got.keys() == expected.keys()
@@ -422,8 +461,8 @@ def test_every_model_folder_of_a_run_records_the_motion_of_its_training_windows(
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
     from _writers import read_split_rows, write_midair
 
-    from cosemdepth.data.midair.splits import generate_splits
     from cosemdepth.checkpoints.model_io import load_model, operating_point_of
+    from cosemdepth.data.midair.splits import generate_splits
 
     root, splits = tmp_path / "midair", tmp_path / "splits"
     write_midair(root, {("Kite_training", "sunny"): [0, 1, 2]}, frames=36, size=32)  # 8 CSV rows per trajectory
@@ -435,13 +474,25 @@ def test_every_model_folder_of_a_run_records_the_motion_of_its_training_windows(
         for chunk in (rows[0:4], rows[4:8]):
             norms += [math.sqrt(sum(float(r[c]) ** 2 for c in ("tx", "ty", "tz"))) for r in chunk[1:]]
     x = np.array(norms)
-    expected = {"count": 18, "mean": x.mean(), "median": np.median(x),
-                **{f"p{q:02d}": np.percentile(x, q) for q in (5, 25, 75, 95)}}
+    expected = {
+        "count": 18,
+        "mean": x.mean(),
+        "median": np.median(x),
+        **{f"p{q:02d}": np.percentile(x, q) for q in (5, 25, 75, 95)},
+    }
 
     src = {"name": "midair", "root": str(root), "split_dir": str(splits)}
-    cfg = tiny_config(data__train=[src], data__val=src, data__val_split="train", data__seq_len=2,
-                      data__db_seq_len=4, data__val_seq_len=2, train__max_steps=2, train__validate_every_epochs=1,
-                      train__checkpoint_every=1)
+    cfg = tiny_config(
+        data__train=[src],
+        data__val=src,
+        data__val_split="train",
+        data__seq_len=2,
+        data__db_seq_len=4,
+        data__val_seq_len=2,
+        train__max_steps=2,
+        train__validate_every_epochs=1,
+        train__checkpoint_every=1,
+    )
     Trainer(cfg, tmp_path / "run", console=False).fit()
     folders = [*sorted((tmp_path / "run" / "checkpoints").iterdir()), tmp_path / "run" / "best"]
     assert len(folders) >= 2
@@ -454,6 +505,10 @@ def test_every_model_folder_of_a_run_records_the_motion_of_its_training_windows(
     import subprocess
 
     script = Path(__file__).resolve().parents[2] / "scripts" / "ship_weights.py"
-    subprocess.run([sys.executable, str(script), str(tmp_path / "run"), str(tmp_path / "shipped")], env=cli_env,
-                   check=True, capture_output=True)
+    subprocess.run(
+        [sys.executable, str(script), str(tmp_path / "run"), str(tmp_path / "shipped")],
+        env=cli_env,
+        check=True,
+        capture_output=True,
+    )
     assert operating_point_of(tmp_path / "shipped") == op

@@ -12,6 +12,7 @@ from cosemdepth.data.midair.format import PALETTE_7
 from cosemdepth.data.toy import ToyDataset
 from cosemdepth.errors import ConfigError, DatasetError
 from cosemdepth.models.config import ModelConfig
+from cosemdepth.tasks import DEPTH, SEMANTIC
 from cosemdepth.training.config import DataConfig, DatasetSource
 from cosemdepth.training.data import (
     EpochBatchSampler,
@@ -25,7 +26,6 @@ from cosemdepth.training.data import (
     steps_per_epoch,
     total_steps,
 )
-from cosemdepth.tasks import DEPTH, SEMANTIC
 from cosemdepth.training.visual import depth_to_rgb, example_strip, labels_to_rgb
 
 
@@ -57,7 +57,7 @@ def test_two_ranks_split_the_single_process_order():
     r0, r1 = list(ranks[0]), list(ranks[1])
     b = 2
     for k in range(len(r0) // b):
-        assert sorted(r0[k * b:(k + 1) * b] + r1[k * b:(k + 1) * b]) == sorted(order[2 * b * k:2 * b * (k + 1)])
+        assert sorted(r0[k * b : (k + 1) * b] + r1[k * b : (k + 1) * b]) == sorted(order[2 * b * k : 2 * b * (k + 1)])
     assert steps_per_epoch(data, 2, 2) == 3 and steps_per_epoch(data, 4, 1) == 3
     assert total_steps(60, 3, 0) == 180 and total_steps(60, 3, 7) == 7
 
@@ -87,21 +87,31 @@ def test_toy_dataset_layout_and_motion():
 
 
 def _open(src, **kw):
-    args = dict(split="train", seq_len=4, size=(32, 32), augment=False, mode="train", db_seq_len=4, seed=0,
-                num_classes=7)
+    args = dict(
+        split="train", seq_len=4, size=(32, 32), augment=False, mode="train", db_seq_len=4, seed=0, num_classes=7
+    )
     args.update(kw)
     return open_source(src, "data.train[0]", **args)
 
 
 def test_the_toy_opens_through_the_dataset_table_with_the_run_seed_and_the_model_classes():
-    ds = _open(DatasetSource(name="toy", options={"length": 3, "shift": 1}), split="val", seq_len=3, size=(16, 24),
-               seed=5, num_classes=4)
+    ds = _open(
+        DatasetSource(name="toy", options={"length": 3, "shift": 1}),
+        split="val",
+        seq_len=3,
+        size=(16, 24),
+        seed=5,
+        num_classes=4,
+    )
     expected = ToyDataset(length=3, seq_len=3, size=(16, 24), num_classes=4, seed=5, split="val", shift=1)
     assert len(ds) == 3
     for k in ("rgb", "depth", "semantic", "trans"):
         assert torch.equal(ds[2][k], expected[2][k]), k
-    with pytest.raises(ConfigError, match=r"data\.train\[0\] \(toy, split 'train'\): unknown option\(s\) \['colour'\] "
-                                          r"for dataset 'toy'"):
+    with pytest.raises(
+        ConfigError,
+        match=r"data\.train\[0\] \(toy, split 'train'\): unknown option\(s\) \['colour'\] "
+        r"for dataset 'toy'",
+    ):
         _open(DatasetSource(name="toy", options={"colour": 1}))
 
 
@@ -143,8 +153,11 @@ def test_pictures():
     near, far = depth_to_rgb(np.array([[1.0, 150.0]]))[0]
     assert int(near.sum()) > int(far.sum())  # near is brighter
     assert (depth_to_rgb(np.array([[np.nan]])) == 0).all()
-    example = {"depth": torch.ones(1, 8, 8), "pred_depth": torch.ones(1, 8, 8),
-               "semantic": torch.zeros(8, 8, dtype=torch.long)}
+    example = {
+        "depth": torch.ones(1, 8, 8),
+        "pred_depth": torch.ones(1, 8, 8),
+        "semantic": torch.zeros(8, 8, dtype=torch.long),
+    }
     cfg = ModelConfig()
     panels = DEPTH.strip_panels(example, cfg) + SEMANTIC.strip_panels(example, cfg)  # no predicted labels: 3 panels
     strip = example_strip(torch.rand(3, 8, 8), panels)
@@ -185,6 +198,7 @@ def _old_batches(dataset, *, epoch, start_batch, salt, batch_size, epochs, num_r
 def test_continuous_stream_gives_the_batches_of_one_loader_per_epoch(num_workers, mixed):
     """From batch 1 of epoch 2 with a salted order, over the rest of epoch 2 and epochs 3 and 4: 11 items, batch 3
     (3 full batches per epoch, 2 items dropped). The items follow the epochs also in long-lived workers."""
+
     def data():
         if mixed:
             return MixedDataset([_EpochItems(7, 0), _EpochItems(5, 1)], [1.0, 2.0], length=11, seed=4)
@@ -193,8 +207,9 @@ def test_continuous_stream_gives_the_batches_of_one_loader_per_epoch(num_workers
     expected = _old_batches(data(), epoch=2, start_batch=1, salt=1, batch_size=3, epochs=3)
     assert len(expected) == 2 + 3 + 3
     ds = data()
-    stream = make_train_stream(ds, ResumableSampler(ds, seed=9), 3, num_workers, epoch=2, start_batch=1, salt=1,
-                               num_batches=8, seed=0)
+    stream = make_train_stream(
+        ds, ResumableSampler(ds, seed=9), 3, num_workers, epoch=2, start_batch=1, salt=1, num_batches=8, seed=0
+    )
     got = [b["v"] for b in stream]
     assert len(got) == 8 and all(torch.equal(g, e) for g, e in zip(got, expected))
     assert [int(b[0, 1]) for b in got] == [2, 2, 3, 3, 3, 4, 4, 4]  # (a mix passes its epoch on)

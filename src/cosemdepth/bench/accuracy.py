@@ -49,9 +49,14 @@ def stream_metrics(model, dataset, device: torch.device, max_frames: Optional[in
         for i in range(n):
             item = dataset[i]
             reset = item["reset"][:1].to(device)
-            out, state = model.step(item["rgb"][:1].to(device), item["rot"][:1].to(device),
-                                    item["trans"][:1].to(device), item["intrinsics"].view(1, 4).to(device), reset,
-                                    state)
+            out, state = model.step(
+                item["rgb"][:1].to(device),
+                item["rot"][:1].to(device),
+                item["trans"][:1].to(device),
+                item["intrinsics"].view(1, 4).to(device),
+                reset,
+                state,
+            )
             metrics.update(
                 gt_depth=item["depth"][:1] if cfg.has_depth else None,
                 pred_depth=out.depth.float().cpu() if cfg.has_depth else None,
@@ -71,8 +76,9 @@ def calibration_frames(dataset, frames: int) -> list[tuple]:
     out = []
     for i in range(min(len(dataset), frames)):
         it = dataset[i]
-        out.append((it["rgb"][:1], it["rot"][:1], it["trans"][:1], it["intrinsics"].view(1, 4),
-                    it["reset"][:1] | (i == 0)))
+        out.append(
+            (it["rgb"][:1], it["rot"][:1], it["trans"][:1], it["intrinsics"].view(1, 4), it["reset"][:1] | (i == 0))
+        )
     return out
 
 
@@ -90,8 +96,15 @@ def verdict(mode: dict, reference: dict) -> dict:
     return v
 
 
-def compare_modes(load, dataset, modes: Sequence[str], device: torch.device, max_frames: Optional[int] = None,
-                  calibration: Optional[list] = None, report=print) -> dict:
+def compare_modes(
+    load,
+    dataset,
+    modes: Sequence[str],
+    device: torch.device,
+    max_frames: Optional[int] = None,
+    calibration: Optional[list] = None,
+    report=print,
+) -> dict:
     """``{"metrics": {mode: metrics}, "verdicts": {mode: verdict}}`` for the reference and every mode of ``modes``;
     ``load()`` returns a fresh copy of the :class:`~cosemdepth.models.SceneModel` for each mode; ``calibration``
     (int8) the steps of :func:`calibration_frames`."""
@@ -116,5 +129,15 @@ def all_ok(verdicts: Iterable[dict]) -> bool:
     return all(v["ok"] for v in verdicts)
 
 
-__all__ = ["ABSREL_TOL_REL", "CALIBRATION_FRAMES", "DEFAULT_MODES", "MIOU_TOL_POINTS", "MODES", "all_ok",
-           "calibration_frames", "compare_modes", "stream_metrics", "verdict"]
+__all__ = [
+    "ABSREL_TOL_REL",
+    "CALIBRATION_FRAMES",
+    "DEFAULT_MODES",
+    "MIOU_TOL_POINTS",
+    "MODES",
+    "all_ok",
+    "calibration_frames",
+    "compare_modes",
+    "stream_metrics",
+    "verdict",
+]

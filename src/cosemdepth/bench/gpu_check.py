@@ -53,8 +53,11 @@ SCHEMA = "cosemdepth-gpu-check/1"
 #: Stage names in the order they run.
 STAGES = ("cuda_tests", "streaming", "batched", "training", "ddp", "onnxruntime", "tensorrt")
 #: The test files whose tests run on the machine's device.
-CUDA_TEST_FILES = ("tests/inference/test_device_paths.py", "tests/test_devices.py",
-                   "tests/inference/test_static_streamer.py")
+CUDA_TEST_FILES = (
+    "tests/inference/test_device_paths.py",
+    "tests/test_devices.py",
+    "tests/inference/test_static_streamer.py",
+)
 #: Seconds all stages together may take (the check's promise: at most 8 minutes on one GPU).
 DEFAULT_BUDGET_S = 480.0
 #: The weights the check runs (shipped with the repository); a seeded random model when absent.
@@ -68,8 +71,10 @@ GPU_BATCHES, DRY_BATCHES = (8, 32), (2,)
 #: Tolerances against the float32 PyTorch reference path on the same flight: the median relative depth difference
 #: over the valid pixels (worst frame) and the share of equal argmax labels (worst frame). ``fp32``: float32
 #: arithmetic with another summation order (TF32 off); ``reduced``: float16, bfloat16 or TF32 arithmetic.
-TOLERANCES = {"fp32": {"depth_median_rel": 2e-3, "labels_equal": 0.999},
-              "reduced": {"depth_median_rel": 2e-2, "labels_equal": 0.99}}
+TOLERANCES = {
+    "fp32": {"depth_median_rel": 2e-3, "labels_equal": 0.999},
+    "reduced": {"depth_median_rel": 2e-2, "labels_equal": 0.99},
+}
 
 
 @dataclass
@@ -99,8 +104,13 @@ class Stage:
     results: list[dict] = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "status": self.status, "reason": self.reason, "seconds": round(self.seconds, 2),
-                "results": self.results}
+        return {
+            "name": self.name,
+            "status": self.status,
+            "reason": self.reason,
+            "seconds": round(self.seconds, 2),
+            "results": self.results,
+        }
 
 
 class NotRun(Exception):
@@ -121,8 +131,11 @@ def compare_outputs(ref: list, got: list, resets: list[bool]) -> dict:
                 depth_rel.append(float(np.median(rel)) if np.isfinite(rel).all() else float("inf"))
         if rs is not None and gs is not None:
             labels.append(float(np.mean(rs.argmax(1) == gs.argmax(1))))
-    return {"depth_median_rel": max(depth_rel) if depth_rel else None,
-            "labels_equal": min(labels) if labels else None, "frames": len(ref)}
+    return {
+        "depth_median_rel": max(depth_rel) if depth_rel else None,
+        "labels_equal": min(labels) if labels else None,
+        "frames": len(ref),
+    }
 
 
 def within(metrics: dict, tolerance: str) -> bool:
@@ -145,8 +158,13 @@ def compare_stream(step: Callable, reference, frames, device: str) -> dict:
         for k in range(n):
             reset = torch.full((b,), k == 0, dtype=torch.bool, device=device)
             args = (rgb[:, k], rot[:, k], trans[:, k], intr, reset)
-            st_ref = None if state is None or not state.flatten() else StreamState(**{
-                c: tuple(t.to(ref_dev, torch.float32) for t in v) for c, v in state.components.items()})
+            st_ref = (
+                None
+                if state is None or not state.flatten()
+                else StreamState(
+                    **{c: tuple(t.to(ref_dev, torch.float32) for t in v) for c, v in state.components.items()}
+                )
+            )
             with _no_tf32():
                 ref, _ = reference.step(*(a.to(ref_dev) for a in args), st_ref)
             out, state = step(*args, state)
@@ -183,9 +201,15 @@ def time_steps(step: Callable, frames, device: str, warmup: int, iters: int) -> 
             if k >= warmup:
                 times.append((time.perf_counter() - t0) * 1e3)
     med = statistics.median(times)
-    return {"batch": int(b), "median_ms_per_step": round(med, 3), "min_ms_per_step": round(min(times), 3),
-            "max_ms_per_step": round(max(times), 3), "median_ms_per_frame": round(med / b, 3),
-            "frames_per_s": round(1e3 * b / med, 2), "timed_steps": iters}
+    return {
+        "batch": int(b),
+        "median_ms_per_step": round(med, 3),
+        "min_ms_per_step": round(min(times), 3),
+        "max_ms_per_step": round(max(times), 3),
+        "median_ms_per_frame": round(med / b, 3),
+        "frames_per_s": round(1e3 * b / med, 2),
+        "timed_steps": iters,
+    }
 
 
 def _sync(dev: torch.device) -> None:
@@ -212,8 +236,8 @@ class Check:
     def model(self):
         """The float32 model on the CPU (its modules); copies are moved and given their path per row."""
         if self._model is None:
-            from ..models.config import ModelConfig
             from ..models import build_model
+            from ..models.config import ModelConfig
 
             w = self.plan.weights
             if w and Path(w).is_dir():
@@ -259,8 +283,9 @@ class Check:
             from ..export.onnx import export_onnx
 
             name = "step-reset-float.onnx" if reset_float else "step.onnx"
-            self._onnx[reset_float] = export_onnx(self.model(), self.workdir() / name, self.plan.size,
-                                                  self.plan.size, reset_float=reset_float)
+            self._onnx[reset_float] = export_onnx(
+                self.model(), self.workdir() / name, self.plan.size, self.plan.size, reset_float=reset_float
+            )
         return self._onnx[reset_float]
 
     # ---- running
@@ -294,8 +319,12 @@ class Check:
                 if stage.status == "ok" and any(r.get("ok") is False for r in stage.results):
                     stage.status = "failed"
             self.write()
-            print(f"{name:>12}: {stage.status}" + (f" ({stage.reason})" if stage.reason else "")
-                  + f" [{stage.seconds:.1f} s]", flush=True)
+            print(
+                f"{name:>12}: {stage.status}"
+                + (f" ({stage.reason})" if stage.reason else "")
+                + f" [{stage.seconds:.1f} s]",
+                flush=True,
+            )
         if self._tmp is not None:
             self._tmp.cleanup()
         return self.report()
@@ -304,12 +333,18 @@ class Check:
         from .harness import run_meta
 
         meta = run_meta(self.plan.device, command="gpu_check " + " ".join(sys.argv[1:]))
-        meta.update({"dry_run": self.plan.dry_run,
-                     "device": self.plan.device, "size": [self.plan.size, self.plan.size],
-                     "weights": self.plan.weights if self.plan.weights and Path(self.plan.weights).is_dir() else None,
-                     "budget_s": self.plan.budget_s, "elapsed_s": round(time.monotonic() - self.t0, 1),
-                     "gpu_count": torch.cuda.device_count() if torch.cuda.is_available() else 0,
-                     "tolerances": TOLERANCES})
+        meta.update(
+            {
+                "dry_run": self.plan.dry_run,
+                "device": self.plan.device,
+                "size": [self.plan.size, self.plan.size],
+                "weights": self.plan.weights if self.plan.weights and Path(self.plan.weights).is_dir() else None,
+                "budget_s": self.plan.budget_s,
+                "elapsed_s": round(time.monotonic() - self.t0, 1),
+                "gpu_count": torch.cuda.device_count() if torch.cuda.is_available() else 0,
+                "tolerances": TOLERANCES,
+            }
+        )
         counts = {s: sum(st.status == s for st in self.stages) for s in ("ok", "failed", "error", "not_run")}
         return {"schema": SCHEMA, "meta": meta, "stages": [s.to_dict() for s in self.stages], "summary": counts}
 
@@ -331,11 +366,18 @@ class Check:
             raise NotRun("the test files are not here (installed package without the repository's tests/)")
         junit = self.workdir() / "cuda-tests.xml"
         cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", f"--junitxml={junit}", *files]
-        r = subprocess.run(cmd, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                           timeout=max(30.0, min(180.0, self.left_s())))
+        r = subprocess.run(
+            cmd,
+            cwd=root,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            timeout=max(30.0, min(180.0, self.left_s())),
+        )
         counts = _junit_counts(junit)
-        stage.results.append({"files": files, "returncode": r.returncode, **counts,
-                              "ok": r.returncode == 0, "tail": r.stdout[-1500:]})
+        stage.results.append(
+            {"files": files, "returncode": r.returncode, **counts, "ok": r.returncode == 0, "tail": r.stdout[-1500:]}
+        )
 
     # ---- stage: batch-1 streaming
     def stage_streaming(self, stage: Stage) -> None:
@@ -354,8 +396,11 @@ class Check:
                     row.update(status="not_run", reason="no bf16 convolutions on this CPU")
                     continue
                 if path == "graph" and not self.cuda:
-                    row.update(status="not_run", reason="CUDA graphs need CUDA (the same static program runs "
-                               "eagerly on the CPU in tests/inference/test_static_streamer.py)")
+                    row.update(
+                        status="not_run",
+                        reason="CUDA graphs need CUDA (the same static program runs "
+                        "eagerly on the CPU in tests/inference/test_static_streamer.py)",
+                    )
                     continue
                 if self.left_s() <= 0:
                     row.update(status="not_run", reason="time budget spent")
@@ -366,9 +411,17 @@ class Check:
         from .runner import BenchCase, build
 
         tol = "fp32" if precision == "fp32" else "reduced"
-        case = BenchCase(arch=self.model().config.arch, batch=batch, height=self.plan.size, width=self.plan.size,
-                         device=self.plan.device, precision=precision, path=path,
-                         levels=self.model().config.levels, num_classes=self.model().config.num_classes)
+        case = BenchCase(
+            arch=self.model().config.arch,
+            batch=batch,
+            height=self.plan.size,
+            width=self.plan.size,
+            device=self.plan.device,
+            precision=precision,
+            path=path,
+            levels=self.model().config.levels,
+            num_classes=self.model().config.num_classes,
+        )
         import copy
 
         with _no_tf32() if precision == "fp32" else contextlib.nullcontext():
@@ -378,8 +431,9 @@ class Check:
                 row.update(metrics, tolerance=tol, ok=within(metrics, tol))
             if path == "graph":  # a new streamer: the comparison above left its buffers mid-flight
                 stepper = build(case, copy.deepcopy(self.model()))
-            row.update(time_steps(stepper.step, self.frames(batch), self.plan.device, self.plan.warmup,
-                                  self.plan.iters))
+            row.update(
+                time_steps(stepper.step, self.frames(batch), self.plan.device, self.plan.warmup, self.plan.iters)
+            )
         row["status"] = "ok" if row.get("ok", True) else "failed"
 
     # ---- stage: batched throughput
@@ -398,22 +452,27 @@ class Check:
 
     # ---- stage: training steps/s
     def stage_training(self, stage: Stage) -> None:
-        from ..training.config import RunConfig
+        from ..data.toy import ToyDataset
         from ..devices import bf16_convolutions
         from ..models import build_model
+        from ..training.config import RunConfig
         from ..training.data import collate, to_device
-        from ..data.toy import ToyDataset
         from ..training.trainer import bf16_autocast, compute_loss, forward_batch, prepare_for_training
 
         dev = torch.device(self.plan.device)
-        cfg = RunConfig.from_dict({"model": {"levels": self.model().config.levels},
-                                   "data": {"train": [{"name": "toy"}]}})
+        cfg = RunConfig.from_dict(
+            {"model": {"levels": self.model().config.levels}, "data": {"train": [{"name": "toy"}]}}
+        )
         b = 1 if self.plan.dry_run else cfg.train.batch_size
         data = ToyDataset(length=b, size=(self.plan.size, self.plan.size))
         batch = to_device(collate([data[i] for i in range(b)]), dev)
         for bf16 in (False, True):
-            row = {"precision": "bf16 autocast" if bf16 else "fp32", "batch": b, "size": self.plan.size,
-                   "seq_len": int(batch["rgb"].shape[1])}
+            row = {
+                "precision": "bf16 autocast" if bf16 else "fp32",
+                "batch": b,
+                "size": self.plan.size,
+                "seq_len": int(batch["rgb"].shape[1]),
+            }
             stage.results.append(row)
             if bf16 and not bf16_convolutions(dev):
                 row.update(status="not_run", reason="no bf16 convolutions on this CPU")
@@ -441,8 +500,14 @@ class Check:
                 times.append(time.perf_counter() - t)
             med = statistics.median(times)
             finite = all(np.isfinite(losses))
-            row.update(median_s_per_step=round(med, 4), steps_per_s=round(1 / med, 3), timed_steps=len(times),
-                       losses_finite=finite, ok=finite, status="ok" if finite else "failed")
+            row.update(
+                median_s_per_step=round(med, 4),
+                steps_per_s=round(1 / med, 3),
+                timed_steps=len(times),
+                losses_finite=finite,
+                ok=finite,
+                status="ok" if finite else "failed",
+            )
             model = opt = step = None  # free the model before the next precision
 
     # ---- stage: DDP under torchrun
@@ -454,18 +519,46 @@ class Check:
             raise NotRun(f"DDP needs 2 GPUs, this machine has {n}")
         run = self.workdir() / "ddp-run"
         shutil.rmtree(run, ignore_errors=True)
-        sets = {"model.levels": self.model().config.levels, "data.train.0.name": "toy",
-                "data.train.0.options": json.dumps({"length": 64}), "data.size": 128, "data.num_workers": 0,
-                "train.batch_size": 2, "train.max_steps": 30, "train.epochs": 100, "train.device": "cuda",
-                "train.bf16": "true", "train.checkpoint_every": 0, "train.validate_every_epochs": 0,
-                "train.progress": "false", "train.image_every": 0, "train.log_every": 1}
-        cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nnodes=1", "--nproc_per_node=2",
-               "-m", "cosemdepth", "train", "--out", str(run)]
+        sets = {
+            "model.levels": self.model().config.levels,
+            "data.train.0.name": "toy",
+            "data.train.0.options": json.dumps({"length": 64}),
+            "data.size": 128,
+            "data.num_workers": 0,
+            "train.batch_size": 2,
+            "train.max_steps": 30,
+            "train.epochs": 100,
+            "train.device": "cuda",
+            "train.bf16": "true",
+            "train.checkpoint_every": 0,
+            "train.validate_every_epochs": 0,
+            "train.progress": "false",
+            "train.image_every": 0,
+            "train.log_every": 1,
+        }
+        cmd = [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            "--nnodes=1",
+            "--nproc_per_node=2",
+            "-m",
+            "cosemdepth",
+            "train",
+            "--out",
+            str(run),
+        ]
         for k, v in sets.items():
             cmd += ["--set", f"{k}={v}"]
         t = time.perf_counter()
-        r = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                           timeout=max(30.0, min(240.0, self.left_s())))
+        r = subprocess.run(
+            cmd,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            timeout=max(30.0, min(240.0, self.left_s())),
+        )
         wall = time.perf_counter() - t
         row = {"processes": 2, "returncode": r.returncode, "wall_s": round(wall, 2), "tail": r.stdout[-1500:]}
         events = _read_jsonl(run / "events.jsonl")
@@ -486,8 +579,10 @@ class Check:
         except ImportError:
             raise NotRun("onnxruntime is not importable (pip install onnxruntime-gpu)") from None
         available = ort.get_available_providers()
-        wanted = [("CUDAExecutionProvider", {"use_tf32": "0"}, "fp32"),
-                  ("TensorrtExecutionProvider", {"trt_fp16_enable": "False"}, "reduced")]
+        wanted = [
+            ("CUDAExecutionProvider", {"use_tf32": "0"}, "fp32"),
+            ("TensorrtExecutionProvider", {"trt_fp16_enable": "False"}, "reduced"),
+        ]
         if self.plan.dry_run:  # the machinery, on the provider every build has
             wanted = [("CPUExecutionProvider", {}, "fp32")] + wanted
         for name, options, tol in wanted:
@@ -504,13 +599,16 @@ class Check:
                 continue
             from ..export.runtime import OnnxStep
 
-            providers = [(name, options)] if name == "CPUExecutionProvider" else [(name, options),
-                                                                                  "CPUExecutionProvider"]
+            providers = (
+                [(name, options)] if name == "CPUExecutionProvider" else [(name, options), "CPUExecutionProvider"]
+            )
             if name == "TensorrtExecutionProvider":
                 cache = self.workdir() / "trt-cache"
                 cache.mkdir(exist_ok=True)
-                providers[0] = (name, {**options, "trt_engine_cache_enable": "True",
-                                       "trt_engine_cache_path": str(cache)})
+                providers[0] = (
+                    name,
+                    {**options, "trt_engine_cache_enable": "True", "trt_engine_cache_path": str(cache)},
+                )
             graph = self.onnx_graph()
             t = time.perf_counter()
             step = OnnxStep(graph, providers=providers)
@@ -583,8 +681,11 @@ def parse(argv=None) -> Plan:
     ap.add_argument("--warmup", type=int, help="warm-up steps per timed row (default 5; 1 with --dry-run)")
     ap.add_argument("--iters", type=int, help="timed steps per row (default 30; 2 with --dry-run)")
     ap.add_argument("--train-steps", type=int, help="timed training steps (default 10; 1 with --dry-run)")
-    ap.add_argument("--model", default=DEFAULT_WEIGHTS,
-                    help=f"weights folder (default {DEFAULT_WEIGHTS}); '' for a seeded random model")
+    ap.add_argument(
+        "--model",
+        default=DEFAULT_WEIGHTS,
+        help=f"weights folder (default {DEFAULT_WEIGHTS}); '' for a seeded random model",
+    )
     ap.add_argument("--stages", nargs="+", choices=STAGES, default=list(STAGES), help="run only these stages")
     ap.add_argument("--keep", type=Path, help="keep the exported graph and engines in this folder")
     ap.add_argument("--out", type=Path, default=Path("gpu_check.json"), help="JSON report (default gpu_check.json)")
@@ -599,11 +700,20 @@ def parse(argv=None) -> Plan:
         v = getattr(a, name)
         if v is not None and v < (0 if name == "warmup" else 1):
             ap.error(f"--{name.replace('_', '-')} must be positive, got {v}")
-    return Plan(device=device, size=a.size or (DRY_SIZE if dry else GPU_SIZE), dry_run=dry,
-                batches=tuple(a.batched or (DRY_BATCHES if dry else GPU_BATCHES)), budget_s=a.budget,
-                warmup=a.warmup if a.warmup is not None else (1 if dry else 5), iters=a.iters or (2 if dry else 30),
-                train_steps=a.train_steps or (1 if dry else 10), weights=a.model, out=a.out, keep=a.keep,
-                stages=tuple(a.stages))
+    return Plan(
+        device=device,
+        size=a.size or (DRY_SIZE if dry else GPU_SIZE),
+        dry_run=dry,
+        batches=tuple(a.batched or (DRY_BATCHES if dry else GPU_BATCHES)),
+        budget_s=a.budget,
+        warmup=a.warmup if a.warmup is not None else (1 if dry else 5),
+        iters=a.iters or (2 if dry else 30),
+        train_steps=a.train_steps or (1 if dry else 10),
+        weights=a.model,
+        out=a.out,
+        keep=a.keep,
+        stages=tuple(a.stages),
+    )
 
 
 def main(argv=None) -> int:

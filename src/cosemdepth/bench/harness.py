@@ -172,8 +172,9 @@ def _cpu_capability() -> Optional[str]:
         return None
 
 
-def time_calls(fn: Callable[[], Any], *, warmup: int = 1, iters: int = 10,
-               sync: Optional[Callable[[], Any]] = None) -> list[float]:
+def time_calls(
+    fn: Callable[[], Any], *, warmup: int = 1, iters: int = 10, sync: Optional[Callable[[], Any]] = None
+) -> list[float]:
     """Seconds of each of ``iters`` calls of ``fn()`` after ``warmup`` untimed ones (``time.perf_counter``;
     ``sync()``, e.g. ``torch.cuda.synchronize``, runs before each clock reading)."""
     if iters < 1:
@@ -197,19 +198,30 @@ def summarize(times: list[float], scale: float = 1.0, digits: int = 4) -> dict[s
     if not times:
         raise ValueError("no times to summarize")
     xs = [t * scale for t in times]
-    return {"n": len(xs), "median": round(statistics.median(xs), digits), "min": round(min(xs), digits),
-            "max": round(max(xs), digits), "mean": round(statistics.fmean(xs), digits)}
+    return {
+        "n": len(xs),
+        "median": round(statistics.median(xs), digits),
+        "min": round(min(xs), digits),
+        "max": round(max(xs), digits),
+        "mean": round(statistics.fmean(xs), digits),
+    }
 
 
-def make_report(tool: str, params: Mapping[str, Any], results: Any, *, meta: Optional[Mapping[str, Any]] = None,
-                **sections: Any) -> dict[str, Any]:
+def make_report(
+    tool: str, params: Mapping[str, Any], results: Any, *, meta: Optional[Mapping[str, Any]] = None, **sections: Any
+) -> dict[str, Any]:
     """A report of the shape above (``meta`` defaults to :func:`run_meta` now); ``sections`` are extra top-level
     sections."""
     clash = set(sections) & set(TOP_KEYS)
     if clash:
         raise ValueError(f"extra sections may not be named {sorted(clash)}")
-    report = {"tool": tool, "schema": SCHEMA, "meta": dict(run_meta() if meta is None else meta),
-              "params": dict(params), "results": results}
+    report = {
+        "tool": tool,
+        "schema": SCHEMA,
+        "meta": dict(run_meta() if meta is None else meta),
+        "params": dict(params),
+        "results": results,
+    }
     report.update(sections)
     return report
 
@@ -242,8 +254,11 @@ def validate(report: Any) -> list[str]:
         elif date is not None:
             problems.append("meta 'date_utc' must be a string")
         flags = meta.get("cpu_flags")
-        if flags is not None and not (isinstance(flags, dict) and set(flags) == set(CPU_FLAGS)
-                                      and all(isinstance(v, bool) for v in flags.values())):
+        if flags is not None and not (
+            isinstance(flags, dict)
+            and set(flags) == set(CPU_FLAGS)
+            and all(isinstance(v, bool) for v in flags.values())
+        ):
             problems.append(f"meta 'cpu_flags' must map exactly {list(CPU_FLAGS)} to true/false, or be null")
         for k in ("cpu_count", "threads"):
             v = meta.get(k)

@@ -24,8 +24,13 @@ def quantile(values: Sequence[float], q: float) -> float:
 
 def spread(values: Sequence[float]) -> dict:
     """``min``, ``q25``, ``median``, ``q75``, ``max`` of repeated measurements."""
-    return {"min": min(values), "q25": quantile(values, 0.25), "median": statistics.median(values),
-            "q75": quantile(values, 0.75), "max": max(values)}
+    return {
+        "min": min(values),
+        "q25": quantile(values, 0.25),
+        "median": statistics.median(values),
+        "q75": quantile(values, 0.75),
+        "max": max(values),
+    }
 
 
 def compare_times(a: Sequence[float], b: Sequence[float]) -> str:
@@ -41,8 +46,7 @@ def compare_times(a: Sequence[float], b: Sequence[float]) -> str:
 
 def format_spread(s: dict, unit: str = "ms") -> str:
     """``"12.3 ms (min 11.9, IQR 12.1-12.8, max 14.0)"``."""
-    return (f"{s['median']:.1f} {unit} (min {s['min']:.1f}, IQR {s['q25']:.1f}-{s['q75']:.1f}, "
-            f"max {s['max']:.1f})")
+    return f"{s['median']:.1f} {unit} (min {s['min']:.1f}, IQR {s['q25']:.1f}-{s['q75']:.1f}, max {s['max']:.1f})"
 
 
 def format_busy(fraction: Optional[float]) -> str:

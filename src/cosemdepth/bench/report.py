@@ -7,7 +7,12 @@ from pathlib import Path
 
 from ..output_safety.atomic import atomic_write_text
 
-NAMES = {"cosemdepth": "Co-SemDepth", "m4depth": "M4Depth", "m4semantic": "M4Semantic", "m4depth+m4semantic": "M4Depth + M4Semantic"}
+NAMES = {
+    "cosemdepth": "Co-SemDepth",
+    "m4depth": "M4Depth",
+    "m4semantic": "M4Semantic",
+    "m4depth+m4semantic": "M4Depth + M4Semantic",
+}
 
 
 def _fmt_params(n: int) -> str:
@@ -49,7 +54,7 @@ def markdown(report: dict) -> str:
             "",
             "Joint vs separate (Co-SemDepth vs M4Depth then M4Semantic on every frame, both loaded):",
             "",
-            "Times: median (interquartile range) over the repeated steps; \"joint faster\" says \"within noise\" when "
+            'Times: median (interquartile range) over the repeated steps; "joint faster" says "within noise" when '
             "the two interquartile ranges overlap.",
             "",
             "| precision | path | batch | resolution | joint ms/frame | separate ms/frame | time basis | joint params "

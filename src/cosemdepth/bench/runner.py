@@ -18,11 +18,11 @@ from typing import Callable, Optional
 
 import torch
 
-from ..models.config import MIDAIR_IMAGE_SIZE, ModelConfig
 from ..export.check import synthetic_sequence
 from ..inference.fast_model import FastModel
 from ..inference.graphs import make_streamer
 from ..models import build_model
+from ..models.config import MIDAIR_IMAGE_SIZE, ModelConfig
 from .memory import PeakMemory, exact_rss
 from .noise import compare_times, spread
 
@@ -140,7 +140,9 @@ def build(case: BenchCase, model=None):
         return _GraphStepper(model, case)
     if case.path == "fast" and case.precision == "int8":
         rgb, rot, trans, intr = make_frames(case, INT8_CALIBRATION_FRAMES)
-        frames = [(rgb[:, k], rot[:, k], trans[:, k], intr, torch.full((case.batch,), k == 0)) for k in range(rgb.shape[1])]
+        frames = [
+            (rgb[:, k], rot[:, k], trans[:, k], intr, torch.full((case.batch,), k == 0)) for k in range(rgb.shape[1])
+        ]
         return FastModel(model, dtype="int8", calibration=frames)
     if case.path == "fast":
         return FastModel(model, dtype=PRECISIONS[case.precision])

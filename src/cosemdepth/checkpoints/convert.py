@@ -34,9 +34,15 @@ import numpy as np
 import torch
 
 from .. import __version__
-from ..models.config import ARCHITECTURES, ENCODER_CHANNELS, ModelConfig
-from ..models.config import MIDAIR_IMAGE_SIZE, ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
 from ..errors import CheckpointError, ConfigError
+from ..models.config import (
+    ARCHITECTURES,
+    ENCODER_CHANNELS,
+    MIDAIR_IMAGE_SIZE,
+    ORIGINAL_PSCV_DTYPE,
+    PSCV_DTYPES,
+    ModelConfig,
+)
 from ..models.model import build_model
 from ..operating_point import MotionStats, OperatingPoint
 from .tf_checkpoint import CheckpointReader
@@ -49,13 +55,21 @@ PREP_CONVS = 3
 #: 4-row chunk (the paper's seq_len = db_seq_len = 4) of the authors' published training-split CSVs
 #: (Malga-Vision/Co-SemDepth, data/midair/train_data, 70,399 rows). Recomputed by
 #: ``python scripts/midair_motion_stats.py AUTHORS_DIR``.
-MIDAIR_STEP_TRANSLATION = MotionStats(count=52632, mean=1.6760828560801506, median=1.604856814287929,
-                                      p05=0.7155285897518835, p25=1.164078108511934, p75=2.1368632936091183,
-                                      p95=2.909905478710922)
+MIDAIR_STEP_TRANSLATION = MotionStats(
+    count=52632,
+    mean=1.6760828560801506,
+    median=1.604856814287929,
+    p05=0.7155285897518835,
+    p25=1.164078108511934,
+    p75=2.1368632936091183,
+    p95=2.909905478710922,
+)
 #: The operating point of the official checkpoints (trained on Mid-Air at 384x384, a 90-degree camera: f = W/2),
 #: written by ``cosemdepth convert`` and given to TensorFlow checkpoints loaded on the fly.
 MIDAIR_OPERATING_POINT = OperatingPoint(
-    (MIDAIR_IMAGE_SIZE, MIDAIR_IMAGE_SIZE), (MIDAIR_IMAGE_SIZE / 2, MIDAIR_IMAGE_SIZE / 2), MIDAIR_STEP_TRANSLATION,
+    (MIDAIR_IMAGE_SIZE, MIDAIR_IMAGE_SIZE),
+    (MIDAIR_IMAGE_SIZE / 2, MIDAIR_IMAGE_SIZE / 2),
+    MIDAIR_STEP_TRANSLATION,
     "Mid-Air at 384x384, 90-degree field of view; motion: the authors' Mid-Air training-split CSVs",
 )
 
@@ -215,8 +229,9 @@ def infer_config(
         scopes = " or ".join(sorted(f"'{t.refiner}'" for t in TF_DECODERS.values()))
         raise CheckpointError(
             f"{origin}: an encoder but no decoder (no {scopes} weights): not a "
-            "Co-SemDepth, M4Depth or M4Semantic checkpoint" if not any(has.values()) else
-            f"{origin}: its decoders {sorted(k for k, v in has.items() if v)} make no registered architecture"
+            "Co-SemDepth, M4Depth or M4Semantic checkpoint"
+            if not any(has.values())
+            else f"{origin}: its decoders {sorted(k for k, v in has.items() if v)} make no registered architecture"
         )
     arch_inferred = arch is None
     if arch is None:

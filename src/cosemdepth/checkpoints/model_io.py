@@ -31,15 +31,15 @@ import torch
 from safetensors import SafetensorError
 
 from .. import __version__
-from ..models.config import ModelConfig
 from ..errors import CheckpointError, ConfigError
 from ..inference.fast_model import FastModel, reference_model
 from ..models import SceneModel, build_model
+from ..models.config import ModelConfig
 from ..operating_point import OperatingPoint
 from ..output_safety.atomic import atomic_open
-from .convert import MIDAIR_OPERATING_POINT, convert_checkpoint, expected_param_shapes
 from ..output_safety.manifest import MANIFEST_FILE, sha256_file, validate_manifest
 from ..output_safety.staging import missing_ancestors, remove_empty
+from .convert import MIDAIR_OPERATING_POINT, convert_checkpoint, expected_param_shapes
 from .tf_checkpoint import is_tf_checkpoint
 
 FORMAT = "cosemdepth"
@@ -119,8 +119,9 @@ def save_weights(
         raise ConfigError(f"operating_point must be an OperatingPoint, got {type(operating_point).__name__}")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
-        raise CheckpointError(f"{out}: exists and is not a folder; the output must be a folder (it gets {CONFIG_FILE} "
-                              f"and {WEIGHTS_FILE})")
+        raise CheckpointError(
+            f"{out}: exists and is not a folder; the output must be a folder (it gets {CONFIG_FILE} and {WEIGHTS_FILE})"
+        )
     check_state_dict(state_dict, config, f"weights for {out}")
     tensors = {k: v.detach().to("cpu").contiguous().clone() for k, v in state_dict.items()}
     meta = {
@@ -149,8 +150,12 @@ def save_weights(
     return out
 
 
-def save_model(model: SceneModel | FastModel, out_dir: str | os.PathLike, source: Mapping[str, Any] | None = None,
-               operating_point: OperatingPoint | None = None) -> Path:
+def save_model(
+    model: SceneModel | FastModel,
+    out_dir: str | os.PathLike,
+    source: Mapping[str, Any] | None = None,
+    operating_point: OperatingPoint | None = None,
+) -> Path:
     """Save ``model`` (which has a ``config: ModelConfig``) in our format; see :func:`save_weights`.
 
     ``operating_point`` defaults to the model's own ``model.operating_point`` (set by :func:`load_model`), if any.
@@ -190,7 +195,7 @@ def read_config_file(path: str | os.PathLike) -> tuple[ModelConfig, dict[str, An
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise CheckpointError(f"{cfg_path}: corrupt model config (not valid JSON: {e})") from e
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise CheckpointError(f"{cfg_path}: not a cosemdepth model config (no \"format\": \"{FORMAT}\")")
+        raise CheckpointError(f'{cfg_path}: not a cosemdepth model config (no "format": "{FORMAT}")')
     version = meta.get("format_version")
     if not isinstance(version, int) or version < 1:
         raise CheckpointError(f"{cfg_path}: bad format_version {version!r}")
@@ -201,7 +206,7 @@ def read_config_file(path: str | os.PathLike) -> tuple[ModelConfig, dict[str, An
     try:
         cfg = ModelConfig.from_dict(meta.get("model"))
     except (ConfigError, TypeError) as e:
-        raise CheckpointError(f"{cfg_path}: invalid \"model\" entry: {e}") from e
+        raise CheckpointError(f'{cfg_path}: invalid "model" entry: {e}') from e
     return cfg, meta
 
 
@@ -221,8 +226,11 @@ def _training_size(source: Mapping[str, Any]) -> tuple[int, int] | None:
         v = d.get("size") if isinstance(d, Mapping) else None
         if isinstance(v, int) and not isinstance(v, bool):
             v = [v, v]
-        if (isinstance(v, (list, tuple)) and len(v) == 2
-                and all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in v)):
+        if (
+            isinstance(v, (list, tuple))
+            and len(v) == 2
+            and all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in v)
+        ):
             return int(v[0]), int(v[1])
     return None
 
@@ -239,13 +247,17 @@ def read_operating_point(meta: Mapping[str, Any], origin: str = CONFIG_FILE) -> 
         try:
             return OperatingPoint.from_dict(meta[OPERATING_POINT])
         except ConfigError as e:
-            raise CheckpointError(f"{origin}: invalid \"{OPERATING_POINT}\" entry: {e}") from None
+            raise CheckpointError(f'{origin}: invalid "{OPERATING_POINT}" entry: {e}') from None
     source = meta.get("source")
     size = _training_size(source) if isinstance(source, Mapping) else None
     if size is None:
         return None
-    return OperatingPoint(size, (size[1] / 2, size[0] / 2), None,
-                          "the training size in config.json's source; the 90-degree camera of Mid-Air's format")
+    return OperatingPoint(
+        size,
+        (size[1] / 2, size[0] / 2),
+        None,
+        "the training size in config.json's source; the 90-degree camera of Mid-Air's format",
+    )
 
 
 def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], ModelConfig, dict[str, Any]]:
@@ -272,8 +284,9 @@ def read_model_files(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], 
     if WEIGHTS_CHECKSUM in meta:  # what still decodes: the checksum that save_weights recorded
         expected = meta[WEIGHTS_CHECKSUM]
         if not isinstance(expected, str) or sha256_file(weights) != expected:
-            raise CheckpointError(f"{weights}: checksum mismatch with {folder / CONFIG_FILE} (corrupt or modified "
-                                  "weights file)")
+            raise CheckpointError(
+                f"{weights}: checksum mismatch with {folder / CONFIG_FILE} (corrupt or modified weights file)"
+            )
     return state_dict, cfg, meta
 
 

@@ -124,9 +124,7 @@ def _resolve_checkpoint(p: Path) -> Path:
                 f"{state}: names checkpoint {prefix}, which cannot be accessed ({e.strerror})"
             ) from None
         if not found:
-            raise CheckpointError(
-                f"{state}: names checkpoint {prefix}, but {prefix}.index does not exist"
-            )
+            raise CheckpointError(f"{state}: names checkpoint {prefix}, but {prefix}.index does not exist")
         return prefix
     name = p.name
     if name.endswith(".index") and p.is_file():

@@ -29,13 +29,12 @@ class TfDecoder:
 
 
 def _ablation_config(sncv: bool, time_recurrence: bool, level_memory: bool, subdivision: bool) -> ModelConfig:
-    return ModelConfig(sncv=sncv, time_recurrence=time_recurrence, level_memory=level_memory,
-                       feature_subdivision=subdivision)
+    return ModelConfig(
+        sncv=sncv, time_recurrence=time_recurrence, level_memory=level_memory, feature_subdivision=subdivision
+    )
 
 
-def infer_depth_ablations(
-    c_ins: list[int], origin: str
-) -> tuple[bool, bool, bool, bool]:
+def infer_depth_ablations(c_ins: list[int], origin: str) -> tuple[bool, bool, bool, bool]:
     """``(sncv, time_recurrence, level_memory, feature_subdivision)`` matching the refiner input channels."""
     matches = [
         combo
@@ -64,8 +63,10 @@ def infer_semantic_sncv(shapes: Mapping[str, tuple[int, ...]], levels: int, num_
         c_ins.append(int(first[2]))
     for sncv in (False, True):
         cfg = ModelConfig(arch="m4semantic", levels=levels, num_classes=num_classes, semantic_sncv=sncv)
-        if all(semantic_refiner_in_channels(j + 1, c, cfg) == n
-               for j, (c, n) in enumerate(zip(cfg.encoder_channels, c_ins))):
+        if all(
+            semantic_refiner_in_channels(j + 1, c, cfg) == n
+            for j, (c, n) in enumerate(zip(cfg.encoder_channels, c_ins))
+        ):
             return sncv
     raise CheckpointError(
         f"{origin}: semantic refiner input channels {c_ins} (finest level first) match neither the released semantic "
@@ -100,8 +101,10 @@ def semantic_config(shapes: Shapes, levels: int, origin: str) -> dict[str, Any]:
 
 
 #: Decoder name -> its TF names, in the order their config fields are read.
-TF_DECODERS: dict[str, TfDecoder] = {"semantic": TfDecoder("semantic_refiner", semantic_config),
-                                     "depth": TfDecoder("disp_refiner", depth_config)}
+TF_DECODERS: dict[str, TfDecoder] = {
+    "semantic": TfDecoder("semantic_refiner", semantic_config),
+    "depth": TfDecoder("disp_refiner", depth_config),
+}
 
 
 def register_tf_decoder(name: str, names: TfDecoder) -> None:
@@ -109,5 +112,12 @@ def register_tf_decoder(name: str, names: TfDecoder) -> None:
     TF_DECODERS[name] = names
 
 
-__all__ = ["TF_DECODERS", "TfDecoder", "depth_config", "infer_depth_ablations", "infer_semantic_sncv",
-           "register_tf_decoder", "semantic_config"]
+__all__ = [
+    "TF_DECODERS",
+    "TfDecoder",
+    "depth_config",
+    "infer_depth_ablations",
+    "infer_semantic_sncv",
+    "register_tf_decoder",
+    "semantic_config",
+]

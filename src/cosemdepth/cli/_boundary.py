@@ -28,7 +28,7 @@ ENVIRONMENT_ERRNOS: dict[int, str] = {
     errno.ENOSPC: "the disk is full: free some space, or write the output to another disk",
     errno.EDQUOT: "the disk quota is exceeded: free some space, or write the output elsewhere",
     errno.EFBIG: "the file is larger than the file system or the process's file-size limit (ulimit -f) allows: "
-                 "write it elsewhere or raise the limit",
+    "write it elsewhere or raise the limit",
     errno.EROFS: "the file system is read-only: choose a path on a writable disk",
     errno.EACCES: "check the permissions, or choose another path",
     errno.EPERM: "the file or folder may be immutable or append-only (lsattr shows it): choose another path",
@@ -43,8 +43,7 @@ ENVIRONMENT_ERRNOS: dict[int, str] = {
 _ERRNO_PATTERNS = (re.compile(r"\[Errno (\d+)\]"), re.compile(r"os error (\d+)"), re.compile(r"errno = (\d+)"))
 
 #: The allocators' messages when memory runs out (PyTorch's CPU allocator, CUDA, MPS).
-_OUT_OF_MEMORY = re.compile(r"can't allocate memory|not enough memory|out of memory|failed to allocate",
-                            re.IGNORECASE)
+_OUT_OF_MEMORY = re.compile(r"can't allocate memory|not enough memory|out of memory|failed to allocate", re.IGNORECASE)
 
 
 def error_line(e: BaseException, outputs: list[str] = ()) -> str | None:

@@ -8,20 +8,20 @@ from pathlib import Path
 
 import torch
 
-from ..models.config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
+from ..checkpoints.model_io import load_model, operating_point_of
 from ..data import open_dataset
 from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS, image_size
 from ..data.frames import FocalSize, as_size
 from ..data.registry import DATASETS, split_datasets
-from ..errors import CheckpointError, ConfigError
-from ..workers import WORKERS_PER_CORE, check_workers
 from ..devices import resolve_device
-from ..checkpoints.model_io import load_model, operating_point_of
-from ..models import build_model
+from ..errors import CheckpointError, ConfigError
 from ..inference.fast_model import FastModel, reference_model
 from ..inference.policy import BASELINE, EVERY_FRAME, POLICIES
-from ..operating_point import OperatingPoint
+from ..models import build_model
+from ..models.config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
 from ..models.footprint import check_size
+from ..operating_point import OperatingPoint
+from ..workers import WORKERS_PER_CORE, check_workers
 
 #: The model config's defaults (``--arch/--levels/--classes`` read them: one home for defaults).
 MODEL_DEFAULTS = ModelConfig()
@@ -57,17 +57,24 @@ def positive_int(text: str) -> int:
 
 
 def add_model_args(parser: argparse.ArgumentParser, required: bool = True) -> None:
-    parser.add_argument("--model", required=required, metavar="MODEL",
-                        help="a model folder (config.json + model.safetensors) or an official TensorFlow checkpoint")
+    parser.add_argument(
+        "--model",
+        required=required,
+        metavar="MODEL",
+        help="a model folder (config.json + model.safetensors) or an official TensorFlow checkpoint",
+    )
     add_reference_arg(parser)
     add_precision_arg(parser)
     add_device_args(parser)
 
 
 def add_reference_arg(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--reference", action="store_true",
-                        help="run the plain PyTorch modules instead of the fast inference path (the default: fp32, "
-                        "the same results up to float rounding, faster: docs/benchmarks.md)")
+    parser.add_argument(
+        "--reference",
+        action="store_true",
+        help="run the plain PyTorch modules instead of the fast inference path (the default: fp32, "
+        "the same results up to float rounding, faster: docs/benchmarks.md)",
+    )
 
 
 #: ``--precision`` -> ``FastModel(model, dtype)``
@@ -75,11 +82,15 @@ PRECISION_DTYPES = {"fp32": "float32", "bf16": "bfloat16", "int8": "int8"}
 
 
 def add_precision_arg(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--precision", choices=list(PRECISION_DTYPES), default="fp32",
-                        help="precision of the fast path's refiners: fp32 (default; the reference results up to float "
-                        "rounding), bf16, or int8 (CPU; oneDNN int8 convolutions in the semantic refiners, activation "
-                        "ranges calibrated on the first 8 frames, which run in fp32); check the accuracy of your "
-                        "weights with 'cosemdepth fast-accuracy' before using bf16 or int8")
+    parser.add_argument(
+        "--precision",
+        choices=list(PRECISION_DTYPES),
+        default="fp32",
+        help="precision of the fast path's refiners: fp32 (default; the reference results up to float "
+        "rounding), bf16, or int8 (CPU; oneDNN int8 convolutions in the semantic refiners, activation "
+        "ranges calibrated on the first 8 frames, which run in fp32); check the accuracy of your "
+        "weights with 'cosemdepth fast-accuracy' before using bf16 or int8",
+    )
 
 
 def add_model_or_arch_args(parser: argparse.ArgumentParser) -> None:
@@ -91,12 +102,15 @@ def add_model_or_arch_args(parser: argparse.ArgumentParser) -> None:
         "default: a freshly initialised model of --arch (random weights: fine for speed, not for outputs)",
     )
     d = MODEL_DEFAULTS
-    parser.add_argument("--arch", choices=ARCHITECTURES, default=d.arch,
-                        help=f"architecture without --model (default {d.arch})")
-    parser.add_argument("--levels", type=int, default=d.levels,
-                        help=f"pyramid levels without --model (default {d.levels})")
-    parser.add_argument("--classes", type=int, default=d.num_classes,
-                        help=f"semantic classes without --model (default {d.num_classes})")
+    parser.add_argument(
+        "--arch", choices=ARCHITECTURES, default=d.arch, help=f"architecture without --model (default {d.arch})"
+    )
+    parser.add_argument(
+        "--levels", type=int, default=d.levels, help=f"pyramid levels without --model (default {d.levels})"
+    )
+    parser.add_argument(
+        "--classes", type=int, default=d.num_classes, help=f"semantic classes without --model (default {d.num_classes})"
+    )
 
 
 def load_or_build(args: argparse.Namespace, device: str = "cpu"):
@@ -135,8 +149,13 @@ def parse_size_pair(values: list[int] | None, default: tuple[int, int] = DEFAULT
 
 def add_device_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:N or mps")
-    parser.add_argument("--threads", type=positive_int, default=None, metavar="N",
-                        help="CPU threads for torch (default: torch's choice, usually the number of cores)")
+    parser.add_argument(
+        "--threads",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="CPU threads for torch (default: torch's choice, usually the number of cores)",
+    )
 
 
 def apply_threads(args: argparse.Namespace) -> None:
@@ -150,22 +169,35 @@ def add_split_args(parser: argparse.ArgumentParser, required: bool = True) -> No
     (:func:`cosemdepth.data.registry.split_datasets`, read when the parser is built; flights are opened by
     ``predict --flight``)."""
     names = split_datasets()
-    parser.add_argument("--dataset", choices=names, required=required, metavar="NAME",
-                        help=f"dataset: {', '.join(names)}")
+    parser.add_argument(
+        "--dataset", choices=names, required=required, metavar="NAME", help=f"dataset: {', '.join(names)}"
+    )
     parser.add_argument("--root", type=Path, required=required, metavar="ROOT", help="dataset root folder")
     required_for = [n for n in names if DATASETS[n].needs_split_dir]
     folders = [f"ROOT/{DATASETS[n].split_dir} for {n}" for n in names if DATASETS[n].split_dir is not None]
-    parser.add_argument("--split-dir", type=Path, default=None, metavar="D",
-                        help="folder of the split files ("
-                        + "; ".join([*(["required for " + ", ".join(required_for)] if required_for else []),
-                                     *(["default " + ", ".join(folders)] if folders else [])]) + ")")
+    parser.add_argument(
+        "--split-dir",
+        type=Path,
+        default=None,
+        metavar="D",
+        help="folder of the split files ("
+        + "; ".join(
+            [
+                *(["required for " + ", ".join(required_for)] if required_for else []),
+                *(["default " + ", ".join(folders)] if folders else []),
+            ]
+        )
+        + ")",
+    )
     defaults = ", ".join(f"{name} {DATASETS[name].split}" for name in names)
     parser.add_argument("--split", default=None, help=f"split to use (default: {defaults})")
 
 
 #: What the commands that run a model on an input with a camera do without --size.
-MODEL_SIZE_RULE = ("the size at which the input's focal length in pixels is the model's (its operating point in "
-                   "config.json), with the input's aspect ratio")
+MODEL_SIZE_RULE = (
+    "the size at which the input's focal length in pixels is the model's (its operating point in "
+    "config.json), with the input's aspect ratio"
+)
 
 
 def size_help(what: str = "network input size, S or HxW") -> str:
@@ -175,8 +207,11 @@ def size_help(what: str = "network input size, S or HxW") -> str:
     for name in split_datasets():
         size = DATASETS[name].size
         sizes.setdefault("native" if size is None else str(size), []).append(name)
-    return (f"{what} (default: {MODEL_SIZE_RULE}; for a model without one: "
-            + "; ".join(f"{v} for {', '.join(n)}" for v, n in sizes.items()) + ")")
+    return (
+        f"{what} (default: {MODEL_SIZE_RULE}; for a model without one: "
+        + "; ".join(f"{v} for {', '.join(n)}" for v, n in sizes.items())
+        + ")"
+    )
 
 
 def model_operating_point(model_path) -> OperatingPoint | None:
@@ -213,14 +248,23 @@ def add_policy_args(parser: argparse.ArgumentParser, default: str) -> None:
     """``--policy`` and ``--min-baseline`` (:mod:`cosemdepth.inference.policy`); ``default`` describes the default in
     the help (the flag's value stays None: :func:`stream_policy` resolves it per input)."""
     g = parser.add_argument_group("streaming policy (docs/motion.md)")
-    g.add_argument("--policy", choices=POLICIES, default=None,
-                   help=f"which frame a depth is estimated against: {BASELINE} (a reference frame the camera has moved "
-                   f"far enough from; frames closer to it carry its depth, status held) or {EVERY_FRAME} (the "
-                   f"previous frame, the paper's protocol); default: {default}")
-    g.add_argument("--min-baseline", type=float, default=None, metavar="M",
-                   help=f"metres the camera must move from the reference frame before a frame is estimated "
-                   f"(--policy {BASELINE}; default: 0.75 x the 5th percentile of the per-step translations the model "
-                   "was trained with, from its folder)")
+    g.add_argument(
+        "--policy",
+        choices=POLICIES,
+        default=None,
+        help=f"which frame a depth is estimated against: {BASELINE} (a reference frame the camera has moved "
+        f"far enough from; frames closer to it carry its depth, status held) or {EVERY_FRAME} (the "
+        f"previous frame, the paper's protocol); default: {default}",
+    )
+    g.add_argument(
+        "--min-baseline",
+        type=float,
+        default=None,
+        metavar="M",
+        help=f"metres the camera must move from the reference frame before a frame is estimated "
+        f"(--policy {BASELINE}; default: 0.75 x the 5th percentile of the per-step translations the model "
+        "was trained with, from its folder)",
+    )
 
 
 def stream_policy(args: argparse.Namespace, default: str | None) -> tuple[str | None, float | None]:
@@ -233,29 +277,49 @@ def stream_policy(args: argparse.Namespace, default: str | None) -> tuple[str | 
         raise ConfigError(f"--min-baseline must be a number of metres >= 0, got {mb}")
     policy = args.policy if args.policy is not None else (BASELINE if mb is not None else default)
     if mb is not None and policy == EVERY_FRAME:
-        raise ConfigError(f"--min-baseline applies to --policy {BASELINE}, not {EVERY_FRAME} (which estimates every "
-                          "frame from the previous one)")
+        raise ConfigError(
+            f"--min-baseline applies to --policy {BASELINE}, not {EVERY_FRAME} (which estimates every "
+            "frame from the previous one)"
+        )
     return policy, mb
 
 
 def add_run_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--max-frames", type=positive_int, default=None, metavar="N",
-                        help="only the first N frames of the split (in order)")
-    parser.add_argument("--trajectories-per-batch", type=positive_int, default=1, metavar="B", dest="lanes",
-                        help="stream B trajectories at once as one batch, with per-sample resets (default 1, as "
-                        "the original)")
-    parser.add_argument("--workers", type=int, default=0, metavar="N",
-                        help="data-loading worker processes (default 0: in the main process; at most "
-                        f"{WORKERS_PER_CORE} per CPU core)")
+    parser.add_argument(
+        "--max-frames",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="only the first N frames of the split (in order)",
+    )
+    parser.add_argument(
+        "--trajectories-per-batch",
+        type=positive_int,
+        default=1,
+        metavar="B",
+        dest="lanes",
+        help="stream B trajectories at once as one batch, with per-sample resets (default 1, as the original)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        metavar="N",
+        help=f"data-loading worker processes (default 0: in the main process; at most {WORKERS_PER_CORE} per CPU core)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_jpeg_idct_arg(parser)
 
 
 def add_jpeg_idct_arg(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--jpeg-idct", choices=JPEG_IDCTS, default=DEFAULT_JPEG_IDCT,
-                        help=f"JPEG decoding (default {DEFAULT_JPEG_IDCT}): fast (libjpeg-turbo's fast integer IDCT, "
-                        "bit-exact with the original's tf.io.decode_jpeg) or accurate (the accurate integer IDCT, as "
-                        "Pillow)")
+    parser.add_argument(
+        "--jpeg-idct",
+        choices=JPEG_IDCTS,
+        default=DEFAULT_JPEG_IDCT,
+        help=f"JPEG decoding (default {DEFAULT_JPEG_IDCT}): fast (libjpeg-turbo's fast integer IDCT, "
+        "bit-exact with the original's tf.io.decode_jpeg) or accurate (the accurate integer IDCT, as "
+        "Pillow)",
+    )
 
 
 def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32"):
@@ -280,8 +344,15 @@ def open_split(args: argparse.Namespace, size):
     """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1)."""
     check_workers(args.workers)
     check_split_dir(args)
-    return open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size,
-                        jpeg_idct=args.jpeg_idct)
+    return open_dataset(
+        args.dataset,
+        args.root,
+        split_dir=args.split_dir,
+        split=args.split,
+        seq_len=1,
+        size=size,
+        jpeg_idct=args.jpeg_idct,
+    )
 
 
 def check_split_dir(args: argparse.Namespace) -> None:
@@ -289,8 +360,10 @@ def check_split_dir(args: argparse.Namespace) -> None:
     and none is given."""
     spec = DATASETS.get(args.dataset)
     if args.split_dir is None and spec is not None and spec.needs_split_dir and spec.split_dir is None:
-        raise ConfigError(f"--dataset {args.dataset} needs --split-dir D, the folder of its split files "
-                          f"(<split>_data/**/*.csv); write them with: cosemdepth splits {args.dataset} ROOT D")
+        raise ConfigError(
+            f"--dataset {args.dataset} needs --split-dir D, the folder of its split files "
+            f"(<split>_data/**/*.csv); write them with: cosemdepth splits {args.dataset} ROOT D"
+        )
 
 
 def frame_size(dataset) -> tuple[int, int] | None:
@@ -310,11 +383,38 @@ def check_run_size(model, dataset, device, batch: int = 1) -> None:
     size = frame_size(dataset)
     batch = max(min(batch, len(dataset.trajectories)), 1)  # a batch holds at most one lane per trajectory
     if size is not None:
-        check_size(reference_model(model), *size, device=device, batch=batch,
-                   what="--size" if batch == 1 else "--size/--trajectories-per-batch")
+        check_size(
+            reference_model(model),
+            *size,
+            device=device,
+            batch=batch,
+            what="--size" if batch == 1 else "--size/--trajectories-per-batch",
+        )
 
 
-__all__ = ["add_device_args", "add_model_args", "add_model_or_arch_args", "add_precision_arg", "add_reference_arg",
-           "add_jpeg_idct_arg", "add_policy_args", "add_run_args", "add_split_args", "apply_threads", "check_run_size", "check_split_dir",
-           "frame_size", "input_size", "load", "load_or_build", "model_operating_point", "model_size_pair", "open_split",
-           "parse_size", "parse_size_pair", "positive_int", "stream_policy", "warn_far_size"]
+__all__ = [
+    "add_device_args",
+    "add_model_args",
+    "add_model_or_arch_args",
+    "add_precision_arg",
+    "add_reference_arg",
+    "add_jpeg_idct_arg",
+    "add_policy_args",
+    "add_run_args",
+    "add_split_args",
+    "apply_threads",
+    "check_run_size",
+    "check_split_dir",
+    "frame_size",
+    "input_size",
+    "load",
+    "load_or_build",
+    "model_operating_point",
+    "model_size_pair",
+    "open_split",
+    "parse_size",
+    "parse_size_pair",
+    "positive_int",
+    "stream_policy",
+    "warn_far_size",
+]

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 import sys
 from dataclasses import asdict
+from pathlib import Path
 
 import torch
 
@@ -29,12 +29,12 @@ from ..bench.runner import (
     run_separate,
     wait_for_idle,
 )
-from ..models.config import ARCHITECTURES, ModelConfig
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device
 from ..errors import ConfigError
-from ..output_safety.outdir import check_output_file, model_inputs, record_output_file
 from ..models import build_model
+from ..models.config import ARCHITECTURES, ModelConfig
 from ..models.footprint import check_size
+from ..output_safety.outdir import check_output_file, model_inputs, record_output_file
 from ._shared import DEFAULT_SIZE_PAIR, load_or_build, model_size_pair, parse_size_pair, positive_int
 
 #: The report's ``tool`` (and the start of its ``meta.command``).
@@ -46,11 +46,18 @@ CASE = BenchCase()
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", nargs="+", choices=ARCHITECTURES, default=list(ARCHITECTURES))
     parser.add_argument("--model", metavar="DIR", help="time these weights (its architecture) instead of --models")
-    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"),
-                        help="input size (default: the training size of --model, from its operating point; else "
-                        "{} {})".format(*DEFAULT_SIZE_PAIR))
-    parser.add_argument("--levels", type=int, default=CASE.levels,
-                        help=f"pyramid levels of the --models (default {CASE.levels})")
+    parser.add_argument(
+        "--size",
+        nargs=2,
+        type=int,
+        metavar=("H", "W"),
+        help="input size (default: the training size of --model, from its operating point; else {} {})".format(
+            *DEFAULT_SIZE_PAIR
+        ),
+    )
+    parser.add_argument(
+        "--levels", type=int, default=CASE.levels, help=f"pyramid levels of the --models (default {CASE.levels})"
+    )
     parser.add_argument("--batch", nargs="+", type=int, default=[1, 8, 32], help="batch sizes (default 1 8 32)")
     parser.add_argument(
         "--precision",
@@ -60,16 +67,21 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "convolutions, such as an AVX2-only one; fp32 fp16 bf16 on CUDA); int8 is CPU only "
         "(calibrated on synthetic frames before timing)",
     )
-    parser.add_argument("--backend", choices=["pytorch", "onnxruntime"], default="pytorch",
-                        help="pytorch (default pytorch: the fast path and the rows above) or onnxruntime: the model exported "
-                        "as by 'cosemdepth export --onnx' at --size and each --batch, run by ONNX Runtime's CPU "
-                        "provider with the state fed back (fp32; --threads intra-op threads)")
+    parser.add_argument(
+        "--backend",
+        choices=["pytorch", "onnxruntime"],
+        default="pytorch",
+        help="pytorch (default pytorch: the fast path and the rows above) or onnxruntime: the model exported "
+        "as by 'cosemdepth export --onnx' at --size and each --batch, run by ONNX Runtime's CPU "
+        "provider with the state fed back (fp32; --threads intra-op threads)",
+    )
     parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default auto: CUDA when present)")
     parser.add_argument("--no-reference", action="store_true", help="skip the reference-path (fp32, batch 1) rows")
     parser.add_argument("--no-joint", action="store_true", help="skip the joint-vs-separate comparison")
     parser.add_argument("--no-graph", action="store_true", help="on CUDA, skip the CUDA-graph rows")
-    parser.add_argument("--warmup", type=int, default=CASE.warmup,
-                        help=f"warm-up frames at batch 1 (default {CASE.warmup})")
+    parser.add_argument(
+        "--warmup", type=int, default=CASE.warmup, help=f"warm-up frames at batch 1 (default {CASE.warmup})"
+    )
     parser.add_argument("--iters", type=int, default=CASE.iters, help=f"timed frames at batch 1 (default {CASE.iters})")
     parser.add_argument("--batched-warmup", type=int, default=1, help="warm-up steps at batch > 1 (default 1)")
     parser.add_argument("--batched-iters", type=int, default=2, help="timed steps at batch > 1 (default 2)")
@@ -91,8 +103,11 @@ def _is_our_json(path) -> bool:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError):
         return False
-    return (isinstance(data, dict) and isinstance(data.get("meta"), dict)
-            and str(data["meta"].get("command", "")).startswith(TOOL))
+    return (
+        isinstance(data, dict)
+        and isinstance(data.get("meta"), dict)
+        and str(data["meta"].get("command", "")).startswith(TOOL)
+    )
 
 
 def _is_our_md(path) -> bool:
@@ -151,8 +166,9 @@ def run(args: argparse.Namespace) -> int:
         if path:
             check_output_file(path, what=f"{flag} file", inputs=model_inputs(args.model), recognize=ours)
     bf16 = bf16_convolutions(device)
-    precisions = args.precision or (["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16", "int8"] if bf16 else
-                                    ["fp32", "int8"])
+    precisions = args.precision or (
+        ["fp32", "fp16", "bf16"] if cuda else ["fp32", "bf16", "int8"] if bf16 else ["fp32", "int8"]
+    )
     if "bf16" in precisions and not bf16:
         raise ConfigError(f"--precision bf16: {no_bf16_reason()}: use fp32 or int8")
     if "fp16" in precisions and not cuda:
@@ -172,8 +188,14 @@ def run(args: argparse.Namespace) -> int:
         else:
             with torch.device("meta"):
                 shapes = build_model(ModelConfig(arch=arch, levels=args.levels))
-        check_size(shapes, h, w, device=device, batch=max(args.batch),
-                   what="--size" if max(args.batch) == 1 else "--size/--batch")
+        check_size(
+            shapes,
+            h,
+            w,
+            device=device,
+            batch=max(args.batch),
+            what="--size" if max(args.batch) == 1 else "--size/--batch",
+        )
 
     def case(arch, batch, precision, path="fast"):
         big = batch > 1
@@ -194,13 +216,20 @@ def run(args: argparse.Namespace) -> int:
 
     params = {k: v for k, v in vars(args).items() if k not in ("command", "func") and not k.startswith("_")}
     params.update(size=[h, w], precision=precisions, models=models)
-    report = {"tool": TOOL, "schema": SCHEMA,
-              "meta": run_meta(device, command=command_line(["cosemdepth", "benchmark", *sys.argv[2:]])),
-              "params": params, "results": [], "joint_vs_separate": []}
+    report = {
+        "tool": TOOL,
+        "schema": SCHEMA,
+        "meta": run_meta(device, command=command_line(["cosemdepth", "benchmark", *sys.argv[2:]])),
+        "params": params,
+        "results": [],
+        "joint_vs_separate": [],
+    }
     report["meta"]["resolution"] = [h, w]
 
     def idle():
-        return wait_for_idle(args.wait_idle, args.wait_timeout) if args.wait_idle is not None else cpu_busy_fraction(0.5)
+        return (
+            wait_for_idle(args.wait_idle, args.wait_timeout) if args.wait_idle is not None else cpu_busy_fraction(0.5)
+        )
 
     def record(res, busy):
         res.busy_before = busy
@@ -262,4 +291,3 @@ def run(args: argparse.Namespace) -> int:
     if report["joint_vs_separate"]:
         print(markdown({**report, "results": []}).split("Joint vs separate", 1)[-1])
     return 0
-

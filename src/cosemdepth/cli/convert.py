@@ -5,11 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..models.config import ARCHITECTURES
-from ..models.config import ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
-from ..errors import CheckpointError
 from ..checkpoints.convert import MIDAIR_OPERATING_POINT, import_checkpoint
 from ..checkpoints.model_io import CONFIG_FILE, WEIGHTS_FILE, save_weights
+from ..errors import CheckpointError
+from ..models.config import ARCHITECTURES, ORIGINAL_PSCV_DTYPE, PSCV_DTYPES
 from ..output_safety.outdir import check_output_dir, model_inputs, write_marker
 
 
@@ -20,8 +19,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="TensorFlow checkpoint: a prefix (.../cp-0059.ckpt), its .index file, or a folder with a "
         "'checkpoint' file (such as the authors' train/ or best/ folder)",
     )
-    parser.add_argument("out_dir", metavar="OUT_DIR", help="output folder; gets config.json and model.safetensors "
-                        "(existing ones are replaced only if cosemdepth wrote them)")
+    parser.add_argument(
+        "out_dir",
+        metavar="OUT_DIR",
+        help="output folder; gets config.json and model.safetensors "
+        "(existing ones are replaced only if cosemdepth wrote them)",
+    )
     parser.add_argument(
         "--arch",
         choices=ARCHITECTURES,
@@ -50,8 +53,14 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise CheckpointError(f"{out}: OUT_DIR exists and is not a folder")
     files = (CONFIG_FILE, WEIGHTS_FILE)
-    check_output_dir(out, command="convert", mode="into", what="OUT_DIR", files=files,
-                     inputs=model_inputs(args.checkpoint, "TF_CHECKPOINT"))
+    check_output_dir(
+        out,
+        command="convert",
+        mode="into",
+        what="OUT_DIR",
+        files=files,
+        inputs=model_inputs(args.checkpoint, "TF_CHECKPOINT"),
+    )
     conv = import_checkpoint(
         args.checkpoint,
         arch=args.arch,
@@ -88,9 +97,11 @@ def run(args: argparse.Namespace) -> int:
         f"{conv.source['ignored_tensors']} ignored (optimizer, metrics, counters, state, object graph)"
     )
     op = MIDAIR_OPERATING_POINT
-    lines.append(f"operating:  {op.size[0]}x{op.size[1]} px, focal length {op.focal:g} px ({op.hfov_deg:g} degrees), "
-                 f"median step {op.step_translation.median:.2f} m (Mid-Air's; commands run the model at this focal "
-                 "length)")
+    lines.append(
+        f"operating:  {op.size[0]}x{op.size[1]} px, focal length {op.focal:g} px ({op.hfov_deg:g} degrees), "
+        f"median step {op.step_translation.median:.2f} m (Mid-Air's; commands run the model at this focal "
+        "length)"
+    )
     lines.append(f"wrote:      {out / CONFIG_FILE}, {out / WEIGHTS_FILE}")
     print("\n".join(lines))
     return 0

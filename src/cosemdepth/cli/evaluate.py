@@ -20,21 +20,38 @@ from pathlib import Path
 
 from ..data.registry import dataset_spec
 from ..evaluation.evaluator import evaluate
+from ..inference.policy import EVERY_FRAME
 from ..output_safety.outdir import Input, model_inputs
 from ..output_safety.staging import OutputFiles
-from ..inference.policy import EVERY_FRAME
-from ._shared import (add_model_args, add_policy_args, add_run_args, add_split_args, apply_threads, check_run_size, input_size, load,
-                      model_operating_point, open_split, parse_size, size_help, stream_policy, warn_far_size)
+from ._shared import (
+    add_model_args,
+    add_policy_args,
+    add_run_args,
+    add_split_args,
+    apply_threads,
+    check_run_size,
+    input_size,
+    load,
+    model_operating_point,
+    open_split,
+    parse_size,
+    size_help,
+    stream_policy,
+    warn_far_size,
+)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     add_model_args(parser)
     add_split_args(parser)
-    parser.add_argument("--size", type=parse_size, default=None, metavar="S",
-                        help=size_help())
-    parser.add_argument("--out", default=None, metavar="DIR",
-                        help="write metrics.json and metrics.md into DIR (created if needed; other files in DIR are "
-                        "left alone, and files cosemdepth did not write are never replaced)")
+    parser.add_argument("--size", type=parse_size, default=None, metavar="S", help=size_help())
+    parser.add_argument(
+        "--out",
+        default=None,
+        metavar="DIR",
+        help="write metrics.json and metrics.md into DIR (created if needed; other files in DIR are "
+        "left alone, and files cosemdepth did not write are never replaced)",
+    )
     add_policy_args(parser, f"{EVERY_FRAME} (the paper's protocol)")
     add_run_args(parser)
 
@@ -42,22 +59,39 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     apply_threads(args)
     policy, min_baseline = stream_policy(args, EVERY_FRAME)
-    inputs = [*model_inputs(args.model), Input("--root", args.root),
-              Input("--split-dir", args.split_dir) if args.split_dir is not None else None]
-    files_ctx = (OutputFiles(args.out, "--out folder", command="evaluate", names=("metrics.json", "metrics.md"),
-                             inputs=inputs) if args.out else contextlib.nullcontext())
+    inputs = [
+        *model_inputs(args.model),
+        Input("--root", args.root),
+        Input("--split-dir", args.split_dir) if args.split_dir is not None else None,
+    ]
+    files_ctx = (
+        OutputFiles(args.out, "--out folder", command="evaluate", names=("metrics.json", "metrics.md"), inputs=inputs)
+        if args.out
+        else contextlib.nullcontext()
+    )
     with files_ctx as files:
         op = model_operating_point(args.model)
         dataset = open_split(args, input_size(args.size, op))
         warn_far_size(op, args.size, dataset)
         model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
         check_run_size(model, dataset, device, args.lanes)
-        result = evaluate(model, dataset, lanes=args.lanes, max_frames=args.max_frames, num_workers=args.workers,
-                          progress=not args.no_progress and sys.stderr.isatty(), dataset_name=args.dataset,
-                          policy=policy, min_baseline=min_baseline)
+        result = evaluate(
+            model,
+            dataset,
+            lanes=args.lanes,
+            max_frames=args.max_frames,
+            num_workers=args.workers,
+            progress=not args.no_progress and sys.stderr.isatty(),
+            dataset_name=args.dataset,
+            policy=policy,
+            min_baseline=min_baseline,
+        )
         result.info["model"].update(path=str(args.model), name=Path(str(args.model)).name)
-        result.info["dataset"].update(root=str(args.root), split=args.split or dataset_spec(args.dataset).split,
-                                      split_dir=None if args.split_dir is None else str(args.split_dir))
+        result.info["dataset"].update(
+            root=str(args.root),
+            split=args.split or dataset_spec(args.dataset).split,
+            split_dir=None if args.split_dir is None else str(args.split_dir),
+        )
         text = result.to_markdown()
         print(text)
         if files is not None:

@@ -7,30 +7,44 @@ import argparse
 from ..errors import ConfigError
 from ..export.check import CHECK_FRAMES, NOISE_MULTIPLE, compare_onnx
 from ..export.onnx import DEFAULT_OPSET, MIN_OPSET, export_onnx, is_our_onnx
-from ..output_safety.outdir import check_output_file, model_inputs, record_output_file
 from ..models.footprint import check_size
 from ..optional import require
+from ..output_safety.outdir import check_output_file, model_inputs, record_output_file
 from ._shared import DEFAULT_SIZE_PAIR, add_model_or_arch_args, load_or_build, model_size_pair, parse_size_pair
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--onnx", metavar="OUT", required=True, help="output .onnx file (its folder must exist; an existing file is "
-                        "replaced only if cosemdepth export wrote it)")
+    parser.add_argument(
+        "--onnx",
+        metavar="OUT",
+        required=True,
+        help="output .onnx file (its folder must exist; an existing file is "
+        "replaced only if cosemdepth export wrote it)",
+    )
     add_model_or_arch_args(parser)
-    parser.add_argument("--size", nargs=2, type=int, metavar=("H", "W"),
-                        help="input size (default: the model's training size, from its operating point, with "
-                        "--model; else {} {})".format(*DEFAULT_SIZE_PAIR))
+    parser.add_argument(
+        "--size",
+        nargs=2,
+        type=int,
+        metavar=("H", "W"),
+        help="input size (default: the model's training size, from its operating point, with "
+        "--model; else {} {})".format(*DEFAULT_SIZE_PAIR),
+    )
     parser.add_argument("--batch", type=int, default=1, help="batch size (default 1)")
     parser.add_argument("--dynamic-batch", action="store_true", help="make the batch axis dynamic")
-    parser.add_argument("--opset", type=int, default=DEFAULT_OPSET,
-                        help=f"ONNX opset, >= {MIN_OPSET} (default {DEFAULT_OPSET})")
+    parser.add_argument(
+        "--opset", type=int, default=DEFAULT_OPSET, help=f"ONNX opset, >= {MIN_OPSET} (default {DEFAULT_OPSET})"
+    )
     parser.add_argument(
         "--reset-float", action="store_true", help="take the reset mask as float32 (1 = reset) instead of bool"
     )
-    parser.add_argument("--check", action="store_true",
-                        help=f"stream {CHECK_FRAMES} frames of a SynthAir flight through ONNX Runtime and PyTorch; exit "
-                        f"status 1 when ONNX Runtime is further from PyTorch than {NOISE_MULTIPLE:g}x the drift of two "
-                        "float32 PyTorch runs that differ only in rounding (docs/deploy.md)")
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help=f"stream {CHECK_FRAMES} frames of a SynthAir flight through ONNX Runtime and PyTorch; exit "
+        f"status 1 when ONNX Runtime is further from PyTorch than {NOISE_MULTIPLE:g}x the drift of two "
+        "float32 PyTorch runs that differ only in rounding (docs/deploy.md)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -65,8 +65,10 @@ class CommandRules:
         given = explicit(args)
         chosen = [s for s in self.sources if s.chosen(args, given)]
         if len(chosen) > 1:
-            raise ConfigError(f"give only one of {', '.join(s.label for s in self.sources if s.flag)} "
-                              f"(got {' and '.join(s.label for s in chosen)})")
+            raise ConfigError(
+                f"give only one of {', '.join(s.label for s in self.sources if s.flag)} "
+                f"(got {' and '.join(s.label for s in chosen)})"
+            )
         if chosen:
             return chosen[0]
         return next((s for s in self.sources if s.flag is None and s.dest is None), None)
@@ -101,23 +103,35 @@ WEIGHTS, FRESH = "--model", "a freshly initialised model, without --model"
 
 RULES: dict[str, CommandRules] = {
     "predict": CommandRules(_INPUTS, _INPUT_FLAGS),
-    "view": CommandRules(_INPUTS, _INPUT_FLAGS, not_taken={
-        "--out": _VIEW_WRITES, "--video": _VIEW_WRITES, "--fps": _VIEW_WRITES, "--rerun": _VIEW_WRITES + " (give the file as --rrd)",
-        "--overwrite": _VIEW_WRITES + " (an existing one is replaced only if cosemdepth wrote it)",
-        "--out-namespace": _VIEW_WRITES + " (no output bag)",
-        "--invalid": _VIEW_WRITES + " (its depth images draw no point where the depth is not valid)"}),
+    "view": CommandRules(
+        _INPUTS,
+        _INPUT_FLAGS,
+        not_taken={
+            "--out": _VIEW_WRITES,
+            "--video": _VIEW_WRITES,
+            "--fps": _VIEW_WRITES,
+            "--rerun": _VIEW_WRITES + " (give the file as --rrd)",
+            "--overwrite": _VIEW_WRITES + " (an existing one is replaced only if cosemdepth wrote it)",
+            "--out-namespace": _VIEW_WRITES + " (no output bag)",
+            "--invalid": _VIEW_WRITES + " (its depth images draw no point where the depth is not valid)",
+        },
+    ),
     "demo": CommandRules(
         (Source(GENERATED), Source(DATA_ROOT, flag="--data-root")),
-        {flag: (GENERATED,) for flag in ("--frames", "--seed", "--climate", "--supersample", "--data-dir")}),
+        {flag: (GENERATED,) for flag in ("--frames", "--seed", "--climate", "--supersample", "--data-dir")},
+    ),
     "benchmark": CommandRules(
         (Source(FRESH), Source(WEIGHTS, flag="--model")),
-        {"--models": (FRESH,), "--levels": (FRESH,), "--no-joint": (FRESH,)}),
+        {"--models": (FRESH,), "--levels": (FRESH,), "--no-joint": (FRESH,)},
+    ),
     "export": CommandRules(
         (Source(FRESH), Source(WEIGHTS, flag="--model")),
-        {"--arch": (FRESH,), "--levels": (FRESH,), "--classes": (FRESH,)}),
+        {"--arch": (FRESH,), "--levels": (FRESH,), "--classes": (FRESH,)},
+    ),
     "splits": CommandRules(
         tuple(Source(name, dest="dataset", value=name) for name in ("midair", "synthair", "topair")),
-        {"--rule": ("midair", "synthair")}),
+        {"--rule": ("midair", "synthair")},
+    ),
 }
 
 
@@ -137,6 +151,7 @@ def _recording(cls: type) -> type:
     """``cls`` with a ``__call__`` that also records the flag in the namespace (argparse calls an action only
     when its flag is on the command line; defaults are set without calling it)."""
     if cls not in _RECORDING:
+
         def __call__(self, parser, namespace, values, option_string=None):
             cls.__call__(self, parser, namespace, values, option_string)
             setattr(namespace, EXPLICIT, {**explicit(namespace), _flag_name(self): None})

@@ -13,8 +13,8 @@ import importlib.util
 import os
 import sys
 
-from . import flag_rules
 from ..plugins import load_plugins
+from . import flag_rules
 from ._boundary import error_line
 
 #: name -> (module, one-line help)

@@ -20,77 +20,155 @@ import sys
 from pathlib import Path
 
 from ..data import open_dataset
-from ..robotics.bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP
 from ..data.flight import DEFAULT_CONVENTION
 from ..data.pose_matching import DEFAULT_MAX_GAP, MATCHES
 from ..data.poses import CONVENTIONS
 from ..data.stamps import UNITS, parse_stamp_unit
 from ..errors import ConfigError
-from ..workers import check_workers
 from ..evaluation.predict import DEFAULT_INVALID, INVALID_MODES, predict
+from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
 from ..inference.policy import BASELINE, EVERY_FRAME
 from ..models.outputs import ESTIMATED, HELD, RESET
-from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
 from ..output_safety.outdir import Input, model_inputs
-from ..robotics.rerun_writer import check_rrd_path
 from ..output_safety.staging import StagedDir
+from ..robotics.bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP
 from ..robotics.cli import add_robotics_args, bag_report, check_args, make_sinks, open_bag
-from ._shared import (add_model_args, add_policy_args, apply_threads, add_run_args, add_split_args, check_run_size, check_split_dir,
-                      frame_size, input_size, load, model_operating_point, parse_size, positive_int, size_help,
-                      stream_policy, warn_far_size)
+from ..robotics.rerun_writer import check_rrd_path
+from ..workers import check_workers
+from ._shared import (
+    add_model_args,
+    add_policy_args,
+    add_run_args,
+    add_split_args,
+    apply_threads,
+    check_run_size,
+    check_split_dir,
+    frame_size,
+    input_size,
+    load,
+    model_operating_point,
+    parse_size,
+    positive_int,
+    size_help,
+    stream_policy,
+    warn_far_size,
+)
 from .flag_rules import explicit
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     add_model_args(parser)
-    parser.add_argument("--backend", choices=["pytorch", "onnxruntime"], default="pytorch",
-                        help="pytorch (default: the fast path, or --reference) or onnxruntime: the graph --onnx "
-                        "(written by 'cosemdepth export --onnx' from --model at the input size) run by ONNX Runtime's "
-                        "CPU provider with the state fed back (fp32; --threads intra-op threads)")
+    parser.add_argument(
+        "--backend",
+        choices=["pytorch", "onnxruntime"],
+        default="pytorch",
+        help="pytorch (default: the fast path, or --reference) or onnxruntime: the graph --onnx "
+        "(written by 'cosemdepth export --onnx' from --model at the input size) run by ONNX Runtime's "
+        "CPU provider with the state fed back (fp32; --threads intra-op threads)",
+    )
     parser.add_argument("--onnx", type=Path, metavar="FILE", help="the exported graph of --backend onnxruntime")
     add_split_args(parser, required=False)
     flight = parser.add_argument_group("your own flight (instead of --dataset)")
     flight.add_argument("--flight", action="store_true", help="run on a folder of images with a pose file")
     flight.add_argument("--images", type=Path, metavar="DIR", help="folder of the flight's images")
-    flight.add_argument("--poses", type=Path, metavar="FILE",
-                        help="absolute camera poses: TUM (timestamp tx ty tz qx qy qz qw) or CSV with a header "
-                        "(see docs/data.md)")
-    flight.add_argument("--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"),
-                        help="pinhole intrinsics in pixels of the original images")
-    flight.add_argument("--hfov", type=float, metavar="DEG", help="horizontal field of view in degrees (instead of "
-                        "--intrinsics; square pixels, centred principal point)")
-    flight.add_argument("--convention", default=None, choices=tuple(CONVENTIONS),
-                        help="axes of the posed frame (default opencv: x right, y down, z forward; flu for --bag)")
-    flight.add_argument("--frame-skip", type=positive_int, default=1, metavar="K",
-                        help="keep every K-th image (default 1)")
-    flight.add_argument("--match", choices=MATCHES, default="auto",
-                        help="which pose goes with which image (default auto): stamp (image names are stamps), "
-                        "order (the n-th pose row for the n-th image), index (image names are frame numbers "
-                        "indexing the pose rows from 0), auto (stamp if every name is a stamp within the poses' "
-                        "time range, else order if there is one pose per image; docs/data.md)")
-    flight.add_argument("--stamp-unit", default="auto", metavar="U",
-                        help=f"unit of the stamps: {', '.join(UNITS)} for image names and pose stamps, or "
-                        "IMAGES,POSES (e.g. ns,s); default auto: the unit in which they are dates since 1970, else s")
-    flight.add_argument("--max-pose-gap", type=float, default=None, metavar="S",
-                        help="interpolate an image's pose only between poses at most S seconds apart (default: "
-                        f"{DEFAULT_MAX_GAP:g} for --flight, {DEFAULT_MAX_POSE_GAP:g} for --bag)")
-    flight.add_argument("--skip-unposed", action="store_true",
-                        help="leave out images without a pose (counted in the summary) instead of failing")
-    parser.add_argument("--size", type=parse_size, default=None, metavar="S",
-                        help=size_help()[:-1] + "; the image size for flights and bags)")
-    parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (new, empty, or the "
-                        "output of a previous predict, which is replaced; never an input, a folder holding one or a "
-                        "folder inside one)")
-    parser.add_argument("--video", default=DEFAULT_VIDEO, choices=(*VIDEO_FORMATS, "none"),
-                        help=f"video of each trajectory (default {DEFAULT_VIDEO}; GIF when no ffmpeg), or none")
+    flight.add_argument(
+        "--poses",
+        type=Path,
+        metavar="FILE",
+        help="absolute camera poses: TUM (timestamp tx ty tz qx qy qz qw) or CSV with a header (see docs/data.md)",
+    )
+    flight.add_argument(
+        "--intrinsics",
+        type=float,
+        nargs=4,
+        metavar=("FX", "FY", "CX", "CY"),
+        help="pinhole intrinsics in pixels of the original images",
+    )
+    flight.add_argument(
+        "--hfov",
+        type=float,
+        metavar="DEG",
+        help="horizontal field of view in degrees (instead of --intrinsics; square pixels, centred principal point)",
+    )
+    flight.add_argument(
+        "--convention",
+        default=None,
+        choices=tuple(CONVENTIONS),
+        help="axes of the posed frame (default opencv: x right, y down, z forward; flu for --bag)",
+    )
+    flight.add_argument(
+        "--frame-skip", type=positive_int, default=1, metavar="K", help="keep every K-th image (default 1)"
+    )
+    flight.add_argument(
+        "--match",
+        choices=MATCHES,
+        default="auto",
+        help="which pose goes with which image (default auto): stamp (image names are stamps), "
+        "order (the n-th pose row for the n-th image), index (image names are frame numbers "
+        "indexing the pose rows from 0), auto (stamp if every name is a stamp within the poses' "
+        "time range, else order if there is one pose per image; docs/data.md)",
+    )
+    flight.add_argument(
+        "--stamp-unit",
+        default="auto",
+        metavar="U",
+        help=f"unit of the stamps: {', '.join(UNITS)} for image names and pose stamps, or "
+        "IMAGES,POSES (e.g. ns,s); default auto: the unit in which they are dates since 1970, else s",
+    )
+    flight.add_argument(
+        "--max-pose-gap",
+        type=float,
+        default=None,
+        metavar="S",
+        help="interpolate an image's pose only between poses at most S seconds apart (default: "
+        f"{DEFAULT_MAX_GAP:g} for --flight, {DEFAULT_MAX_POSE_GAP:g} for --bag)",
+    )
+    flight.add_argument(
+        "--skip-unposed",
+        action="store_true",
+        help="leave out images without a pose (counted in the summary) instead of failing",
+    )
+    parser.add_argument(
+        "--size",
+        type=parse_size,
+        default=None,
+        metavar="S",
+        help=size_help()[:-1] + "; the image size for flights and bags)",
+    )
+    parser.add_argument(
+        "--out",
+        required=True,
+        type=Path,
+        metavar="DIR",
+        help="output folder (new, empty, or the "
+        "output of a previous predict, which is replaced; never an input, a folder holding one or a "
+        "folder inside one)",
+    )
+    parser.add_argument(
+        "--video",
+        default=DEFAULT_VIDEO,
+        choices=(*VIDEO_FORMATS, "none"),
+        help=f"video of each trajectory (default {DEFAULT_VIDEO}; GIF when no ffmpeg), or none",
+    )
     parser.add_argument("--fps", type=float, default=DEFAULT_FPS, help=f"video frame rate (default {DEFAULT_FPS:g})")
-    parser.add_argument("--overwrite", action="store_true", help="also replace the output of another cosemdepth "
-                        "command (a folder cosemdepth did not write is never replaced)")
-    parser.add_argument("--invalid", choices=INVALID_MODES, default=DEFAULT_INVALID,
-                        help="what the depth .npy holds where depth_valid is 0: keep (the model's values; default) or "
-                        "nan (the PNG holds 0 there and the bag NaN either way)")
-    add_policy_args(parser, f"{BASELINE} for --flight and --bag (when the model records its training motion, else "
-                    f"{EVERY_FRAME}), {EVERY_FRAME} for --dataset")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="also replace the output of another cosemdepth "
+        "command (a folder cosemdepth did not write is never replaced)",
+    )
+    parser.add_argument(
+        "--invalid",
+        choices=INVALID_MODES,
+        default=DEFAULT_INVALID,
+        help="what the depth .npy holds where depth_valid is 0: keep (the model's values; default) or "
+        "nan (the PNG holds 0 there and the bag NaN either way)",
+    )
+    add_policy_args(
+        parser,
+        f"{BASELINE} for --flight and --bag (when the model records its training motion, else "
+        f"{EVERY_FRAME}), {EVERY_FRAME} for --dataset",
+    )
     add_run_args(parser)
     add_robotics_args(parser)
 
@@ -128,8 +206,10 @@ def _validate(args: argparse.Namespace) -> None:
         # flags of matching by stamp, given with a rule that reads no image stamps
         for flag, rules in (("--max-pose-gap", ("order", "index")), ("--skip-unposed", ("order",))):
             if flag in given and args.match in rules:
-                raise ConfigError(f"{flag} does not apply to --match {args.match} (every image takes a pose row as "
-                                  "it is; no interpolation between poses)")
+                raise ConfigError(
+                    f"{flag} does not apply to --match {args.match} (every image takes a pose row as "
+                    "it is; no interpolation between poses)"
+                )
     elif not args.dataset or args.root is None:
         raise ConfigError("give --dataset NAME --root ROOT (a dataset split), or --flight --images DIR --poses FILE")
 
@@ -142,24 +222,53 @@ def _open(args: argparse.Namespace):
     if args.bag is not None:
         dataset = open_bag(args, size)
     elif args.flight:
-        dataset = open_dataset("flight", args.images, poses=args.poses, intrinsics=args.intrinsics, fov=args.hfov,
-                               convention=args.convention or DEFAULT_CONVENTION, frame_skip=args.frame_skip, seq_len=1,
-                               size=size, jpeg_idct=args.jpeg_idct, match=args.match, stamp_unit=args.stamp_unit,
-                               max_gap=DEFAULT_MAX_GAP if args.max_pose_gap is None else args.max_pose_gap,
-                               skip_unposed=args.skip_unposed)
+        dataset = open_dataset(
+            "flight",
+            args.images,
+            poses=args.poses,
+            intrinsics=args.intrinsics,
+            fov=args.hfov,
+            convention=args.convention or DEFAULT_CONVENTION,
+            frame_skip=args.frame_skip,
+            seq_len=1,
+            size=size,
+            jpeg_idct=args.jpeg_idct,
+            match=args.match,
+            stamp_unit=args.stamp_unit,
+            max_gap=DEFAULT_MAX_GAP if args.max_pose_gap is None else args.max_pose_gap,
+            skip_unposed=args.skip_unposed,
+        )
     else:
         check_split_dir(args)
-        dataset = open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1,
-                               size=size, jpeg_idct=args.jpeg_idct)
+        dataset = open_dataset(
+            args.dataset,
+            args.root,
+            split_dir=args.split_dir,
+            split=args.split,
+            seq_len=1,
+            size=size,
+            jpeg_idct=args.jpeg_idct,
+        )
     warn_far_size(op, args.size, dataset)
     return dataset
 
 
 def command_inputs(args: argparse.Namespace) -> list:
     """The input paths of predict / view (for the output policy of :mod:`cosemdepth.output_safety.outdir`)."""
-    return [*model_inputs(args.model), *(Input(label, p) for label, p in (
-        ("--root", args.root), ("--split-dir", args.split_dir), ("--images", args.images), ("--poses", args.poses),
-        ("--bag", args.bag)) if p is not None)]
+    return [
+        *model_inputs(args.model),
+        *(
+            Input(label, p)
+            for label, p in (
+                ("--root", args.root),
+                ("--split-dir", args.split_dir),
+                ("--images", args.images),
+                ("--poses", args.poses),
+                ("--bag", args.bag),
+            )
+            if p is not None
+        ),
+    ]
 
 
 def flight_report(dataset) -> str:
@@ -177,8 +286,11 @@ def run_settings(args: argparse.Namespace, dataset) -> dict:
     size = frame_size(dataset)
     return {
         "model": str(args.model),
-        "path": "onnxruntime" if getattr(args, "backend", "pytorch") == "onnxruntime" else
-                "reference" if args.reference else "fast",
+        "path": "onnxruntime"
+        if getattr(args, "backend", "pytorch") == "onnxruntime"
+        else "reference"
+        if args.reference
+        else "fast",
         "onnx": str(args.onnx) if getattr(args, "onnx", None) is not None else None,
         "precision": args.precision,
         "input_size": None if size is None else list(size),
@@ -213,30 +325,56 @@ def run(args: argparse.Namespace) -> int:
     check_run_size(model, dataset, device, args.lanes)
     info = {
         "model": {"path": str(args.model)},
-        "dataset": {"root": str(args.bag if args.bag else args.images if args.flight else args.root),
-                    "split": None if args.flight else args.split,
-                    **({"pose_matching": dataset.pose_matching} if hasattr(dataset, "pose_matching") else {})},
+        "dataset": {
+            "root": str(args.bag if args.bag else args.images if args.flight else args.root),
+            "split": None if args.flight else args.split,
+            **({"pose_matching": dataset.pose_matching} if hasattr(dataset, "pose_matching") else {}),
+        },
         "device": str(device),
         "run": run_settings(args, dataset),
     }
-    manifest = predict(model, dataset, args.out, video=args.video, fps=args.fps, max_frames=args.max_frames,
-                       lanes=args.lanes, num_workers=args.workers, overwrite=args.overwrite,
-                       progress=not args.no_progress and sys.stderr.isatty(),
-                       dataset_name="flight" if args.flight or args.bag else args.dataset, info=info,
-                       sinks=make_sinks(args, dataset, model), inputs=inputs, policy=policy,
-                       min_baseline=min_baseline, invalid=args.invalid)
+    manifest = predict(
+        model,
+        dataset,
+        args.out,
+        video=args.video,
+        fps=args.fps,
+        max_frames=args.max_frames,
+        lanes=args.lanes,
+        num_workers=args.workers,
+        overwrite=args.overwrite,
+        progress=not args.no_progress and sys.stderr.isatty(),
+        dataset_name="flight" if args.flight or args.bag else args.dataset,
+        info=info,
+        sinks=make_sinks(args, dataset, model),
+        inputs=inputs,
+        policy=policy,
+        min_baseline=min_baseline,
+        invalid=args.invalid,
+    )
     n = manifest["frames_written"]
     videos = [t["video"] for t in manifest["trajectories"] if "video" in t]
     nt = len(manifest["trajectories"])
-    print(f"wrote {n} frame{'s' * (n != 1)} of {nt} trajector{'ies' if nt != 1 else 'y'} to {args.out}"
-          + (f"; videos: {', '.join(str(args.out / v) for v in videos)}" if videos else "") + bag_report(dataset) + flight_report(dataset)
-          + (f"; rerun recording: {args.rerun}" if args.rerun else ""))
+    print(
+        f"wrote {n} frame{'s' * (n != 1)} of {nt} trajector{'ies' if nt != 1 else 'y'} to {args.out}"
+        + (f"; videos: {', '.join(str(args.out / v) for v in videos)}" if videos else "")
+        + bag_report(dataset)
+        + flight_report(dataset)
+        + (f"; rerun recording: {args.rerun}" if args.rerun else "")
+    )
     if manifest.get("frames_by_status") is not None:
-        print(depth_report(manifest["frames_by_status"], manifest["policy"],
-                           [f.get("valid_fraction", 0.0) for f in manifest["frames"]]))
+        print(
+            depth_report(
+                manifest["frames_by_status"],
+                manifest["policy"],
+                [f.get("valid_fraction", 0.0) for f in manifest["frames"]],
+            )
+        )
         if not manifest["frames_by_status"].get(ESTIMATED) and not manifest["frames_by_status"].get(HELD):
-            print(f"cosemdepth predict: warning: no depth was produced: {no_depth_reason(manifest['frames_by_status'])}",
-                  file=sys.stderr)
+            print(
+                f"cosemdepth predict: warning: no depth was produced: {no_depth_reason(manifest['frames_by_status'])}",
+                file=sys.stderr,
+            )
     return 0
 
 
@@ -256,11 +394,15 @@ def _onnx_model(args: argparse.Namespace, dataset):
     want = (None, 3, *frame_size(dataset)) if frame_size(dataset) is not None else None
     got = step.shape
     if want is not None and tuple(got[1:]) != tuple(want[1:]):
-        raise ConfigError(f"--onnx {args.onnx}: the graph takes {got[2]}x{got[3]} images, the input is read at "
-                          f"{want[2]}x{want[3]} (export at this size with --size, or give --size)")
+        raise ConfigError(
+            f"--onnx {args.onnx}: the graph takes {got[2]}x{got[3]} images, the input is read at "
+            f"{want[2]}x{want[3]} (export at this size with --size, or give --size)"
+        )
     if got[0] is not None and (got[0] != 1 or args.lanes != 1):
-        raise ConfigError(f"--onnx {args.onnx}: the graph has a fixed batch of {got[0]}; streaming needs batch 1 "
-                          "(and --trajectories-per-batch 1) or a graph exported with --dynamic-batch")
+        raise ConfigError(
+            f"--onnx {args.onnx}: the graph has a fixed batch of {got[0]}; streaming needs batch 1 "
+            "(and --trajectories-per-batch 1) or a graph exported with --dynamic-batch"
+        )
     return OnnxModel(model, step), torch.device("cpu")
 
 
@@ -277,8 +419,10 @@ def depth_report(statuses: dict, policy: dict, valid_fractions) -> str:
     est, held, reset = (int(statuses.get(k, 0)) for k in (ESTIMATED, HELD, RESET))
     parts = [f"{est} frame{'s' * (est != 1)} estimated, {reset} reset (no depth)"]
     if held:
-        parts.append(f"{held} frame{'s' * (held != 1)} held: the camera moved less than "
-                     f"{policy['min_baseline_m']:.2f} m from its reference frame")
+        parts.append(
+            f"{held} frame{'s' * (held != 1)} held: the camera moved less than "
+            f"{policy['min_baseline_m']:.2f} m from its reference frame"
+        )
     fractions = list(valid_fractions)
     if fractions:
         parts.append(f"{100.0 * sum(fractions) / len(fractions):.1f} % of the pixels valid")
@@ -289,7 +433,11 @@ def no_depth_reason(statuses: dict) -> str:
     """Why no frame has depth (every frame a reset)."""
     n = int(statuses.get(RESET, 0))
     if n == 1:
-        return ("the input has 1 frame: the first frame of a flight is a reset, and depth needs the camera to move "
-                "between frames")
-    return (f"all {n} frames are resets (the first frame of each trajectory, and the frames until the camera had "
-            "moved the minimum baseline from it)")
+        return (
+            "the input has 1 frame: the first frame of a flight is a reset, and depth needs the camera to move "
+            "between frames"
+        )
+    return (
+        f"all {n} frames are resets (the first frame of each trajectory, and the frames until the camera had "
+        "moved the minimum baseline from it)"
+    )

@@ -26,36 +26,88 @@ class _Given(argparse.Action):
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", required=True, type=Path, help="output folder (new or empty; or an interrupted "
-                        "SynthAir run with the same arguments, which is resumed)")
+    parser.add_argument(
+        "--out",
+        required=True,
+        type=Path,
+        help="output folder (new or empty; or an interrupted SynthAir run with the same arguments, which is resumed)",
+    )
     d = DEFAULTS
-    parser.add_argument("--trajectories", type=int, default=d.trajectories, metavar="N", help="trajectories per "
-                        f"climate (default {d.trajectories}; numbered climate*1000 + i as in Mid-Air: sunny 0, sunset 1, foggy 2, cloudy 3)")
-    parser.add_argument("--frames", type=int, default=d.frames, action=_Given, metavar="F", help="25 Hz camera "
-                        f"frames per trajectory (default {d.frames} = {d.frames / 25:g} s, or with --motion the sum of "
-                        "its segments; the ground truth has 4F samples at 100 Hz and the split CSVs floor(F/K) - 1 "
-                        "rows, K the --frame-step)")
-    parser.add_argument("--motion", default=d.motion, metavar="SPEC", help="motion profile: comma-separated "
-                        f"segments over the 25 Hz frames, in order: {GRAMMAR}; e.g. 'fly:40,hover:10,yaw:10@90,"
-                        f"fly*0.25:40'. hover holds the pose exactly, yaw turns in place (default {DEFAULT_YAW:g} "
-                        "degrees, positive to the right) and the flight goes on in the new direction; the segments "
-                        "must add up to --frames if it is given (default: the normal flight; see docs/synthair.md)")
-    parser.add_argument("--frame-step", type=int, default=d.frame_step, metavar="K", help="the split CSVs (and "
-                        f"the frames rendered) use every K-th 25 Hz frame (default {d.frame_step}, Mid-Air's: "
-                        "6.25 Hz; K=2: 12.5 Hz, K=8: 3.125 Hz); each row holds the motion between frames K apart")
-    parser.add_argument("--size", type=int, default=d.size, metavar="S", help="image width = height in pixels "
-                        f"(default {d.size}; focal S/2, 90 degree FOV)")
-    parser.add_argument("--seed", type=int, default=d.seed, metavar="SEED",
-                        help=f"world and flight seed (default {d.seed})")
-    parser.add_argument("--climates", nargs="+", default=list(d.climates), metavar="CLIMATE",
-                        help=f"climates to render (default: {' '.join(d.climates)})")
-    parser.add_argument("--all-frames", action="store_true", help="render every 25 Hz frame (default: only the "
-                        "frames the split CSVs use, K, 2K, 3K, ...)")
-    parser.add_argument("--supersample", type=int, default=d.supersample, choices=SUPERSAMPLES, help="colour rays per "
-                        f"pixel per axis (default {d.supersample}; antialiasing; depth and labels always come from the "
-                        "pixel centre)")
-    parser.add_argument("--jpeg-quality", type=int, default=d.jpeg_quality, help=f"JPEG quality (default "
-                        f"{d.jpeg_quality}, 4:4:4 chroma; photo-consistency suffers below about 95)")
+    parser.add_argument(
+        "--trajectories",
+        type=int,
+        default=d.trajectories,
+        metavar="N",
+        help="trajectories per "
+        f"climate (default {d.trajectories}; numbered climate*1000 + i as in Mid-Air: sunny 0, sunset 1, foggy 2, cloudy 3)",
+    )
+    parser.add_argument(
+        "--frames",
+        type=int,
+        default=d.frames,
+        action=_Given,
+        metavar="F",
+        help="25 Hz camera "
+        f"frames per trajectory (default {d.frames} = {d.frames / 25:g} s, or with --motion the sum of "
+        "its segments; the ground truth has 4F samples at 100 Hz and the split CSVs floor(F/K) - 1 "
+        "rows, K the --frame-step)",
+    )
+    parser.add_argument(
+        "--motion",
+        default=d.motion,
+        metavar="SPEC",
+        help="motion profile: comma-separated "
+        f"segments over the 25 Hz frames, in order: {GRAMMAR}; e.g. 'fly:40,hover:10,yaw:10@90,"
+        f"fly*0.25:40'. hover holds the pose exactly, yaw turns in place (default {DEFAULT_YAW:g} "
+        "degrees, positive to the right) and the flight goes on in the new direction; the segments "
+        "must add up to --frames if it is given (default: the normal flight; see docs/synthair.md)",
+    )
+    parser.add_argument(
+        "--frame-step",
+        type=int,
+        default=d.frame_step,
+        metavar="K",
+        help="the split CSVs (and "
+        f"the frames rendered) use every K-th 25 Hz frame (default {d.frame_step}, Mid-Air's: "
+        "6.25 Hz; K=2: 12.5 Hz, K=8: 3.125 Hz); each row holds the motion between frames K apart",
+    )
+    parser.add_argument(
+        "--size",
+        type=int,
+        default=d.size,
+        metavar="S",
+        help=f"image width = height in pixels (default {d.size}; focal S/2, 90 degree FOV)",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=d.seed, metavar="SEED", help=f"world and flight seed (default {d.seed})"
+    )
+    parser.add_argument(
+        "--climates",
+        nargs="+",
+        default=list(d.climates),
+        metavar="CLIMATE",
+        help=f"climates to render (default: {' '.join(d.climates)})",
+    )
+    parser.add_argument(
+        "--all-frames",
+        action="store_true",
+        help="render every 25 Hz frame (default: only the frames the split CSVs use, K, 2K, 3K, ...)",
+    )
+    parser.add_argument(
+        "--supersample",
+        type=int,
+        default=d.supersample,
+        choices=SUPERSAMPLES,
+        help="colour rays per "
+        f"pixel per axis (default {d.supersample}; antialiasing; depth and labels always come from the "
+        "pixel centre)",
+    )
+    parser.add_argument(
+        "--jpeg-quality",
+        type=int,
+        default=d.jpeg_quality,
+        help=f"JPEG quality (default {d.jpeg_quality}, 4:4:4 chroma; photo-consistency suffers below about 95)",
+    )
     parser.add_argument("--workers", type=int, default=d.workers, help=f"render processes (default {d.workers})")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 

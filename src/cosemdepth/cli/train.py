@@ -25,19 +25,31 @@ DEFAULTS = RunConfig()
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.epilog = ("Defaults are the paper's Mid-Air recipe (design 9.1). Precedence: defaults < --config file < the "
-                "explicit flags < --set overrides (in order). Config keys: see docs/training.md.")
-    p.add_argument("--config", "-c", metavar="YAML",
-                   help="config file, or the name of a shipped config (midair, synthair-small)")
-    p.add_argument("--out", "-o", required=True, metavar="RUN_DIR",
-                   help="run folder: created if new, resumed if it holds a run")
-    p.add_argument("--set", "-s", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-                   help="override a config key, e.g. train.lr=3e-4 or data.train.1.weight=0.5 (repeatable)")
+    p.epilog = (
+        "Defaults are the paper's Mid-Air recipe (design 9.1). Precedence: defaults < --config file < the "
+        "explicit flags < --set overrides (in order). Config keys: see docs/training.md."
+    )
+    p.add_argument(
+        "--config", "-c", metavar="YAML", help="config file, or the name of a shipped config (midair, synthair-small)"
+    )
+    p.add_argument(
+        "--out", "-o", required=True, metavar="RUN_DIR", help="run folder: created if new, resumed if it holds a run"
+    )
+    p.add_argument(
+        "--set",
+        "-s",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="overrides",
+        help="override a config key, e.g. train.lr=3e-4 or data.train.1.weight=0.5 (repeatable)",
+    )
     g = p.add_argument_group("shortcuts for common keys (defaults: the paper's recipe, unless --config sets them)")
     m, d, t = DEFAULTS.model, DEFAULTS.data, DEFAULTS.train
     g.add_argument("--model", choices=tuple(ARCHITECTURES), help=f"model.arch (default {m.arch})")
-    g.add_argument("--dataset", metavar="NAME",
-                   help=f"data.train.0.name: {', '.join(DATASETS)} (default {d.train[0].name})")
+    g.add_argument(
+        "--dataset", metavar="NAME", help=f"data.train.0.name: {', '.join(DATASETS)} (default {d.train[0].name})"
+    )
     g.add_argument("--data-root", metavar="DIR", help="data.train.0.root")
     g.add_argument("--split-dir", metavar="DIR", help="data.train.0.split_dir")
     g.add_argument("--epochs", type=int, help=f"train.epochs (default {t.epochs})")
@@ -46,24 +58,43 @@ def configure(p: argparse.ArgumentParser) -> None:
     g.add_argument("--lr", type=float, help=f"train.lr (default {t.lr:g})")
     g.add_argument("--seed", type=int, help=f"train.seed (default {t.seed})")
     g.add_argument("--device", help=f"train.device: auto, cpu, cuda, cuda:N (default {t.device})")
-    g.add_argument("--bf16", action="store_true", default=None,
-                   help="train.bf16: bfloat16 autocast of the forward (CPU and CUDA); fp32 weights and loss")
-    g.add_argument("--init-weights", metavar="PATH",
-                   help="train.init_weights: start from these weights (a model folder, a run's best/ or checkpoint "
-                        "folder, an official TF checkpoint) instead of a random initialisation: fine-tuning")
-    g.add_argument("--init-from", metavar="MODEL_DIR",
-                   help="train.init_from: start from the weights of a model of another config (another arch, "
-                        "semantic_sncv or semantic_time): matching tensors copied, new input channels zero, so the "
-                        "run starts with that model's outputs")
+    g.add_argument(
+        "--bf16",
+        action="store_true",
+        default=None,
+        help="train.bf16: bfloat16 autocast of the forward (CPU and CUDA); fp32 weights and loss",
+    )
+    g.add_argument(
+        "--init-weights",
+        metavar="PATH",
+        help="train.init_weights: start from these weights (a model folder, a run's best/ or checkpoint "
+        "folder, an official TF checkpoint) instead of a random initialisation: fine-tuning",
+    )
+    g.add_argument(
+        "--init-from",
+        metavar="MODEL_DIR",
+        help="train.init_from: start from the weights of a model of another config (another arch, "
+        "semantic_sncv or semantic_time): matching tensors copied, new input channels zero, so the "
+        "run starts with that model's outputs",
+    )
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
 
 
 _FLAGS = {
-    "model": "model.arch", "dataset": "data.train.0.name", "data_root": "data.train.0.root",
-    "split_dir": "data.train.0.split_dir", "epochs": "train.epochs", "max_steps": "train.max_steps",
-    "batch_size": "train.batch_size", "lr": "train.lr", "seed": "train.seed", "device": "train.device",
-    "bf16": "train.bf16", "init_weights": "train.init_weights", "init_from": "train.init_from",
+    "model": "model.arch",
+    "dataset": "data.train.0.name",
+    "data_root": "data.train.0.root",
+    "split_dir": "data.train.0.split_dir",
+    "epochs": "train.epochs",
+    "max_steps": "train.max_steps",
+    "batch_size": "train.batch_size",
+    "lr": "train.lr",
+    "seed": "train.seed",
+    "device": "train.device",
+    "bf16": "train.bf16",
+    "init_weights": "train.init_weights",
+    "init_from": "train.init_from",
 }
 
 
@@ -80,7 +111,15 @@ def run(args: argparse.Namespace) -> int:
     summary = trainer.fit()
     if trainer.dist.is_main:
         best = summary.get("best")
-        print(json.dumps({"run_dir": summary["run_dir"], "step": summary["step"], "epoch": summary["epoch"],
-                          "best_step": None if best is None else best.get("step"),
-                          "checkpoint": summary["checkpoint"]}))
+        print(
+            json.dumps(
+                {
+                    "run_dir": summary["run_dir"],
+                    "step": summary["step"],
+                    "epoch": summary["epoch"],
+                    "best_step": None if best is None else best.get("step"),
+                    "checkpoint": summary["checkpoint"],
+                }
+            )
+        )
     return 0

@@ -19,10 +19,10 @@ from pathlib import Path
 from tqdm.auto import tqdm
 
 from ..evaluation.streaming import make_schedule, stream, trajectory_rows
-from ..robotics.rerun_writer import check_rrd_path, require_rerun
-from ..robotics.cli import make_sinks
-from ._shared import apply_threads, check_run_size, load
 from ..inference.policy import Streamer, policy_info
+from ..robotics.cli import make_sinks
+from ..robotics.rerun_writer import check_rrd_path, require_rerun
+from ._shared import apply_threads, check_run_size, load
 from .predict import _open, _validate, command_inputs, depth_report, flight_report, input_policy
 from .predict import configure as configure_predict
 
@@ -36,8 +36,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         if action.dest in _PREDICT_ONLY:
             action.required = False
             action.help = argparse.SUPPRESS
-    parser.add_argument("--rrd", type=Path, required=True, metavar="FILE.rrd",
-                        help="the recording to write (a new file, or one cosemdepth wrote, which is replaced)")
+    parser.add_argument(
+        "--rrd",
+        type=Path,
+        required=True,
+        metavar="FILE.rrd",
+        help="the recording to write (a new file, or one cosemdepth wrote, which is replaced)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,8 +61,13 @@ def run(args: argparse.Namespace) -> int:
     args.rerun = args.rrd
     (writer,) = make_sinks(args, dataset, model, bag_output=False)
     schedule = make_schedule(trajectory_rows(dataset, args.max_frames), args.lanes)
-    bar = tqdm(total=sum(len(s.indices) for s in schedule), unit="frame", desc="view",
-               disable=args.no_progress or not sys.stderr.isatty(), leave=False)
+    bar = tqdm(
+        total=sum(len(s.indices) for s in schedule),
+        unit="frame",
+        desc="view",
+        disable=args.no_progress or not sys.stderr.isatty(),
+        leave=False,
+    )
     writer.open()
     try:
         for batch in stream(streamer, dataset, schedule=schedule, num_workers=args.workers):
@@ -75,8 +85,10 @@ def run(args: argparse.Namespace) -> int:
         flight = getattr(dataset, "bag_flight", None)
         if flight is not None:
             flight.close()
-    print(f"wrote a rerun recording of {info['rerun']['frames']} frames to {args.rrd}; open it with: rerun {args.rrd}"
-          + flight_report(dataset))
+    print(
+        f"wrote a rerun recording of {info['rerun']['frames']} frames to {args.rrd}; open it with: rerun {args.rrd}"
+        + flight_report(dataset)
+    )
     if statuses:
         print(depth_report(statuses, policy_info(streamer), fractions))
     return 0

@@ -59,8 +59,15 @@ def open_dataset(
     if split_dir is None and spec.needs_split_dir:
         raise ConfigError(f"open_dataset({name!r}, ...) needs split_dir (the folder holding <split>_data/)")
     _check_kwargs(spec.opener, name, kwargs)
-    return spec.opener(root, split_dir, split or spec.split, seq_len, spec.size if size is None else size, augment,
-                       **{**spec.options, **kwargs})
+    return spec.opener(
+        root,
+        split_dir,
+        split or spec.split,
+        seq_len,
+        spec.size if size is None else size,
+        augment,
+        **{**spec.options, **kwargs},
+    )
 
 
 def _check_kwargs(fn, name: str, kwargs: dict) -> None:
@@ -72,6 +79,15 @@ def _check_kwargs(fn, name: str, kwargs: dict) -> None:
 
 
 __all__ = [
-    "DATASETS", "AugmentConfig", "DatasetSpec", "dataset_spec", "register_dataset", "MixedDataset", "SeededLoader", "SequenceDataset", "collate", "make_loader",
+    "DATASETS",
+    "AugmentConfig",
+    "DatasetSpec",
+    "dataset_spec",
+    "register_dataset",
+    "MixedDataset",
+    "SeededLoader",
+    "SequenceDataset",
+    "collate",
+    "make_loader",
     "open_dataset",
 ]

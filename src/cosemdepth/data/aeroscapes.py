@@ -27,12 +27,34 @@ from .frames import Size, labels_to_tensor, midair_intrinsics, resolve_size, rgb
 from .sequence import FrameRecord, SequenceDataset, Trajectory
 
 CLASSES = (
-    "background", "person", "bike", "car", "drone", "boat", "animal", "obstacle", "construction", "vegetation",
-    "road", "sky",
+    "background",
+    "person",
+    "bike",
+    "car",
+    "drone",
+    "boat",
+    "animal",
+    "obstacle",
+    "construction",
+    "vegetation",
+    "road",
+    "sky",
 )
 PALETTE = np.array(
-    [(0, 0, 0), (192, 128, 128), (0, 128, 0), (128, 128, 128), (128, 0, 0), (0, 0, 128), (192, 0, 128), (192, 0, 0),
-     (192, 128, 0), (0, 64, 0), (128, 128, 0), (0, 128, 128)],
+    [
+        (0, 0, 0),
+        (192, 128, 128),
+        (0, 128, 0),
+        (128, 128, 128),
+        (128, 0, 0),
+        (0, 0, 128),
+        (192, 0, 128),
+        (192, 0, 0),
+        (192, 128, 0),
+        (0, 64, 0),
+        (128, 128, 0),
+        (0, 128, 128),
+    ],
     dtype=np.uint8,
 )
 NATIVE_SIZE = (720, 1280)
@@ -95,6 +117,7 @@ def open_aeroscapes(
         for i, n in enumerate(names)
     ]
     trajectory = Trajectory.from_records(split, frames, reset=np.ones(len(frames), dtype=bool))
+
     def native():  # the first image's size and the focal length of the intrinsics convention there
         shape = image_size(frames[0].rgb)
         return shape, float(midair_intrinsics(shape)[0])

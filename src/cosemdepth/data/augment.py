@@ -104,8 +104,12 @@ def resolve_augment(augment: "bool | str | AugmentConfig | Mapping | None") -> A
     if isinstance(augment, AugmentConfig):
         return augment
     if isinstance(augment, str):
-        presets = {"train": AugmentConfig.train, "finetune": AugmentConfig.finetune,
-                   "geometric": AugmentConfig.geometric_only, "none": lambda: None}
+        presets = {
+            "train": AugmentConfig.train,
+            "finetune": AugmentConfig.finetune,
+            "geometric": AugmentConfig.geometric_only,
+            "none": lambda: None,
+        }
         if augment not in presets:
             raise ConfigError(f"augment must be a bool, an AugmentConfig or one of {sorted(presets)}, got {augment!r}")
         return presets[augment]()

@@ -82,8 +82,10 @@ def check_nonnegative(path: str | os.PathLike, values: np.ndarray, what: str, no
     bad = ~np.isfinite(values) | (values < 0)
     if bad.any():
         i, j = np.argwhere(bad)[0]
-        raise DatasetError(f"{path}: {int(bad.sum())} {what} value(s) are negative, NaN or infinite{note} (first at "
-                           f"row {i}, column {j}: {values[i, j]}){hint}")
+        raise DatasetError(
+            f"{path}: {int(bad.sum())} {what} value(s) are negative, NaN or infinite{note} (first at "
+            f"row {i}, column {j}: {values[i, j]}){hint}"
+        )
 
 
 def check_image_size(path: str | os.PathLike, width: int, height: int) -> None:
@@ -127,7 +129,7 @@ def _orientation(img: Image.Image) -> int:
 def _jpeg_orientation(data: bytes) -> int:
     """The EXIF orientation of JPEG bytes (1 when none): read by Pillow from the header, only when an EXIF
     segment is present."""
-    if _EXIF_HEADER not in data[:1 << 17]:  # APP segments precede the image data; 128 KiB covers any EXIF block
+    if _EXIF_HEADER not in data[: 1 << 17]:  # APP segments precede the image data; 128 KiB covers any EXIF block
         return 1
     try:
         with Image.open(io.BytesIO(data)) as img:
@@ -141,8 +143,9 @@ def _swapped(orientation: int, width: int, height: int) -> tuple[int, int]:
     return (height, width) if orientation in (5, 6, 7, 8) else (width, height)
 
 
-def decode_jpeg(data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT,
-                min_size: tuple[int, int] | None = None) -> np.ndarray:
+def decode_jpeg(
+    data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT, min_size: tuple[int, int] | None = None
+) -> np.ndarray:
     """JPEG bytes -> ``[H, W, 3]`` uint8 RGB (gray replicated), decoded by libjpeg-turbo with the IDCT ``jpeg_idct``
     (see the module docstring). ``min_size = (h, w)`` (as displayed): decode at the smallest DCT scale ``M/8`` whose
     picture is at least that size (reduced-size decoding, see the module docstring; ``None``: full size). Any
@@ -165,8 +168,9 @@ def decode_jpeg(data: bytes, path: str | os.PathLike, jpeg_idct: str = DEFAULT_J
         mw, mh = _swapped(orientation, int(min_size[1]), int(min_size[0]))
         scale = {"min_height": max(mh, 1), "min_width": max(mw, 1)}
     try:
-        arr = simplejpeg.decode_jpeg(data, colorspace="RGB", fastdct=jpeg_idct == "fast", fastupsample=False,
-                                     strict=True, **scale)
+        arr = simplejpeg.decode_jpeg(
+            data, colorspace="RGB", fastdct=jpeg_idct == "fast", fastupsample=False, strict=True, **scale
+        )
     except MemoryError:
         raise DatasetError(f"{path}: JPEG too large to decode in memory") from None
     except Exception as e:
@@ -236,8 +240,9 @@ def png_header(path: str | os.PathLike) -> tuple[int, int, int, int]:
     return width, height, bit_depth, colour_type
 
 
-def read_rgb(path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT,
-             min_size: tuple[int, int] | None = None) -> np.ndarray:
+def read_rgb(
+    path: str | os.PathLike, jpeg_idct: str = DEFAULT_JPEG_IDCT, min_size: tuple[int, int] | None = None
+) -> np.ndarray:
     """Colour image -> ``[H, W, 3]`` uint8, or uint16 for a 16-bit PNG (full precision), as displayed (EXIF
     orientation applied). JPEG content goes through :func:`decode_jpeg` with ``jpeg_idct`` (``"fast"``, the
     original's, by default; ``"accurate"``) and ``min_size`` (reduced-size decoding; other formats ignore it);
@@ -262,8 +267,9 @@ def decode_rgb(data: bytes, where: str | os.PathLike, jpeg_idct: str = DEFAULT_J
     if bit_depth == 16 and colour_type in (_PNG_RGB, _PNG_RGBA):
         return _decode_png16_colour(data, where)
     if bit_depth == 16 and colour_type == _PNG_GRAY_ALPHA:
-        raise DatasetError(f"{where}: 16-bit gray+alpha PNGs are not supported; write 16-bit gray, RGB or RGBA "
-                           "(or 8-bit)")
+        raise DatasetError(
+            f"{where}: 16-bit gray+alpha PNGs are not supported; write 16-bit gray, RGB or RGBA (or 8-bit)"
+        )
     img = _open(io.BytesIO(data), where)
     if img.mode == "RGB":
         arr = np.array(img)
@@ -272,8 +278,7 @@ def decode_rgb(data: bytes, where: str | os.PathLike, jpeg_idct: str = DEFAULT_J
     elif img.mode in ("I;16", "I;16B", "I;16L"):  # 16-bit gray: every bit kept
         arr = np.repeat(np.asarray(img, dtype=np.uint16)[..., None], 3, axis=2)
     else:
-        raise DatasetError(f"{where}: unsupported colour image mode {img.mode!r} (expected 8- or 16-bit RGB or "
-                           "gray)")
+        raise DatasetError(f"{where}: unsupported colour image mode {img.mode!r} (expected 8- or 16-bit RGB or gray)")
     return orient(arr, _orientation(img))
 
 
@@ -366,9 +371,7 @@ def check_labels(labels: np.ndarray, num_ids: int, path: str | os.PathLike) -> N
     if lo < 0 or hi >= num_ids:
         bad = hi if hi >= num_ids else lo
         count = int(np.count_nonzero((labels < 0) | (labels >= num_ids)))
-        raise DatasetError(
-            f"{path}: label ID {bad} out of range 0..{num_ids - 1} ({count} pixel(s) out of range)"
-        )
+        raise DatasetError(f"{path}: label ID {bad} out of range 0..{num_ids - 1} ({count} pixel(s) out of range)")
 
 
 def read_label_ids(path: str | os.PathLike, num_ids: int) -> np.ndarray:

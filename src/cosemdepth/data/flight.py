@@ -41,8 +41,16 @@ import torch
 from ..errors import ConfigError, DatasetError
 from ..models.config import ModelConfig
 from .augment import resolve_augment
-from .decode import (DEFAULT_JPEG_IDCT, check_image_size, check_jpeg_idct, check_nonnegative, image_size, read_label_ids,
-                     read_rgb, read_uint16_png)
+from .decode import (
+    DEFAULT_JPEG_IDCT,
+    check_image_size,
+    check_jpeg_idct,
+    check_nonnegative,
+    image_size,
+    read_label_ids,
+    read_rgb,
+    read_uint16_png,
+)
 from .frames import Size, depth_to_tensor, labels_to_tensor, resolve_size, rgb_to_tensor
 from .pose_matching import DEFAULT_MAX_GAP, match_images
 from .poses import read_poses, relative_camera_motions
@@ -106,8 +114,9 @@ def scale_intrinsics(k: np.ndarray, native: Size, out: Size) -> torch.Tensor:
 class FlightFrameLoader:
     """Loads one flight image (and optional depth/labels) at the output size. Picklable."""
 
-    def __init__(self, size: Size, native: Size, depth_scale: float, num_classes: int,
-                 jpeg_idct: str = DEFAULT_JPEG_IDCT) -> None:
+    def __init__(
+        self, size: Size, native: Size, depth_scale: float, num_classes: int, jpeg_idct: str = DEFAULT_JPEG_IDCT
+    ) -> None:
         self.size = size
         self.native = native
         self.depth_scale = depth_scale
@@ -225,8 +234,9 @@ def open_flight(
     if not isinstance(frame_skip, int) or frame_skip < 1:
         raise ConfigError(f"frame_skip must be a positive integer, got {frame_skip!r}")
 
-    matched = match_images(images, track, match=match, stamp_unit=stamp_unit, max_gap=max_gap,
-                           skip_unposed=skip_unposed)
+    matched = match_images(
+        images, track, match=match, stamp_unit=stamp_unit, max_gap=max_gap, skip_unposed=skip_unposed
+    )
     images, pos, quat, times = matched.images, matched.positions, matched.quaternions, matched.times
 
     keep = np.arange(0, len(images), frame_skip)

@@ -121,8 +121,9 @@ class MixedDataset(Dataset):
         seed: base seed of the draws.
     """
 
-    def __init__(self, datasets: Sequence[Dataset], weights: Sequence[float], length: int | None = None,
-                 seed: int = 0) -> None:
+    def __init__(
+        self, datasets: Sequence[Dataset], weights: Sequence[float], length: int | None = None, seed: int = 0
+    ) -> None:
         if len(datasets) == 0 or len(datasets) != len(weights):
             raise ConfigError(f"need one weight per dataset, got {len(datasets)} datasets and {len(weights)} weights")
         w = np.asarray(weights, dtype=np.float64)

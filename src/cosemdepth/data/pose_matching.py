@@ -59,9 +59,14 @@ class PoseMatch:
 
     def summary(self) -> dict[str, Any]:
         """What ``predictions.json`` records under ``dataset.pose_matching``."""
-        out: dict[str, Any] = {"match": self.match, "chosen_by": "auto" if self.reason else "--match",
-                               "reason": self.reason, "images": self.total, "posed": len(self.images),
-                               "skipped": len(self.skipped)}
+        out: dict[str, Any] = {
+            "match": self.match,
+            "chosen_by": "auto" if self.reason else "--match",
+            "reason": self.reason,
+            "images": self.total,
+            "posed": len(self.images),
+            "skipped": len(self.skipped),
+        }
         if self.skipped:
             out["first_skipped"] = str(self.skipped[0])
         if self.match == "stamp":
@@ -75,8 +80,10 @@ class PoseMatch:
         text = f"{len(self.images)} of {self.total} images matched to poses by {self.match}"
         notes = [f"auto: {self.reason}"] if self.reason else []
         if self.match == "stamp":
-            notes.append(f"image names in {self.image_stamps.unit}, pose stamps in {self.pose_stamps.unit}, "
-                         f"interpolation across gaps <= {self.max_gap:g} s")
+            notes.append(
+                f"image names in {self.image_stamps.unit}, pose stamps in {self.pose_stamps.unit}, "
+                f"interpolation across gaps <= {self.max_gap:g} s"
+            )
         if notes:
             text += f" ({'; '.join(notes)})"
         if self.skipped:
@@ -86,12 +93,23 @@ class PoseMatch:
 
 def _frame_number_names(stems: Sequence[str]) -> bool:
     """Zero-padded frame numbers: all digits, one width, at least one with a leading zero (``000042``)."""
-    return (all(s.isdigit() for s in stems) and len({len(s) for s in stems}) == 1 and len(stems[0]) > 1
-            and any(s.startswith("0") for s in stems))
+    return (
+        all(s.isdigit() for s in stems)
+        and len({len(s) for s in stems}) == 1
+        and len(stems[0]) > 1
+        and any(s.startswith("0") for s in stems)
+    )
 
 
-def match_images(images: Sequence[Path], track: PoseTrack, *, match: str = "auto", stamp_unit="auto",
-                 max_gap: float = DEFAULT_MAX_GAP, skip_unposed: bool = False) -> PoseMatch:
+def match_images(
+    images: Sequence[Path],
+    track: PoseTrack,
+    *,
+    match: str = "auto",
+    stamp_unit="auto",
+    max_gap: float = DEFAULT_MAX_GAP,
+    skip_unposed: bool = False,
+) -> PoseMatch:
     """Match ``images`` (naturally sorted) to the poses of ``track`` (see the module docstring). ``stamp_unit``:
     ``"auto"``, a unit of :data:`cosemdepth.data.stamps.UNITS` for both sides, or ``(image_unit, pose_unit)``."""
     if match not in MATCHES:
@@ -103,8 +121,7 @@ def match_images(images: Sequence[Path], track: PoseTrack, *, match: str = "auto
     stems = [p.stem for p in images]
     raw = [parse_stamp(s) for s in stems]
     image_side = read_side(raw, image_unit, "image names") if all(v is not None for v in raw) else None
-    pose_side = (read_side(track.timestamps.tolist(), pose_unit, "pose stamps") if track.timestamps is not None
-                 else None)
+    pose_side = read_side(track.timestamps.tolist(), pose_unit, "pose stamps") if track.timestamps is not None else None
     reason = None
     if match == "auto":
         match, reason = _choose(images, stems, track, image_side, pose_side, max_gap)
@@ -117,10 +134,13 @@ def match_images(images: Sequence[Path], track: PoseTrack, *, match: str = "auto
     if match == "order":
         if len(track) != len(images):
             why = f"auto: {reason}; " if reason else ""
-            raise DatasetError(f"{track.path}: {len(track)} poses for {len(images)} images in {images[0].parent} "
-                               f"({why}--match order needs one pose per image)")
-        return PoseMatch("order", reason, images, np.arange(len(images)), track.positions, track.quaternions,
-                         times, len(images))
+            raise DatasetError(
+                f"{track.path}: {len(track)} poses for {len(images)} images in {images[0].parent} "
+                f"({why}--match order needs one pose per image)"
+            )
+        return PoseMatch(
+            "order", reason, images, np.arange(len(images)), track.positions, track.quaternions, times, len(images)
+        )
     return _by_index(images, stems, track, times, skip_unposed, reason)
 
 
@@ -128,8 +148,14 @@ def _unit_text(stamp_unit) -> str:
     return stamp_unit if isinstance(stamp_unit, str) else ",".join(stamp_unit)
 
 
-def _choose(images: list[Path], stems: list[str], track: PoseTrack, image_side: StampSide | None,
-            pose_side: StampSide | None, max_gap: float) -> tuple[str, str]:
+def _choose(
+    images: list[Path],
+    stems: list[str],
+    track: PoseTrack,
+    image_side: StampSide | None,
+    pose_side: StampSide | None,
+    max_gap: float,
+) -> tuple[str, str]:
     n, rows = len(images), len(track)
     hint = ""
     if image_side is None:
@@ -151,9 +177,12 @@ def _choose(images: list[Path], stems: list[str], track: PoseTrack, image_side: 
         return "order", f"{why}; one pose per image"
     numbers = [int(s) for s in stems if s.isdigit()]
     past = sum(k >= rows for k in numbers)
-    index = ("; if image k goes with pose row k (rows numbered from 0), pass --match index"
-             + (f" (--skip-unposed leaves out the {past} past the last row)" if past else "")
-             if len(numbers) == n and (past == 0 or _frame_number_names(stems)) else "")
+    index = (
+        "; if image k goes with pose row k (rows numbered from 0), pass --match index"
+        + (f" (--skip-unposed leaves out the {past} past the last row)" if past else "")
+        if len(numbers) == n and (past == 0 or _frame_number_names(stems))
+        else ""
+    )
     raise DatasetError(
         f"{track.path}: cannot tell how the {n} images of {images[0].parent} go with its {rows} poses: {why}, and "
         f"the counts differ (so not one pose per image, --match order){index}; to match by stamp anyway: --match "
@@ -161,14 +190,24 @@ def _choose(images: list[Path], stems: list[str], track: PoseTrack, image_side: 
     )
 
 
-def _by_stamp(images: list[Path], raw: list, track: PoseTrack, image_side: StampSide | None,
-              pose_side: StampSide | None, max_gap: float, skip_unposed: bool, reason: str | None) -> PoseMatch:
+def _by_stamp(
+    images: list[Path],
+    raw: list,
+    track: PoseTrack,
+    image_side: StampSide | None,
+    pose_side: StampSide | None,
+    max_gap: float,
+    skip_unposed: bool,
+    reason: str | None,
+) -> PoseMatch:
     if image_side is None:
         bad = next(p for p, v in zip(images, raw) if v is None)
         raise DatasetError(f"{bad}: image name is not a stamp (a number; needed by --match stamp)")
     if pose_side is None:
-        raise DatasetError(f"{track.path}: pose file has no timestamp column (needed by --match stamp); match "
-                           "images by order or index instead")
+        raise DatasetError(
+            f"{track.path}: pose file has no timestamp column (needed by --match stamp); match "
+            "images by order or index instead"
+        )
     order = np.argsort(image_side.seconds, kind="stable")
     images = [images[i] for i in order]
     times = image_side.seconds[order]
@@ -181,19 +220,46 @@ def _by_stamp(images: list[Path], raw: list, track: PoseTrack, image_side: Stamp
         far = distance > max(span, 60.0)
         return text if far or "pass --stamp-unit" in text else ""
 
-    pos, quat, posed = poses_at(track, times, [str(p) for p in images], max_gap, pose_times=pose_side.seconds,
-                                skip_unposed=skip_unposed, hint=hint)
+    pos, quat, posed = poses_at(
+        track,
+        times,
+        [str(p) for p in images],
+        max_gap,
+        pose_times=pose_side.seconds,
+        skip_unposed=skip_unposed,
+        hint=hint,
+    )
     keep = np.flatnonzero(posed)
     skipped = [images[i] for i in np.flatnonzero(~posed)]
     if not len(keep):
-        raise DatasetError(f"{track.path}: none of the {len(images)} images in {images[0].parent} has a pose "
-                           f"within --max-pose-gap {max_gap:g} s; {unit_hint(image_side, pose_side, max_gap)}")
-    return PoseMatch("stamp", reason, [images[i] for i in keep], keep, pos[keep], quat[keep], times[keep],
-                     len(images), skipped, image_side, pose_side, max_gap)
+        raise DatasetError(
+            f"{track.path}: none of the {len(images)} images in {images[0].parent} has a pose "
+            f"within --max-pose-gap {max_gap:g} s; {unit_hint(image_side, pose_side, max_gap)}"
+        )
+    return PoseMatch(
+        "stamp",
+        reason,
+        [images[i] for i in keep],
+        keep,
+        pos[keep],
+        quat[keep],
+        times[keep],
+        len(images),
+        skipped,
+        image_side,
+        pose_side,
+        max_gap,
+    )
 
 
-def _by_index(images: list[Path], stems: list[str], track: PoseTrack, times: np.ndarray | None,
-              skip_unposed: bool, reason: str | None) -> PoseMatch:
+def _by_index(
+    images: list[Path],
+    stems: list[str],
+    track: PoseTrack,
+    times: np.ndarray | None,
+    skip_unposed: bool,
+    reason: str | None,
+) -> PoseMatch:
     bad = next((p for p, s in zip(images, stems) if not s.isdigit()), None)
     if bad is not None:
         raise DatasetError(f"{bad}: image name is not a frame number (digits; needed by --match index)")
@@ -204,16 +270,28 @@ def _by_index(images: list[Path], stems: list[str], track: PoseTrack, times: np.
     posed = np.array([k < rows for k in numbers], dtype=bool)
     if not posed.all() and not skip_unposed:
         first = int(np.flatnonzero(~posed)[0])
-        raise DatasetError(f"{images[first]}: frame number {numbers[first]} has no pose: {track.path} has {rows} "
-                           f"pose rows, numbered from 0 (--match index); --skip-unposed leaves such images out")
+        raise DatasetError(
+            f"{images[first]}: frame number {numbers[first]} has no pose: {track.path} has {rows} "
+            f"pose rows, numbered from 0 (--match index); --skip-unposed leaves such images out"
+        )
     keep = np.flatnonzero(posed)
     if not len(keep):
-        raise DatasetError(f"{track.path}: none of the {len(images)} images in {images[0].parent} has a pose row "
-                           f"(frame numbers from {numbers[0]}, {rows} pose rows numbered from 0)")
+        raise DatasetError(
+            f"{track.path}: none of the {len(images)} images in {images[0].parent} has a pose row "
+            f"(frame numbers from {numbers[0]}, {rows} pose rows numbered from 0)"
+        )
     idx = np.array([numbers[i] for i in keep], dtype=np.int64)
-    return PoseMatch("index", reason, [images[i] for i in keep], keep, track.positions[idx],
-                     track.quaternions[idx], times[idx] if times is not None else None, len(images),
-                     [images[i] for i in np.flatnonzero(~posed)])
+    return PoseMatch(
+        "index",
+        reason,
+        [images[i] for i in keep],
+        keep,
+        track.positions[idx],
+        track.quaternions[idx],
+        times[idx] if times is not None else None,
+        len(images),
+        [images[i] for i in np.flatnonzero(~posed)],
+    )
 
 
 __all__ = ["DEFAULT_MAX_GAP", "MATCHES", "PoseMatch", "match_images"]

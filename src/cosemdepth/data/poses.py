@@ -49,8 +49,16 @@ CONVENTIONS: dict[str, np.ndarray] = {
     "opengl": np.diag([1.0, -1.0, -1.0]),
 }
 
-_CSV_ALIASES = {"timestamp": ("timestamp", "time"), "tx": ("tx",), "ty": ("ty",), "tz": ("tz",),
-                "qw": ("qw",), "qx": ("qx",), "qy": ("qy",), "qz": ("qz",)}
+_CSV_ALIASES = {
+    "timestamp": ("timestamp", "time"),
+    "tx": ("tx",),
+    "ty": ("ty",),
+    "tz": ("tz",),
+    "qw": ("qw",),
+    "qx": ("qx",),
+    "qy": ("qy",),
+    "qz": ("qz",),
+}
 
 
 @dataclass
@@ -70,7 +78,11 @@ class PoseTrack:
 
 def _data_lines(path: Path) -> list[tuple[int, str]]:
     text = read_text(path, "pose file")
-    return [(i, ln.strip()) for i, ln in enumerate(text.splitlines(), start=1) if ln.strip() and not ln.lstrip().startswith("#")]
+    return [
+        (i, ln.strip())
+        for i, ln in enumerate(text.splitlines(), start=1)
+        if ln.strip() and not ln.lstrip().startswith("#")
+    ]
 
 
 def _float(path: Path, line: int, text: str, what: str) -> float:
@@ -189,17 +201,26 @@ def slerp(q0: np.ndarray, q1: np.ndarray, a: float) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def interpolate_pose(a: float, p0: np.ndarray, q0: np.ndarray, p1: np.ndarray,
-                     q1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def interpolate_pose(
+    a: float, p0: np.ndarray, q0: np.ndarray, p1: np.ndarray, q1: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """The pose a fraction ``a`` of the way from pose 0 (``a = 0``) to pose 1 (``a = 1``): linear position
     ``(1 - a) p0 + a p1`` and :func:`slerp` rotation (quaternions w, x, y, z)."""
     p = (1 - a) * np.asarray(p0, dtype=np.float64) + a * np.asarray(p1, dtype=np.float64)
     return p, slerp(q0, q1, a)
 
 
-def poses_at(track: PoseTrack, times: np.ndarray, names: list[str], max_gap: float,
-             exact_tolerance: float = 1e-6, *, pose_times: np.ndarray | None = None, skip_unposed: bool = False,
-             hint: Callable[[float], str] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def poses_at(
+    track: PoseTrack,
+    times: np.ndarray,
+    names: list[str],
+    max_gap: float,
+    exact_tolerance: float = 1e-6,
+    *,
+    pose_times: np.ndarray | None = None,
+    skip_unposed: bool = False,
+    hint: Callable[[float], str] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Poses at ``times`` (seconds): the pose with the same timestamp (within ``exact_tolerance`` s), else the
     interpolation (linear position, slerp rotation) of the two poses around it when they are at most ``max_gap`` s
     apart. ``pose_times``: the track's timestamps in seconds (default: ``track.timestamps`` as written).
@@ -224,14 +245,18 @@ def poses_at(track: PoseTrack, times: np.ndarray, names: list[str], max_gap: flo
             continue
         if 0 < k < len(ts) and ts[k] - ts[k - 1] <= max_gap + 1e-9:
             a = (t - ts[k - 1]) / (ts[k] - ts[k - 1])
-            pos[i], quat[i] = interpolate_pose(a, track.positions[k - 1], track.quaternions[k - 1],
-                                               track.positions[k], track.quaternions[k])
+            pos[i], quat[i] = interpolate_pose(
+                a, track.positions[k - 1], track.quaternions[k - 1], track.positions[k], track.quaternions[k]
+            )
             posed[i] = True
             continue
         if skip_unposed:
             continue
-        around = (f"poses {t - ts[k - 1]:.6f} s before and {ts[k] - t:.6f} s after, {ts[k] - ts[k - 1]:.6f} s apart"
-                  if 0 < k < len(ts) else f"nearest pose {ts[j_best] - t:+.6f} s away")
+        around = (
+            f"poses {t - ts[k - 1]:.6f} s before and {ts[k] - t:.6f} s after, {ts[k] - ts[k - 1]:.6f} s apart"
+            if 0 < k < len(ts)
+            else f"nearest pose {ts[j_best] - t:+.6f} s away"
+        )
         extra = hint(abs(ts[j_best] - t)) if hint is not None else ""
         raise DatasetError(
             f"{names[i]}: no pose for timestamp {t:.6f} in {track.path} ({around}; poses cover {ts[0]:.6f}.."
@@ -245,7 +270,9 @@ def convention_matrix(convention: str | np.ndarray) -> np.ndarray:
     """``M`` with ``X_camera = M X_local`` for a convention name or a 3x3 rotation matrix."""
     if isinstance(convention, str):
         if convention not in CONVENTIONS:
-            raise ConfigError(f"pose convention must be one of {sorted(CONVENTIONS)} or a 3x3 matrix, got {convention!r}")
+            raise ConfigError(
+                f"pose convention must be one of {sorted(CONVENTIONS)} or a 3x3 matrix, got {convention!r}"
+            )
         return CONVENTIONS[convention]
     m = np.asarray(convention, dtype=np.float64)
     if m.shape != (3, 3) or not np.allclose(m @ m.T, np.eye(3), atol=1e-6) or np.linalg.det(m) < 0:
@@ -253,8 +280,9 @@ def convention_matrix(convention: str | np.ndarray) -> np.ndarray:
     return m
 
 
-def relative_camera_motions(quaternions: np.ndarray, positions: np.ndarray,
-                            convention: str | np.ndarray = "opencv") -> tuple[np.ndarray, np.ndarray]:
+def relative_camera_motions(
+    quaternions: np.ndarray, positions: np.ndarray, convention: str | np.ndarray = "opencv"
+) -> tuple[np.ndarray, np.ndarray]:
     """Absolute poses ``[N, 4]`` (w, x, y, z) / ``[N, 3]`` -> per-frame relative motion in camera axes.
 
     Returns ``(q [N, 4], t [N, 3])`` with row ``i > 0`` the motion from frame ``i - 1`` to frame ``i``

@@ -96,8 +96,10 @@ def register_dataset(name: str, opener: Opener, **spec: Any) -> DatasetSpec:
     if palette is not None:
         palette = np.asarray(palette, dtype=np.uint8)
         if palette.shape != (len(classes), 3):
-            raise ConfigError(f"dataset {name!r}: palette must have shape ({len(classes)}, 3) (one colour per "
-                              f"class), got {palette.shape}")
+            raise ConfigError(
+                f"dataset {name!r}: palette must have shape ({len(classes)}, 3) (one colour per "
+                f"class), got {palette.shape}"
+            )
     entry = DatasetSpec(name=name, opener=opener, classes=classes, palette=palette, **spec)
     DATASETS[name] = entry
     return entry
@@ -128,16 +130,45 @@ def _topair_splits(root, out_dir, rule: str | None = None):  # one rule: TopAir'
 
 # --- the built-in datasets -------------------------------------------------------------------------------------
 _MIDAIR_CLASSES = dict(classes=midair_format.CLASSES_7, palette=midair_format.PALETTE_7)
-register_dataset("midair", open_midair, needs_split_dir=True, options={"name": "midair"},
-                 split_generator=_midair_format_splits("midair"), **_MIDAIR_CLASSES)
-register_dataset("synthair", open_midair, split_dir="splits", options={"name": "synthair"},
-                 split_generator=_midair_format_splits("generic"), splits_into_root=True, **_MIDAIR_CLASSES)
-register_dataset("topair", topair.open_topair, split_dir="splits", classes=topair.CLASSES, palette=topair.PALETTE,
-                 split_generator=_topair_splits)
-register_dataset("aeroscapes", aeroscapes.open_aeroscapes, split="val", size=None, split_dir="ImageSets", classes=aeroscapes.CLASSES,
-                 palette=aeroscapes.PALETTE, has_depth=False, windows=False)
+register_dataset(
+    "midair",
+    open_midair,
+    needs_split_dir=True,
+    options={"name": "midair"},
+    split_generator=_midair_format_splits("midair"),
+    **_MIDAIR_CLASSES,
+)
+register_dataset(
+    "synthair",
+    open_midair,
+    split_dir="splits",
+    options={"name": "synthair"},
+    split_generator=_midair_format_splits("generic"),
+    splits_into_root=True,
+    **_MIDAIR_CLASSES,
+)
+register_dataset(
+    "topair",
+    topair.open_topair,
+    split_dir="splits",
+    classes=topair.CLASSES,
+    palette=topair.PALETTE,
+    split_generator=_topair_splits,
+)
+register_dataset(
+    "aeroscapes",
+    aeroscapes.open_aeroscapes,
+    split="val",
+    size=None,
+    split_dir="ImageSets",
+    classes=aeroscapes.CLASSES,
+    palette=aeroscapes.PALETTE,
+    has_depth=False,
+    windows=False,
+)
 register_dataset("flight", flight.open_flight, split=None, size=None, has_depth=False, has_splits=False)
-register_dataset("toy", open_toy, split="train", size=(32, 32), has_splits=False, windows=False, needs_root=False,
-                 model_classes=True)
+register_dataset(
+    "toy", open_toy, split="train", size=(32, 32), has_splits=False, windows=False, needs_root=False, model_classes=True
+)
 
 __all__ = ["DATASETS", "DatasetSpec", "dataset_spec", "register_dataset", "split_datasets"]

@@ -88,9 +88,20 @@ class Trajectory:
         reset: ``[n]`` bool, stream-mode resets (default: only the first row).
     """
 
-    def __init__(self, name: str, rgb: Sequence[str], rot, trans, ids, *, root: Path | None = None,
-                 depth: Sequence[str] | None = None, semantic: Sequence[str] | None = None,
-                 timestamps=None, reset=None) -> None:
+    def __init__(
+        self,
+        name: str,
+        rgb: Sequence[str],
+        rot,
+        trans,
+        ids,
+        *,
+        root: Path | None = None,
+        depth: Sequence[str] | None = None,
+        semantic: Sequence[str] | None = None,
+        timestamps=None,
+        reset=None,
+    ) -> None:
         n = len(rgb)
         self.name = name
         self.root = root
@@ -207,9 +218,7 @@ class SequenceDataset(Dataset):
         chunk = self.db_seq_len
         #: (trajectory index, first row) of every window/chunk
         self.windows: list[tuple[int, int]] = [
-            (ti, start)
-            for ti, traj in enumerate(self.trajectories)
-            for start in range(0, len(traj) - chunk + 1, chunk)
+            (ti, start) for ti, traj in enumerate(self.trajectories) for start in range(0, len(traj) - chunk + 1, chunk)
         ]
         if self.trajectories and not self.windows:
             longest = max(len(t) for t in self.trajectories)

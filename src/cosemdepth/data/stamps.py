@@ -77,8 +77,11 @@ class StampSide:
 
     def describe(self) -> str:
         """e.g. ``"image names 0..3e+09 read as s (assumed: not dates in any unit)"``."""
-        how = {"given": "given", "epoch": "stamps since 1970 in that unit",
-               "assumed": "the default: not dates 2000-2100 in any unit"}[self.how]
+        how = {
+            "given": "given",
+            "epoch": "stamps since 1970 in that unit",
+            "assumed": "the default: not dates 2000-2100 in any unit",
+        }[self.how]
         return f"{self.what} {_g(min(self.raw))}..{_g(max(self.raw))} read as {self.unit} ({how})"
 
 
@@ -144,8 +147,10 @@ def unit_hint(images: StampSide, poses: StampSide, max_gap: float) -> str:
         return f"{read}; no other units match more images (other clocks? then match by order or index)"
     ui, up = best_units
     flag = ui if ui == up else f"{ui},{up}"
-    return (f"{read}; read as image names in {ui} and pose stamps in {up}, {best} of {len(images.raw)} images "
-            f"would have a pose: pass --stamp-unit {flag}")
+    return (
+        f"{read}; read as image names in {ui} and pose stamps in {up}, {best} of {len(images.raw)} images "
+        f"would have a pose: pass --stamp-unit {flag}"
+    )
 
 
 def _plausible(seconds: np.ndarray) -> bool:
@@ -157,5 +162,15 @@ def _g(v: float) -> str:
     return f"{v:.10g}" if isinstance(v, float) else str(v)
 
 
-__all__ = ["EPOCH_RANGE_S", "StampSide", "UNITS", "epoch_unit", "parse_stamp", "parse_stamp_unit", "posed_count",
-           "read_side", "to_seconds", "unit_hint"]
+__all__ = [
+    "EPOCH_RANGE_S",
+    "StampSide",
+    "UNITS",
+    "epoch_unit",
+    "parse_stamp",
+    "parse_stamp_unit",
+    "posed_count",
+    "read_side",
+    "to_seconds",
+    "unit_hint",
+]

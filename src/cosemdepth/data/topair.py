@@ -32,8 +32,17 @@ CLASSES = ("sky", "water", "trees", "land", "vehicle", "boulders", "road", "man_
 
 #: RGB visualisation palette of the 9 classes (the authors' TopAir loader).
 PALETTE = np.array(
-    [(127, 175, 230), (75, 163, 185), (50, 128, 0), (53, 94, 59), (237, 125, 49), (70, 70, 70), (128, 64, 128),
-     (64, 64, 128), (128, 64, 64)],
+    [
+        (127, 175, 230),
+        (75, 163, 185),
+        (50, 128, 0),
+        (53, 94, 59),
+        (237, 125, 49),
+        (70, 70, 70),
+        (128, 64, 128),
+        (64, 64, 128),
+        (128, 64, 64),
+    ],
     dtype=np.uint8,
 )
 
@@ -42,8 +51,21 @@ DEPTH_SCALE = 100.0 / 255.0
 
 #: Environments in the order of the authors' split generator, their frame skips, and the test environments.
 ENVIRONMENTS = (
-    "Africa_1", "Africa_2", "Africa_3", "CityPark_1", "CityPark_2", "CityPark_3", "CityPark_4", "CityPark_6",
-    "CityPark_8", "OakForest_1", "OakForest_2", "OakForest_3", "RuralAust1_2", "RuralAust3_1", "RuralAust3_2",
+    "Africa_1",
+    "Africa_2",
+    "Africa_3",
+    "CityPark_1",
+    "CityPark_2",
+    "CityPark_3",
+    "CityPark_4",
+    "CityPark_6",
+    "CityPark_8",
+    "OakForest_1",
+    "OakForest_2",
+    "OakForest_3",
+    "RuralAust1_2",
+    "RuralAust3_1",
+    "RuralAust3_2",
 )
 FRAME_SKIPS = (1, 2, 3, 1, 2, 3, 1, 3, 2, 1, 2, 3, 3, 2, 1)
 TEST_ENVIRONMENTS = ("OakForest_3", "RuralAust3_1")

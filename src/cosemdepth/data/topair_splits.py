@@ -73,12 +73,21 @@ def topair_rows(env: str, positions: np.ndarray, quaternions: np.ndarray, skip: 
         if not tm.any():
             tm = np.full(3, ZERO_TRANSLATION)
         name = f"{m * skip:06d}.png"
-        rows.append({
-            "id": m - 1,
-            "camera_l": f"{env}/images/{name}", "depth": f"{env}/depth/{name}", "semantic": f"{env}/seg_id/{name}",
-            "qw": float(q[m, 0]), "qx": float(q[m, 1]), "qy": float(q[m, 2]), "qz": float(q[m, 3]),
-            "tx": float(tm[0]), "ty": float(tm[1]), "tz": float(tm[2]),
-        })
+        rows.append(
+            {
+                "id": m - 1,
+                "camera_l": f"{env}/images/{name}",
+                "depth": f"{env}/depth/{name}",
+                "semantic": f"{env}/seg_id/{name}",
+                "qw": float(q[m, 0]),
+                "qx": float(q[m, 1]),
+                "qy": float(q[m, 2]),
+                "qz": float(q[m, 3]),
+                "tx": float(tm[0]),
+                "ty": float(tm[1]),
+                "tz": float(tm[2]),
+            }
+        )
     return rows
 
 

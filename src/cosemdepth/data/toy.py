@@ -120,14 +120,34 @@ class ToyDataset(Dataset):
         }
 
 
-def open_toy(root, split_dir, split, seq_len, size, augment, *, seed: int = 0, num_classes: int = 7,
-             length: int = 24, shift: int = 2, altitude: float = 40.0) -> ToyDataset:
+def open_toy(
+    root,
+    split_dir,
+    split,
+    seq_len,
+    size,
+    augment,
+    *,
+    seed: int = 0,
+    num_classes: int = 7,
+    length: int = 24,
+    shift: int = 2,
+    altitude: float = 40.0,
+) -> ToyDataset:
     """The opener of the ``"toy"`` dataset (:mod:`cosemdepth.data.registry`): ``root`` and ``split_dir`` are unused
     (nothing is read), ``augment`` too (the items are fixed); ``size`` is an int (square) or ``(H, W)``."""
     if isinstance(size, int):
         size = (size, size)
-    return ToyDataset(length=length, seq_len=seq_len, size=size, num_classes=num_classes, seed=seed, split=split,
-                      shift=shift, altitude=altitude)
+    return ToyDataset(
+        length=length,
+        seq_len=seq_len,
+        size=size,
+        num_classes=num_classes,
+        seed=seed,
+        split=split,
+        shift=shift,
+        altitude=altitude,
+    )
 
 
 def _palette(n: int) -> np.ndarray:

@@ -71,7 +71,9 @@ def dataset_modalities(dataset) -> tuple[bool, bool]:
 def _model_config(model):
     cfg = getattr(model, "config", None)
     if cfg is None or not hasattr(cfg, "decoders"):
-        raise ConfigError(f"evaluate needs a cosemdepth model with a ModelConfig in .config, got {type(model).__name__}")
+        raise ConfigError(
+            f"evaluate needs a cosemdepth model with a ModelConfig in .config, got {type(model).__name__}"
+        )
     return cfg
 
 
@@ -150,10 +152,13 @@ class EvaluationResult:
             return None
         mb = policy.get("min_baseline_m")
         how = f"policy {policy.get('mode')}" + (f", min baseline {mb:.2f} m" if mb else "")
-        return (f"Validity ({how}): {_fmt(100 * m['coverage'], '.1f')} % of the ground-truth pixels valid; on them "
-                f"AbsRel {_fmt(m['valid_abs_rel'], '.4f')}, RMSE {_fmt(m['valid_rmse'], '.3f')}, delta1 "
-                f"{_fmt(100 * m['valid_delta1'], '.1f')} %; evaluated frames: "
-                + ", ".join(f"{v} {k}" for k, v in counts.items()) + " (docs/motion.md)")
+        return (
+            f"Validity ({how}): {_fmt(100 * m['coverage'], '.1f')} % of the ground-truth pixels valid; on them "
+            f"AbsRel {_fmt(m['valid_abs_rel'], '.4f')}, RMSE {_fmt(m['valid_rmse'], '.3f')}, delta1 "
+            f"{_fmt(100 * m['valid_delta1'], '.1f')} %; evaluated frames: "
+            + ", ".join(f"{v} {k}" for k, v in counts.items())
+            + " (docs/motion.md)"
+        )
 
     def flicker_line(self) -> str | None:
         """The labels' temporal consistency (``flicker`` and the other fields of docs/evaluation.md)."""
@@ -161,10 +166,12 @@ class EvaluationResult:
         if "flicker" not in m:
             return None
         pct = lambda k: _fmt(None if m.get(k) is None else 100 * m[k], ".1f")  # noqa: E731
-        return (f"Temporal consistency over {m['flicker_pairs']} pairs of consecutive frames: flicker {pct('flicker')} % "
-                f"of the pixels whose ground truth does not change (per pair: median {pct('flicker_median')} %, max "
-                f"{pct('flicker_max')} %); real changes followed: {pct('change_recall')} % (the ground truth changes "
-                f"on {pct('gt_change')} %; docs/evaluation.md)")
+        return (
+            f"Temporal consistency over {m['flicker_pairs']} pairs of consecutive frames: flicker {pct('flicker')} % "
+            f"of the pixels whose ground truth does not change (per pair: median {pct('flicker_median')} %, max "
+            f"{pct('flicker_max')} %); real changes followed: {pct('change_recall')} % (the ground truth changes "
+            f"on {pct('gt_change')} %; docs/evaluation.md)"
+        )
 
     def to_markdown(self, name: str | None = None) -> str:
         """A report: the paper-style tables (with SqRel and both RMSE_log variants), the confusion matrix, settings."""
@@ -204,8 +211,11 @@ class EvaluationResult:
             f"{proto.get('frames_streamed')} frames streamed in {proto.get('trajectories')} trajectories, "
             f"{proto.get('frames_evaluated')} evaluated",
             f"- protocol: each trajectory streamed frame by frame ({proto.get('lanes')} at a time); "
-            + ("reset frames excluded from all metrics (design 11.3)" if proto.get("reset_frames_excluded")
-               else "every frame counted (a dataset of independent images)"),
+            + (
+                "reset frames excluded from all metrics (design 11.3)"
+                if proto.get("reset_frames_excluded")
+                else "every frame counted (a dataset of independent images)"
+            ),
             f"- speed: {_fmt(self.ms_per_frame, '.1f')} ms/frame (model step only, {speed.get('timed_frames')} "
             f"frames after {speed.get('warmup_steps')} warm-up steps) on {mach.get('device')}: {mach.get('cpu')}"
             + (f", {mach.get('gpu')}" if mach.get("gpu") else "")
@@ -296,8 +306,9 @@ class Evaluator:
         start = time.perf_counter()
         bar = tqdm(total=self.num_frames, unit="frame", desc="evaluate", disable=not self.progress, leave=False)
         with PeakMemory(device) as mem:
-            for k, batch in enumerate(stream(streamer, self.dataset, schedule=self.schedule,
-                                             num_workers=self.num_workers)):
+            for k, batch in enumerate(
+                stream(streamer, self.dataset, schedule=self.schedule, num_workers=self.num_workers)
+            ):
                 include = ~batch.reset if self.exclude_resets else torch.ones_like(batch.reset)
                 for m in metrics.values():
                     m.update(batch, include)
@@ -346,8 +357,11 @@ class Evaluator:
             "model": model_info,
             "dataset": {"name": self.dataset_name, "size": _dataset_size(ds), "split": None, "root": None},
             "protocol": protocol,
-            "speed": {"timed_frames": timed_frames, "warmup_steps": min(self.warmup, len(self.schedule)),
-                      "wall_seconds": wall},
+            "speed": {
+                "timed_frames": timed_frames,
+                "warmup_steps": min(self.warmup, len(self.schedule)),
+                "wall_seconds": wall,
+            },
             "machine": machine_info(device),
             "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
         }

@@ -105,12 +105,15 @@ def compare_with_reference(model, fixture: str | Path) -> dict[str, Any]:
         inp["intrinsics"],
         torch.stack(inp["reset"], 1),
     )
-    seq_maps = {"depth": seq.depth, "parallax": seq.parallax, "depth_other": seq.depth_other,
-                "semantic": seq.semantic, "semantic_other": seq.semantic_other}
+    seq_maps = {
+        "depth": seq.depth,
+        "parallax": seq.parallax,
+        "depth_other": seq.depth_other,
+        "semantic": seq.semantic,
+        "semantic_other": seq.semantic_other,
+    }
     for t in range(n):
-        report["training"].append(
-            level_report(lambda k, j: seq_maps[k][j][:, t] if seq_maps[k] else None, "train", t)
-        )
+        report["training"].append(level_report(lambda k, j: seq_maps[k][j][:, t] if seq_maps[k] else None, "train", t))
         feats = {}
         for l in range(1, levels + 1):
             if f"feat_lvl{l}" in ref.files:

@@ -109,8 +109,9 @@ def nice_ceil(x: float) -> float:
     return float(10.0 ** (k + 1))
 
 
-def auto_depth_range(depths: Sequence[np.ndarray], cap: float = AUTO_RANGE_CAP_M,
-                     percentile: float = AUTO_RANGE_PERCENTILE) -> tuple[float, float]:
+def auto_depth_range(
+    depths: Sequence[np.ndarray], cap: float = AUTO_RANGE_CAP_M, percentile: float = AUTO_RANGE_PERCENTILE
+) -> tuple[float, float]:
     """The colour range ``(0, far)`` of a flight from some of its depth maps (metres).
 
     ``far`` is the ``percentile`` of the finite positive depths at most ``cap`` (the sky and the far background are
@@ -148,7 +149,6 @@ def depth_ticks(near: float, far: float, max_ticks: int = 7) -> list[float]:
 
 def _fmt_m(v: float) -> str:
     return f"{v:g}"
-
 
 
 # ---------------------------------------------------------------------------------------------------- resizing
@@ -223,9 +223,16 @@ class FlightFigure:
     depth panels) and ``legend_boxes``, ``[(class index, swatch box), ...]`` in legend order.
     """
 
-    def __init__(self, keys: Sequence[str], size: tuple[int, int], *, depth_range: tuple[float, float] = (0.0, 80.0),
-                 class_names: Sequence[str] = (), palette: np.ndarray | None = None,
-                 min_panel: int = MIN_PANEL) -> None:
+    def __init__(
+        self,
+        keys: Sequence[str],
+        size: tuple[int, int],
+        *,
+        depth_range: tuple[float, float] = (0.0, 80.0),
+        class_names: Sequence[str] = (),
+        palette: np.ndarray | None = None,
+        min_panel: int = MIN_PANEL,
+    ) -> None:
         unknown = [k for k in keys if k not in CAPTIONS]
         if unknown:
             raise ValueError(f"unknown panels {unknown}; known: {list(CAPTIONS)}")
@@ -290,17 +297,26 @@ class FlightFigure:
             "upscale": self.scale,
             "frame_size": list(self.frame_size),
             # where each panel lies in a one-frame picture: [x0, y0, x1, y1], x1/y1 excluded
-            "panel_boxes": [[self.x[k], self.caption_height, self.x[k] + self.panel_size[1],
-                             self.caption_height + self.panel_size[0]] for k in self.keys],
+            "panel_boxes": [
+                [
+                    self.x[k],
+                    self.caption_height,
+                    self.x[k] + self.panel_size[1],
+                    self.caption_height + self.panel_size[0],
+                ]
+                for k in self.keys
+            ],
         }
         if self.has_depth:
             out["depth_range_m"] = list(self.depth_range)
             out["depth_ticks_m"] = depth_ticks(*self.depth_range)
             # the colour bar in a one-frame picture: column x0 is depth_range_m[0], column x1 - 1 depth_range_m[1]
             out["colorbar_box"] = list(self.colorbar_box) if self.colorbar_box else None
-            out["depth_colormap"] = (f"{DEPTH_CMAP}, linear, {_fmt_m(self.depth_range[0])} m red to "
-                                     f"{_fmt_m(self.depth_range[1])} m dark blue; farther depths (sky) dark blue; "
-                                     f"predicted pixels without an estimate grey {list(INVALID_COLOR)}")
+            out["depth_colormap"] = (
+                f"{DEPTH_CMAP}, linear, {_fmt_m(self.depth_range[0])} m red to "
+                f"{_fmt_m(self.depth_range[1])} m dark blue; farther depths (sky) dark blue; "
+                f"predicted pixels without an estimate grey {list(INVALID_COLOR)}"
+            )
         if self.has_labels:
             out["classes"] = list(self.class_names)
         return out
@@ -352,8 +368,13 @@ class FlightFigure:
         top = round(s * 0.5)
         title_h = round(s * 1.5)
         bar_h = round(s * 1.1)
-        return {"x0": x0 + margin, "x1": x1 - margin, "y0": top + title_h, "y1": top + title_h + bar_h,
-                "height": top + title_h + bar_h + round(s * 0.5) + round(s * 1.5)}
+        return {
+            "x0": x0 + margin,
+            "x1": x1 - margin,
+            "y0": top + title_h,
+            "y1": top + title_h + bar_h,
+            "height": top + title_h + bar_h + round(s * 0.5) + round(s * 1.5),
+        }
 
     def _draw_footer(self) -> np.ndarray:
         parts = []
@@ -378,11 +399,14 @@ class FlightFigure:
             near, far = self.depth_range
             x0, x1, y0, y1 = geom["x0"], geom["x1"], geom["y0"], geom["y1"]
             bar = positions_to_rgb(np.linspace(0.0, 1.0, x1 - x0, dtype=np.float32))
-            img.paste(Image.fromarray(np.ascontiguousarray(np.broadcast_to(bar[None], (y1 - y0, x1 - x0, 3)))),
-                      (x0, y0))
+            img.paste(
+                Image.fromarray(np.ascontiguousarray(np.broadcast_to(bar[None], (y1 - y0, x1 - x0, 3)))), (x0, y0)
+            )
             self.colorbar_box = (x0, y0, x1, y1)  # in the footer; moved to frame coordinates below
-            title = (f"depth in metres, {_fmt_m(near)} to {_fmt_m(far)} m (fixed for this flight; "
-                     f"farther, e.g. sky: dark blue; grey: no estimate)")
+            title = (
+                f"depth in metres, {_fmt_m(near)} to {_fmt_m(far)} m (fixed for this flight; "
+                f"farther, e.g. sky: dark blue; grey: no estimate)"
+            )
             if text_size(title, s)[0] > depth_span[1] - depth_span[0] - 8:
                 title = f"depth (m), {_fmt_m(near)}-{_fmt_m(far)} m, fixed for the flight; grey: no estimate"
             if text_size(title, s)[0] > depth_span[1] - depth_span[0] - 8:
@@ -439,7 +463,7 @@ class FlightFigure:
             if getattr(maps, key) is None:  # e.g. a frame whose ground truth is missing: an empty panel, marked
                 self._na(canvas, y, key)
                 continue
-            canvas[y:y + ph, self.x[key]:self.x[key] + pw] = self.panel(key, maps)
+            canvas[y : y + ph, self.x[key] : self.x[key] + pw] = self.panel(key, maps)
         if maps.title:
             self._title(canvas, y, maps.title)
 
@@ -447,7 +471,7 @@ class FlightFigure:
         ph, pw = self.panel_size
         img = Image.new("RGB", (pw, ph), (48, 48, 48))
         _draw_text(ImageDraw.Draw(img), (pw / 2, ph / 2), "not available", self.small_size, anchor="mm")
-        canvas[y:y + ph, self.x[key]:self.x[key] + pw] = np.asarray(img)
+        canvas[y : y + ph, self.x[key] : self.x[key] + pw] = np.asarray(img)
 
     def _title(self, canvas: np.ndarray, y: int, title: str) -> None:
         s = self.small_size
@@ -457,7 +481,7 @@ class FlightFigure:
         _draw_text(ImageDraw.Draw(box), (pad, box.height / 2), title, s, anchor="lm")
         b = np.asarray(box)
         bh, bw = min(b.shape[0], self.panel_size[0]), min(b.shape[1], self.panel_size[1])
-        canvas[y:y + bh, self.x[self.keys[0]]:self.x[self.keys[0]] + bw] = b[:bh, :bw]
+        canvas[y : y + bh, self.x[self.keys[0]] : self.x[self.keys[0]] + bw] = b[:bh, :bw]
 
     def frame(self, maps: FrameMaps) -> np.ndarray:
         """One frame: captions, the panels, the footer; ``[frame_size[0], frame_size[1], 3]`` uint8."""
@@ -468,7 +492,7 @@ class FlightFigure:
         h, w = self.rows_size(len(frames))
         canvas = np.empty((h, w, 3), dtype=np.uint8)
         canvas[...] = BACKGROUND
-        canvas[:self.caption_height] = self._caption
+        canvas[: self.caption_height] = self._caption
         y = self.caption_height
         for maps in frames:
             self._row(canvas, y, maps)
@@ -485,9 +509,16 @@ class FlightPictures:
     reset frames), and the held frames are drawn. ``emit(context, image)`` receives every drawn frame in order.
     """
 
-    def __init__(self, emit: Callable[[Any, np.ndarray], None], *, class_names: Sequence[str] = (),
-                 palette: np.ndarray | None = None, depth_range: tuple[float, float] | None = None,
-                 warmup: int = WARMUP_FRAMES, min_panel: int = MIN_PANEL) -> None:
+    def __init__(
+        self,
+        emit: Callable[[Any, np.ndarray], None],
+        *,
+        class_names: Sequence[str] = (),
+        palette: np.ndarray | None = None,
+        depth_range: tuple[float, float] | None = None,
+        warmup: int = WARMUP_FRAMES,
+        min_panel: int = MIN_PANEL,
+    ) -> None:
         self.emit = emit
         self.class_names = tuple(class_names)
         self.palette = palette
@@ -510,11 +541,20 @@ class FlightPictures:
         rng = self.depth_range
         if rng is None:
             gt = [m.gt_depth for _, m in self._held if m.gt_depth is not None]
-            pred = [m.depth if m.valid is None else m.depth[m.valid]
-                    for _, m in self._held if m.depth is not None and not m.reset]
+            pred = [
+                m.depth if m.valid is None else m.depth[m.valid]
+                for _, m in self._held
+                if m.depth is not None and not m.reset
+            ]
             rng = auto_depth_range(gt or pred)
-        self.figure = FlightFigure(first.keys(), first.rgb.shape[:2], depth_range=rng, class_names=self.class_names,
-                                   palette=self.palette, min_panel=self.min_panel)
+        self.figure = FlightFigure(
+            first.keys(),
+            first.rgb.shape[:2],
+            depth_range=rng,
+            class_names=self.class_names,
+            palette=self.palette,
+            min_panel=self.min_panel,
+        )
         held, self._held = self._held, []
         for context, maps in held:
             self.emit(context, self.figure.frame(maps))
@@ -528,6 +568,7 @@ class FlightPictures:
 
 def frame_maps(batch, b: int, *, title: str = "", labels_ok: Callable[[np.ndarray], bool] | None = None) -> FrameMaps:
     """The :class:`FrameMaps` of sample ``b`` of a :class:`~cosemdepth.evaluation.streaming.StreamBatch`."""
+
     def arr(t, idx):
         return None if t is None else t[idx].detach().cpu().numpy()
 
@@ -547,16 +588,34 @@ def frame_maps(batch, b: int, *, title: str = "", labels_ok: Callable[[np.ndarra
         title += " (held: too little motion)"
     elif reset and title:
         title += " (reset)"
-    return FrameMaps(rgb=rgb_to_uint8(batch.rgb[b].float().cpu().numpy()),
-                     depth=None if depth is None else depth.astype(np.float32),
-                     gt_depth=None if gt_depth is None else gt_depth.astype(np.float32),
-                     labels=arr(batch.labels, b), gt_labels=gt_labels, title=title, reset=reset, valid=valid,
-                     status=status)
+    return FrameMaps(
+        rgb=rgb_to_uint8(batch.rgb[b].float().cpu().numpy()),
+        depth=None if depth is None else depth.astype(np.float32),
+        gt_depth=None if gt_depth is None else gt_depth.astype(np.float32),
+        labels=arr(batch.labels, b),
+        gt_labels=gt_labels,
+        title=title,
+        reset=reset,
+        valid=valid,
+        status=status,
+    )
 
 
 __all__ = [
-    "CAPTIONS", "FlightFigure", "FlightPictures", "FrameMaps", "INVALID_COLOR", "MAX_UPSCALED_PANEL", "MIN_PANEL",
-    "PANELS", "WARMUP_FRAMES",
-    "auto_depth_range", "depth_ticks", "frame_maps", "nice_ceil", "panel_scale",
-    "upscale_bilinear", "upscale_nearest",
+    "CAPTIONS",
+    "FlightFigure",
+    "FlightPictures",
+    "FrameMaps",
+    "INVALID_COLOR",
+    "MAX_UPSCALED_PANEL",
+    "MIN_PANEL",
+    "PANELS",
+    "WARMUP_FRAMES",
+    "auto_depth_range",
+    "depth_ticks",
+    "frame_maps",
+    "nice_ceil",
+    "panel_scale",
+    "upscale_bilinear",
+    "upscale_nearest",
 ]

@@ -50,8 +50,15 @@ ALL_DEPTH_METRICS = DEPTH_METRICS + ("rmse_log_fixed",)
 PERFS_ORDER = DEPTH_METRICS + ("miou",)
 #: Whether a lower ("min") or higher ("max") value is better, for every scalar metric.
 METRIC_MODES = {
-    "abs_rel": "min", "sq_rel": "min", "rmse": "min", "rmse_log": "min", "rmse_log_fixed": "min",
-    "delta1": "max", "delta2": "max", "delta3": "max", "miou": "max",
+    "abs_rel": "min",
+    "sq_rel": "min",
+    "rmse": "min",
+    "rmse_log": "min",
+    "rmse_log_fixed": "min",
+    "delta1": "max",
+    "delta2": "max",
+    "delta3": "max",
+    "miou": "max",
 }
 #: Number of the seven depth metrics that must improve strictly for a new best checkpoint (design 9.5).
 MIN_DEPTH_IMPROVED = 4
@@ -220,8 +227,9 @@ class ValidDepthMetrics:
         self._kept: list[torch.Tensor] = []
         self._total: list[torch.Tensor] = []
 
-    def update(self, gt: torch.Tensor, pred: torch.Tensor, valid: torch.Tensor, include: Any = None
-               ) -> dict[str, torch.Tensor]:
+    def update(
+        self, gt: torch.Tensor, pred: torch.Tensor, valid: torch.Tensor, include: Any = None
+    ) -> dict[str, torch.Tensor]:
         """Add frames ``[B, 1, H, W]`` (or one ``[H, W]``); returns their per-frame ``{abs_rel, delta1, rmse,
         coverage, valid_pixels, gt_pixels}`` (all frames, included or not)."""
         values = depth_metrics(gt, pred, max_depth=self.max_depth, min_pred=self.min_pred, mask=valid)
@@ -301,8 +309,9 @@ class ConfusionMatrix:
             LabelRangeError: a label outside ``[0, num_classes - 1]`` (GT pixels equal to ``ignore_index`` apart).
         """
         if gt.shape != pred.shape:
-            raise ValueError(f"ConfusionMatrix.update: gt {list(gt.shape)} and pred {list(pred.shape)} must have "
-                             "the same shape")
+            raise ValueError(
+                f"ConfusionMatrix.update: gt {list(gt.shape)} and pred {list(pred.shape)} must have the same shape"
+            )
         g = _label_frames(gt, "gt").long()
         p = _label_frames(pred, "pred").long()
         inc = _include_mask(include, g.shape[0], g.device)
@@ -318,8 +327,9 @@ class ConfusionMatrix:
                 lo, hi = int(x.min()), int(x.max())
                 if lo < 0 or hi >= n:
                     extra = "" if self.ignore_index is None else f" (ignore_index={self.ignore_index})"
-                    raise LabelRangeError(f"{name} labels must lie in [0, {n - 1}] for {n} classes{extra}; "
-                                          f"found values in [{lo}, {hi}]")
+                    raise LabelRangeError(
+                        f"{name} labels must lie in [0, {n - 1}] for {n} classes{extra}; found values in [{lo}, {hi}]"
+                    )
             self.matrix += torch.bincount(g * n + p, minlength=n * n).reshape(n, n).cpu()
         self.frames += frames
 
@@ -404,8 +414,10 @@ class EvaluationMetrics:
                 raise ValueError("EvaluationMetrics.update: a semantic model needs gt_labels and pred_semantic")
             if pred_semantic.dtype.is_floating_point:
                 if pred_semantic.dim() != 4 or pred_semantic.shape[1] != self.semantic.num_classes:
-                    raise ValueError(f"pred_semantic scores must be [B, {self.semantic.num_classes}, H, W], got "
-                                     f"{list(pred_semantic.shape)}")
+                    raise ValueError(
+                        f"pred_semantic scores must be [B, {self.semantic.num_classes}, H, W], got "
+                        f"{list(pred_semantic.shape)}"
+                    )
                 pred_semantic = pred_semantic.argmax(dim=1, keepdim=gt_labels.dim() == 4)
             self.semantic.update(gt_labels, pred_semantic, include)
 
@@ -444,8 +456,9 @@ def _has_group(d: Mapping[str, Any], keys: Iterable[str]) -> bool:
     return all(_value(d, k) is not None for k in keys)
 
 
-def is_better(new: Mapping[str, Any], best: Mapping[str, Any] | None, *,
-              min_depth_improved: int = MIN_DEPTH_IMPROVED) -> bool:
+def is_better(
+    new: Mapping[str, Any], best: Mapping[str, Any] | None, *, min_depth_improved: int = MIN_DEPTH_IMPROVED
+) -> bool:
     """The original best-checkpoint rule (design 9.5), restricted naturally to single-task models.
 
     * Co-SemDepth (both the seven :data:`DEPTH_METRICS` and ``miou`` present): at least ``min_depth_improved`` (4)
@@ -464,8 +477,9 @@ def is_better(new: Mapping[str, Any], best: Mapping[str, Any] | None, *,
     for name, keys in groups.items():
         in_new, in_best = _has_group(new, keys), _has_group(best, keys)
         if in_new != in_best:
-            raise ValueError(f"is_better: the {name} metrics {list(keys)} are in "
-                             f"{'the new' if in_new else 'the best'} results only")
+            raise ValueError(
+                f"is_better: the {name} metrics {list(keys)} are in {'the new' if in_new else 'the best'} results only"
+            )
         present[name] = in_new
     if not any(present.values()):
         raise ValueError(f"is_better: the results hold neither the depth metrics {list(DEPTH_METRICS)} nor 'miou'")
@@ -490,8 +504,10 @@ def is_better_by(metric: str, mode: str | None = None) -> Callable[[Mapping[str,
     """
     if mode is None:
         if metric not in METRIC_MODES:
-            raise ConfigError(f"unknown metric {metric!r} for best-checkpoint selection; known: "
-                              f"{sorted(METRIC_MODES)} (or give a mode, min or max)")
+            raise ConfigError(
+                f"unknown metric {metric!r} for best-checkpoint selection; known: "
+                f"{sorted(METRIC_MODES)} (or give a mode, min or max)"
+            )
         mode = METRIC_MODES[metric]
     if mode not in ("min", "max"):
         raise ConfigError(f"selection mode must be 'min' or 'max', got {mode!r}")
@@ -501,8 +517,9 @@ def is_better_by(metric: str, mode: str | None = None) -> Callable[[Mapping[str,
             return True
         a, b = _value(new, metric), _value(best, metric)
         if a is None or b is None:
-            raise ValueError(f"is_better_by({metric!r}): the metric is missing from the "
-                             f"{'new' if a is None else 'best'} results")
+            raise ValueError(
+                f"is_better_by({metric!r}): the metric is missing from the {'new' if a is None else 'best'} results"
+            )
         return _improved(a, b, mode)
 
     rule.__name__ = f"is_better_by_{metric}_{mode}"
@@ -610,8 +627,23 @@ def format_perfs(results: Mapping[str, Any]) -> str:
 
 
 __all__ = [
-    "ALL_DEPTH_METRICS", "ConfusionMatrix", "DEPTH_METRICS", "DepthMetrics", "EVAL_MAX_DEPTH", "EVAL_MIN_PRED",
-    "EvaluationMetrics", "LabelRangeError", "METRIC_MODES", "MIN_DEPTH_IMPROVED", "PERFS_ORDER", "depth_metrics",
-    "format_markdown_table", "format_perfs", "is_better", "is_better_by", "selection_rule", "VALID_DEPTH_METRICS",
+    "ALL_DEPTH_METRICS",
+    "ConfusionMatrix",
+    "DEPTH_METRICS",
+    "DepthMetrics",
+    "EVAL_MAX_DEPTH",
+    "EVAL_MIN_PRED",
+    "EvaluationMetrics",
+    "LabelRangeError",
+    "METRIC_MODES",
+    "MIN_DEPTH_IMPROVED",
+    "PERFS_ORDER",
+    "depth_metrics",
+    "format_markdown_table",
+    "format_perfs",
+    "is_better",
+    "is_better_by",
+    "selection_rule",
+    "VALID_DEPTH_METRICS",
     "ValidDepthMetrics",
 ]

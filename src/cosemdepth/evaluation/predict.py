@@ -42,10 +42,10 @@ import torch
 from tqdm.auto import tqdm
 
 from ..errors import ConfigError
+from ..inference.policy import Streamer, StreamPolicy, policy_info
 from ..output_safety.atomic import atomic_write_text
 from ..output_safety.outdir import Input
 from ..output_safety.staging import StagedDir
-from ..inference.policy import StreamPolicy, Streamer, policy_info
 from ..tasks import TASKS, DecoderTask, TaskWriter, WriteOptions, class_count, tasks_for
 from ..tasks.depth import valid_mask
 from .classes import class_info
@@ -103,10 +103,19 @@ class PredictionWriter:
             frame (default: those of the heads the stream has).
     """
 
-    def __init__(self, folder: Path, *, num_classes: int | None, dataset_name: str | None = None,
-                 video: str | None = DEFAULT_VIDEO, fps: float = DEFAULT_FPS, depth_range: tuple[float, float] | None = None,
-                 sources: dict[int, str] | None = None, invalid: str = DEFAULT_INVALID,
-                 tasks: Sequence[DecoderTask] | None = None) -> None:
+    def __init__(
+        self,
+        folder: Path,
+        *,
+        num_classes: int | None,
+        dataset_name: str | None = None,
+        video: str | None = DEFAULT_VIDEO,
+        fps: float = DEFAULT_FPS,
+        depth_range: tuple[float, float] | None = None,
+        sources: dict[int, str] | None = None,
+        invalid: str = DEFAULT_INVALID,
+        tasks: Sequence[DecoderTask] | None = None,
+    ) -> None:
         if invalid not in INVALID_MODES:
             raise ConfigError(f"--invalid must be one of {', '.join(INVALID_MODES)}, got {invalid!r}")
         self.invalid = invalid
@@ -162,7 +171,10 @@ class PredictionWriter:
         if pictures is None:
             pictures = self._pictures[traj] = FlightPictures(
                 lambda path, image, traj=traj, base=base: self._emit(traj, base, path, image),
-                class_names=self.names, palette=self.palette, depth_range=self.depth_range)
+                class_names=self.names,
+                palette=self.palette,
+                depth_range=self.depth_range,
+            )
         pictures.add(maps, self.folder / files["side_by_side"])
         record["files"] = files
         src = self.sources.get(batch.indices[b])
@@ -298,12 +310,18 @@ def predict(
     start = time.perf_counter()
     with staged as tmp:
         tasks = tasks_for(cfg)
-        writer = PredictionWriter(tmp, num_classes=class_count(cfg),
-                                  dataset_name=name, video=video, fps=fps, depth_range=depth_range,
-                                  sources=_sources(dataset, [i for g in groups for i in g]), invalid=invalid,
-                                  tasks=tasks)
-        bar = tqdm(total=sum(len(g) for g in groups), unit="frame", desc="predict", disable=not progress,
-                   leave=False)
+        writer = PredictionWriter(
+            tmp,
+            num_classes=class_count(cfg),
+            dataset_name=name,
+            video=video,
+            fps=fps,
+            depth_range=depth_range,
+            sources=_sources(dataset, [i for g in groups for i in g]),
+            invalid=invalid,
+            tasks=tasks,
+        )
+        bar = tqdm(total=sum(len(g) for g in groups), unit="frame", desc="predict", disable=not progress, leave=False)
         model_seconds = 0.0
         extra: dict[str, Any] = {}
         opened: list = []

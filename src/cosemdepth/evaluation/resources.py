@@ -80,9 +80,11 @@ class PeakMemory:
         hwm = _status_kb("VmHWM")
         if hwm is not None and self._baseline_kb is not None:
             self.peak_mb = max(hwm - self._baseline_kb, 0) / 1024.0
-            self.method = ("cpu resident-set peak (VmHWM, reset at the start) minus the resident set at the start"
-                           if self._reset else
-                           "cpu resident-set peak since process start (VmHWM) minus the resident set at the start")
+            self.method = (
+                "cpu resident-set peak (VmHWM, reset at the start) minus the resident set at the start"
+                if self._reset
+                else "cpu resident-set peak since process start (VmHWM) minus the resident set at the start"
+            )
         else:
             self.peak_mb = _rusage_max_mb()
             self.method = "cpu resident-set peak since process start (getrusage)"

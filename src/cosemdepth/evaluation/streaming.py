@@ -23,9 +23,9 @@ from torch.utils.data import DataLoader
 
 from ..data.loader import collate
 from ..errors import ConfigError, NonFiniteOutputError
-from ..workers import check_workers
 from ..inference.policy import EVERY_FRAME, Streamer
 from ..tasks import TASKS
+from ..workers import check_workers
 
 
 @dataclass(frozen=True)
@@ -79,7 +79,9 @@ def make_schedule(groups: Sequence[Sequence[int]], lanes: int = 1) -> list[StepP
     steps: list[StepPlan] = []
     while active:
         order = sorted(active)
-        steps.append(StepPlan(tuple(active[k].popleft() for k in order), tuple(order), tuple(k in fresh for k in order)))
+        steps.append(
+            StepPlan(tuple(active[k].popleft() for k in order), tuple(order), tuple(k in fresh for k in order))
+        )
         fresh = set()
         for k in order:
             if not active[k]:
@@ -192,7 +194,8 @@ def check_finite_outputs(out, dataset, indices: list[int], trajectories: list[st
             where += f"dataset row {i}, trajectory {trajectories[b]}, frame {int(frames[b])}" + (")" if src else "")
             raise NonFiniteOutputError(
                 f"{where}: the model's {name} output holds NaN/inf ({int(bad[b].sum())} of {bad.shape[1]} values); "
-                "the model weights or this input are broken; stopped, no output was written")
+                "the model weights or this input are broken; stopped, no output was written"
+            )
 
 
 class GroundTruthDepthGuide:
@@ -250,8 +253,12 @@ def stream(
     if needs_depth_input(streamer):
         guide = GroundTruthDepthGuide(streamer.model)
         streamer = Streamer(guide, streamer.policy, min_baseline=streamer.min_baseline)
-    loader = DataLoader(dataset, batch_sampler=[list(s.indices) for s in schedule], collate_fn=collate,
-                        num_workers=check_workers(num_workers, "num_workers"))
+    loader = DataLoader(
+        dataset,
+        batch_sampler=[list(s.indices) for s in schedule],
+        collate_fn=collate,
+        num_workers=check_workers(num_workers, "num_workers"),
+    )
     state = None
     prev_lanes: tuple[int, ...] = ()
     with torch.inference_mode():
@@ -268,8 +275,10 @@ def stream(
             reset_dev = reset.to(device)
             if guide is not None:
                 if batch.get("depth") is None:
-                    raise ConfigError("the model's semantic decoder warps the previous labels with the ground-truth "
-                                      "depth (semantic_time 'gt'), and this dataset has no depth")
+                    raise ConfigError(
+                        "the model's semantic decoder warps the previous labels with the ground-truth "
+                        "depth (semantic_time 'gt'), and this dataset has no depth"
+                    )
                 guide.depth = batch["depth"][:, 0].to(device=device, dtype=dtype)
             _sync(device)
             t0 = time.perf_counter()
@@ -305,5 +314,14 @@ def stream(
             )
 
 
-__all__ = ["GroundTruthDepthGuide", "StepPlan", "StreamBatch", "check_finite_outputs", "frame_source", "make_schedule",
-           "needs_depth_input", "stream", "trajectory_rows"]
+__all__ = [
+    "GroundTruthDepthGuide",
+    "StepPlan",
+    "StreamBatch",
+    "check_finite_outputs",
+    "frame_source",
+    "make_schedule",
+    "needs_depth_input",
+    "stream",
+    "trajectory_rows",
+]

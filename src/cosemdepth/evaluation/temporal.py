@@ -62,8 +62,9 @@ class PairCounts:
     followed: int
 
 
-def pair_counts(pred: torch.Tensor, pred_prev: torch.Tensor, gt: torch.Tensor, gt_prev: torch.Tensor,
-                valid: torch.Tensor) -> list[PairCounts]:
+def pair_counts(
+    pred: torch.Tensor, pred_prev: torch.Tensor, gt: torch.Tensor, gt_prev: torch.Tensor, valid: torch.Tensor
+) -> list[PairCounts]:
     """Per sample, the counts of one pair: ``pred``/``gt`` ``[B, H, W]`` labels of frame ``t``, ``pred_prev``/
     ``gt_prev`` those of frame ``t - 1`` already warped into frame ``t``, ``valid`` ``[B, H, W]`` the pixels that
     count."""
@@ -92,8 +93,17 @@ class TemporalConsistency:
         self._last: dict[str, _Last] = {}
         self.pairs: list[PairCounts] = []
 
-    def update(self, trajectory: Sequence[str], reset: torch.Tensor, gt_labels: torch.Tensor, pred_labels: torch.Tensor,
-               gt_depth: torch.Tensor, rot: torch.Tensor, trans: torch.Tensor, intrinsics: torch.Tensor) -> None:
+    def update(
+        self,
+        trajectory: Sequence[str],
+        reset: torch.Tensor,
+        gt_labels: torch.Tensor,
+        pred_labels: torch.Tensor,
+        gt_depth: torch.Tensor,
+        rot: torch.Tensor,
+        trans: torch.Tensor,
+        intrinsics: torch.Tensor,
+    ) -> None:
         """One streamed batch: ``trajectory`` names ``[B]``, ``reset`` ``[B]`` (a frame that starts a trajectory has
         no previous frame), labels ``[B, H, W]``, ``gt_depth`` ``[B, 1, H, W]``, the motion from each sample's
         previous frame and the intrinsics of the frame. A trajectory absent from a batch has ended."""

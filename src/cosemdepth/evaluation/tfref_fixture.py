@@ -77,8 +77,9 @@ def compact_fixture(src: str | Path, dst: str | Path) -> dict:
         raise FileExistsError(f"{dst}: not empty")
     config = json.loads((src / "meta.json").read_text())["config"]
     seed, bias_std = int(config["seed"]), float(config["bias_std"])
-    trainable = {v["checkpoint_key"] for v in json.loads((src / "weights.json").read_text())["variables"]
-                 if v["trainable"]}
+    trainable = {
+        v["checkpoint_key"] for v in json.loads((src / "weights.json").read_text())["variables"] if v["trainable"]
+    }
     shard = _shard_of(src)
     data = shard.read_bytes()
     pieces, stored, pos = [], bytearray(), 0
@@ -87,10 +88,13 @@ def compact_fixture(src: str | Path, dst: str | Path) -> dict:
             continue
         if e.offset > pos:  # a gap between entries: kept as it is
             pieces.append([None, pos, e.offset - pos, "stored"])
-            stored += data[pos:e.offset]
-        raw = data[e.offset:e.offset + e.size]
-        if e.key in trainable and e.dtype == "float32" and \
-                seeded_weight(e.key, e.shape, seed, bias_std).tobytes() == raw:
+            stored += data[pos : e.offset]
+        raw = data[e.offset : e.offset + e.size]
+        if (
+            e.key in trainable
+            and e.dtype == "float32"
+            and seeded_weight(e.key, e.shape, seed, bias_std).tobytes() == raw
+        ):
             pieces.append([e.key, e.offset, e.size, "rule", list(e.shape)])
         else:
             pieces.append([e.key, e.offset, e.size, "stored"])
@@ -142,7 +146,7 @@ def rebuild_fixture(src: str | Path, dst: str | Path) -> Path:
             if source == "rule":
                 raw = seeded_weight(key, tuple(shape[0]), layout["seed"], layout["bias_std"]).tobytes()
             else:
-                raw, used = stored[used:used + size], used + size
+                raw, used = stored[used : used + size], used + size
             if len(raw) != size:
                 raise CheckpointError(f"{src / LAYOUT}: piece {key} has {len(raw)} bytes, expected {size}")
             out.write(raw)

@@ -147,9 +147,38 @@ class VideoWriter:
         """Start ffmpeg reading raw RGB frames on its stdin (its messages go to a temporary file, read if it fails:
         a failed ffmpeg is an error naming the video, not lines on the console and a cut-short file)."""
         fps = str(Fraction(self.fps).limit_denominator())
-        cmd = [self.exe, "-y", "-v", "error", "-f", "rawvideo", "-vcodec", "rawvideo", "-s", f"{w}x{h}",
-               "-pix_fmt", "rgb24", "-r", fps, "-i", "-", "-an", "-vcodec", "libx264", "-pix_fmt", "yuv420p",
-               "-crf", "20", "-preset", "veryfast", "-movflags", "+faststart", "-f", "mp4", str(self._tmp)]
+        cmd = [
+            self.exe,
+            "-y",
+            "-v",
+            "error",
+            "-f",
+            "rawvideo",
+            "-vcodec",
+            "rawvideo",
+            "-s",
+            f"{w}x{h}",
+            "-pix_fmt",
+            "rgb24",
+            "-r",
+            fps,
+            "-i",
+            "-",
+            "-an",
+            "-vcodec",
+            "libx264",
+            "-pix_fmt",
+            "yuv420p",
+            "-crf",
+            "20",
+            "-preset",
+            "veryfast",
+            "-movflags",
+            "+faststart",
+            "-f",
+            "mp4",
+            str(self._tmp),
+        ]
         self._log = tempfile.TemporaryFile()
         self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log)
 
@@ -163,8 +192,11 @@ class VideoWriter:
         for code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EIO):
             if os.strerror(code) in text:
                 return OSError(code, os.strerror(code), str(self.path))
-        return OSError(errno.EIO, f"ffmpeg failed (exit status {returncode}): {lines[-1] if lines else 'no message'}",
-                       str(self.path))
+        return OSError(
+            errno.EIO,
+            f"ffmpeg failed (exit status {returncode}): {lines[-1] if lines else 'no message'}",
+            str(self.path),
+        )
 
     def write(self, frame: np.ndarray) -> None:
         frame = np.asarray(frame, dtype=np.uint8)
@@ -206,8 +238,14 @@ class VideoWriter:
                 self._proc = None
             else:
                 first, rest = self._gif[0], self._gif[1:]
-                first.save(self._tmp, format="GIF", save_all=True, append_images=rest,
-                           duration=max(int(round(1000 / self.fps)), 20), loop=0)
+                first.save(
+                    self._tmp,
+                    format="GIF",
+                    save_all=True,
+                    append_images=rest,
+                    duration=max(int(round(1000 / self.fps)), 20),
+                    loop=0,
+                )
                 self._gif = []
         except BaseException as e:
             self._ctx.__exit__(type(e), e, e.__traceback__)
@@ -229,6 +267,17 @@ class VideoWriter:
 
 
 __all__ = [
-    "DEPTH_PNG_MAX_M", "DEPTH_PNG_SCALE", "VideoWriter", "colorize_depth", "colorize_labels", "depth_to_png16",
-    "depth_positions", "ffmpeg_exe", "png16_to_depth", "positions_to_rgb", "rgb_to_uint8", "save_npy", "save_png",
+    "DEPTH_PNG_MAX_M",
+    "DEPTH_PNG_SCALE",
+    "VideoWriter",
+    "colorize_depth",
+    "colorize_labels",
+    "depth_to_png16",
+    "depth_positions",
+    "ffmpeg_exe",
+    "png16_to_depth",
+    "positions_to_rgb",
+    "rgb_to_uint8",
+    "save_npy",
+    "save_png",
 ]

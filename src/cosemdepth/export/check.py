@@ -31,13 +31,13 @@ import numpy as np
 import torch
 
 from ..data.midair.splits import GT_PER_ROW, relative_motions
+from ..errors import ConfigError
+from ..inference.fast_model import reference_model
+from ..models.outputs import StreamState
 from ..synthair.climate import get_climate
 from ..synthair.render import render_frames
 from ..synthair.world import get_world
 from ..synthair.writer import SynthConfig, plan_flights
-from ..errors import ConfigError
-from ..inference.fast_model import reference_model
-from ..models.outputs import StreamState
 from .onnx import state_components
 
 
@@ -66,13 +66,25 @@ def flight_sequence(batch: int, frames: int, height: int, width: int, seed: int 
     identity (it is a reset).
     """
     world = get_world(seed)
-    cfg = SynthConfig(out=Path("unused"), trajectories=1, frames=4 * frames + 8, size=max(height, width, 16),
-                      seed=seed, climates=("sunny",))
+    cfg = SynthConfig(
+        out=Path("unused"),
+        trajectories=1,
+        frames=4 * frames + 8,
+        size=max(height, width, 16),
+        seed=seed,
+        climates=("sunny",),
+    )
     planned = plan_flights(cfg, world)["sunny"][0]
     att, pos = planned.flight.attitude, planned.flight.position
     stride = GT_PER_ROW  # ground-truth samples between two CSV rows (100 Hz, every 4th 25 Hz frame)
-    shots = render_frames(world, get_climate("sunny").with_sun_azimuth(planned.sun_azimuth),
-                          att[0 : stride * frames : stride], pos[0 : stride * frames : stride], height, width)
+    shots = render_frames(
+        world,
+        get_climate("sunny").with_sun_azimuth(planned.sun_azimuth),
+        att[0 : stride * frames : stride],
+        pos[0 : stride * frames : stride],
+        height,
+        width,
+    )
     q, t = relative_motions(att[: stride * frames + stride], pos[: stride * frames + stride])
     rgb = torch.from_numpy(np.stack([f.rgb for f in shots])).permute(0, 3, 1, 2).float().div(255)
     rot = torch.from_numpy(np.concatenate([[[1.0, 0.0, 0.0, 0.0]], q[: frames - 1]])).float()
@@ -105,7 +117,6 @@ def sequential_spatial_mean(x: torch.Tensor, lanes: int = SUMMATION_LANES) -> to
         total += chains[:, j]
     mean = torch.from_numpy(total / flat.dtype.type(n)).to(x.device, x.dtype)
     return mean.view(b, c, 1, 1)
-
 
 
 #: Frames ``cosemdepth export --check`` streams (resets at frame 0 and in the middle).
@@ -264,11 +275,15 @@ class OnnxComparison:
         for c in self.criteria:
             ratio = c.worst / c.floor if c.floor > 0 else math.nan
             verdict = "ok" if c.ok else f"OVER on frame(s) {_frame_list(c.over)}"
-            rows.append(f"  {c.output:8s}  {c.metric:34s}  {_frame_list(c.frames):7s}  {c.floor:8.2e}  "
-                        f"{c.worst:8.2e}  {ratio:6.3g}  {c.limit:8.2e}  {verdict}")
+            rows.append(
+                f"  {c.output:8s}  {c.metric:34s}  {_frame_list(c.frames):7s}  {c.floor:8.2e}  "
+                f"{c.worst:8.2e}  {ratio:6.3g}  {c.limit:8.2e}  {verdict}"
+            )
         if self.depth_max_rel:
-            rows.append("  (largest per-pixel relative depth difference, information: "
-                        f"ONNX {max(self.depth_max_rel):.2e}, noise run {max(self.depth_max_rel_noise):.2e})")
+            rows.append(
+                "  (largest per-pixel relative depth difference, information: "
+                f"ONNX {max(self.depth_max_rel):.2e}, noise run {max(self.depth_max_rel_noise):.2e})"
+            )
         rows.append("  OK" if self.ok else "  MISMATCH")
         return "\n".join(rows)
 
@@ -303,8 +318,15 @@ def run_onnx_stream(session, inputs: dict[str, np.ndarray], state: list[np.ndarr
     return res, [res["next_" + n] for n in state_inputs]
 
 
-def compare_onnx(model, path: str | Path, frames: int = CHECK_FRAMES, reset_at: int | None = None, seed: int = 0,
-                 inputs=None, multiple: float = NOISE_MULTIPLE) -> OnnxComparison:
+def compare_onnx(
+    model,
+    path: str | Path,
+    frames: int = CHECK_FRAMES,
+    reset_at: int | None = None,
+    seed: int = 0,
+    inputs=None,
+    multiple: float = NOISE_MULTIPLE,
+) -> OnnxComparison:
     """Stream ``frames`` frames (frame 0 and ``reset_at`` reset; default the middle frame) of a SynthAir flight
     (:func:`flight_sequence`, or ``inputs = (rgb, rot, trans, intrinsics)``) through ONNX Runtime and, step by step on
     the same inputs and incoming state, through ``model.step`` (its modules, float32: a
@@ -322,8 +344,9 @@ def compare_onnx(model, path: str | Path, frames: int = CHECK_FRAMES, reset_at: 
     reset = torch.zeros(b, frames, dtype=torch.bool)
     reset[:, 0] = True
     reset[:, frames // 2 if reset_at is None else reset_at] = True
-    state_shapes = [[d if isinstance(d, int) else b for d in i.shape] for i in sess.get_inputs()
-                    if i.name.startswith("state_")]
+    state_shapes = [
+        [d if isinstance(d, int) else b for d in i.shape] for i in sess.get_inputs() if i.name.startswith("state_")
+    ]
     ort_state = [np.zeros(s, np.float32) for s in state_shapes]
     comps = state_components(i.name for i in sess.get_inputs() if i.name.startswith("state_"))
     model = reference_model(model)
@@ -331,13 +354,22 @@ def compare_onnx(model, path: str | Path, frames: int = CHECK_FRAMES, reset_at: 
     dev = p.device
     reference = model if p.dtype == torch.float32 else copy.deepcopy(model).float()
     noisy = noise_model(reference)
-    report = OnnxComparison(size=(int(rgb.shape[-2]), int(rgb.shape[-1])), batch=b, frames=frames,
-                            resets=[k for k in range(frames) if bool(reset[:, k].any())])
+    report = OnnxComparison(
+        size=(int(rgb.shape[-2]), int(rgb.shape[-1])),
+        batch=b,
+        frames=frames,
+        resets=[k for k in range(frames) if bool(reset[:, k].any())],
+    )
     crit = {key: Criterion(*key, multiple=multiple) for key in CRITERIA}
     with torch.no_grad():
         for k in range(frames):
-            feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy(),
-                     "intrinsics": intr.numpy(), "reset": reset[:, k].numpy()}
+            feeds = {
+                "rgb": rgb[:, k].numpy(),
+                "rot": rot[:, k].numpy(),
+                "trans": trans[:, k].numpy(),
+                "intrinsics": intr.numpy(),
+                "reset": reset[:, k].numpy(),
+            }
             st_in = [torch.from_numpy(s).to(dev) for s in ort_state]
             res, ort_state = run_onnx_stream(sess, feeds, ort_state)
             args = tuple(a.to(dev) for a in (rgb[:, k], rot[:, k], trans[:, k], intr, reset[:, k]))
@@ -358,7 +390,10 @@ def compare_onnx(model, path: str | Path, frames: int = CHECK_FRAMES, reset_at: 
                 crit[CRITERIA[2]].add(k, nrms(res["semantic"], s), nrms(outn.semantic.cpu().numpy(), s))
             if new.flatten():
                 ref = [t.cpu().numpy() for t in new.flatten()]
-                crit[CRITERIA[3]].add(k, max(nrms(a, t) for a, t in zip(ort_state, ref)),
-                                      max(nrms(t.cpu().numpy(), r) for t, r in zip(newn.flatten(), ref)))
+                crit[CRITERIA[3]].add(
+                    k,
+                    max(nrms(a, t) for a, t in zip(ort_state, ref)),
+                    max(nrms(t.cpu().numpy(), r) for t, r in zip(newn.flatten(), ref)),
+                )
     report.criteria = [c for c in crit.values() if c.frames]
     return report

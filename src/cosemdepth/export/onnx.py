@@ -27,9 +27,9 @@ import torch.nn as nn
 from .. import __version__
 from ..errors import ConfigError
 from ..inference.fast_model import reference_model
-from ..output_safety.atomic import atomic_path
 from ..models.config import MIDAIR_IMAGE_SIZE
 from ..models.outputs import StreamState
+from ..output_safety.atomic import atomic_path
 
 #: ONNX opset (``--opset``): GridSample needs at least ``MIN_OPSET``.
 DEFAULT_OPSET = 17
@@ -52,7 +52,7 @@ def state_components(names) -> tuple[str, ...]:
     """The state components of a graph's state input names, in their order: ``state_feat_1`` -> ``feat``."""
     comps: list[str] = []
     for n in names:
-        c = n[len("state_"):].rsplit("_", 1)[0]
+        c = n[len("state_") :].rsplit("_", 1)[0]
         if c not in comps:
             comps.append(c)
     return tuple(comps)
@@ -131,14 +131,18 @@ def export_onnx(
     model = reference_model(model)
     cfg = getattr(model, "config", None)
     if cfg is not None and cfg.needs_depth_input:
-        raise ConfigError(f"the model's semantic decoder warps the previous labels with the ground-truth depth "
-                          f"(semantic_time {cfg.semantic_time!r}): a training- and evaluation-time variant that a "
-                          "deployed graph cannot feed, so it is not exported; Co-SemDepth-T (arch cosemdepth-t, "
-                          "semantic_time 'own') warps with its own depth and exports")
+        raise ConfigError(
+            f"the model's semantic decoder warps the previous labels with the ground-truth depth "
+            f"(semantic_time {cfg.semantic_time!r}): a training- and evaluation-time variant that a "
+            "deployed graph cannot feed, so it is not exported; Co-SemDepth-T (arch cosemdepth-t, "
+            "semantic_time 'own') warps with its own depth and exports"
+        )
     top = max_opset()
     if not MIN_OPSET <= opset <= top:
-        raise ConfigError(f"--opset must be in [{MIN_OPSET}, {top}] (GridSample needs {MIN_OPSET}; {top} is the newest "
-                          f"this torch {torch.__version__} exports), got {opset}")
+        raise ConfigError(
+            f"--opset must be in [{MIN_OPSET}, {top}] (GridSample needs {MIN_OPSET}; {top} is the newest "
+            f"this torch {torch.__version__} exports), got {opset}"
+        )
     if height < 1 or width < 1 or batch < 1:
         raise ConfigError(f"--size and --batch must be positive, got size {height}x{width}, batch {batch}")
     path = Path(path)
@@ -149,8 +153,17 @@ def export_onnx(
         dynamic_axes = {n: {0: "batch"} for n in in_names + out_names} if dynamic_batch else None
         with atomic_path(path) as tmp, torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore")  # tracer warnings about Python shape arithmetic (constant here)
-            torch.onnx.export(step, args, str(tmp), input_names=in_names, output_names=out_names, opset_version=opset,
-                              dynamic_axes=dynamic_axes, dynamo=False, do_constant_folding=True)
+            torch.onnx.export(
+                step,
+                args,
+                str(tmp),
+                input_names=in_names,
+                output_names=out_names,
+                opset_version=opset,
+                dynamic_axes=dynamic_axes,
+                dynamo=False,
+                do_constant_folding=True,
+            )
             mark_onnx(tmp)
     return path
 

@@ -43,16 +43,24 @@ class OnnxStep:
         profile_prefix: write ONNX Runtime's per-node profile (JSON) with this file prefix (:meth:`end_profiling`).
     """
 
-    def __init__(self, path: str | Path, providers: Optional[Sequence] = None, threads: Optional[int] = None,
-                 profile_prefix: Optional[str] = None):
+    def __init__(
+        self,
+        path: str | Path,
+        providers: Optional[Sequence] = None,
+        threads: Optional[int] = None,
+        profile_prefix: Optional[str] = None,
+    ):
         try:
             import onnxruntime as ort  # deferred: an optional dependency (cosemdepth[export])
         except ImportError:  # pragma: no cover - optional dependency
             raise ConfigError("running an ONNX graph needs onnxruntime (pip install 'cosemdepth[export]')") from None
         self.path = Path(path)
         try:
-            self.session = ort.InferenceSession(str(self.path), _session_options(threads, profile_prefix),
-                                                providers=list(providers or ["CPUExecutionProvider"]))
+            self.session = ort.InferenceSession(
+                str(self.path),
+                _session_options(threads, profile_prefix),
+                providers=list(providers or ["CPUExecutionProvider"]),
+            )
         except Exception as e:  # noqa: BLE001 - ONNX Runtime raises its own exception types for unreadable graphs
             raise ConfigError(f"{self.path}: ONNX Runtime cannot load it: {str(e).splitlines()[0]}") from None
         ins = self.session.get_inputs()
@@ -73,8 +81,9 @@ class OnnxStep:
     def zero_state(self, batch: int) -> list[np.ndarray]:
         return [np.zeros([d if isinstance(d, int) else batch for d in s], np.float32) for s in self._state_shapes]
 
-    def run(self, feeds: dict[str, np.ndarray], state: Sequence[np.ndarray]) -> tuple[dict[str, np.ndarray],
-                                                                                    list[np.ndarray]]:
+    def run(
+        self, feeds: dict[str, np.ndarray], state: Sequence[np.ndarray]
+    ) -> tuple[dict[str, np.ndarray], list[np.ndarray]]:
         """One call on numpy arrays: ``(outputs by name, next state)``."""
         feeds = {k: v for k, v in feeds.items() if k in self.input_names}  # M4Semantic's graph takes the image only
         if self.reset_float and "reset" in feeds:
@@ -83,8 +92,15 @@ class OnnxStep:
         res = dict(zip(self.output_names, self.session.run(None, feeds)))
         return res, [res["next_" + n] for n in self.state_inputs]
 
-    def step(self, rgb: torch.Tensor, rot: torch.Tensor, trans: torch.Tensor, intrinsics: torch.Tensor,
-             reset: Optional[torch.Tensor] = None, state: Optional[StreamState] = None):
+    def step(
+        self,
+        rgb: torch.Tensor,
+        rot: torch.Tensor,
+        trans: torch.Tensor,
+        intrinsics: torch.Tensor,
+        reset: Optional[torch.Tensor] = None,
+        state: Optional[StreamState] = None,
+    ):
         """One frame per sample, shapes as :meth:`SceneModel.step`; returns ``(StepOutput, StreamState)``."""
         b = int(rgb.shape[0])
         want = tuple(s if s is not None else d for s, d in zip(self.shape, rgb.shape))
@@ -93,14 +109,21 @@ class OnnxStep:
         if reset is None:
             reset = torch.zeros(b, dtype=torch.bool)
         f32 = lambda t: t.detach().to("cpu", torch.float32).contiguous().numpy()  # noqa: E731
-        feeds = {"rgb": f32(rgb), "rot": f32(rot), "trans": f32(trans), "intrinsics": f32(intrinsics),
-                 "reset": reset.detach().cpu().bool().numpy()}
+        feeds = {
+            "rgb": f32(rgb),
+            "rot": f32(rot),
+            "trans": f32(trans),
+            "intrinsics": f32(intrinsics),
+            "reset": reset.detach().cpu().bool().numpy(),
+        }
         st = [f32(t) for t in state.flatten()] if state is not None and state.flatten() else self.zero_state(b)
         res, nxt = self.run(feeds, st)
         dev = rgb.device
         heads = {k: torch.from_numpy(v).to(dev) for k, v in res.items() if not k.startswith("next_")}
         out = StepOutput(depth=heads.get("depth"), semantic=heads.get("semantic"), heads=heads)
-        new = StreamState.unflatten([torch.from_numpy(s).to(dev) for s in nxt], self.components) if nxt else StreamState()
+        new = (
+            StreamState.unflatten([torch.from_numpy(s).to(dev) for s in nxt], self.components) if nxt else StreamState()
+        )
         return out, new
 
     def end_profiling(self) -> str:
@@ -129,14 +152,23 @@ class OnnxModel:
     def __getattr__(self, name):  # config, operating_point, parameters()...: the model's
         return getattr(self.model, name)
 
-    def step(self, rgb, rot, trans, intrinsics, reset=None, state: Optional[StreamState] = None,
-             decoders: Optional[Sequence[str]] = None):
+    def step(
+        self,
+        rgb,
+        rot,
+        trans,
+        intrinsics,
+        reset=None,
+        state: Optional[StreamState] = None,
+        decoders: Optional[Sequence[str]] = None,
+    ):
         out, new = self.onnx.step(rgb, rot, trans, intrinsics, reset, state)
         if decoders is None or state is None or not state.flatten():
             return out, new
         keep = {c for name in self._owned if name not in decoders for c in self._owned.get(name, ())}
-        comps = {k: (state.components[k] if k in keep and k in state.components else v)
-                 for k, v in new.components.items()}
+        comps = {
+            k: (state.components[k] if k in keep and k in state.components else v) for k, v in new.components.items()
+        }
         return out, StreamState(**comps)
 
 

@@ -14,8 +14,8 @@ from typing import Optional
 import torch
 
 from ..errors import ConfigError
-from ..output_safety.atomic import atomic_path
 from ..models.outputs import StepOutput, StreamState
+from ..output_safety.atomic import atomic_path
 from .onnx import state_components
 
 #: Builder workspace (bytes).
@@ -68,24 +68,32 @@ class TrtStep:
         if self.engine is None:
             raise ConfigError(f"{engine_path}: not a TensorRT engine of this TensorRT version")
         self.context = self.engine.create_execution_context()
-        types = {trt.DataType.FLOAT: torch.float32, trt.DataType.HALF: torch.float16, trt.DataType.BOOL: torch.bool,
-                 trt.DataType.INT32: torch.int32}
+        types = {
+            trt.DataType.FLOAT: torch.float32,
+            trt.DataType.HALF: torch.float16,
+            trt.DataType.BOOL: torch.bool,
+            trt.DataType.INT32: torch.int32,
+        }
         if hasattr(trt.DataType, "INT64"):
             types[trt.DataType.INT64] = torch.int64
         self.inputs: dict[str, torch.Tensor] = {}
         self.outputs: dict[str, torch.Tensor] = {}
         for i in range(self.engine.num_io_tensors):
             name = self.engine.get_tensor_name(i)
-            buf = torch.zeros(tuple(self.engine.get_tensor_shape(name)), dtype=types[self.engine.get_tensor_dtype(name)],
-                              device=self.device)
+            buf = torch.zeros(
+                tuple(self.engine.get_tensor_shape(name)),
+                dtype=types[self.engine.get_tensor_dtype(name)],
+                device=self.device,
+            )
             is_input = self.engine.get_tensor_mode(name) == trt.TensorIOMode.INPUT
             (self.inputs if is_input else self.outputs)[name] = buf
             self.context.set_tensor_address(name, buf.data_ptr())
         self.state_inputs = [n for n in self.inputs if n.startswith("state_")]
         self.components = state_components(self.state_inputs)
 
-    def step(self, rgb, rot, trans, intrinsics, reset: Optional[torch.Tensor] = None,
-             state: Optional[StreamState] = None):
+    def step(
+        self, rgb, rot, trans, intrinsics, reset: Optional[torch.Tensor] = None, state: Optional[StreamState] = None
+    ):
         if reset is None:
             reset = torch.zeros(rgb.shape[0], dtype=torch.bool, device=rgb.device)
         given = {"rgb": rgb, "rot": rot, "trans": trans, "intrinsics": intrinsics, "reset": reset}

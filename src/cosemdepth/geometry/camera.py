@@ -28,9 +28,7 @@ def pixel_grid(height: int, width: int, device=None, dtype=torch.float32) -> tup
     return i, j
 
 
-def centred_coordinates(
-    height: int, width: int, intrinsics: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
+def centred_coordinates(height: int, width: int, intrinsics: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Centred pixel coordinates ``u = j + 0.5 - cx``, ``v = i + 0.5 - cy`` (design 2.1).
 
     Args:

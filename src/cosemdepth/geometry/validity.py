@@ -41,8 +41,7 @@ def parallax_conditioning(
         not finite.
     """
     h, w = depth.shape[-2:]
-    geom = epipolar_geometry(h, w, rot.to(depth.dtype), trans.to(depth.dtype), intrinsics.to(depth.dtype),
-                             guard=False)
+    geom = epipolar_geometry(h, w, rot.to(depth.dtype), trans.to(depth.dtype), intrinsics.to(depth.dtype), guard=False)
     ad = geom.alpha * depth
     eta = (ad + geom.t_z) ** 2 / (ad * depth * geom.delta_norm)
     bad = ~torch.isfinite(eta) | (ad <= 0) | (geom.delta_norm <= 0) | ~torch.isfinite(depth)

@@ -5,8 +5,29 @@ over :class:`FastEngine` (packed convolutions feeding the models' own level loop
 from .engine import FastEngine
 from .fast_model import FastModel, reference_model
 from .graphs import StaticStreamer, make_streamer
-from .policy import (BASELINE, EVERY_FRAME, POLICIES, StreamPolicy, Streamer, StreamerState, default_min_baseline,
-                     policy_info)
+from .policy import (
+    BASELINE,
+    EVERY_FRAME,
+    POLICIES,
+    Streamer,
+    StreamerState,
+    StreamPolicy,
+    default_min_baseline,
+    policy_info,
+)
 
-__all__ = ["BASELINE", "EVERY_FRAME", "POLICIES", "FastEngine", "FastModel", "StaticStreamer", "StreamPolicy",
-           "Streamer", "StreamerState", "default_min_baseline", "make_streamer", "policy_info", "reference_model"]
+__all__ = [
+    "BASELINE",
+    "EVERY_FRAME",
+    "POLICIES",
+    "FastEngine",
+    "FastModel",
+    "StaticStreamer",
+    "StreamPolicy",
+    "Streamer",
+    "StreamerState",
+    "default_min_baseline",
+    "make_streamer",
+    "policy_info",
+    "reference_model",
+]

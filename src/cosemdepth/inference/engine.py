@@ -44,8 +44,14 @@ _CL = torch.channels_last
 # threads, 384 px, loaded machine: 3-13x on levels 2-4, 1.2x on level 5), so every level uses it.
 
 
-_DTYPES = {"float32": torch.float32, "fp32": torch.float32, "bfloat16": torch.bfloat16, "bf16": torch.bfloat16,
-           "float16": torch.float16, "fp16": torch.float16}
+_DTYPES = {
+    "float32": torch.float32,
+    "fp32": torch.float32,
+    "bfloat16": torch.bfloat16,
+    "bf16": torch.bfloat16,
+    "float16": torch.float16,
+    "fp16": torch.float16,
+}
 
 
 INT8_NAMES = ("int8", "qint8")
@@ -173,8 +179,9 @@ class FastEngine:
         dtype = torch.float32 if self.int8 else parse_dtype(dtype)
         p = next(model.parameters())
         self.device = torch.device(device) if device is not None else p.device
-        if torch.bfloat16 in (dtype, self.int8_float_dtype if self.int8 else dtype) and \
-                not bf16_convolutions(self.device):
+        if torch.bfloat16 in (dtype, self.int8_float_dtype if self.int8 else dtype) and not bf16_convolutions(
+            self.device
+        ):
             raise ValueError(f"bfloat16 needs bfloat16 convolutions; {no_bf16_reason()}: use fp32 (float32) or int8")
         self.dtype = dtype
         self.static = static
@@ -195,13 +202,19 @@ class FastEngine:
         self.decoders = model.decoders
         self.state_shapes = model.state_shapes
         if float32_levels is None:
-            float32_levels = {name: tuple(lvl.level for lvl in dec.levels if lvl.level >= FLOAT32_FROM_LEVEL[name])
-                              for name, dec in self.decoders.items() if name in FLOAT32_FROM_LEVEL}
+            float32_levels = {
+                name: tuple(lvl.level for lvl in dec.levels if lvl.level >= FLOAT32_FROM_LEVEL[name])
+                for name, dec in self.decoders.items()
+                if name in FLOAT32_FROM_LEVEL
+            }
         self.float32_levels = {name: tuple(v) for name, v in float32_levels.items()}
         self.ops = {
-            name: [_fast_ops(lvl, _Refiner(lvl.refiner, f32 if self._float32(name, lvl) else dtype, self.device,
-                                           use_mkldnn))
-                   for lvl in dec.levels]
+            name: [
+                _fast_ops(
+                    lvl, _Refiner(lvl.refiner, f32 if self._float32(name, lvl) else dtype, self.device, use_mkldnn)
+                )
+                for lvl in dec.levels
+            ]
             for name, dec in self.decoders.items()
         }
         self._calibrating = 0
@@ -224,14 +237,24 @@ class FastEngine:
 
     # ------------------------------------------------------------------ int8 calibration
     def _start_calibration(self) -> None:
-        self.ops = {name: [dataclasses.replace(o, refiner=RangeRecorder(o.refiner)) for o in ops]
-                    for name, ops in self.ops.items()}
+        self.ops = {
+            name: [dataclasses.replace(o, refiner=RangeRecorder(o.refiner)) for o in ops]
+            for name, ops in self.ops.items()
+        }
 
     def _finish_calibration(self) -> None:
         self.ops = {
-            name: [dataclasses.replace(o, refiner=o.refiner.refiner if self._float32(name, lvl) else QuantRefiner(
-                       lvl.refiner, o.refiner, self.int8_keep_float.get(name, ()), self.int8_float_dtype))
-                   for lvl, o in zip(self.decoders[name].levels, ops)]
+            name: [
+                dataclasses.replace(
+                    o,
+                    refiner=o.refiner.refiner
+                    if self._float32(name, lvl)
+                    else QuantRefiner(
+                        lvl.refiner, o.refiner, self.int8_keep_float.get(name, ()), self.int8_float_dtype
+                    ),
+                )
+                for lvl, o in zip(self.decoders[name].levels, ops)
+            ]
             for name, ops in self.ops.items()
         }
         self._calibrating = 0
@@ -280,13 +303,26 @@ class FastEngine:
         rot, trans, intrinsics = (t.to(dev, torch.float32) for t in (rot, trans, intrinsics))
         if reset is not None:
             reset = reset.to(dev)
-        if self.static and any(dec.temporal for dec in self.decoders.values()) and not (state is not None and state.flatten()):
+        if (
+            self.static
+            and any(dec.temporal for dec in self.decoders.values())
+            and not (state is not None and state.flatten())
+        ):
             raise ValueError("a static engine needs an explicit state (zeros with reset=True for a first frame)")
         feats = self.encode(rgb)
         size = tuple(rgb.shape[-2:])
         result = decode_step(
-            self.decoders, feats, rot, trans, intrinsics, reset, state,
-            lambda x: upsample_nearest(x, size, half_pixel=True), self.ops, self.static, only=decoders,
+            self.decoders,
+            feats,
+            rot,
+            trans,
+            intrinsics,
+            reset,
+            state,
+            lambda x: upsample_nearest(x, size, half_pixel=True),
+            self.ops,
+            self.static,
+            only=decoders,
             guide_depth=None if guide_depth is None else guide_depth.to(dev, torch.float32),
         )
         if self._calibrating:
@@ -299,4 +335,3 @@ class FastEngine:
         """An all-zero state for a ``batch x height x width`` input (use with ``reset=True`` on the first frame)."""
         shapes = self.state_shapes(batch, height, width).items()
         return StreamState(**{k: tuple(torch.zeros(s, device=self.device) for s in v) for k, v in shapes})
-

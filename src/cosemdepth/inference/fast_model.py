@@ -123,8 +123,9 @@ class FastModel:
     def infer(self, frames, motions, intrinsics, reset=None, guide_depth=None) -> StepOutput:
         """A whole sequence, as :meth:`SceneModel.infer <cosemdepth.models.SceneModel.infer>`: :meth:`step` in a
         loop."""
-        return infer_sequence(self.step, frames, motions, intrinsics, reset, guide_depth, device=self.device,
-                              dtype=torch.float32)
+        return infer_sequence(
+            self.step, frames, motions, intrinsics, reset, guide_depth, device=self.device, dtype=torch.float32
+        )
 
     def __repr__(self) -> str:
         return f"FastModel({self.config.arch}, dtype={self.dtype}, device={self.device})"

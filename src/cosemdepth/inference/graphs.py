@@ -90,7 +90,9 @@ class StaticStreamer:
     ) -> StepOutput:
         """One frame per sample (shapes as :meth:`SceneModel.step`, batch and size as given at construction)."""
         if tuple(rgb.shape) != self.shape:
-            raise ValueError(f"argument rgb must have shape {list(self.shape)} (fixed at construction), got {list(rgb.shape)}")
+            raise ValueError(
+                f"argument rgb must have shape {list(self.shape)} (fixed at construction), got {list(rgb.shape)}"
+            )
         if reset is None:
             reset = torch.zeros(self.shape[0], dtype=torch.bool)
         if not self._started and not bool(reset.all()):
@@ -115,5 +117,3 @@ def make_streamer(model, batch: int, height: int, width: int, dtype=torch.float3
     """A :class:`StaticStreamer` over a static :class:`FastEngine` of ``model`` (CUDA graph on GPU)."""
     engine = FastEngine(model, dtype=dtype, device=device, static=True)
     return StaticStreamer(engine, batch, height, width, **kw)
-
-

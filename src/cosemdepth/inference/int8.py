@@ -64,8 +64,25 @@ def activation_qmax() -> int:
     w = torch.full((1, 8, 3, 3), 127, dtype=torch.int8)
     one = torch.ones(1)
     packed = torch.ops.onednn.qconv_prepack(w, one, 1.0, 0, [1, 1], [0, 0], [1, 1], 1, list(x.shape))
-    y = torch.ops.onednn.qconv2d_pointwise(x, 1.0, 0, packed, one, torch.zeros(1, dtype=torch.int32), None,
-                                           [1, 1], [0, 0], [1, 1], 1, 1e5, 0, None, "none", [], "")
+    y = torch.ops.onednn.qconv2d_pointwise(
+        x,
+        1.0,
+        0,
+        packed,
+        one,
+        torch.zeros(1, dtype=torch.int32),
+        None,
+        [1, 1],
+        [0, 0],
+        [1, 1],
+        1,
+        1e5,
+        0,
+        None,
+        "none",
+        [],
+        "",
+    )
     exact = round(255 * 127 * 72 / 1e5)  # 23; pairs saturated at 32767 give 12
     return 255 if int(y.flatten()[0]) == exact else 127
 
@@ -133,8 +150,7 @@ def quantized_view(u: torch.Tensor, scale: float, zero_point: int) -> torch.Tens
     """A ``quint8`` tensor over the memory of the uint8 tensor ``u`` (no copy; writes to either show in both)."""
     with warnings.catch_warnings():  # quantized tensors are deprecated in PyTorch (2.13); their kernels still run
         warnings.simplefilter("ignore")
-        q = torch._empty_affine_quantized([0], scale=scale, zero_point=zero_point, dtype=torch.quint8,
-                                          device=u.device)
+        q = torch._empty_affine_quantized([0], scale=scale, zero_point=zero_point, dtype=torch.quint8, device=u.device)
     return q.set_(u.untyped_storage(), u.storage_offset(), u.shape, u.stride())
 
 
@@ -179,8 +195,9 @@ class QuantConv:
         w = self._packed.get(shape)
         if w is None:
             p = [self.padding] * 2
-            w = torch.ops.onednn.qconv_prepack(self.qw, self.w_scales, self.x_scale, self.x_zp, [1, 1], p, [1, 1], 1,
-                                               list(shape))
+            w = torch.ops.onednn.qconv_prepack(
+                self.qw, self.w_scales, self.x_scale, self.x_zp, [1, 1], p, [1, 1], 1, list(shape)
+            )
             self._packed[shape] = w
         return w
 
@@ -191,12 +208,30 @@ class QuantConv:
             x = quantize(x.dequantize(), self.x_scale, self.x_zp)
         p = [self.padding] * 2
         y = torch.ops.onednn.qconv2d_pointwise(
-            x.q, self.x_scale, self.x_zp, self._weight(tuple(x.q.shape)), self.w_scales, self.w_zp, self.bias,
-            [1, 1], p, [1, 1], 1, self.y_scale, self.y_zp, None, "none", [], "",
+            x.q,
+            self.x_scale,
+            self.x_zp,
+            self._weight(tuple(x.q.shape)),
+            self.w_scales,
+            self.w_zp,
+            self.bias,
+            [1, 1],
+            p,
+            [1, 1],
+            1,
+            self.y_scale,
+            self.y_zp,
+            None,
+            "none",
+            [],
+            "",
         )
         # LeakyReLU in place: read y at its scale, write it back at the (finer) post-activation scale
-        torch.ops.aten.leaky_relu.out(quantized_view(y, self.y_scale, self.y_zp), NEGATIVE_SLOPE,
-                                      out=quantized_view(y, self.out_scale, self.out_zp))
+        torch.ops.aten.leaky_relu.out(
+            quantized_view(y, self.y_scale, self.y_zp),
+            NEGATIVE_SLOPE,
+            out=quantized_view(y, self.out_scale, self.out_zp),
+        )
         return QTensor(y, self.out_scale, self.out_zp)
 
 
@@ -298,8 +333,14 @@ class QuantRefiner:
     concatenation of features, cost volumes and estimates with very different ranges). ``alpha=None`` quantises the
     calibrated activations as they are."""
 
-    def __init__(self, source_refiner, recorder: RangeRecorder, keep_float: tuple[int, ...] = (),
-                 float_dtype: torch.dtype = torch.float32, alpha: float | None = 0.5):
+    def __init__(
+        self,
+        source_refiner,
+        recorder: RangeRecorder,
+        keep_float: tuple[int, ...] = (),
+        float_dtype: torch.dtype = torch.float32,
+        alpha: float | None = 0.5,
+    ):
         convs = list(source_refiner.convs)
         n = len(convs) - 1
         packed = recorder.refiner.hidden
@@ -317,7 +358,8 @@ class QuantRefiner:
             return PackedConv(convs[k], dtype, dev, act=act, use_mkldnn=like.use_mkldnn)
 
         self.hidden = [
-            QuantConv(convs[k], xr[k].tensor(), yr[k].tensor()) if quantised[k]
+            QuantConv(convs[k], xr[k].tensor(), yr[k].tensor())
+            if quantised[k]
             else float_conv(k, float_dtype, True, packed[k])
             for k in range(n)
         ]

@@ -75,8 +75,9 @@ class StreamPolicy:
     def __post_init__(self) -> None:
         if self.mode not in POLICIES:
             raise ConfigError(f"streaming policy must be one of {', '.join(POLICIES)}, got {self.mode!r}")
-        if self.min_baseline is not None and not (isinstance(self.min_baseline, (int, float))
-                                                  and 0 <= self.min_baseline < float("inf")):
+        if self.min_baseline is not None and not (
+            isinstance(self.min_baseline, (int, float)) and 0 <= self.min_baseline < float("inf")
+        ):
             raise ConfigError(f"min_baseline must be a number of metres >= 0, got {self.min_baseline!r}")
         if not self.max_conditioning > 0:
             raise ConfigError(f"max_conditioning must be positive, got {self.max_conditioning!r}")
@@ -115,8 +116,9 @@ class StreamerState:
         idx = torch.as_tensor(list(rows), device=self.rot.device, dtype=torch.long)
         pick = lambda t: None if t is None else t.index_select(0, idx.to(t.device))  # noqa: E731
         net = StreamState(**{k: tuple(pick(t) for t in v) for k, v in self.net.components.items()})
-        return StreamerState(net, pick(self.rot), pick(self.trans), pick(self.depth), pick(self.valid),
-                             pick(self.has_depth))
+        return StreamerState(
+            net, pick(self.rot), pick(self.trans), pick(self.depth), pick(self.valid), pick(self.has_depth)
+        )
 
     @property
     def batch_size(self) -> int:
@@ -156,9 +158,11 @@ class Streamer:
         if self.has_depth and mb is None:
             mb = default_min_baseline(model)
             if mb is None:
-                raise ConfigError("baseline-aware streaming needs a minimum baseline: this model folder records no "
-                                  "training motion (operating_point.step_translation_m); give min_baseline "
-                                  "(--min-baseline METRES) or use the every-frame policy (--policy every-frame)")
+                raise ConfigError(
+                    "baseline-aware streaming needs a minimum baseline: this model folder records no "
+                    "training motion (operating_point.step_translation_m); give min_baseline "
+                    "(--min-baseline METRES) or use the every-frame policy (--policy every-frame)"
+                )
         self.min_baseline = mb
 
     def __getattr__(self, name):  # parameters(), config...: the model's
@@ -184,8 +188,9 @@ class Streamer:
             reset = torch.full((b,), fresh, dtype=torch.bool, device=dev)
         reset = reset.to(dev) | fresh
         if not fresh and state.batch_size != b:
-            raise ValueError(f"state holds {state.batch_size} samples but this frame has {b}; pass state=None to start "
-                             "over")
+            raise ValueError(
+                f"state holds {state.batch_size} samples but this frame has {b}; pass state=None to start over"
+            )
         net_prev = None if fresh else state.net
         if not self.has_depth:  # M4Semantic: no depth, no policy
             out, net = self.model.step(rgb, rot, trans, intrinsics, reset, net_prev)
@@ -226,16 +231,22 @@ class Streamer:
                 new_valid = depth_validity(out.depth.float(), q, t, intrinsics, reset, self.policy.max_conditioning)
             new_valid = new_valid & ~inconsistent(out.depth, carried, carried_valid, self.policy.max_log_ratio)
             if not fresh:
-                net = StreamState(**{k: tuple(_where(run_depth, n, o) for n, o in zip(v, net_prev.components[k]))
-                                     for k, v in net.components.items()})
+                net = StreamState(
+                    **{
+                        k: tuple(_where(run_depth, n, o) for n, o in zip(v, net_prev.components[k]))
+                        for k, v in net.components.items()
+                    }
+                )
             new_depth = out.depth
         else:
             new_depth, new_valid = ref_depth, ref_valid
         hold = ~run_depth
         depth = _where(hold, carried, new_depth)
         valid = _where(hold, carried_valid, new_valid)
-        status = [RESET if r else ESTIMATED if e else HELD if h else RESET
-                  for r, e, h in zip(reset.tolist(), estimate.tolist(), has_depth.tolist())]
+        status = [
+            RESET if r else ESTIMATED if e else HELD if h else RESET
+            for r, e, h in zip(reset.tolist(), estimate.tolist(), has_depth.tolist())
+        ]
         out.depth = depth
         out.heads = {**out.heads, "depth": depth}
         out.valid, out.status, out.baseline = valid, status, _where(reset, torch.zeros_like(base), base)
@@ -254,12 +265,17 @@ class Streamer:
 def policy_info(streamer: Streamer) -> dict:
     """The settings of ``streamer`` as recorded in outputs (``predictions.json``, evaluation reports)."""
     p = streamer.policy
-    return {"mode": p.mode, "min_baseline_m": streamer.min_baseline, "max_conditioning": p.max_conditioning,
-            "max_log_ratio": p.max_log_ratio}
+    return {
+        "mode": p.mode,
+        "min_baseline_m": streamer.min_baseline,
+        "max_conditioning": p.max_conditioning,
+        "max_log_ratio": p.max_log_ratio,
+    }
 
 
-def inconsistent(depth: torch.Tensor, other: torch.Tensor, other_valid: torch.Tensor, max_log_ratio: float
-                 ) -> torch.Tensor:
+def inconsistent(
+    depth: torch.Tensor, other: torch.Tensor, other_valid: torch.Tensor, max_log_ratio: float
+) -> torch.Tensor:
     """``[B, 1, H, W]`` bool: where ``depth`` and a valid ``other`` estimate of the same view (the reference frame's
     depth carried into it) differ by more than a factor ``exp(max_log_ratio)``, both clipped to
     ``[MIN_DEPTH, FAR_DEPTH]`` (two depths beyond ``FAR_DEPTH`` agree: both are far)."""
@@ -268,5 +284,13 @@ def inconsistent(depth: torch.Tensor, other: torch.Tensor, other_valid: torch.Te
     return other_valid & ((a / o).log().abs() > max_log_ratio)
 
 
-__all__ = ["BASELINE", "EVERY_FRAME", "POLICIES", "StreamPolicy", "Streamer", "StreamerState", "default_min_baseline",
-           "policy_info"]
+__all__ = [
+    "BASELINE",
+    "EVERY_FRAME",
+    "POLICIES",
+    "StreamPolicy",
+    "Streamer",
+    "StreamerState",
+    "default_min_baseline",
+    "policy_info",
+]

@@ -18,8 +18,12 @@ from ..errors import ConfigError
 
 #: Architecture -> the decoders it puts on the shared encoder (names of :data:`cosemdepth.models.registry.DECODERS`;
 #: ``cosemdepth.models.registry.register_architecture`` adds entries).
-ARCHITECTURES: dict[str, tuple[str, ...]] = {"cosemdepth": ("depth", "semantic"), "m4depth": ("depth",),
-                                              "m4semantic": ("semantic",), "cosemdepth-t": ("depth", "semantic")}
+ARCHITECTURES: dict[str, tuple[str, ...]] = {
+    "cosemdepth": ("depth", "semantic"),
+    "m4depth": ("depth",),
+    "m4semantic": ("semantic",),
+    "cosemdepth-t": ("depth", "semantic"),
+}
 
 #: ``ModelConfig.semantic_time``: the semantic decoder's temporal input ``S^{t-1}`` (design 6.3): none (the released
 #: code), the previous frame's labels warped with the ground-truth depth (the paper's ablation; training and
@@ -81,24 +85,30 @@ class ModelConfig:
         if self.semantic_time is None:
             object.__setattr__(self, "semantic_time", fixed or SEMANTIC_TIME_OFF)
         if self.semantic_time not in SEMANTIC_TIMES:
-            raise ConfigError(f"model semantic_time must be one of {', '.join(map(repr, SEMANTIC_TIMES))}, got "
-                              f"{self.semantic_time!r}")
+            raise ConfigError(
+                f"model semantic_time must be one of {', '.join(map(repr, SEMANTIC_TIMES))}, got {self.semantic_time!r}"
+            )
         if fixed is not None and self.semantic_time != fixed:
-            raise ConfigError(f"model arch {self.arch!r} has semantic_time {fixed!r}, got {self.semantic_time!r}; "
-                              f"use arch 'cosemdepth' for another semantic_time")
+            raise ConfigError(
+                f"model arch {self.arch!r} has semantic_time {fixed!r}, got {self.semantic_time!r}; "
+                f"use arch 'cosemdepth' for another semantic_time"
+            )
         decoders = ARCHITECTURES[self.arch]
         if "semantic" not in decoders and (self.semantic_sncv or self.semantic_time != SEMANTIC_TIME_OFF):
             raise ConfigError(f"model semantic_sncv and semantic_time: the {self.arch} model has no semantic decoder")
         if self.semantic_time == SEMANTIC_TIME_OWN and "depth" not in decoders:
-            raise ConfigError(f"model semantic_time 'own' warps with the model's own depth: the {self.arch} model has "
-                              "no depth decoder (use 'gt', or arch 'cosemdepth-t')")
+            raise ConfigError(
+                f"model semantic_time 'own' warps with the model's own depth: the {self.arch} model has "
+                "no depth decoder (use 'gt', or arch 'cosemdepth-t')"
+            )
         if not isinstance(self.levels, int) or not 1 <= self.levels <= len(ENCODER_CHANNELS):
             raise ConfigError(f"model levels must be an integer in 1..{len(ENCODER_CHANNELS)}, got {self.levels!r}")
         if not isinstance(self.num_classes, int) or self.num_classes < 2:
             raise ConfigError(f"model num_classes must be an integer >= 2, got {self.num_classes!r}")
         if self.pscv_dtype not in PSCV_DTYPES:
-            raise ConfigError(f"model pscv_dtype must be {' or '.join(map(repr, PSCV_DTYPES))}, got "
-                              f"{self.pscv_dtype!r}")
+            raise ConfigError(
+                f"model pscv_dtype must be {' or '.join(map(repr, PSCV_DTYPES))}, got {self.pscv_dtype!r}"
+            )
 
     @property
     def decoders(self) -> tuple[str, ...]:
@@ -135,6 +145,18 @@ class ModelConfig:
         return from_mapping(cls, d, prefix)
 
 
-__all__ = ["ARCH_SEMANTIC_TIME", "ARCHITECTURES", "SEMANTIC_TIMES", "SEMANTIC_TIME_GT", "SEMANTIC_TIME_OFF",
-           "SEMANTIC_TIME_OWN", "ENCODER_CHANNELS", "MIDAIR_IMAGE_SIZE", "ModelConfig", "ORIGINAL_PSCV_DTYPE", "PSCV_DTYPES",
-           "PscvDtype", "SemanticTime"]
+__all__ = [
+    "ARCH_SEMANTIC_TIME",
+    "ARCHITECTURES",
+    "SEMANTIC_TIMES",
+    "SEMANTIC_TIME_GT",
+    "SEMANTIC_TIME_OFF",
+    "SEMANTIC_TIME_OWN",
+    "ENCODER_CHANNELS",
+    "MIDAIR_IMAGE_SIZE",
+    "ModelConfig",
+    "ORIGINAL_PSCV_DTYPE",
+    "PSCV_DTYPES",
+    "PscvDtype",
+    "SemanticTime",
+]

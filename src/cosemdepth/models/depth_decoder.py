@@ -7,7 +7,6 @@ from dataclasses import dataclass
 
 import torch
 
-from .config import ModelConfig
 from ..geometry.camera import level_intrinsics
 from ..geometry.parallax import (
     PARALLAX_EPS,
@@ -18,6 +17,7 @@ from ..geometry.parallax import (
 )
 from ..geometry.rotation import quaternion_to_matrix
 from ..ops.resample import resize_bl1
+from .config import ModelConfig
 from .layers import Refiner
 from .outputs import DepthLevelOutput
 from .pyramid import LevelOps, PyramidDecoder, PyramidLevel
@@ -144,8 +144,9 @@ class DepthDecoder(PyramidDecoder):
         super().__init__(cfg)
         self.pscv_half = False
 
-    def frame(self, rot: torch.Tensor, trans: torch.Tensor, intrinsics: torch.Tensor, fresh=None, guide=None
-              ) -> DepthFrame:
+    def frame(
+        self, rot: torch.Tensor, trans: torch.Tensor, intrinsics: torch.Tensor, fresh=None, guide=None
+    ) -> DepthFrame:
         return DepthFrame(quaternion_to_matrix(rot), trans, intrinsics, self.guard, self.pscv_half)
 
     def level_state_shapes(self, level: DepthLevel, batch: int, h: int, w: int) -> tuple[tuple[int, ...], ...]:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 
-from ..ops.normalize import dinl
 from ..ops.conv import conv_lrelu
+from ..ops.normalize import dinl
 from .layers import NEGATIVE_SLOPE, conv3x3, lrelu
 
 

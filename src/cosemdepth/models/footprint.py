@@ -73,9 +73,12 @@ def step_bytes(model, height: int, width: int, batch: int = 1) -> int:
     on the meta device) at ``batch x 3 x height x width``: the weights, the input and heads, the encoder's maps and
     the maps of its widest decoder (see the module docstring)."""
     decoders = list(model.decoders.values())
-    per_image = (3 * height * width + encoder_values(model, height, width)
-                 + sum(_head_values(d, height, width) for d in decoders)
-                 + max((decoder_values(d, height, width) for d in decoders), default=0))
+    per_image = (
+        3 * height * width
+        + encoder_values(model, height, width)
+        + sum(_head_values(d, height, width) for d in decoders)
+        + max((decoder_values(d, height, width) for d in decoders), default=0)
+    )
     weights = sum(p.numel() for p in model.parameters())
     return VALUE_BYTES * (weights + batch * per_image)
 
@@ -85,8 +88,11 @@ def training_step_bytes(model, height: int, width: int, batch: int, frames: int)
     ``height x width``: the weights with their gradients and Adam moments, and every map of every frame (all decoders
     at once: the backward pass needs them)."""
     decoders = list(model.decoders.values())
-    per_frame = (3 * height * width + encoder_values(model, height, width)
-                 + sum(decoder_values(d, height, width) + _head_values(d, height, width) for d in decoders))
+    per_frame = (
+        3 * height * width
+        + encoder_values(model, height, width)
+        + sum(decoder_values(d, height, width) + _head_values(d, height, width) for d in decoders)
+    )
     weights = sum(p.numel() for p in model.parameters())
     return VALUE_BYTES * (TRAINING_VALUES_PER_WEIGHT * weights + batch * frames * per_frame)
 
@@ -112,8 +118,17 @@ def _largest_square(need, available: int) -> int:
     return lo if lo >= 8 else 0
 
 
-def check_size(model, height: int, width: int, *, device="cpu", batch: int = 1, frames: int = 1,
-               training: bool = False, what: str = "--size") -> int:
+def check_size(
+    model,
+    height: int,
+    width: int,
+    *,
+    device="cpu",
+    batch: int = 1,
+    frames: int = 1,
+    training: bool = False,
+    what: str = "--size",
+) -> int:
     """Raise a one-line :class:`ConfigError` naming ``what`` unless ``model`` can run at ``height x width`` here:
     at most :data:`MAX_INPUT_PIXELS` pixels, and the estimated memory (:func:`step_bytes`, or
     :func:`training_step_bytes` with ``training``; ``batch`` images or windows of ``frames``) within the memory
@@ -125,8 +140,10 @@ def check_size(model, height: int, width: int, *, device="cpu", batch: int = 1, 
         raise ConfigError(f"{what}: {height}x{width}: sizes must be positive")
     side = int(MAX_INPUT_PIXELS**0.5)
     if height * width > MAX_INPUT_PIXELS:
-        raise ConfigError(f"{what}: {height}x{width} is {height * width} pixels, more than the model takes (at most "
-                          f"{MAX_INPUT_PIXELS} pixels, e.g. {side}x{side}); choose a smaller size")
+        raise ConfigError(
+            f"{what}: {height}x{width} is {height * width} pixels, more than the model takes (at most "
+            f"{MAX_INPUT_PIXELS} pixels, e.g. {side}x{side}); choose a smaller size"
+        )
 
     def need(h: int, w: int, b: int = batch) -> int:
         return training_step_bytes(model, h, w, b, frames) if training else step_bytes(model, h, w, b)
@@ -135,18 +152,33 @@ def check_size(model, height: int, width: int, *, device="cpu", batch: int = 1, 
     available, source = available_memory(device)
     if available is None or estimate <= available:
         return estimate
-    how = (f"a training step (batch {batch} of {frames} frames)" if training
-           else f"a streaming step (batch {batch})" if batch > 1 else "a streaming step")
+    how = (
+        f"a training step (batch {batch} of {frames} frames)"
+        if training
+        else f"a streaming step (batch {batch})"
+        if batch > 1
+        else "a streaming step"
+    )
     fits = _largest_square(need, available)
     hint = f"the largest square size that fits is about {fits}x{fits}" if fits else "no size fits"
     if batch > 1:
         per_item = need(height, width, 2) - need(height, width, 1)
         most = max((available - need(height, width, 0)) // per_item, 0)
-        hint = (f"at this size at most {most} fit in a batch" if most else "not even one fits at this size") + \
-            f"; at batch {batch} {hint}"
-    raise ConfigError(f"{what}: at {height}x{width} {how} of this model needs about {format_bytes(estimate)}, more "
-                      f"than the {format_bytes(available)} of memory available ({source}); {hint}")
+        hint = (
+            f"at this size at most {most} fit in a batch" if most else "not even one fits at this size"
+        ) + f"; at batch {batch} {hint}"
+    raise ConfigError(
+        f"{what}: at {height}x{width} {how} of this model needs about {format_bytes(estimate)}, more "
+        f"than the {format_bytes(available)} of memory available ({source}); {hint}"
+    )
 
 
-__all__ = ["MAX_INPUT_PIXELS", "check_size", "decoder_values", "encoder_values", "format_bytes", "step_bytes",
-           "training_step_bytes"]
+__all__ = [
+    "MAX_INPUT_PIXELS",
+    "check_size",
+    "decoder_values",
+    "encoder_values",
+    "format_bytes",
+    "step_bytes",
+    "training_step_bytes",
+]

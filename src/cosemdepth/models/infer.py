@@ -42,15 +42,17 @@ def infer_sequence(
         gd = gd.unsqueeze(0)
     state, heads = None, []
     for k in range(t):
-        out, state = step(frames[:, k], rot[:, k], trans[:, k], intr, rs[:, k], state,
-                          guide_depth=None if gd is None else gd[:, k])
+        out, state = step(
+            frames[:, k], rot[:, k], trans[:, k], intr, rs[:, k], state, guide_depth=None if gd is None else gd[:, k]
+        )
         heads.append(out.heads)
     full = {h: torch.stack([o[h] for o in heads], 1)[0 if single else slice(None)] for h in heads[0]}
     return StepOutput(full.get("depth"), full.get("semantic"), heads=full)
 
 
-def _motions(motions: torch.Tensor | Sequence[torch.Tensor], dtype: torch.dtype, device: torch.device
-             ) -> tuple[torch.Tensor, torch.Tensor]:
+def _motions(
+    motions: torch.Tensor | Sequence[torch.Tensor], dtype: torch.dtype, device: torch.device
+) -> tuple[torch.Tensor, torch.Tensor]:
     """``(rot, trans)`` from a pair or from one ``[.., 7]`` array (qw qx qy qz tx ty tz)."""
     if isinstance(motions, (tuple, list)):
         rot, trans = (torch.as_tensor(m, dtype=dtype, device=device) for m in motions)

@@ -20,8 +20,8 @@ from typing import Optional, Sequence
 import torch
 import torch.nn as nn
 
-from .config import ModelConfig
 from ..ops.resample import resize_nn2
+from .config import ModelConfig
 from .encoder import Encoder
 from .infer import infer_sequence
 from .outputs import SequenceOutput, StepOutput, StreamState
@@ -123,12 +123,19 @@ class SceneModel(nn.Module):
                     levels, state = dec(frame_feats, rot[:, k], trans[:, k], intr, state, frame_reset, guide=guide)
                     per_frame.append(dec.level_maps(levels))
                     frame_maps[k].update(per_frame[-1])
-                maps = {key: [torch.stack(per_level, 1) for per_level in zip(*(fr[key] for fr in per_frame))]
-                        for key in dec.maps}
+                maps = {
+                    key: [torch.stack(per_level, 1) for per_level in zip(*(fr[key] for fr in per_frame))]
+                    for key in dec.maps
+                }
             else:  # every wanted frame at once
                 levels = dec([f[first_frame * b :] for f in feats])[0]
-                maps = {key: [_skipped_frames_nan(m.unflatten(0, (t - first_frame, b)).transpose(0, 1), first_frame)
-                              for m in v] for key, v in dec.level_maps(levels).items()}
+                maps = {
+                    key: [
+                        _skipped_frames_nan(m.unflatten(0, (t - first_frame, b)).transpose(0, 1), first_frame)
+                        for m in v
+                    ]
+                    for key, v in dec.level_maps(levels).items()
+                }
             for key, v in maps.items():
                 out.put(key, v)
         return out
@@ -173,8 +180,18 @@ class SceneModel(nn.Module):
             return StepOutput(None, None), state if state is not None else StreamState()
         size = tuple(rgb.shape[-2:])
         feats = self.encoder(rgb)
-        return decode_step(self.decoders, feats, rot, trans, intrinsics, reset, state, lambda x: resize_nn2(x, size),
-                           only=decoders, guide_depth=guide_depth)
+        return decode_step(
+            self.decoders,
+            feats,
+            rot,
+            trans,
+            intrinsics,
+            reset,
+            state,
+            lambda x: resize_nn2(x, size),
+            only=decoders,
+            guide_depth=guide_depth,
+        )
 
     def check_step(
         self,
@@ -201,8 +218,10 @@ class SceneModel(nn.Module):
         if guide_depth is None:
             return  # a model that needs one says so when the decoder reads it (decoder_guide)
         if not self.config.needs_depth_input:
-            raise ValueError(f"argument guide_depth: this model (semantic_time {self.config.semantic_time!r}) takes no "
-                             "ground-truth depth")
+            raise ValueError(
+                f"argument guide_depth: this model (semantic_time {self.config.semantic_time!r}) takes no "
+                "ground-truth depth"
+            )
         want = (*rgb.shape[: 1 + sequence], 1, *rgb.shape[-2:])
         if tuple(guide_depth.shape) != want:
             raise _shape_error("guide_depth", "[" + ", ".join(map(str, want)) + "]", guide_depth)
@@ -230,8 +249,9 @@ class SceneModel(nn.Module):
             ``heads`` every decoder's output), without per-level maps.
         """
         p = next(self.parameters())
-        return infer_sequence(self.step, frames, motions, intrinsics, reset, guide_depth, device=p.device,
-                              dtype=p.dtype)
+        return infer_sequence(
+            self.step, frames, motions, intrinsics, reset, guide_depth, device=p.device, dtype=p.dtype
+        )
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
@@ -298,4 +318,6 @@ def _check_inputs(rgb, rot, trans, intrinsics, reset, sequence: bool) -> None:
     if intrinsics.shape not in ((lead[0], 4), (*lead, 4)):
         raise _shape_error("intrinsics", f"[{lead[0]}, 4]" + (f" or [{dims}, 4]" if sequence else ""), intrinsics)
     if reset is not None and (reset.shape != lead or reset.dtype != torch.bool):
-        raise ValueError(f"argument reset must be a bool tensor of shape [{dims}], got {reset.dtype} {list(reset.shape)}")
+        raise ValueError(
+            f"argument reset must be a bool tensor of shape [{dims}], got {reset.dtype} {list(reset.shape)}"
+        )

@@ -16,12 +16,12 @@ from typing import Any, Callable, Collection, Mapping, Optional, Sequence
 import torch
 import torch.nn as nn
 
-from ..ops.cost_volume import parallax_sweep_cost_volume, spatial_cost_volume
-from ..ops.concat import concat_into
-from ..ops.normalize import grouped_l2_normalize
-from ..ops.resample import resize_nn1, resize_nn2
 from ..geometry.motion import baseline
 from ..geometry.validity import depth_validity
+from ..ops.concat import concat_into
+from ..ops.cost_volume import parallax_sweep_cost_volume, spatial_cost_volume
+from ..ops.normalize import grouped_l2_normalize
+from ..ops.resample import resize_nn1, resize_nn2
 from .outputs import ESTIMATED, RESET, StepOutput, StreamState
 
 Tensor = torch.Tensor
@@ -122,8 +122,14 @@ class PyramidDecoder(nn.Module):
     def temporal(self) -> bool:
         return bool(self.state_names)
 
-    def frame(self, rot: Tensor, trans: Tensor, intrinsics: Tensor, fresh: Optional[Tensor] = None,
-              guide: Optional[Mapping[str, Sequence[Tensor]]] = None) -> Any:
+    def frame(
+        self,
+        rot: Tensor,
+        trans: Tensor,
+        intrinsics: Tensor,
+        fresh: Optional[Tensor] = None,
+        guide: Optional[Mapping[str, Sequence[Tensor]]] = None,
+    ) -> Any:
         """Per-frame context handed to every level's ``refine`` (e.g. the rotation matrix); ``fresh`` ``[B]`` the
         samples without a previous frame (``refines_resets`` decoders; None: none), ``guide`` the maps of ``reads``
         that are available on this frame, per level (finest first)."""
@@ -142,9 +148,15 @@ class PyramidDecoder(nn.Module):
         return {key: [getattr(o, attr) for o in outs] for key, attr in self.maps.items()}
 
     def forward(
-        self, feats: Sequence[Tensor], rot: Optional[Tensor] = None, trans: Optional[Tensor] = None,
-        intrinsics: Optional[Tensor] = None, prev: Optional[Sequence[Sequence[Tensor]]] = None,
-        reset: Optional[Tensor] = None, ops: Optional[Sequence[LevelOps]] = None, static: Optional[bool] = None,
+        self,
+        feats: Sequence[Tensor],
+        rot: Optional[Tensor] = None,
+        trans: Optional[Tensor] = None,
+        intrinsics: Optional[Tensor] = None,
+        prev: Optional[Sequence[Sequence[Tensor]]] = None,
+        reset: Optional[Tensor] = None,
+        ops: Optional[Sequence[LevelOps]] = None,
+        static: Optional[bool] = None,
         guide: Optional[Mapping[str, Sequence[Tensor]]] = None,
     ) -> tuple[list[Any], tuple[tuple[Tensor, ...], ...]]:
         """Decode one frame.
@@ -201,7 +213,8 @@ class PyramidDecoder(nn.Module):
                 if mask is not None:
                     out = _select(mask, inputs, out)
                     states[j] = tuple(
-                        s if s is r else torch.where(mask, r, s) for r, s in zip(lvl.reset_state(f_hat, inputs), states[j])
+                        s if s is r else torch.where(mask, r, s)
+                        for r, s in zip(lvl.reset_state(f_hat, inputs), states[j])
                     )
             coarse = outs[j] = out
         return outs, tuple(zip(*states)) if self.temporal else ()
@@ -210,8 +223,10 @@ class PyramidDecoder(nn.Module):
 def _select(mask: Tensor, where_true: Any, where_false: Any) -> Any:
     """Per-sample choice between two level outputs (dataclasses of tensors)."""
     return type(where_false)(
-        *(torch.where(mask, getattr(where_true, f.name), getattr(where_false, f.name))
-          for f in dataclasses.fields(where_false))
+        *(
+            torch.where(mask, getattr(where_true, f.name), getattr(where_false, f.name))
+            for f in dataclasses.fields(where_false)
+        )
     )
 
 
@@ -239,23 +254,34 @@ def depth_pyramid(depth: Tensor, feats: Sequence[Tensor]) -> list[Tensor]:
     return [resize_nn2(depth.to(feats[0].dtype), tuple(f.shape[-2:])) for f in feats]
 
 
-def decoder_guide(dec: PyramidDecoder, levels: Mapping[str, Sequence[Tensor]],
-                  gt_levels: Optional[Sequence[Tensor]]) -> dict[str, Sequence[Tensor]]:
+def decoder_guide(
+    dec: PyramidDecoder, levels: Mapping[str, Sequence[Tensor]], gt_levels: Optional[Sequence[Tensor]]
+) -> dict[str, Sequence[Tensor]]:
     """The maps of ``dec.reads`` available on a frame: those of the decoders that ran before it (``levels``) and the
     ground-truth depth pyramid ``gt_levels``. Raises ValueError when ``dec`` reads the ground truth and none is
     given."""
     if GT_DEPTH in dec.reads and gt_levels is None:
-        raise ValueError(f"argument guide_depth: the {dec.head} decoder warps its previous output with the ground-truth "
-                         "depth (semantic_time 'gt'), so every frame needs its depth map [B, 1, H, W]")
+        raise ValueError(
+            f"argument guide_depth: the {dec.head} decoder warps its previous output with the ground-truth "
+            "depth (semantic_time 'gt'), so every frame needs its depth map [B, 1, H, W]"
+        )
     found = {**levels, GT_DEPTH: gt_levels}
     return {k: found[k] for k in dec.reads if found.get(k) is not None}
 
 
 def decode_step(
-    decoders: Mapping[str, PyramidDecoder], feats: Sequence[Tensor], rot: Tensor, trans: Tensor, intrinsics: Tensor,
-    reset: Optional[Tensor], state: Optional[StreamState], upsample: Callable[[Tensor], Tensor],
-    ops: Optional[Mapping[str, Sequence[LevelOps]]] = None, static: Optional[bool] = None,
-    only: Optional[Collection[str]] = None, guide_depth: Optional[Tensor] = None,
+    decoders: Mapping[str, PyramidDecoder],
+    feats: Sequence[Tensor],
+    rot: Tensor,
+    trans: Tensor,
+    intrinsics: Tensor,
+    reset: Optional[Tensor],
+    state: Optional[StreamState],
+    upsample: Callable[[Tensor], Tensor],
+    ops: Optional[Mapping[str, Sequence[LevelOps]]] = None,
+    static: Optional[bool] = None,
+    only: Optional[Collection[str]] = None,
+    guide_depth: Optional[Tensor] = None,
 ) -> tuple[StepOutput, StreamState]:
     """One streaming step of every decoder on the encoder features of a frame (the reference path and the fast
     engine both run this): the per-level maps, each decoder's head (its finest map passed through ``upsample``, to
@@ -297,8 +323,9 @@ def decode_step(
     return out, StreamState(**components)
 
 
-def depth_status(depth: Tensor, rot: Tensor, trans: Tensor, intrinsics: Tensor, reset: Tensor
-                 ) -> tuple[Tensor, list[str], Tensor]:
+def depth_status(
+    depth: Tensor, rot: Tensor, trans: Tensor, intrinsics: Tensor, reset: Tensor
+) -> tuple[Tensor, list[str], Tensor]:
     """``(valid [B,1,H,W], status, baseline [B])`` of a depth estimated from parallax with the motion
     ``rot, trans`` (reset samples: nothing valid, status ``reset``, baseline 0); see :class:`StepOutput`."""
     reset = reset.to(depth.device)

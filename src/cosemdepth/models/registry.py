@@ -7,8 +7,8 @@ Adding a decoder is a module with a :class:`~cosemdepth.models.pyramid.PyramidDe
 
 from __future__ import annotations
 
-from .config import ARCHITECTURES
 from ..errors import ConfigError
+from .config import ARCHITECTURES
 from .depth_decoder import DepthDecoder
 from .pyramid import PyramidDecoder
 from .semantic_decoder import SemanticDecoder

@@ -14,13 +14,12 @@ from typing import Optional, Sequence
 
 import torch
 
-from .config import ModelConfig
 from ..geometry.camera import level_intrinsics
 from ..geometry.correspondence import previous_points
 from ..geometry.parallax import epipolar_geometry
 from ..geometry.rotation import quaternion_to_matrix
 from ..geometry.warp import sample_bilinear
-from .config import SEMANTIC_TIME_GT, SEMANTIC_TIME_OFF, SEMANTIC_TIME_OWN
+from .config import SEMANTIC_TIME_GT, SEMANTIC_TIME_OFF, SEMANTIC_TIME_OWN, ModelConfig
 from .layers import Refiner
 from .outputs import SemanticLevelOutput
 from .pyramid import GT_DEPTH, LevelOps, PyramidDecoder, PyramidLevel
@@ -86,7 +85,9 @@ class SemanticLevel(PyramidLevel):
         self.time = cfg.semantic_time
         self.refiner = Refiner(semantic_refiner_in_channels(level, channels, cfg), cfg.num_classes + 4)
 
-    def coarse_inputs(self, coarse: SemanticLevelOutput | None, f_hat: torch.Tensor, ops: LevelOps) -> SemanticLevelOutput:
+    def coarse_inputs(
+        self, coarse: SemanticLevelOutput | None, f_hat: torch.Tensor, ops: LevelOps
+    ) -> SemanticLevelOutput:
         """The coarser level's probabilities and "other" channels (NN1 upsampling), or the one-hot of the last class
         ("others") and zeros at the coarsest level; ``logits`` are not used as inputs (the probabilities stand in)."""
         n = self.num_classes
@@ -98,8 +99,9 @@ class SemanticLevel(PyramidLevel):
         probs_in = ops.nearest(coarse.probs, (h, w))
         return SemanticLevelOutput(probs_in, probs_in, ops.nearest(coarse.other, (h, w)))
 
-    def refine(self, f_hat, inputs: SemanticLevelOutput, frame: Optional[SemanticFrame], prev, ops: LevelOps
-               ) -> SemanticLevelOutput:
+    def refine(
+        self, f_hat, inputs: SemanticLevelOutput, frame: Optional[SemanticFrame], prev, ops: LevelOps
+    ) -> SemanticLevelOutput:
         blocks = [inputs.probs, inputs.other, f_hat]
         if self.use_sncv:
             blocks.append(ops.sncv(f_hat, 1, SEMANTIC_SNCV_RADIUS))
@@ -109,8 +111,9 @@ class SemanticLevel(PyramidLevel):
         logits = y[:, : self.num_classes]
         return SemanticLevelOutput(torch.softmax(logits, dim=1), logits, y[:, self.num_classes :])
 
-    def previous_probs(self, f_hat: torch.Tensor, frame: SemanticFrame, prev: Optional[torch.Tensor]
-                       ) -> tuple[torch.Tensor, torch.Tensor]:
+    def previous_probs(
+        self, f_hat: torch.Tensor, frame: SemanticFrame, prev: Optional[torch.Tensor]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``(V * warped [B, N, h, w], V [B, 1, h, w])``: the previous probabilities of this level sampled (bilinear)
         where the current pixels' points were in the previous frame (design 2.6), and their validity ``V`` (1: the
         point is in front of both cameras and lands inside the previous view; 0 elsewhere and on every pixel of a
@@ -120,8 +123,14 @@ class SemanticLevel(PyramidLevel):
         if prev is None:
             return f_hat.new_zeros(b, self.num_classes, h, w), f_hat.new_zeros(b, 1, h, w)
         depth = None if frame.depth is None else frame.depth[self.level - 1].detach().to(dtype)
-        geom = epipolar_geometry(h, w, frame.rot.to(dtype), frame.trans.to(dtype),
-                                 level_intrinsics(frame.intrinsics.to(dtype), self.level), guard=False)
+        geom = epipolar_geometry(
+            h,
+            w,
+            frame.rot.to(dtype),
+            frame.trans.to(dtype),
+            level_intrinsics(frame.intrinsics.to(dtype), self.level),
+            guard=False,
+        )
         points, ok = previous_points(depth, geom)
         if frame.fresh is not None:
             ok = ok & ~frame.fresh.view(-1, 1, 1, 1).to(ok.device)

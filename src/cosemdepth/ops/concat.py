@@ -16,7 +16,9 @@ import torch
 _CL = torch.channels_last
 
 
-def write_blocks(blocks: Sequence[torch.Tensor], dtype: torch.dtype, memory_format: torch.memory_format) -> torch.Tensor:
+def write_blocks(
+    blocks: Sequence[torch.Tensor], dtype: torch.dtype, memory_format: torch.memory_format
+) -> torch.Tensor:
     """``torch.cat(blocks, 1).to(dtype)`` written once into a new ``[B, C, H, W]`` buffer of ``memory_format``."""
     b, _, h, w = blocks[0].shape
     c = sum(t.shape[1] for t in blocks)

@@ -49,8 +49,17 @@ class _ConvLReLU(torch.autograd.Function):
         gz = torch.ops.aten.leaky_relu_backward(grad, y, slope, True)
         mask = [ctx.needs_input_grad[0], ctx.needs_input_grad[1], has_bias and ctx.needs_input_grad[2]]
         gx, gw, gb = torch.ops.aten.convolution_backward(
-            gz, x, weight, [weight.shape[0]] if has_bias else None, [stride] * 2, [padding] * 2, [1, 1], False,
-            [0, 0], 1, mask,
+            gz,
+            x,
+            weight,
+            [weight.shape[0]] if has_bias else None,
+            [stride] * 2,
+            [padding] * 2,
+            [1, 1],
+            False,
+            [0, 0],
+            1,
+            mask,
         )
         return gx, gw, gb, None, None, None
 

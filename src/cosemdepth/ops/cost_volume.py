@@ -77,8 +77,9 @@ def parallax_sweep_cost_volume(
     return _sweep_correlation_loop(feat, warped, groups), warped[:, c]
 
 
-def _sweep_correlation_traceable(feat: torch.Tensor, prev: torch.Tensor, pts: torch.Tensor,
-                                 groups: int) -> tuple[torch.Tensor, torch.Tensor]:
+def _sweep_correlation_traceable(
+    feat: torch.Tensor, prev: torch.Tensor, pts: torch.Tensor, groups: int
+) -> tuple[torch.Tensor, torch.Tensor]:
     """The PSCV of :func:`parallax_sweep_cost_volume` (``pts``: its points stacked as ``[B, 2, S*H, W]``) as plain
     traceable ops: the form the ONNX export records. The warped maps stay channels-last, as the row gathers give
     them, so that each group's mean reduces the innermost axis; only the small volume is transposed."""
@@ -180,8 +181,14 @@ def _spatial_correlation_traceable(feat: torch.Tensor, groups: int, radius: int)
     f = feat.permute(0, 2, 3, 1)  # [B, H, W, C]
     padded = F.pad(f, (0, 0, radius, radius, radius, radius))
     fv = f.reshape(b, h, w, groups, n)
-    out = torch.cat([(padded[:, i : i + h, j : j + w].reshape(b, h, w, groups, n) * fv).sum(dim=-1)
-                     for i in range(k) for j in range(k)], dim=-1)  # [B, H, W, k*k*K], offset-major
+    out = torch.cat(
+        [
+            (padded[:, i : i + h, j : j + w].reshape(b, h, w, groups, n) * fv).sum(dim=-1)
+            for i in range(k)
+            for j in range(k)
+        ],
+        dim=-1,
+    )  # [B, H, W, k*k*K], offset-major
     return out.permute(0, 3, 1, 2) * (1.0 / n)
 
 
@@ -255,7 +262,9 @@ def _sncv_channel_loop(f: torch.Tensor, groups: int, radius: int) -> torch.Tenso
             if x1 <= x0:
                 continue
             # out[-dy, -dx][y, x] = out[dy, dx][y - dy, x - dx]
-            out[:, radius - dy, radius - dx, :, dy:, x0:x1] = out[:, radius + dy, radius + dx, :, : h - dy, x0 - dx : x1 - dx]
+            out[:, radius - dy, radius - dx, :, dy:, x0:x1] = out[
+                :, radius + dy, radius + dx, :, : h - dy, x0 - dx : x1 - dx
+            ]
     return out.reshape(b, k * k * groups, h, w).mul_(1.0 / n)
 
 

@@ -25,8 +25,12 @@ def grouped_l2_normalize(x: torch.Tensor, groups: int, guard: bool = True) -> to
     b, c, h, w = x.shape
     if c % groups:
         raise ValueError(f"{c} channels cannot be split into {groups} groups")
-    if (torch.is_grad_enabled() and x.requires_grad and not torch.jit.is_tracing()
-            and not torch.onnx.is_in_onnx_export()):
+    if (
+        torch.is_grad_enabled()
+        and x.requires_grad
+        and not torch.jit.is_tracing()
+        and not torch.onnx.is_in_onnx_export()
+    ):
         return _GroupedL2.apply(x, groups, guard)
     return _grouped_l2_forward(x, groups, guard)[0]
 

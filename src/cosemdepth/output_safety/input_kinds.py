@@ -53,8 +53,11 @@ INPUT_KINDS: list[InputKind] = [
     # synthair.writer.METADATA; its split CSVs in SPLITS_DIR
     InputKind("a SynthAir dataset", (("synthair.json",),), writers=("synth",), open_inside=_SPLITS_INSIDE),
     # training.rundir: CONFIG_NAME with EVENTS_NAME, CHECKPOINTS_NAME or BEST_NAME
-    InputKind("a training run folder", (("config.yaml", "events.jsonl"), ("config.yaml", "checkpoints/"),
-                                        ("config.yaml", "best/")), writers=("train",)),
+    InputKind(
+        "a training run folder",
+        (("config.yaml", "events.jsonl"), ("config.yaml", "checkpoints/"), ("config.yaml", "best/")),
+        writers=("train",),
+    ),
     # training.checkpoint: checkpoint_name() folders holding output_safety.manifest.MANIFEST_FILE
     InputKind("a folder of training checkpoints", (("ckpt-*/manifest.json",),)),
     InputKind("a training checkpoint", (("manifest.json", "model.safetensors"),)),
@@ -73,9 +76,14 @@ INPUT_KINDS: list[InputKind] = [
     # checkpoints.tf_checkpoint: P.index + P.data-SSSSS-of-NNNNN
     InputKind("a TensorFlow checkpoint folder", (("*.index", "*.data-*-of-*"),)),
     # data.flight.DEFAULT_POSE_FILES beside data.flight.IMAGE_EXTENSIONS (any case) or an images/ folder
-    InputKind("a flight (images and a pose file)",
-              tuple((pose, images) for pose in ("poses.txt", "poses.tum", "poses.csv", "groundtruth.txt")
-                    for images in ("images/", "*.[jJ][pP][gG]", "*.[jJ][pP][eE][gG]", "*.[pP][nN][gG]"))),
+    InputKind(
+        "a flight (images and a pose file)",
+        tuple(
+            (pose, images)
+            for pose in ("poses.txt", "poses.tum", "poses.csv", "groundtruth.txt")
+            for images in ("images/", "*.[jJ][pP][gG]", "*.[jJ][pP][eE][gG]", "*.[pP][nN][gG]")
+        ),
+    ),
     # robotics.rosbag: ROS 2 bag folders (rosbags' metadata.yaml + sqlite3 or MCAP storage)
     InputKind("a ROS 2 bag", (("metadata.yaml", "*.mcap"), ("metadata.yaml", "*.db3"))),
 ]

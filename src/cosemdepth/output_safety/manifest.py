@@ -71,8 +71,9 @@ def validate_manifest(path: str | os.PathLike, required: Iterable[str] = ()) -> 
     if not isinstance(version, int) or isinstance(version, bool):
         raise CheckpointError(f"{mpath}: bad checkpoint version {version!r}")
     if version > MANIFEST_VERSION:
-        raise CheckpointError(f"{mpath}: checkpoint version {version} is newer than this cosemdepth "
-                              f"supports ({MANIFEST_VERSION})")
+        raise CheckpointError(
+            f"{mpath}: checkpoint version {version} is newer than this cosemdepth supports ({MANIFEST_VERSION})"
+        )
     files = manifest.get("files")
     required = list(required)
     if not isinstance(files, dict) or set(required) - set(files):

@@ -116,11 +116,13 @@ def check_not_input(out: str | os.PathLike, inputs: Iterable[Input | None], what
         if o == i:
             raise ConfigError(f"{out}: the {what} is {name}, an input of this command; choose another {_kind(what)}")
         if _inside(i, o):
-            raise ConfigError(f"{out}: the {what} contains {name}, an input of this command; choose another "
-                              f"{_kind(what)}")
+            raise ConfigError(
+                f"{out}: the {what} contains {name}, an input of this command; choose another {_kind(what)}"
+            )
         if _inside(o, i) and not any(_inside(o, real(i / c)) for c in inp.carve_out):
-            raise ConfigError(f"{out}: the {what} lies inside {name}, an input of this command; choose a "
-                              f"{_kind(what)} outside it")
+            raise ConfigError(
+                f"{out}: the {what} lies inside {name}, an input of this command; choose a {_kind(what)} outside it"
+            )
 
 
 def check_not_other_input(out: str | os.PathLike, *, command: str | None, what: str, flag: bool = False) -> None:
@@ -144,10 +146,14 @@ def check_not_other_input(out: str | os.PathLike, *, command: str | None, what: 
             if command is not None and (o.relative_to(folder).parts[0], command) in kind.open_inside:
                 continue
             where = f"lies inside {folder}, {kind.name} ({evidence})"
-        who = (f"cosemdepth {command} never writes there{', with or without --overwrite' if flag else ''}"
-               if command else "no output goes there")
-        raise ConfigError(f"{out}: the {what} {where}, which commands read as input: {who}; choose another "
-                          f"{_kind(what)}")
+        who = (
+            f"cosemdepth {command} never writes there{', with or without --overwrite' if flag else ''}"
+            if command
+            else "no output goes there"
+        )
+        raise ConfigError(
+            f"{out}: the {what} {where}, which commands read as input: {who}; choose another {_kind(what)}"
+        )
 
 
 def _kind(what: str) -> str:
@@ -247,8 +253,13 @@ def write_marker(folder: str | os.PathLike, command: str, files: Iterable[str], 
         size, digest = file_digest(p)
         entries[rel] = {"size": size, "sha256": digest}
     # no date: the same command writes the same bytes (a generated dataset is reproducible to the byte)
-    data = {"format": MARKER_FORMAT, "version": MARKER_VERSION, "command": command,
-            "cosemdepth_version": __version__, "files": dict(sorted(entries.items()))}
+    data = {
+        "format": MARKER_FORMAT,
+        "version": MARKER_VERSION,
+        "command": command,
+        "cosemdepth_version": __version__,
+        "files": dict(sorted(entries.items())),
+    }
     path = folder / MARKER
     atomic_write_text(path, json.dumps(data, indent=1) + "\n")
     return path
@@ -272,8 +283,10 @@ def file_problem(folder: Path, rel: str, marker: dict | None) -> str | None:
     except OSError as e:
         return f"cannot be read to check that cosemdepth wrote it ({_why(e)})"
     if size != entry.get("size") or digest != entry["sha256"]:
-        return (f"changed since cosemdepth {marker['command']} wrote it (not the SHA-256 that {MARKER} records), so "
-                "it is yours")
+        return (
+            f"changed since cosemdepth {marker['command']} wrote it (not the SHA-256 that {MARKER} records), so "
+            "it is yours"
+        )
     return None
 
 
@@ -303,7 +316,7 @@ def work_folders(folder: Path) -> dict[str, dict[str, Path]]:
         for entry in os.scandir(folder):
             for role, prefix in zip(("staging", "old", "done"), WORK_PREFIXES):
                 if entry.name.startswith(prefix) and entry.is_dir(follow_symlinks=False):
-                    out.setdefault(entry.name[len(prefix):], {})[role] = Path(entry.path)
+                    out.setdefault(entry.name[len(prefix) :], {})[role] = Path(entry.path)
     return out
 
 
@@ -318,11 +331,15 @@ def _check_work_folders(out: Path, ignore: Sequence[str]) -> list[str]:
             continue
         staging = roles.get("staging")
         if staging is not None and is_locked(staging / LOCK_NAME):
-            raise ConfigError(f"{out}: another cosemdepth run is writing this folder ({staging.name}); wait for it, "
-                              "or choose another folder")
+            raise ConfigError(
+                f"{out}: another cosemdepth run is writing this folder ({staging.name}); wait for it, "
+                "or choose another folder"
+            )
         if "old" in roles or "done" in roles:
-            raise ConfigError(f"{out}: holds an interrupted replacement ({', '.join(sorted(names))}); run the command "
-                              "again to complete it, or move those folders")
+            raise ConfigError(
+                f"{out}: holds an interrupted replacement ({', '.join(sorted(names))}); run the command "
+                "again to complete it, or move those folders"
+            )
         if staging is not None and (staging / LOCK_NAME).is_file():
             skip.append(staging.name)  # a killed run's partial output: ours, removed by the next replacement
     return skip
@@ -380,8 +397,10 @@ def check_output_dir(
         elif mode == "into":
             check_files_replaceable(target, files, marker)
         elif recognize is None or not recognize(out):
-            raise ConfigError(f"{out}: the {what} is not empty and was not written by cosemdepth {command}; choose a "
-                              "new or empty folder")
+            raise ConfigError(
+                f"{out}: the {what} is not empty and was not written by cosemdepth {command}; choose a "
+                "new or empty folder"
+            )
     if mode == "replace" or not out.exists():
         probe_writable(target if target.is_dir() else target.parent, f"{out}: cannot write the {what} here")
     else:
@@ -394,29 +413,37 @@ def check_output_dir(
     return busy
 
 
-def _check_replaceable(out: Path, marker: dict | None, command: str, overwrite: bool | None, what: str,
-                       skip: Sequence[str]) -> None:
+def _check_replaceable(
+    out: Path, marker: dict | None, command: str, overwrite: bool | None, what: str, skip: Sequence[str]
+) -> None:
     how = f"move it, or choose another {_kind(what)}"
     if marker is None:
         hint = " (--overwrite only replaces folders that cosemdepth wrote)" if overwrite else ""
-        raise ConfigError(f"{out}: the {what} exists and is not empty, and was not written by cosemdepth (no {MARKER})"
-                          f"; choose a new or empty folder{hint}")
+        raise ConfigError(
+            f"{out}: the {what} exists and is not empty, and was not written by cosemdepth (no {MARKER})"
+            f"; choose a new or empty folder{hint}"
+        )
     if marker["command"] != command:
         if not overwrite:
             flag = "pass --overwrite to replace it, or " if overwrite is not None else ""
-            raise ConfigError(f"{out}: the {what} holds the output of `cosemdepth {marker['command']}`, not of "
-                              f"`cosemdepth {command}`; {flag}choose another folder")
+            raise ConfigError(
+                f"{out}: the {what} holds the output of `cosemdepth {marker['command']}`, not of "
+                f"`cosemdepth {command}`; {flag}choose another folder"
+            )
         for sub in _subfolders(out, skip):  # another command's output never takes an input folder with it
             found = identify(sub)
             if found is not None:
-                raise ConfigError(f"{out}: the {what} holds {sub}, {found[0].name} ({found[1]}), which commands read "
-                                  f"as input; nothing was replaced: {how}")
+                raise ConfigError(
+                    f"{out}: the {what} holds {sub}, {found[0].name} ({found[1]}), which commands read "
+                    f"as input; nothing was replaced: {how}"
+                )
     files = list_files(out, skip)
     foreign = [f for f in files if f not in marker["files"]]
     if foreign:
         more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
-        raise ConfigError(f"{out / foreign[0]}: {file_problem(out, foreign[0], marker)}{more}; nothing was replaced: "
-                          f"{how}")
+        raise ConfigError(
+            f"{out / foreign[0]}: {file_problem(out, foreign[0], marker)}{more}; nothing was replaced: {how}"
+        )
     for f in files:
         problem = file_problem(out, f, marker)
         if problem is not None:
@@ -471,8 +498,10 @@ def check_output_file(
         if problem is None and recognize is not None and not recognize(out):
             problem = "not written by cosemdepth"
         if problem is not None:
-            raise ConfigError(f"{out}: the {what} exists and cannot be replaced: {problem}; nothing was overwritten "
-                              "(move it, or choose another file name)")
+            raise ConfigError(
+                f"{out}: the {what} exists and cannot be replaced: {problem}; nothing was overwritten "
+                "(move it, or choose another file name)"
+            )
         check_replaceable(out, what)
     probe_writable(parent, f"{out}: cannot write the {what}")
 
@@ -488,7 +517,27 @@ def record_output_file(path: str | os.PathLike, command: str) -> Path:
     return write_marker(target.parent, old["command"] if old is not None else command, [target.name], merge=True)
 
 
-__all__ = ["DONE_PREFIX", "Input", "LOCK_NAME", "MARKER", "OLD_PREFIX", "STAGING_PREFIX", "check_files_replaceable",
-           "check_not_input", "check_not_other_input", "check_not_under_file", "check_output_dir",
-           "check_output_file", "file_problem", "is_locked", "list_files", "model_inputs", "probe_writable",
-           "read_marker", "real", "record_output_file", "work_folders", "write_marker"]
+__all__ = [
+    "DONE_PREFIX",
+    "Input",
+    "LOCK_NAME",
+    "MARKER",
+    "OLD_PREFIX",
+    "STAGING_PREFIX",
+    "check_files_replaceable",
+    "check_not_input",
+    "check_not_other_input",
+    "check_not_under_file",
+    "check_output_dir",
+    "check_output_file",
+    "file_problem",
+    "is_locked",
+    "list_files",
+    "model_inputs",
+    "probe_writable",
+    "read_marker",
+    "real",
+    "record_output_file",
+    "work_folders",
+    "write_marker",
+]

@@ -60,8 +60,10 @@ def probe_folder(folder: str | os.PathLike) -> str | None:
     folder = Path(folder)
     why = _locked(folder)
     if why:
-        return (f"the folder is {why}: entries can{'not be added or' if why == 'immutable' else ' be added but not'} "
-                f"removed (chattr -{'i' if why == 'immutable' else 'a'} removes that)")
+        return (
+            f"the folder is {why}: entries can{'not be added or' if why == 'immutable' else ' be added but not'} "
+            f"removed (chattr -{'i' if why == 'immutable' else 'a'} removes that)"
+        )
     try:
         st = os.stat(folder)
         probe = tempfile.mkdtemp(prefix=".probe.", dir=folder)
@@ -86,22 +88,28 @@ def check_replaceable(path: str | os.PathLike, what: str) -> None:
         return
     why = _locked(path)
     if why:
-        raise ConfigError(f"{path}: the {what} is {why} (chattr -{'i' if why == 'immutable' else 'a'} removes that), "
-                          "so it cannot be replaced; nothing was written")
+        raise ConfigError(
+            f"{path}: the {what} is {why} (chattr -{'i' if why == 'immutable' else 'a'} removes that), "
+            "so it cannot be replaced; nothing was written"
+        )
     if path.is_symlink() or not path.is_dir():
         return
     for dirpath, dirnames, filenames in os.walk(path):
         base = Path(dirpath)
         reason = probe_folder(base)
         if reason:
-            raise ConfigError(f"{base}: cannot replace the {what}: this folder in it cannot be changed ({reason}); "
-                              "nothing was written")
+            raise ConfigError(
+                f"{base}: cannot replace the {what}: this folder in it cannot be changed ({reason}); "
+                "nothing was written"
+            )
         for name in dirnames + filenames:
             entry = base / name
             why = _locked(entry)
             if why:
-                raise ConfigError(f"{entry}: cannot replace the {what}: this entry in it is {why} (chattr -"
-                                  f"{'i' if why == 'immutable' else 'a'} removes that); nothing was written")
+                raise ConfigError(
+                    f"{entry}: cannot replace the {what}: this entry in it is {why} (chattr -"
+                    f"{'i' if why == 'immutable' else 'a'} removes that); nothing was written"
+                )
 
 
 __all__ = ["FS_APPEND_FL", "FS_IMMUTABLE_FL", "check_replaceable", "fs_flags", "probe_folder"]

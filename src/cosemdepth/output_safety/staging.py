@@ -34,10 +34,25 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from .atomic import _default_mode, _fsync_dir
+from .outdir import (
+    DONE_PREFIX,
+    LOCK_NAME,
+    MARKER,
+    OLD_PREFIX,
+    STAGING_PREFIX,
+    Input,
+    check_files_replaceable,
+    check_not_input,
+    check_not_other_input,
+    check_not_under_file,
+    check_output_dir,
+    is_locked,
+    list_files,
+    real,
+    work_folders,
+    write_marker,
+)
 from .replaceable import probe_folder
-from .outdir import (DONE_PREFIX, LOCK_NAME, MARKER, OLD_PREFIX, STAGING_PREFIX, Input, check_files_replaceable,
-                     check_not_input, check_not_other_input, check_not_under_file, check_output_dir, is_locked,
-                     list_files, real, work_folders, write_marker)
 
 
 def missing_ancestors(path: Path) -> list[Path]:
@@ -103,8 +118,15 @@ class StagedDir:
         ConfigError: the output policy refuses ``out`` (see :func:`cosemdepth.output_safety.outdir.check_output_dir`).
     """
 
-    def __init__(self, out: str | os.PathLike, command: str, *, overwrite: bool | None = False,
-                 what: str = "output folder", inputs=()):
+    def __init__(
+        self,
+        out: str | os.PathLike,
+        command: str,
+        *,
+        overwrite: bool | None = False,
+        what: str = "output folder",
+        inputs=(),
+    ):
         self.out = Path(out)
         self.command = command
         self.overwrite = overwrite
@@ -130,8 +152,15 @@ class StagedDir:
         self._check()
 
     def _check(self, ignore=()) -> None:
-        check_output_dir(self.out, command=self.command, mode="replace", what=self.what, inputs=self.inputs,
-                         overwrite=self.overwrite, ignore=ignore)
+        check_output_dir(
+            self.out,
+            command=self.command,
+            mode="replace",
+            what=self.what,
+            inputs=self.inputs,
+            overwrite=self.overwrite,
+            ignore=ignore,
+        )
 
     def __enter__(self) -> Path:
         self.check()
@@ -181,7 +210,7 @@ class StagedDir:
         assert target is not None and tmp is not None
         self._check(ignore=(tmp.name,))  # again: the folder may have changed during the run
         write_marker(tmp, self.command, list_files(tmp, skip=(LOCK_NAME,)), merge=False)
-        token = tmp.name[len(STAGING_PREFIX):]
+        token = tmp.name[len(STAGING_PREFIX) :]
         leftovers = [p for t, roles in work_folders(target).items() if t != token for p in roles.values()]
         old = target / f"{OLD_PREFIX}{token}"
         done = target / f"{DONE_PREFIX}{token}"
@@ -239,8 +268,7 @@ class OutputFiles:
     fails). Use :meth:`add_text` / :meth:`add_bytes` inside the block.
     """
 
-    def __init__(self, folder: str | os.PathLike, what: str = "output folder", *, command: str,
-                 names=(), inputs=()):
+    def __init__(self, folder: str | os.PathLike, what: str = "output folder", *, command: str, names=(), inputs=()):
         self.folder = Path(folder)
         self.what = what
         self.command = command
@@ -251,8 +279,9 @@ class OutputFiles:
 
     def __enter__(self) -> "OutputFiles":
         check_not_under_file(self.folder, self.what)
-        check_output_dir(self.folder, command=self.command, mode="into", what=self.what, inputs=self.inputs,
-                         files=self.names)
+        check_output_dir(
+            self.folder, command=self.command, mode="into", what=self.what, inputs=self.inputs, files=self.names
+        )
         target = real(self.folder)  # a symlink to a folder: its target
         self._created = missing_ancestors(target)
         try:

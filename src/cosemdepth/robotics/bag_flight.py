@@ -24,11 +24,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..errors import ConfigError, DatasetError
+from ..data.decode import DEFAULT_JPEG_IDCT, check_jpeg_idct
 from ..data.flight import parse_intrinsics, scale_intrinsics
 from ..data.frames import Size, resolve_size, rgb_to_tensor
 from ..data.poses import convention_matrix, relative_camera_motions
 from ..data.quaternion import qmatrix
+from ..data.sequence import SequenceDataset, Trajectory
+from ..errors import ConfigError, DatasetError
 from .rosbag import (
     CAMERA_INFO_TYPES,
     IMAGE_TYPES,
@@ -43,8 +45,6 @@ from .rosbag import (
     pose_from_msg,
     stamp_ns,
 )
-from ..data.decode import DEFAULT_JPEG_IDCT, check_jpeg_idct
-from ..data.sequence import SequenceDataset, Trajectory
 
 #: Interpolate an image's pose only between poses at most this many seconds apart (``--max-pose-gap``).
 DEFAULT_MAX_POSE_GAP = 0.05
@@ -71,8 +71,9 @@ class BagIndex:
 def _image_stream(bag: Bag, topic: str, first: dict) -> Any:
     for i, (msgtype, msg) in enumerate(bag.messages(bag.connections(topic, IMAGE_TYPES, "--image-topic"))):
         if i == 0:
-            first["rgb"] = image_to_rgb(msgtype, msg, f"{bag.path}: topic {topic} at stamp "
-                                        f"{format_stamp(stamp_ns(msg.header))}")
+            first["rgb"] = image_to_rgb(
+                msgtype, msg, f"{bag.path}: topic {topic} at stamp {format_stamp(stamp_ns(msg.header))}"
+            )
         first["count"] = i + 1
         yield i, stamp_ns(msg.header), str(msg.header.frame_id)
 
@@ -87,8 +88,14 @@ def _pose_stream(bag: Bag, topic: str, seen: dict) -> Any:
         yield t, p, check_quaternion(q, where)
 
 
-def index_bag(path: str | Path, image_topic: str, pose_topic: str, *, max_pose_gap: float = DEFAULT_MAX_POSE_GAP,
-              skip_unposed: bool = False) -> BagIndex:
+def index_bag(
+    path: str | Path,
+    image_topic: str,
+    pose_topic: str,
+    *,
+    max_pose_gap: float = DEFAULT_MAX_POSE_GAP,
+    skip_unposed: bool = False,
+) -> BagIndex:
     """The index pass of :func:`open_bag_flight` (see the module docstring)."""
     path = Path(path)
     if not max_pose_gap >= 0:
@@ -101,9 +108,14 @@ def index_bag(path: str | Path, image_topic: str, pose_topic: str, *, max_pose_g
         # check both topics before reading anything
         ibag.connections(image_topic, IMAGE_TYPES, "--image-topic")
         pbag.connections(pose_topic, POSE_TYPES, "--pose-topic")
-        pairs = pose_at_images(_image_stream(ibag, image_topic, first), _pose_stream(pbag, pose_topic, seen),
-                               int(round(max_pose_gap * 1e9)), skip_unposed=skip_unposed,
-                               where=f"{path}: topic {image_topic}", pose_where=f"{path}: topic {pose_topic} (--pose-topic)")
+        pairs = pose_at_images(
+            _image_stream(ibag, image_topic, first),
+            _pose_stream(pbag, pose_topic, seen),
+            int(round(max_pose_gap * 1e9)),
+            skip_unposed=skip_unposed,
+            where=f"{path}: topic {image_topic}",
+            pose_where=f"{path}: topic {pose_topic} (--pose-topic)",
+        )
         for posed in pairs:
             if posed.position is None:
                 skipped += 1
@@ -116,19 +128,30 @@ def index_bag(path: str | Path, image_topic: str, pose_topic: str, *, max_pose_g
     if not first["count"]:
         raise DatasetError(f"{path}: topic {image_topic} (--image-topic) holds no messages")
     if not idx:
-        raise DatasetError(f"{path}: none of the {first['count']} images on {image_topic} has a pose on {pose_topic} "
-                           f"within --max-pose-gap {max_pose_gap:g} s")
+        raise DatasetError(
+            f"{path}: none of the {first['count']} images on {image_topic} has a pose on {pose_topic} "
+            f"within --max-pose-gap {max_pose_gap:g} s"
+        )
     native = tuple(first["rgb"].shape[:2])
-    return BagIndex(np.asarray(idx, dtype=np.int64), np.asarray(stamps, dtype=np.int64), frame_ids,
-                    np.asarray(pos), np.asarray(quat), skipped, native, first["count"])
+    return BagIndex(
+        np.asarray(idx, dtype=np.int64),
+        np.asarray(stamps, dtype=np.int64),
+        frame_ids,
+        np.asarray(pos),
+        np.asarray(quat),
+        skipped,
+        native,
+        first["count"],
+    )
 
 
 def read_camera_info(path: str | Path, topic: str, ignore_distortion: bool = False) -> CameraInfo:
     """The intrinsics of the first message on ``topic``."""
     with Bag(path) as bag:
         for _, msg in bag.messages(bag.connections(topic, CAMERA_INFO_TYPES, "--camera-info-topic")):
-            return camera_info_intrinsics(msg, f"{path}: topic {topic} at stamp {format_stamp(stamp_ns(msg.header))}",
-                                          ignore_distortion)
+            return camera_info_intrinsics(
+                msg, f"{path}: topic {topic} at stamp {format_stamp(stamp_ns(msg.header))}", ignore_distortion
+            )
     raise DatasetError(f"{path}: topic {topic} (--camera-info-topic) holds no messages")
 
 
@@ -174,8 +197,10 @@ class BagFrameLoader:
         where = f"{self.path}: topic {self.topic} at stamp {format_stamp(stamp_ns(msg.header))}"
         rgb = image_to_rgb(msgtype, msg, where, self.jpeg_idct)
         if rgb.shape[:2] != tuple(self.native):
-            raise DatasetError(f"{where}: image is {rgb.shape[0]}x{rgb.shape[1]} but the first image is "
-                               f"{self.native[0]}x{self.native[1]}; all images of a flight must have one size")
+            raise DatasetError(
+                f"{where}: image is {rgb.shape[0]}x{rgb.shape[1]} but the first image is "
+                f"{self.native[0]}x{self.native[1]}; all images of a flight must have one size"
+            )
         return {"rgb": rgb_to_tensor(rgb, self.size)}
 
 
@@ -247,21 +272,34 @@ def open_bag_flight(
     native = idx.native
     if info is not None:
         if info.size != native and info.size != (0, 0):
-            raise DatasetError(f"{path}: topic {camera_info_topic}: camera_info is for {info.size[0]}x{info.size[1]} "
-                               f"images but {image_topic} has {native[0]}x{native[1]}")
+            raise DatasetError(
+                f"{path}: topic {camera_info_topic}: camera_info is for {info.size[0]}x{info.size[1]} "
+                f"images but {image_topic} has {native[0]}x{native[1]}"
+            )
         k_native = np.array(info.k)
     else:
         k_native = parse_intrinsics(intrinsics, fov, native)
     keep = np.arange(0, len(idx.indices), frame_skip)
-    idx = BagIndex(idx.indices[keep], idx.stamps[keep], [idx.frame_ids[i] for i in keep], idx.positions[keep],
-                   idx.quaternions[keep], idx.skipped, native, idx.total)
+    idx = BagIndex(
+        idx.indices[keep],
+        idx.stamps[keep],
+        [idx.frame_ids[i] for i in keep],
+        idx.positions[keep],
+        idx.quaternions[keep],
+        idx.skipped,
+        native,
+        idx.total,
+    )
     q_rel, t_rel = relative_camera_motions(idx.quaternions, idx.positions, m)
     out_size = resolve_size(size, lambda: (native, float(k_native[0]))) or native
     name = image_topic.strip("/").replace("/", "_") or "images"
     traj = Trajectory(
         name if name != "bag" else "bag_images",  # predict's output bag is OUT/bag/: the frames go beside it
         [frame_label(path, image_topic, int(t)) for t in idx.stamps],
-        q_rel, t_rel, idx.indices, timestamps=idx.stamps / 1e9,
+        q_rel,
+        t_rel,
+        idx.indices,
+        timestamps=idx.stamps / 1e9,
     )
     loader = BagFrameLoader(path, image_topic, out_size, native, jpeg_idct)
     intr = scale_intrinsics(k_native, native, out_size)
@@ -269,5 +307,4 @@ def open_bag_flight(
     return BagFlight(path, image_topic, dataset, idx, m, intr, out_size, loader)
 
 
-__all__ = ["BagFlight", "BagFrameLoader", "BagIndex", "frame_label", "index_bag", "open_bag_flight",
-           "read_camera_info"]
+__all__ = ["BagFlight", "BagFrameLoader", "BagIndex", "frame_label", "index_bag", "open_bag_flight", "read_camera_info"]

@@ -30,8 +30,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .rosbag import require_rosbags
 from ..errors import ConfigError
+from .rosbag import require_rosbags
 
 DEFAULT_NAMESPACE = "/cosemdepth"
 
@@ -40,8 +40,10 @@ def check_namespace(ns: str) -> str:
     """``ns`` as a topic prefix (leading ``/``, no trailing one); a ConfigError when it is not a valid ROS name."""
     ns = "/" + str(ns).strip("/")
     if ns != "/" and not re.fullmatch(r"(/[A-Za-z][A-Za-z0-9_]*)+", ns):
-        raise ConfigError(f"--out-namespace {ns!r} is not a valid ROS namespace (letters, digits, _ and /; each "
-                          "part starting with a letter)")
+        raise ConfigError(
+            f"--out-namespace {ns!r} is not a valid ROS namespace (letters, digits, _ and /; each "
+            "part starting with a letter)"
+        )
     return "" if ns == "/" else ns
 
 
@@ -55,8 +57,9 @@ class BagWriter:
         namespace: topic prefix.
     """
 
-    def __init__(self, header: Callable[[int], tuple[int, str]], intrinsics, palette=None,
-                 namespace: str = DEFAULT_NAMESPACE) -> None:
+    def __init__(
+        self, header: Callable[[int], tuple[int, str]], intrinsics, palette=None, namespace: str = DEFAULT_NAMESPACE
+    ) -> None:
         require_rosbags()
         self.header = header
         self.k = [float(v) for v in intrinsics]
@@ -90,16 +93,18 @@ class BagWriter:
         t = self.ts.types
         h, w = array.shape[:2]
         data = np.ascontiguousarray(array).view(np.uint8).reshape(-1)
-        return t["sensor_msgs/msg/Image"](header=hdr, height=h, width=w, encoding=encoding, is_bigendian=0,
-                                          step=data.size // h, data=data)
+        return t["sensor_msgs/msg/Image"](
+            header=hdr, height=h, width=w, encoding=encoding, is_bigendian=0, step=data.size // h, data=data
+        )
 
     def __call__(self, batch) -> None:
         t = self.ts.types
         for b in range(len(batch)):
             stamp, frame_id = self.header(batch.indices[b])
             sec, nsec = divmod(int(stamp), 1_000_000_000)
-            hdr = t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
-                                           frame_id=frame_id)
+            hdr = t["std_msgs/msg/Header"](
+                stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id
+            )
             h, w = batch.rgb.shape[-2:]
             if batch.depth is not None:
                 depth = batch.depth[b, 0].float().cpu().numpy().astype("<f4")
@@ -108,8 +113,9 @@ class BagWriter:
                     valid &= batch.valid[b, 0].cpu().numpy().astype(bool)
                 elif bool(batch.reset[b]):
                     valid[...] = False
-                self._write("depth", self._image(hdr, np.where(valid, depth, np.float32(np.nan)).astype("<f4"),
-                                                 "32FC1"), stamp)
+                self._write(
+                    "depth", self._image(hdr, np.where(valid, depth, np.float32(np.nan)).astype("<f4"), "32FC1"), stamp
+                )
                 self._write("depth_valid", self._image(hdr, valid.astype(np.uint8) * np.uint8(255), "mono8"), stamp)
                 self._status(hdr, batch, b, float(valid.mean()), stamp)
             if batch.labels is not None:
@@ -120,11 +126,16 @@ class BagWriter:
             fx, fy, cx, cy = self.k
             cx, cy = cx - 0.5, cy - 0.5  # ROS/OpenCV: pixel centres at integer coordinates
             info = t["sensor_msgs/msg/CameraInfo"](
-                header=hdr, height=int(h), width=int(w), distortion_model="plumb_bob", d=np.zeros(5),
+                header=hdr,
+                height=int(h),
+                width=int(w),
+                distortion_model="plumb_bob",
+                d=np.zeros(5),
                 k=np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1], dtype=np.float64),
                 r=np.eye(3).reshape(-1),
                 p=np.array([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0], dtype=np.float64),
-                binning_x=0, binning_y=0,
+                binning_x=0,
+                binning_y=0,
                 roi=t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
             )
             self._write("camera_info", info, stamp)
@@ -136,20 +147,37 @@ class BagWriter:
         base = getattr(batch, "baseline", None)
         st = t["diagnostic_msgs/msg/DiagnosticStatus"]
         level = {"estimated": st.OK, "held": st.WARN}.get(status, st.ERROR)
-        values = [("status", status), ("baseline_m", "" if base is None else f"{float(base[b]):.6f}"),
-                  ("valid_fraction", f"{valid_fraction:.6f}")]
-        msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=hdr, status=[st(
-            level=level, name="cosemdepth depth", message=status, hardware_id=hdr.frame_id,
-            values=[t["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values])])
+        values = [
+            ("status", status),
+            ("baseline_m", "" if base is None else f"{float(base[b]):.6f}"),
+            ("valid_fraction", f"{valid_fraction:.6f}"),
+        ]
+        msg = t["diagnostic_msgs/msg/DiagnosticArray"](
+            header=hdr,
+            status=[
+                st(
+                    level=level,
+                    name="cosemdepth depth",
+                    message=status,
+                    hardware_id=hdr.frame_id,
+                    values=[t["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values],
+                )
+            ],
+        )
         self._write("depth_status", msg, stamp)
 
     def close(self) -> dict[str, Any]:
         """Finish the bag; the manifest entry describing it."""
         self._writer.close()
         self._writer = None
-        return {"bag": {"path": "bag", "storage": "mcap",
-                        "topics": {f"{self.ns}/{n}": c.msgtype for n, c in self._conns.items()},
-                        "messages": self.messages}}
+        return {
+            "bag": {
+                "path": "bag",
+                "storage": "mcap",
+                "topics": {f"{self.ns}/{n}": c.msgtype for n, c in self._conns.items()},
+                "messages": self.messages,
+            }
+        }
 
     def abort(self) -> None:
         if self._writer is not None:

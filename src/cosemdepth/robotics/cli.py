@@ -6,12 +6,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP, open_bag_flight
 from ..errors import ConfigError
 from ..evaluation.classes import class_info
 from ..evaluation.evaluator import _model_config
 from ..tasks import class_count
-from .bag_writer import BagWriter, DEFAULT_NAMESPACE, check_namespace
+from .bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP, open_bag_flight
+from .bag_writer import DEFAULT_NAMESPACE, BagWriter, check_namespace
 from .rerun_writer import RerunWriter, require_rerun
 
 
@@ -20,17 +20,33 @@ def add_robotics_args(parser: argparse.ArgumentParser) -> None:
     bag = parser.add_argument_group("a ROS bag as the flight (instead of --dataset or --flight; docs/robotics.md)")
     bag.add_argument("--bag", type=Path, metavar="PATH", help="ROS 2 bag folder (sqlite3 or MCAP) or ROS 1 .bag")
     bag.add_argument("--image-topic", metavar="T", help="sensor_msgs/Image or CompressedImage topic")
-    bag.add_argument("--pose-topic", metavar="T",
-                     help="geometry_msgs/PoseStamped, PoseWithCovarianceStamped or nav_msgs/Odometry topic: absolute "
-                     "poses of the body (axes: --convention, default flu = REP 103) or of the camera")
-    bag.add_argument("--camera-info-topic", metavar="T", help="sensor_msgs/CameraInfo topic for the intrinsics "
-                     "(instead of --intrinsics / --hfov)")
-    bag.add_argument("--ignore-distortion", action="store_true",
-                     help="use camera_info's K even when it has a non-zero distortion")
-    bag.add_argument("--out-namespace", default=DEFAULT_NAMESPACE, metavar="NS",
-                     help=f"topic prefix of the output bag DIR/bag/ (default {DEFAULT_NAMESPACE})")
-    parser.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd",
-                        help="also write a rerun recording (open it with: rerun FILE.rrd; needs cosemdepth[viz])")
+    bag.add_argument(
+        "--pose-topic",
+        metavar="T",
+        help="geometry_msgs/PoseStamped, PoseWithCovarianceStamped or nav_msgs/Odometry topic: absolute "
+        "poses of the body (axes: --convention, default flu = REP 103) or of the camera",
+    )
+    bag.add_argument(
+        "--camera-info-topic",
+        metavar="T",
+        help="sensor_msgs/CameraInfo topic for the intrinsics (instead of --intrinsics / --hfov)",
+    )
+    bag.add_argument(
+        "--ignore-distortion", action="store_true", help="use camera_info's K even when it has a non-zero distortion"
+    )
+    bag.add_argument(
+        "--out-namespace",
+        default=DEFAULT_NAMESPACE,
+        metavar="NS",
+        help=f"topic prefix of the output bag DIR/bag/ (default {DEFAULT_NAMESPACE})",
+    )
+    parser.add_argument(
+        "--rerun",
+        type=Path,
+        default=None,
+        metavar="FILE.rrd",
+        help="also write a rerun recording (open it with: rerun FILE.rrd; needs cosemdepth[viz])",
+    )
 
 
 def check_args(args: argparse.Namespace) -> None:
@@ -44,8 +60,9 @@ def check_args(args: argparse.Namespace) -> None:
         if args.camera_info_topic is not None and (args.intrinsics is not None or args.hfov is not None):
             raise ConfigError("give either --camera-info-topic or --intrinsics/--hfov, not both")
         if args.camera_info_topic is None and (args.intrinsics is None) == (args.hfov is None):
-            raise ConfigError("--bag needs --camera-info-topic T, or exactly one of --intrinsics FX FY CX CY and "
-                              "--hfov DEG")
+            raise ConfigError(
+                "--bag needs --camera-info-topic T, or exactly one of --intrinsics FX FY CX CY and --hfov DEG"
+            )
         if args.hfov is not None and not 0 < args.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {args.hfov}")
         check_namespace(args.out_namespace)
@@ -60,11 +77,19 @@ def open_bag(args: argparse.Namespace, size=None):
     absolute poses for the output bag and the recording)."""
     check_args(args)
     flight = open_bag_flight(
-        args.bag, args.image_topic, args.pose_topic, camera_info_topic=args.camera_info_topic,
-        intrinsics=args.intrinsics, fov=args.hfov, convention=args.convention or DEFAULT_BAG_CONVENTION,
-        frame_skip=args.frame_skip, skip_unposed=args.skip_unposed,
+        args.bag,
+        args.image_topic,
+        args.pose_topic,
+        camera_info_topic=args.camera_info_topic,
+        intrinsics=args.intrinsics,
+        fov=args.hfov,
+        convention=args.convention or DEFAULT_BAG_CONVENTION,
+        frame_skip=args.frame_skip,
+        skip_unposed=args.skip_unposed,
         max_pose_gap=DEFAULT_MAX_POSE_GAP if args.max_pose_gap is None else args.max_pose_gap,
-        ignore_distortion=args.ignore_distortion, size=size, jpeg_idct=args.jpeg_idct,
+        ignore_distortion=args.ignore_distortion,
+        size=size,
+        jpeg_idct=args.jpeg_idct,
     )
     dataset = flight.dataset
     dataset.bag_flight = flight
@@ -79,6 +104,7 @@ def make_sinks(args: argparse.Namespace, dataset, model, *, bag_output: bool = T
     flight = getattr(dataset, "bag_flight", None)
     sinks = []
     if flight is not None and bag_output:
+
         def header(index: int) -> tuple[int, str]:
             row = flight.row(index)
             return int(flight.index.stamps[row]), flight.index.frame_ids[row]
@@ -86,8 +112,16 @@ def make_sinks(args: argparse.Namespace, dataset, model, *, bag_output: bool = T
         sinks.append(BagWriter(header, flight.intrinsics.tolist(), palette, args.out_namespace))
     if getattr(args, "rerun", None) is not None:
         to_world = (lambda i: flight.camera_to_world(flight.row(i))) if flight is not None else None
-        sinks.append(RerunWriter(args.rerun, dataset, class_names=names, palette=palette, camera_to_world=to_world,
-                                 command=getattr(args, "command", None) or "view"))
+        sinks.append(
+            RerunWriter(
+                args.rerun,
+                dataset,
+                class_names=names,
+                palette=palette,
+                camera_to_world=to_world,
+                command=getattr(args, "command", None) or "view",
+            )
+        )
     return tuple(sinks)
 
 

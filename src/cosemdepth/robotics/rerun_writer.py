@@ -96,8 +96,9 @@ def check_recording_written(tmp: Path, path: Path) -> None:
             warnings.simplefilter("ignore")
             RrdReader(str(tmp)).recordings()
     except Exception as e:  # noqa: BLE001 - whatever the reader says, the file is not a whole recording
-        raise OSError(errno.EIO, f"the recording does not read back ({str(e).splitlines()[0][:200]})",
-                      str(path)) from None
+        raise OSError(
+            errno.EIO, f"the recording does not read back ({str(e).splitlines()[0][:200]})", str(path)
+        ) from None
 
 
 def _chain(r_prev: np.ndarray, p_prev: np.ndarray, q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -118,9 +119,16 @@ class RerunWriter:
         command: the command writing it (recorded with the file's checksum in its folder's output marker).
     """
 
-    def __init__(self, path: str | Path, dataset, *, class_names=None, palette=None,
-                 camera_to_world: Callable[[int], tuple[np.ndarray, np.ndarray]] | None = None,
-                 command: str = "view") -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        dataset,
+        *,
+        class_names=None,
+        palette=None,
+        camera_to_world: Callable[[int], tuple[np.ndarray, np.ndarray]] | None = None,
+        command: str = "view",
+    ) -> None:
         self.rr = require_rerun()
         self.path = Path(path)
         self.command = command
@@ -145,8 +153,13 @@ class RerunWriter:
         up = rr.ViewCoordinates.RIGHT_HAND_Z_UP if self.camera_to_world else rr.ViewCoordinates.RDF
         rec.log("world", up, static=True)
         if self.palette is not None:
-            rec.log("world", rr.AnnotationContext(
-                [(i, name, tuple(int(c) for c in self.palette[i])) for i, name in enumerate(self.names)]), static=True)
+            rec.log(
+                "world",
+                rr.AnnotationContext(
+                    [(i, name, tuple(int(c) for c in self.palette[i])) for i, name in enumerate(self.names)]
+                ),
+                static=True,
+            )
 
     def _camera(self, index: int, traj: Any, row: int) -> tuple[np.ndarray, np.ndarray]:
         if self.camera_to_world is not None:
@@ -167,9 +180,16 @@ class RerunWriter:
                 self._paths.append([])
                 h, w = batch.rgb.shape[-2:]
                 fx, fy, cx, cy = (float(v) for v in batch.intrinsics[b])
-                rec.log("world/camera/image", rr.Pinhole(focal_length=[fx, fy], principal_point=[cx, cy],
-                                                         resolution=[int(w), int(h)],
-                                                         camera_xyz=rr.ViewCoordinates.RDF), static=True)
+                rec.log(
+                    "world/camera/image",
+                    rr.Pinhole(
+                        focal_length=[fx, fy],
+                        principal_point=[cx, cy],
+                        resolution=[int(w), int(h)],
+                        camera_xyz=rr.ViewCoordinates.RDF,
+                    ),
+                    static=True,
+                )
             self._pose = (r, p)
             self._paths[-1].append([float(v) for v in p])
             rec.set_time("frame", sequence=self.frames)
@@ -185,8 +205,9 @@ class RerunWriter:
                     depth = np.where(batch.valid[b, 0].cpu().numpy(), depth, np.float32(0.0))
                 rec.log("world/camera/image/depth", rr.DepthImage(depth, meter=1.0))
             if batch.labels is not None:
-                rec.log("world/camera/image/labels",
-                        rr.SegmentationImage(batch.labels[b].cpu().numpy().astype(np.uint8)))
+                rec.log(
+                    "world/camera/image/labels", rr.SegmentationImage(batch.labels[b].cpu().numpy().astype(np.uint8))
+                )
             if not bool(batch.reset[b]):
                 if batch.gt_depth is not None and batch.depth is not None:
                     m = depth_metrics(batch.gt_depth[b, 0].float().cpu(), batch.depth[b, 0].float().cpu())
@@ -208,8 +229,9 @@ class RerunWriter:
         except Exception as e:  # noqa: BLE001 - rerun's writer thread died (its errors carry no errno)
             self._rec = None
             check_recording_written(self._tmp, self.path)  # a full disk says so
-            raise OSError(errno.EIO, f"rerun could not finish the recording ({str(e).splitlines()[0][:200]})",
-                          str(self.path)) from None
+            raise OSError(
+                errno.EIO, f"rerun could not finish the recording ({str(e).splitlines()[0][:200]})", str(self.path)
+            ) from None
         self._rec = None
         check_recording_written(self._tmp, self.path)
         os.chmod(self._tmp, _default_mode())  # as every other output (mkstemp creates 0600)
@@ -242,4 +264,11 @@ def label_metrics(gt: np.ndarray, pred: np.ndarray) -> dict[str, float]:
     return {"pixel_accuracy": float(np.mean(gt == pred)), "miou": float(np.mean(ious)) if ious else 0.0}
 
 
-__all__ = ["APPLICATION_ID", "RerunWriter", "check_recording_written", "check_rrd_path", "label_metrics", "require_rerun"]
+__all__ = [
+    "APPLICATION_ID",
+    "RerunWriter",
+    "check_recording_written",
+    "check_rrd_path",
+    "label_metrics",
+    "require_rerun",
+]

@@ -21,14 +21,13 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from ..errors import DatasetError
-from ..optional import require
 from ..data.decode import DEFAULT_JPEG_IDCT, decode_rgb
 from ..data.poses import interpolate_pose
+from ..errors import DatasetError
+from ..optional import require
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
-POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped",
-              "nav_msgs/msg/Odometry")
+POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped", "nav_msgs/msg/Odometry")
 CAMERA_INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
 #: Raw image encodings read (16-bit ones keep every bit: uint16, scaled to 0..1 by ``value / 65535`` as 16-bit
 #: PNGs are).
@@ -99,7 +98,9 @@ class Bag:
             raise DatasetError(f"{self.path}: no topic {topic!r} ({option}); topics in the bag: {have}")
         bad = [c.msgtype for c in conns if c.msgtype not in types]
         if bad:
-            raise DatasetError(f"{self.path}: topic {topic} ({option}) holds {bad[0]}; expected one of {', '.join(types)}")
+            raise DatasetError(
+                f"{self.path}: topic {topic} ({option}) holds {bad[0]}; expected one of {', '.join(types)}"
+            )
         return conns
 
     def messages(self, conns: list) -> Iterator[tuple[str, Any]]:
@@ -109,7 +110,9 @@ class Bag:
                 try:
                     msg = self._reader.deserialize(raw, conn.msgtype)
                 except Exception as e:
-                    raise DatasetError(f"{self.path}: topic {conn.topic}: cannot decode a message ({_reason(e)})") from None
+                    raise DatasetError(
+                        f"{self.path}: topic {conn.topic}: cannot decode a message ({_reason(e)})"
+                    ) from None
                 yield conn.msgtype, msg
         except DatasetError:
             raise
@@ -133,8 +136,10 @@ def image_to_rgb(msgtype: str, msg: Any, where: str, jpeg_idct: str = DEFAULT_JP
         return decode_rgb(bytes(msg.data), f"{where}: compressed image ({msg.format or 'no format'})", jpeg_idct)
     enc = str(msg.encoding).lower()
     if enc not in IMAGE_ENCODINGS:
-        raise DatasetError(f"{where}: image encoding {msg.encoding!r} is not supported; use one of "
-                           f"{', '.join(IMAGE_ENCODINGS)} (or a CompressedImage topic)")
+        raise DatasetError(
+            f"{where}: image encoding {msg.encoding!r} is not supported; use one of "
+            f"{', '.join(IMAGE_ENCODINGS)} (or a CompressedImage topic)"
+        )
     h, w, row_bytes = int(msg.height), int(msg.width), int(msg.step)  # Image.step: bytes per row
     channels = 1 if enc.startswith("mono") else (4 if enc.endswith("a8") else 3)
     itemsize = 2 if enc.endswith("16") else 1
@@ -188,7 +193,9 @@ def camera_info_intrinsics(msg: Any, where: str, ignore_distortion: bool = False
             f"{[round(float(v), 6) for v in d]}); the model needs rectified images: use the image_rect topic, "
             "or pass --ignore-distortion to use K as if the images were undistorted"
         )
-    return CameraInfo((int(msg.height), int(msg.width)), (float(k[0]), float(k[4]), float(k[2]) + 0.5, float(k[5]) + 0.5))
+    return CameraInfo(
+        (int(msg.height), int(msg.width)), (float(k[0]), float(k[4]), float(k[2]) + 0.5, float(k[5]) + 0.5)
+    )
 
 
 # --------------------------------------------------------------------------------------- image <-> pose pairing
@@ -206,9 +213,15 @@ class PosedImage:
     quaternion: np.ndarray | None
 
 
-def pose_at_images(images: Iterable[tuple[int, int, str]], poses: Iterable[tuple[int, np.ndarray, np.ndarray]],
-                   max_gap_ns: int, *, skip_unposed: bool = False, where: str = "bag",
-                   pose_where: str = "poses") -> Iterator[PosedImage]:
+def pose_at_images(
+    images: Iterable[tuple[int, int, str]],
+    poses: Iterable[tuple[int, np.ndarray, np.ndarray]],
+    max_gap_ns: int,
+    *,
+    skip_unposed: bool = False,
+    where: str = "bag",
+    pose_where: str = "poses",
+) -> Iterator[PosedImage]:
     """Pair every image ``(index, stamp_ns, frame_id)`` with the pose at its stamp.
 
     Both streams must be sorted by stamp (strictly increasing; otherwise a DatasetError naming the stamp). The
@@ -226,14 +239,16 @@ def pose_at_images(images: Iterable[tuple[int, int, str]], poses: Iterable[tuple
         nonlocal prev, nxt
         new = next(it, None)
         if new is not None and new[0] <= nxt[0]:
-            raise DatasetError(f"{pose_where}: pose stamps must increase ({format_stamp(new[0])} follows "
-                               f"{format_stamp(nxt[0])})")
+            raise DatasetError(
+                f"{pose_where}: pose stamps must increase ({format_stamp(new[0])} follows {format_stamp(nxt[0])})"
+            )
         prev, nxt = nxt, new
 
     for index, t, frame_id in images:
         if last_image is not None and t <= last_image:
-            raise DatasetError(f"{where}: image stamps must increase ({format_stamp(t)} follows "
-                               f"{format_stamp(last_image)})")
+            raise DatasetError(
+                f"{where}: image stamps must increase ({format_stamp(t)} follows {format_stamp(last_image)})"
+            )
         if last_image is None and nxt is None:
             raise DatasetError(f"{pose_where}: holds no pose messages")
         last_image = t
@@ -268,6 +283,20 @@ def check_quaternion(q: np.ndarray, where: str, tol: float = 1e-2) -> np.ndarray
     return q / n
 
 
-__all__ = ["Bag", "CAMERA_INFO_TYPES", "CameraInfo", "IMAGE_ENCODINGS", "IMAGE_TYPES", "POSE_TYPES", "PosedImage",
-           "camera_info_intrinsics", "check_quaternion", "format_stamp", "image_to_rgb", "pose_at_images",
-           "pose_from_msg", "require_rosbags", "stamp_ns"]
+__all__ = [
+    "Bag",
+    "CAMERA_INFO_TYPES",
+    "CameraInfo",
+    "IMAGE_ENCODINGS",
+    "IMAGE_TYPES",
+    "POSE_TYPES",
+    "PosedImage",
+    "camera_info_intrinsics",
+    "check_quaternion",
+    "format_stamp",
+    "image_to_rgb",
+    "pose_at_images",
+    "pose_from_msg",
+    "require_rosbags",
+    "stamp_ns",
+]

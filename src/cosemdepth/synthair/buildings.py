@@ -15,8 +15,14 @@ from .terrain import CELL, GRID, PERIOD, ROAD_HALF_WIDTH, Terrain
 N_PLANES = 7
 
 WALL_COLOURS = np.array(
-    [(0.62, 0.60, 0.55), (0.60, 0.53, 0.44), (0.50, 0.29, 0.22), (0.46, 0.46, 0.45), (0.66, 0.63, 0.54),
-     (0.45, 0.37, 0.29)]
+    [
+        (0.62, 0.60, 0.55),
+        (0.60, 0.53, 0.44),
+        (0.50, 0.29, 0.22),
+        (0.46, 0.46, 0.45),
+        (0.66, 0.63, 0.54),
+        (0.45, 0.37, 0.29),
+    ]
 )
 ROOF_COLOURS = np.array(
     [(0.55, 0.22, 0.15), (0.30, 0.30, 0.32), (0.42, 0.30, 0.22), (0.62, 0.32, 0.20), (0.25, 0.27, 0.30)]
@@ -38,8 +44,18 @@ class Buildings:
         return len(self.planes)
 
 
-def _make_building(kind: str, cx: float, cy: float, yaw: float, length: float, width: float, wall: float,
-                   rise: float, ground_lo: float, ground_hi: float):
+def _make_building(
+    kind: str,
+    cx: float,
+    cy: float,
+    yaw: float,
+    length: float,
+    width: float,
+    wall: float,
+    rise: float,
+    ground_lo: float,
+    ground_hi: float,
+):
     a, b = length / 2, width / 2
     ux = np.array([np.cos(yaw), np.sin(yaw), 0.0])
     uy = np.array([-np.sin(yaw), np.cos(yaw), 0.0])
@@ -47,7 +63,11 @@ def _make_building(kind: str, cx: float, cy: float, yaw: float, length: float, w
     c = np.array([cx, cy, 0.0])
     z0, eave = ground_lo - 1.0, ground_hi + wall
     planes = [
-        (ux, ux @ c + a), (-ux, -ux @ c + a), (uy, uy @ c + b), (-uy, -uy @ c + b), (-up, -z0),
+        (ux, ux @ c + a),
+        (-ux, -ux @ c + a),
+        (uy, uy @ c + b),
+        (-uy, -uy @ c + b),
+        (-up, -z0),
     ]
     roof = [False] * 5
     if kind == "gable" and rise > 0:
@@ -63,9 +83,7 @@ def _make_building(kind: str, cx: float, cy: float, yaw: float, length: float, w
         roof += [True, True]
         top = eave
     arr = np.array([[*n, d] for n, d in planes])
-    corners = np.array(
-        [c + sx * a * ux + sy * b * uy + up * z for sx in (-1, 1) for sy in (-1, 1) for z in (z0, top)]
-    )
+    corners = np.array([c + sx * a * ux + sy * b * uy + up * z for sx in (-1, 1) for sy in (-1, 1) for z in (z0, top)])
     center = corners.mean(axis=0)
     radius = float(np.linalg.norm(corners - center, axis=1).max())
     return arr, np.array(roof), corners, center, radius, top
@@ -131,7 +149,9 @@ def build_buildings(rng: np.random.Generator, terrain: Terrain, villages: int = 
             setback = rng.uniform(14, 34)
             cx, cy = x - side * ty * setback, y + side * tx * setback
             yaw = np.arctan2(ty, tx) + (np.pi / 2 if rng.uniform() < 0.3 else 0.0) + rng.normal(0, 0.05)
-            kind = rng.choice(["house", "house", "house", "barn", "block", "shed", "tower"],)
+            kind = rng.choice(
+                ["house", "house", "house", "barn", "block", "shed", "tower"],
+            )
             placer.try_place(str(kind), cx, cy, yaw)
     for _ in range(farms):
         cx, cy = rng.uniform(0, PERIOD, 2)

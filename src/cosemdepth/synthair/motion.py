@@ -29,10 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
 from ..data.midair.splits import GT_PER_FRAME as SAMPLES_PER_FRAME  # ground-truth samples (100 Hz) per frame (25 Hz)
 from ..data.quaternion import qmul
+from ..errors import ConfigError
 from .trajectory import Flight, flight_from_poses
+
 #: Largest speed multiplier of ``fly*X`` and ``ramp*A-B`` (the base flights fly at 4-13 m/s).
 MAX_SPEED = 10.0
 #: Default turn of ``yaw:N`` (degrees).
@@ -125,8 +126,11 @@ def _parse_segment(part: str, spec: str) -> Segment:
         if kind == "yaw":
             deg = float(m["deg"]) if m["deg"] is not None else DEFAULT_YAW
             if abs(deg) > MAX_YAW_PER_FRAME * n:
-                raise _bad(part, spec, f"at most {MAX_YAW_PER_FRAME:g} degrees per frame ({n} frames: "
-                                       f"|DEG| <= {MAX_YAW_PER_FRAME * n:g})")
+                raise _bad(
+                    part,
+                    spec,
+                    f"at most {MAX_YAW_PER_FRAME:g} degrees per frame ({n} frames: |DEG| <= {MAX_YAW_PER_FRAME * n:g})",
+                )
             return Segment("yaw", n, (0.0, 0.0), deg)
         a, b = float(m["a"]), float(m["b"])
         if not (a <= MAX_SPEED and b <= MAX_SPEED):
@@ -139,8 +143,10 @@ def parse_motion(spec: str) -> MotionProfile:
     """Parse ``--motion SPEC`` (comma-separated segments, see the module docstring); a :class:`ConfigError` names
     the bad segment."""
     if not isinstance(spec, str) or not spec.strip():
-        raise ConfigError(f"--motion: empty motion profile {spec!r}; expected segments such as "
-                          f"'fly:40,hover:10,fly*0.5:30' ({GRAMMAR})")
+        raise ConfigError(
+            f"--motion: empty motion profile {spec!r}; expected segments such as "
+            f"'fly:40,hover:10,fly*0.5:30' ({GRAMMAR})"
+        )
     return MotionProfile(tuple(_parse_segment(p.strip(), spec) for p in spec.split(",")))
 
 
@@ -222,8 +228,9 @@ def _rotation2(angle: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])  # (north, east): heading atan2(east, north) grows by angle
 
 
-def turn_path(points: np.ndarray, tau: np.ndarray, base_xy: np.ndarray,
-              turns: tuple[tuple[float, float], ...]) -> np.ndarray:
+def turn_path(
+    points: np.ndarray, tau: np.ndarray, base_xy: np.ndarray, turns: tuple[tuple[float, float], ...]
+) -> np.ndarray:
     """Horizontal ``points [m, 2]`` of the base path at base times ``tau [m]`` -> where the turned path puts them.
 
     Turn ``k`` at ``tau_k`` rotates everything after it (``tau > tau_k``) by its angle about the vertical through

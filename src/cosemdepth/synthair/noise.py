@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def fractal_field(rng: np.random.Generator, n: int, spacing: float, beta: float, cutoff: float,
-                  upsample: int = 1) -> np.ndarray:
+def fractal_field(
+    rng: np.random.Generator, n: int, spacing: float, beta: float, cutoff: float, upsample: int = 1
+) -> np.ndarray:
     """Periodic fractal (1/f^beta amplitude spectrum) field by spectral synthesis.
 
     Args:

@@ -101,8 +101,9 @@ def build_object_tile(rng: np.random.Generator) -> ObjectTile:
                 return H * inside**0.8
             return H * np.sqrt(np.clip(1.0 - r * r, 0.0, 1.0)) ** 0.7
 
-        _rasterize(h[TREE], g[TREE], ident[TREE], top[TREE], x, y, radius * 1.15, profile,
-                   rng.uniform(), rng.uniform(), height)
+        _rasterize(
+            h[TREE], g[TREE], ident[TREE], top[TREE], x, y, radius * 1.15, profile, rng.uniform(), rng.uniform(), height
+        )
 
     # Boulders: irregular flattened domes, 0.6 to 3.2 m in radius, 7.3 m apart on average.
     px, py, nn = _jittered(rng, 35)
@@ -116,8 +117,19 @@ def build_object_tile(rng: np.random.Generator) -> ObjectTile:
             rr = np.hypot(di, dj) / (R * (1.0 + 0.16 * np.sin(3 * ang + a) + 0.08 * np.sin(5 * ang + b)))
             return np.maximum(H * (np.sqrt(np.clip(1.0 - rr * rr, 0.0, 1.0)) * 1.2 - 0.2), 0.0)
 
-        _rasterize(h[BOULDER], g[BOULDER], ident[BOULDER], top[BOULDER], x, y, radius * 1.3, profile,
-                   rng.uniform(), rng.uniform(), height)
+        _rasterize(
+            h[BOULDER],
+            g[BOULDER],
+            ident[BOULDER],
+            top[BOULDER],
+            x,
+            y,
+            radius * 1.3,
+            profile,
+            rng.uniform(),
+            rng.uniform(),
+            height,
+        )
 
     grad = np.stack(
         [

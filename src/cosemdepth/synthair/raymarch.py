@@ -217,9 +217,15 @@ _O, _OZ, _D, _INV, _STEP, _NUDGE_ROWS = slice(0, 2), 2, slice(3, 5), slice(5, 7)
 _DZ, _TLIM, _T, _LEV = 11, 12, 13, 14
 
 
-def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_limit: torch.Tensor,
-                      t_start: torch.Tensor | None = None, level_start: torch.Tensor | None = None,
-                      pixel_angle: float | None = None) -> torch.Tensor:
+def march_heightfield(
+    world: World,
+    origin: torch.Tensor,
+    d: torch.Tensor,
+    t_limit: torch.Tensor,
+    t_start: torch.Tensor | None = None,
+    level_start: torch.Tensor | None = None,
+    pixel_angle: float | None = None,
+) -> torch.Tensor:
     """First intersection of rays with the height field.
 
     Args:
@@ -242,8 +248,13 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
     # indexing operation and x/y work is a single [2, R] operation
     state = torch.cat(
         [
-            org, dxy, 1.0 / dxy, positive.float(), torch.where(positive, _NUDGE, -_NUDGE),
-            d[:, 2].reshape(1, -1), t_limit.reshape(1, -1).float(),
+            org,
+            dxy,
+            1.0 / dxy,
+            positive.float(),
+            torch.where(positive, _NUDGE, -_NUDGE),
+            d[:, 2].reshape(1, -1),
+            t_limit.reshape(1, -1).float(),
             torch.zeros(1, n_rays) if t_start is None else t_start.reshape(1, -1).float(),
             torch.full((1, n_rays), float(_START_LEVEL)) if level_start is None else level_start.reshape(1, -1),
         ]
@@ -299,8 +310,19 @@ def march_heightfield(world: World, origin: torch.Tensor, d: torch.Tensor, t_lim
             fs = state[:, f_idx]
             fc = cell[f_idx]
             lod = None if pixel_angle is None else Lod(fs[_O], float(pixel_angle))
-            lo, hi = _fine_test(world, fs[_O], fs[_OZ], fs[_D], fs[_DZ], fs[_T], te[f_idx], m[f_idx],
-                                world.env_min0[fc], world.env_objects[fc], lod)
+            lo, hi = _fine_test(
+                world,
+                fs[_O],
+                fs[_OZ],
+                fs[_D],
+                fs[_DZ],
+                fs[_T],
+                te[f_idx],
+                m[f_idx],
+                world.env_min0[fc],
+                world.env_objects[fc],
+                lod,
+            )
             got = torch.isfinite(hi)
             gi = f_idx[got]
             bracket[0, ids[gi]] = lo[got]
@@ -351,7 +373,7 @@ def _refine(world, org, d, bracket, pixel_angle):
         lod_m = None if lod is None else Lod(lod.camera_xy[:, mm], lod.pixel_angle)
         fe = (oz[mm] + ends * dz[mm]) - surface_height(world, o_xy[:, mm] + ends * dxy[:, mm], lod_m)
         f_lo[m] = torch.where(torch.isnan(f_lo[m]), fe[: m.numel()], f_lo[m])
-        f_hi[m] = torch.where(torch.isnan(f_hi[m]), fe[m.numel():], f_hi[m])
+        f_hi[m] = torch.where(torch.isnan(f_hi[m]), fe[m.numel() :], f_hi[m])
     both = (f_lo > 0) & (f_hi <= 0)
     frac = torch.where(both, f_lo / torch.where(both, f_lo - f_hi, torch.ones_like(f_lo)), torch.ones_like(lo))
     t_hit[h] = lo + (hi - lo) * frac.clamp(0.0, 1.0)

@@ -108,19 +108,34 @@ def optical_blur(rgb: torch.Tensor, side: float = OPTICAL_BLUR) -> torch.Tensor:
     return x.permute(0, 2, 3, 1)
 
 
-def render_frame(world: World, climate: Climate, attitude: np.ndarray, position: np.ndarray, height: int,
-                 width: int, supersample: int = 1) -> Frame:
+def render_frame(
+    world: World,
+    climate: Climate,
+    attitude: np.ndarray,
+    position: np.ndarray,
+    height: int,
+    width: int,
+    supersample: int = 1,
+) -> Frame:
     """Render the view of a camera with Mid-Air pose ``attitude`` (w, x, y, z; body -> NED) and ``position`` (NED).
 
     With ``supersample = s`` (odd), colour is the mean of ``s x s`` sub-pixel rays, while depth and labels come from
     the pixel-centre ray.
     """
-    return render_frames(world, climate, np.asarray(attitude)[None], np.asarray(position)[None], height, width,
-                         supersample)[0]
+    return render_frames(
+        world, climate, np.asarray(attitude)[None], np.asarray(position)[None], height, width, supersample
+    )[0]
 
 
-def render_frames(world: World, climate: Climate, attitudes: np.ndarray, positions: np.ndarray, height: int,
-                  width: int, supersample: int = 1) -> list[Frame]:
+def render_frames(
+    world: World,
+    climate: Climate,
+    attitudes: np.ndarray,
+    positions: np.ndarray,
+    height: int,
+    width: int,
+    supersample: int = 1,
+) -> list[Frame]:
     """Render several views at once (``attitudes [B, 4]``, ``positions [B, 3]``); the same result as rendering
     them one by one with :func:`render_frame`, with less overhead for small images."""
     if supersample < 1 or supersample % 2 == 0:
@@ -169,8 +184,7 @@ def render_frames(world: World, climate: Climate, attitudes: np.ndarray, positio
     hi = hit_h.nonzero().squeeze(1)
     if hi.numel():
         p = ray_org[hi] + flat_d[hi] * t_h[hi].unsqueeze(1)
-        c, lab = shade_heightfield(world, climate, p, flat_d[hi], t_h[hi], pixel_angle, ray_org[hi, :2].T,
-                                   lod_angle)
+        c, lab = shade_heightfield(world, climate, p, flat_d[hi], t_h[hi], pixel_angle, ray_org[hi, :2].T, lod_angle)
         rgb[hi] = c
         labels[hi] = lab
     bi = hit_b.nonzero().squeeze(1)

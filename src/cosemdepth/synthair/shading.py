@@ -54,8 +54,15 @@ def value_noise(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return (c[0] + (c[1] - c[0]) * a) * (1 - b) + (c[2] + (c[3] - c[2]) * a) * b
 
 
-def fbm(u: torch.Tensor, v: torch.Tensor, footprint: torch.Tensor, wavelength: float, octaves: int,
-        salt: int = 0, gain: float = 0.55) -> torch.Tensor:
+def fbm(
+    u: torch.Tensor,
+    v: torch.Tensor,
+    footprint: torch.Tensor,
+    wavelength: float,
+    octaves: int,
+    salt: int = 0,
+    gain: float = 0.55,
+) -> torch.Tensor:
     """Band-limited fractal noise of world coordinates ``(u, v)`` (metres); standard deviation about 0.5.
 
     Octave ``k`` has wavelength ``wavelength / 2**k`` and amplitude ``gain**k``; it fades out as the pixel ``footprint`` (metres) grows
@@ -173,8 +180,16 @@ def _lighting(climate: Climate, normal: torch.Tensor, direct_occ: torch.Tensor, 
     return _rgb(climate.sun_colour) * (ndl * direct_occ).unsqueeze(-1) + amb * ambient_occ.unsqueeze(-1)
 
 
-def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.Tensor, dist: torch.Tensor,
-                      pixel_angle: float, camera_xy: torch.Tensor | None = None, lod_angle: float | None = None):
+def shade_heightfield(
+    world: World,
+    climate: Climate,
+    p: torch.Tensor,
+    d: torch.Tensor,
+    dist: torch.Tensor,
+    pixel_angle: float,
+    camera_xy: torch.Tensor | None = None,
+    lod_angle: float | None = None,
+):
     # camera_xy: [2, R] (or [2, 1]) wrapped camera position of each hit, and lod_angle (default pixel_angle):
     # the level of detail of the geometry (raymarch.Lod)
     """Colour (linear, fog not applied) and Mid-Air label of height-field hits.
@@ -242,8 +257,9 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
     land = (~is_water).nonzero().squeeze(1)
     n_lo = torch.zeros(n)
     if land.numel():
-        ground[land], n_lo[land] = _ground_albedo(world, x[land], y[land], z[land], fp[land], tint[land], dirt[land],
-                                                  rock[land], road_d[land], fshade[land])
+        ground[land], n_lo[land] = _ground_albedo(
+            world, x[land], y[land], z[land], fp[land], tint[land], dirt[land], rock[land], road_d[land], fshade[land]
+        )
     albedo = ground.clone()
     ti = is_tree.nonzero().squeeze(1)
     if ti.numel():
@@ -275,8 +291,9 @@ def shade_heightfield(world: World, climate: Climate, p: torch.Tensor, d: torch.
         ground_lit = ground * _lighting(climate, n_terrain, 1.0 - 0.75 * fshade, 1.0 - 0.5 * fshade)
         tree_mean = _mix(_rgb((0.025, 0.06, 0.025)), _rgb((0.085, 0.14, 0.035)), torch.full_like(x, 0.5))
         tree_lit = tree_mean * _lighting(climate, n_terrain, torch.full_like(x, 0.8), torch.full_like(x, 0.7))
-        bould_lit = _rgb((0.20, 0.195, 0.185)) * _lighting(climate, n_terrain, torch.full_like(x, 0.85),
-                                                          torch.full_like(x, 0.8))
+        bould_lit = _rgb((0.20, 0.195, 0.185)) * _lighting(
+            climate, n_terrain, torch.full_like(x, 0.85), torch.full_like(x, 0.8)
+        )
         mean = ground_lit * (1.0 - cov_t - cov_b).unsqueeze(-1) + tree_lit * cov_t.unsqueeze(-1)
         mean = mean + bould_lit * cov_b.unsqueeze(-1)
         rgb = torch.where(is_water.unsqueeze(1), rgb, _mix(rgb, mean, far))
@@ -319,8 +336,11 @@ def _ground_albedo(world, x, y, z, fp, tint, dirt, rock, road_d, fshade):
     n_lo = fbm(x, y, fp, 48.0, 4, salt=1)
     n_mid = fbm(x, y, fp, 7.0, 3, salt=12)
     n_hi = fbm(x, y, fp, 2.0, 5, salt=2, gain=0.8)
-    grass = _mix(_rgb((0.05, 0.10, 0.028)), _rgb((0.17, 0.19, 0.055)),
-                 (0.5 + 0.45 * tint + 0.5 * n_lo + 0.45 * n_mid).clamp(0, 1))
+    grass = _mix(
+        _rgb((0.05, 0.10, 0.028)),
+        _rgb((0.17, 0.19, 0.055)),
+        (0.5 + 0.45 * tint + 0.5 * n_lo + 0.45 * n_mid).clamp(0, 1),
+    )
     grass = grass * _mod(0.35 * n_mid + 0.55 * n_hi)
     dirt_c = _mix(_rgb((0.15, 0.11, 0.07)), _rgb((0.29, 0.22, 0.14)), (0.5 + 0.6 * n_lo + 0.45 * n_mid).clamp(0, 1))
     dirt_c = dirt_c * _mod(0.3 * n_mid + 0.5 * n_hi)
@@ -328,8 +348,9 @@ def _ground_albedo(world, x, y, z, fp, tint, dirt, rock, road_d, fshade):
     rocky = (rock > 0.45).nonzero().squeeze(1)
     if rocky.numel():
         r = rocky
-        rock_c = _mix(_rgb((0.10, 0.095, 0.09)), _rgb((0.21, 0.20, 0.185)),
-                      (0.5 + 0.7 * n_lo[r] + 0.3 * n_mid[r]).clamp(0, 1))
+        rock_c = _mix(
+            _rgb((0.10, 0.095, 0.09)), _rgb((0.21, 0.20, 0.185)), (0.5 + 0.7 * n_lo[r] + 0.3 * n_mid[r]).clamp(0, 1)
+        )
         strata = fbm(x[r] * 0.15 + z[r] * 2.0, y[r] * 0.15 - z[r] * 2.0, fp[r] * 2.0, 2.0, 3, salt=3)
         rock_c = rock_c * _mod(0.45 * n_hi[r] + 0.25 * strata)
         ground[r] = _mix(ground[r], rock_c, ((rock[r] - 0.45) / 0.1).clamp(0, 1))
@@ -401,8 +422,16 @@ def _road_along(world: World, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return along
 
 
-def shade_buildings(world: World, climate: Climate, p: torch.Tensor, d: torch.Tensor, dist: torch.Tensor,
-                    building: torch.Tensor, plane: torch.Tensor, pixel_angle: float):
+def shade_buildings(
+    world: World,
+    climate: Climate,
+    p: torch.Tensor,
+    d: torch.Tensor,
+    dist: torch.Tensor,
+    building: torch.Tensor,
+    plane: torch.Tensor,
+    pixel_angle: float,
+):
     """Colour (linear, no fog) of building hits ``[R]``; walls have box-filtered windows."""
     b = world.buildings
     planes = torch.as_tensor(b.planes, dtype=torch.float32)

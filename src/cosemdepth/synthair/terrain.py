@@ -183,7 +183,8 @@ def build_terrain(rng: np.random.Generator) -> Terrain:
 
     rock_noise = fractal_field(rng, GRID, CELL, beta=1.9, cutoff=300.0, upsample=2)
     rock = np.clip(
-        smoothstep(0.55, 0.85, slope) + 0.6 * mountain_mask * smoothstep(0.0, 1.0, rock_noise)
+        smoothstep(0.55, 0.85, slope)
+        + 0.6 * mountain_mask * smoothstep(0.0, 1.0, rock_noise)
         + 0.3 * smoothstep(1.4, 2.2, rock_noise),
         0.0,
         1.0,

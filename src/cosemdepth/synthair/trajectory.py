@@ -159,8 +159,13 @@ def flight_from_poses(mode: str, attitude: np.ndarray, position: np.ndarray, alt
     return Flight(mode, attitude, position, velocity, acceleration, angular_velocity, altitude)
 
 
-def make_flight(world: World, rng: np.random.Generator, n_frames: int, mode: str,
-                ground_track: Callable[[np.ndarray], np.ndarray] | None = None) -> Flight:
+def make_flight(
+    world: World,
+    rng: np.random.Generator,
+    n_frames: int,
+    mode: str,
+    ground_track: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> Flight:
     """A flight of ``n_frames`` camera frames (25 Hz), i.e. ``4 n_frames`` ground-truth samples (100 Hz).
 
     ``ground_track`` maps the horizontal path ``[4 n_frames, 2]`` to the points the drone will actually fly over

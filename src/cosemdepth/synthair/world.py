@@ -12,8 +12,8 @@ import numpy as np
 import torch
 
 from .buildings import Buildings, build_buildings
-from .objects import TILE, TILE_PERIOD, ObjectTile, build_object_tile
 from .noise import blur_periodic_2d, max_filter_periodic
+from .objects import TILE, TILE_PERIOD, ObjectTile, build_object_tile
 from .terrain import CELL, GRID, PERIOD, Terrain, build_terrain, finish_forest_shade, gradient
 
 #: Coarsest level of the max pyramid (cells of CELL * 2**LEVELS metres).
@@ -75,8 +75,9 @@ def canopy_height(tree_density: np.ndarray) -> np.ndarray:
     return (CANOPY_HEIGHT * t * t * (3 - 2 * t)).astype(np.float32)
 
 
-def _envelopes(terrain: Terrain, tile: ObjectTile, height32: np.ndarray, dens_t: np.ndarray, dens_b: np.ndarray,
-               canopy: np.ndarray):
+def _envelopes(
+    terrain: Terrain, tile: ObjectTile, height32: np.ndarray, dens_t: np.ndarray, dens_b: np.ndarray, canopy: np.ndarray
+):
     w = np.float32(terrain.water_level)
     q_levels = tile.cell_envelope.shape[1]
     c = tile.cell_envelope.shape[2]
@@ -122,14 +123,32 @@ def build_world(seed: int) -> World:
     for sigma in NORMAL_SMOOTHING:
         smooth = terrain.height if sigma == 0 else blur_periodic_2d(terrain.height.astype(np.float64), sigma)
         grads.extend(gradient(smooth))
-    shade = np.stack(
-        [*grads, terrain.rock, terrain.dirt, terrain.forest_shade, terrain.tint,
-         np.minimum(terrain.road_distance, 1e4)]
-    ).astype(np.float32).reshape(len(grads) + 5, -1)
+    shade = (
+        np.stack(
+            [
+                *grads,
+                terrain.rock,
+                terrain.dirt,
+                terrain.forest_shade,
+                terrain.tint,
+                np.minimum(terrain.road_distance, 1e4),
+            ]
+        )
+        .astype(np.float32)
+        .reshape(len(grads) + 5, -1)
+    )
     tile_surf = np.stack([tile.height[0], tile.gate[0], tile.height[1], tile.gate[1]]).reshape(4, -1)
     tile_shade = np.stack(
-        [tile.grad[0, 0], tile.grad[0, 1], tile.grad[1, 0], tile.grad[1, 1], tile.ident[0], tile.ident[1],
-         tile.top[0], tile.top[1]]
+        [
+            tile.grad[0, 0],
+            tile.grad[0, 1],
+            tile.grad[1, 0],
+            tile.grad[1, 1],
+            tile.ident[0],
+            tile.ident[1],
+            tile.top[0],
+            tile.top[1],
+        ]
     ).reshape(8, -1)
     env, env_dil, envmin, env_obj, offsets, sizes, max_h = _envelopes(terrain, tile, h32, dt32, db32, canopy)
     return World(

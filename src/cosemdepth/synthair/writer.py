@@ -32,17 +32,17 @@ import torch
 from PIL import Image
 from tqdm import tqdm
 
-from ..errors import ConfigError
-from ..workers import check_workers
-from ..output_safety.atomic import atomic_path, atomic_write_bytes, atomic_write_text
-from ..output_safety.outdir import check_output_dir
-from ..models.config import MIDAIR_IMAGE_SIZE
 from ..data.midair import format as fmt
 from ..data.midair.splits import generate_splits
+from ..errors import ConfigError
+from ..models.config import MIDAIR_IMAGE_SIZE
+from ..output_safety.atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from ..output_safety.outdir import check_output_dir
+from ..workers import check_workers
 from .climate import CLIMATES, get_climate
-from .motion import MotionProfile, SAMPLES_PER_FRAME, parse_motion, timeline, warp_flight
+from .motion import SAMPLES_PER_FRAME, MotionProfile, parse_motion, timeline, warp_flight
 from .render import render_frames
-from .trajectory import Flight, MODES, make_flight
+from .trajectory import MODES, Flight, make_flight
 from .world import get_world
 
 #: How the disparity PNGs encode depth (recorded in synthair.json; a tree in another encoding is refused).
@@ -94,8 +94,10 @@ class SynthConfig:
         if self.frames is None:
             object.__setattr__(self, "frames", DEFAULT_FRAMES if profile is None else profile.frames)
         elif profile is not None and self.frames != profile.frames:
-            raise ConfigError(f"--frames {self.frames!r} does not match --motion {self.motion!r}, whose segments "
-                              f"add up to {profile.frames} frames (give one of them, or make them agree)")
+            raise ConfigError(
+                f"--frames {self.frames!r} does not match --motion {self.motion!r}, whose segments "
+                f"add up to {profile.frames} frames (give one of them, or make them agree)"
+            )
 
     @cached_property
     def motion_profile(self) -> MotionProfile | None:
@@ -107,8 +109,10 @@ class SynthConfig:
         if not isinstance(self.trajectories, int) or not 1 <= self.trajectories <= 1000:
             raise ConfigError(f"--trajectories must be in [1, 1000] (per climate), got {self.trajectories!r}")
         if not isinstance(self.frame_step, int) or not 1 <= self.frame_step <= MAX_FRAME_STEP:
-            raise ConfigError(f"--frame-step must be an integer in [1, {MAX_FRAME_STEP}] (25 Hz camera frames between "
-                              f"two CSV rows), got {self.frame_step!r}")
+            raise ConfigError(
+                f"--frame-step must be an integer in [1, {MAX_FRAME_STEP}] (25 Hz camera frames between "
+                f"two CSV rows), got {self.frame_step!r}"
+            )
         min_frames = 2 * self.frame_step
         if not isinstance(self.frames, int) or not min_frames <= self.frames <= MAX_FRAMES:
             raise ConfigError(
@@ -125,8 +129,9 @@ class SynthConfig:
         if len(set(self.climates)) != len(self.climates):
             raise ConfigError(f"--climates lists a climate twice: {list(self.climates)}")
         if self.supersample not in SUPERSAMPLES:
-            raise ConfigError(f"--supersample must be one of {', '.join(map(str, SUPERSAMPLES))}, got "
-                              f"{self.supersample!r}")
+            raise ConfigError(
+                f"--supersample must be one of {', '.join(map(str, SUPERSAMPLES))}, got {self.supersample!r}"
+            )
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError(f"--jpeg-quality must be in [1, 100], got {self.jpeg_quality!r}")
         check_workers(self.workers, minimum=1)
@@ -148,8 +153,15 @@ class SynthConfig:
             "supersample": self.supersample,
             "jpeg_quality": self.jpeg_quality,
             "splits": SPLITS_DIR,
-            "camera": {"width": self.size, "height": self.size, "fx": self.size / 2, "fy": self.size / 2,
-                       "cx": self.size / 2, "cy": self.size / 2, "rate_hz": fmt.CAMERA_RATE},
+            "camera": {
+                "width": self.size,
+                "height": self.size,
+                "fx": self.size / 2,
+                "fy": self.size / 2,
+                "cx": self.size / 2,
+                "cy": self.size / 2,
+                "rate_hz": fmt.CAMERA_RATE,
+            },
             "groundtruth_rate_hz": fmt.GROUNDTRUTH_RATE,
             "depth_encoding": DEPTH_ENCODING,
         }
@@ -186,8 +198,9 @@ def check_output_folder(cfg: SynthConfig) -> bool:
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a folder")
     # the output policy (cosemdepth.output_safety.outdir): a file in the way, a non-empty folder that is not a SynthAir dataset
-    check_output_dir(out, command="synth", mode="resume", what="--out folder",
-                     recognize=lambda p: (p / METADATA).is_file())
+    check_output_dir(
+        out, command="synth", mode="resume", what="--out folder", recognize=lambda p: (p / METADATA).is_file()
+    )
     if not out.exists() or not any(out.iterdir()):
         return False
     meta_path = out / METADATA
@@ -305,11 +318,13 @@ def _write_sensor_records(path: Path, flights: dict[int, PlannedFlight], frames:
                 traj = fmt.trajectory_dir(number)
                 g = h5.create_group(f"{traj}/groundtruth")
                 for name in ("attitude", "position", "velocity", "acceleration", "angular_velocity"):
-                    g.create_dataset(name, data=np.asarray(getattr(flight, name), dtype=np.float64),
-                                     track_times=False)
+                    g.create_dataset(name, data=np.asarray(getattr(flight, name), dtype=np.float64), track_times=False)
                 cam = h5.create_group(f"{traj}/camera_data")
-                for folder, ext in ((fmt.COLOR_DIR, fmt.COLOR_EXT), (fmt.DISPARITY_DIR, fmt.DISPARITY_EXT),
-                                    (fmt.SEGMENTATION_DIR, fmt.SEGMENTATION_EXT)):
+                for folder, ext in (
+                    (fmt.COLOR_DIR, fmt.COLOR_EXT),
+                    (fmt.DISPARITY_DIR, fmt.DISPARITY_EXT),
+                    (fmt.SEGMENTATION_DIR, fmt.SEGMENTATION_EXT),
+                ):
                     names = [f"{folder}/{traj}/{fmt.frame_name(k, ext)}".encode() for k in frames]
                     cam.create_dataset(folder, data=np.array(names, dtype="S"), track_times=False)
 
@@ -369,9 +384,16 @@ def generate(cfg: SynthConfig, progress: bool = True) -> dict:
             f = planned.flight
             for c in range(0, len(frames), bs):
                 ks = tuple(frames[c : c + bs])
-                tasks.append(_Task(climate, number, ks,
-                                   tuple(tuple(f.attitude[SAMPLES_PER_FRAME * k]) for k in ks),
-                                   tuple(tuple(f.position[SAMPLES_PER_FRAME * k]) for k in ks), planned.sun_azimuth))
+                tasks.append(
+                    _Task(
+                        climate,
+                        number,
+                        ks,
+                        tuple(tuple(f.attitude[SAMPLES_PER_FRAME * k]) for k in ks),
+                        tuple(tuple(f.position[SAMPLES_PER_FRAME * k]) for k in ks),
+                        planned.sun_azimuth,
+                    )
+                )
 
     _WORKER_STATE.update(cfg=cfg, world=world)
     written = 0

@@ -22,6 +22,22 @@ from .base import (
 from .depth import DEPTH
 from .semantic import SEMANTIC
 
-__all__ = ["DEPTH", "DecoderTask", "Frames", "MetricContext", "SEMANTIC", "TASKS", "TEST", "TaskMetrics",
-           "TaskWriter", "VALIDATION", "WriteOptions", "architecture_of", "class_count", "float32_levels", "register_task", "task",
-           "tasks_for"]
+__all__ = [
+    "DEPTH",
+    "DecoderTask",
+    "Frames",
+    "MetricContext",
+    "SEMANTIC",
+    "TASKS",
+    "TEST",
+    "TaskMetrics",
+    "TaskWriter",
+    "VALIDATION",
+    "WriteOptions",
+    "architecture_of",
+    "class_count",
+    "float32_levels",
+    "register_task",
+    "task",
+    "tasks_for",
+]

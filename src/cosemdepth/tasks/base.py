@@ -16,8 +16,8 @@ from typing import Any, Callable, Mapping, Optional, Sequence
 import numpy as np
 import torch
 
-from ..models.config import ARCHITECTURES, ModelConfig
 from ..errors import ConfigError
+from ..models.config import ARCHITECTURES, ModelConfig
 from ..models.pyramid import PyramidDecoder
 from ..models.registry import register_architecture, register_decoder
 
@@ -214,8 +214,10 @@ def task(name: str) -> DecoderTask:
     """The task of decoder ``name``; :class:`ConfigError` when the decoder has none."""
     found = TASKS.get(name)
     if found is None:
-        raise ConfigError(f"the {name!r} decoder has no task (loss, metrics, outputs): register it with "
-                          f"cosemdepth.tasks.register_task; decoders with one: {sorted(TASKS)}")
+        raise ConfigError(
+            f"the {name!r} decoder has no task (loss, metrics, outputs): register it with "
+            f"cosemdepth.tasks.register_task; decoders with one: {sorted(TASKS)}"
+        )
     return found
 
 
@@ -227,8 +229,9 @@ def tasks_for(config: ModelConfig) -> list[DecoderTask]:
 def class_count(config: ModelConfig) -> Optional[int]:
     """The classes ``config``'s decoders predict (the ``num_classes`` a task states in :meth:`DecoderTask.model_info`),
     None when none predicts classes: the palette and class names of the pictures and files."""
-    return next((info["num_classes"] for t in tasks_for(config) if (info := t.model_info(config)).get("num_classes")),
-                None)
+    return next(
+        (info["num_classes"] for t in tasks_for(config) if (info := t.model_info(config)).get("num_classes")), None
+    )
 
 
 def float32_levels(levels: Sequence[Tensor]) -> list[Tensor]:
@@ -243,5 +246,20 @@ def architecture_of(decoders: Sequence[str]) -> Optional[str]:
     return next((a for a, d in ARCHITECTURES.items() if set(d) == want), None)
 
 
-__all__ = ["DecoderTask", "Frames", "MetricContext", "TASKS", "TEST", "TaskMetrics", "TaskWriter",
-           "VALIDATION", "WriteOptions", "architecture_of", "class_count", "float32_levels", "register_task", "task", "tasks_for"]
+__all__ = [
+    "DecoderTask",
+    "Frames",
+    "MetricContext",
+    "TASKS",
+    "TEST",
+    "TaskMetrics",
+    "TaskWriter",
+    "VALIDATION",
+    "WriteOptions",
+    "architecture_of",
+    "class_count",
+    "float32_levels",
+    "register_task",
+    "task",
+    "tasks_for",
+]

@@ -10,15 +10,24 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from ..models.config import ModelConfig
 from ..evaluation.metrics import DepthMetrics, ValidDepthMetrics
 from ..evaluation.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png
+from ..models.config import ModelConfig
 from ..models.depth_decoder import DepthDecoder
 from ..models.outputs import ESTIMATED, RESET, STATUSES
 from ..training.losses import depth_loss
 from ..training.visual import depth_to_rgb
-from .base import (TEST, DecoderTask, Frames, MetricContext, TaskMetrics, TaskWriter, WriteOptions, float32_levels,
-                   register_task)
+from .base import (
+    TEST,
+    DecoderTask,
+    Frames,
+    MetricContext,
+    TaskMetrics,
+    TaskWriter,
+    WriteOptions,
+    float32_levels,
+    register_task,
+)
 
 
 def valid_mask(depth: np.ndarray, valid: np.ndarray | None, reset: bool) -> np.ndarray:
@@ -49,8 +58,11 @@ class DepthTaskMetrics(TaskMetrics):
         if not self.test:
             self.depth.update(gt, pred, include)
             return
-        no_depth = torch.tensor([st == RESET for st in frames.status], dtype=torch.bool, device=include.device) \
-            if frames.status else torch.zeros_like(include)
+        no_depth = (
+            torch.tensor([st == RESET for st in frames.status], dtype=torch.bool, device=include.device)
+            if frames.status
+            else torch.zeros_like(include)
+        )
         depth_include = include & ~no_depth if self.exclude_resets else include
         self.frames += int(depth_include.sum())
         self.depth.update(gt, pred, depth_include)
@@ -79,15 +91,23 @@ class DepthWriter(TaskWriter):
         mask = None if frames.valid is None else frames.valid[b, 0].detach().cpu().numpy().astype(bool)
         reset = bool(frames.reset[b])
         valid = valid_mask(depth, mask, reset)
-        files = {"depth": f"{rel}/depth/{stem}.npy", "depth_valid": f"{rel}/depth_valid/{stem}.png",
-                 "depth_png": f"{rel}/depth_png/{stem}.png"}
-        save_npy(folder / files["depth"], np.where(valid, depth, np.float32(np.nan)) if self.invalid == "nan" else depth)
+        files = {
+            "depth": f"{rel}/depth/{stem}.npy",
+            "depth_valid": f"{rel}/depth_valid/{stem}.png",
+            "depth_png": f"{rel}/depth_png/{stem}.png",
+        }
+        save_npy(
+            folder / files["depth"], np.where(valid, depth, np.float32(np.nan)) if self.invalid == "nan" else depth
+        )
         save_png(folder / files["depth_valid"], valid.astype(np.uint8) * np.uint8(255))
         save_png(folder / files["depth_png"], depth_to_png16(depth, valid))
         status = (frames.status[b] if b < len(frames.status) else "") or (RESET if reset else ESTIMATED)
         base = getattr(frames, "baseline", None)
-        record.update(status=status, baseline_m=None if base is None else round(float(base[b]), 6),
-                      valid_fraction=round(float(valid.mean()), 6))
+        record.update(
+            status=status,
+            baseline_m=None if base is None else round(float(base[b]), 6),
+            valid_fraction=round(float(valid.mean()), 6),
+        )
         self.statuses[status] = self.statuses.get(status, 0) + 1
         return files
 
@@ -108,8 +128,10 @@ class DepthTask(DecoderTask):
         return DepthTaskMetrics(context)
 
     def protocol_info(self, metrics: Optional[TaskMetrics]) -> dict[str, Any]:
-        return {"frames_by_status": None if metrics is None else metrics.statuses,
-                "depth_frames_evaluated": None if metrics is None else metrics.frames}
+        return {
+            "frames_by_status": None if metrics is None else metrics.statuses,
+            "depth_frames_evaluated": None if metrics is None else metrics.frames,
+        }
 
     def example(self, gt, pred, model: ModelConfig) -> dict[str, torch.Tensor]:
         out = {} if gt is None else {"depth": gt.cpu()}
@@ -117,17 +139,23 @@ class DepthTask(DecoderTask):
         return out
 
     def strip_panels(self, example, model: ModelConfig) -> list[np.ndarray]:
-        return [depth_to_rgb(d.reshape(d.shape[-2:])) for d in (example.get("depth"), example.get("pred_depth"))
-                if d is not None]
+        return [
+            depth_to_rgb(d.reshape(d.shape[-2:]))
+            for d in (example.get("depth"), example.get("pred_depth"))
+            if d is not None
+        ]
 
     def writer(self, options: WriteOptions) -> DepthWriter:
         return DepthWriter(options)
 
     def encodings(self, options: WriteOptions) -> dict[str, Any]:
         return {
-            "depth": "depth/*.npy: float32 [H, W], metres, the model output as is" + (
-                "; NaN where depth_valid is 0" if options.invalid == "nan" else
-                " (also where depth_valid is 0: use the mask)"),
+            "depth": "depth/*.npy: float32 [H, W], metres, the model output as is"
+            + (
+                "; NaN where depth_valid is 0"
+                if options.invalid == "nan"
+                else " (also where depth_valid is 0: use the mask)"
+            ),
             "depth_valid": "depth_valid/*.png: uint8, 255 where the depth is an estimate, 0 where it is not "
             "(a reset frame, a frame held without an earlier estimate, ill-conditioned geometry, depth <= 0)",
             "depth_png": f"depth_png/*.png: uint16 = round(depth_m * {DEPTH_PNG_SCALE:g}) saturated to "

@@ -11,17 +11,26 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from ..models.config import ModelConfig
 from ..errors import ConfigError
 from ..evaluation.classes import class_info, dataset_classes
 from ..evaluation.metrics import ConfusionMatrix
 from ..evaluation.temporal import TemporalConsistency
 from ..evaluation.visualize import colorize_labels, save_png
+from ..models.config import ModelConfig
 from ..models.semantic_decoder import SemanticDecoder
 from ..training.losses import semantic_loss
 from ..training.visual import labels_to_rgb
-from .base import TEST, DecoderTask, Frames, MetricContext, TaskMetrics, TaskWriter, WriteOptions, float32_levels, \
-    register_task
+from .base import (
+    TEST,
+    DecoderTask,
+    Frames,
+    MetricContext,
+    TaskMetrics,
+    TaskWriter,
+    WriteOptions,
+    float32_levels,
+    register_task,
+)
 
 
 def _labels(scores: torch.Tensor, like: torch.Tensor, num_classes: int) -> torch.Tensor:
@@ -51,12 +60,23 @@ class SemanticTaskMetrics(TaskMetrics):
         labels = _labels(frames.heads["semantic"], gt, self.matrix.num_classes)
         self.matrix.update(gt, labels, include)
         if self.temporal is not None:
-            self.temporal.update(frames.trajectory, frames.reset, gt, labels, frames.gt["depth"], frames.rot,
-                                 frames.trans, frames.intrinsics)
+            self.temporal.update(
+                frames.trajectory,
+                frames.reset,
+                gt,
+                labels,
+                frames.gt["depth"],
+                frames.rot,
+                frames.trans,
+                frames.intrinsics,
+            )
 
     def compute(self) -> dict[str, Any]:
-        return {"miou": self.matrix.miou(), "iou": [float(x) for x in self.matrix.iou()],
-                "semantic_frames": self.matrix.frames}
+        return {
+            "miou": self.matrix.miou(),
+            "iou": [float(x) for x in self.matrix.iou()],
+            "semantic_frames": self.matrix.frames,
+        }
 
     def report(self) -> dict[str, Any]:
         if not self.test:
@@ -89,8 +109,12 @@ class SemanticTask(DecoderTask):
 
     def loss(self, out, batch: Mapping[str, Any], train) -> torch.Tensor:
         scores = out.maps("semantic_logits" if train.semantic_from_logits else "semantic")
-        return semantic_loss(float32_levels(scores), batch["semantic"], from_logits=train.semantic_from_logits,
-                             class_weights=train.semantic_class_weights or None)
+        return semantic_loss(
+            float32_levels(scores),
+            batch["semantic"],
+            from_logits=train.semantic_from_logits,
+            class_weights=train.semantic_class_weights or None,
+        )
 
     def loss_weight(self, train) -> float:
         return train.semantic_weight
@@ -115,15 +139,20 @@ class SemanticTask(DecoderTask):
         return out
 
     def strip_panels(self, example, model: ModelConfig) -> list[np.ndarray]:
-        return [labels_to_rgb(lab.reshape(lab.shape[-2:]), model.num_classes)
-                for lab in (example.get("semantic"), example.get("pred_labels")) if lab is not None]
+        return [
+            labels_to_rgb(lab.reshape(lab.shape[-2:]), model.num_classes)
+            for lab in (example.get("semantic"), example.get("pred_labels"))
+            if lab is not None
+        ]
 
     def writer(self, options: WriteOptions) -> LabelsWriter:
         return LabelsWriter(options)
 
     def encodings(self, options: WriteOptions) -> dict[str, Any]:
-        return {"labels": "labels/*.png: uint8 class index (argmax of the probabilities)",
-                "labels_color": "labels_color/*.png: RGB, palette below"}
+        return {
+            "labels": "labels/*.png: uint8 class index (argmax of the probabilities)",
+            "labels_color": "labels_color/*.png: RGB, palette below",
+        }
 
 
 #: the semantic decoder's task, registered under the decoder name "semantic"

@@ -37,12 +37,12 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import torch
 
-from ..models.config import ModelConfig
+from ..checkpoints.model_io import read_model_files, save_weights
 from ..errors import CheckpointError
+from ..models.config import ModelConfig
+from ..operating_point import OperatingPoint
 from ..output_safety.atomic import _fsync_dir, atomic_write_bytes, atomic_write_text
 from ..output_safety.manifest import MANIFEST_FILE, MANIFEST_FORMAT, MANIFEST_VERSION, sha256_file, validate_manifest
-from ..checkpoints.model_io import read_model_files, save_weights
-from ..operating_point import OperatingPoint
 
 STATE_FILE = "trainer_state.json"
 OPTIMIZER_FILE = "optimizer.pt"
@@ -78,8 +78,13 @@ def _debug_delay() -> None:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def save_model_files(state_dict: Mapping[str, torch.Tensor], config: ModelConfig, folder: Path,
-                     source: Mapping[str, Any], operating_point: OperatingPoint | None = None) -> None:
+def save_model_files(
+    state_dict: Mapping[str, torch.Tensor],
+    config: ModelConfig,
+    folder: Path,
+    source: Mapping[str, Any],
+    operating_point: OperatingPoint | None = None,
+) -> None:
     """Write ``model.safetensors`` + ``config.json`` (with the run's ``operating_point``) into ``folder`` (our model
     format)."""
     save_weights(state_dict, config, folder, source=source, operating_point=operating_point)
@@ -102,8 +107,13 @@ def get_rng_state() -> dict[str, Any]:
     kind, keys, pos, has_gauss, cached = np.random.get_state()
     state = {
         "python": random.getstate(),
-        "numpy": {"kind": kind, "keys": torch.from_numpy(keys.astype("int64")), "pos": int(pos),
-                  "has_gauss": int(has_gauss), "cached_gaussian": float(cached)},
+        "numpy": {
+            "kind": kind,
+            "keys": torch.from_numpy(keys.astype("int64")),
+            "pos": int(pos),
+            "has_gauss": int(has_gauss),
+            "cached_gaussian": float(cached),
+        },
         "torch": torch.get_rng_state(),
     }
     if torch.cuda.is_available() and torch.cuda.is_initialized():
@@ -114,8 +124,7 @@ def get_rng_state() -> dict[str, Any]:
 def set_rng_state(state: Mapping[str, Any]) -> None:
     random.setstate(state["python"])
     n = state["numpy"]
-    np.random.set_state((n["kind"], n["keys"].numpy().astype("uint32"), n["pos"], n["has_gauss"],
-                         n["cached_gaussian"]))
+    np.random.set_state((n["kind"], n["keys"].numpy().astype("uint32"), n["pos"], n["has_gauss"], n["cached_gaussian"]))
     torch.set_rng_state(state["torch"])
     if "cuda" in state and torch.cuda.is_available():
         with contextlib.suppress(RuntimeError):
@@ -152,8 +161,9 @@ def validate_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     return validate_manifest(path, REQUIRED_FILES)
 
 
-def load_checkpoint(path: str | os.PathLike, device: str | torch.device = "cpu",
-                    validate: bool = True) -> LoadedCheckpoint:
+def load_checkpoint(
+    path: str | os.PathLike, device: str | torch.device = "cpu", validate: bool = True
+) -> LoadedCheckpoint:
     """Read a checkpoint folder (validated against its manifest first unless ``validate=False``)."""
     path = Path(path)
     if validate:
@@ -179,8 +189,7 @@ class CheckpointManager:
         log: ``log(kind, **fields)`` called for removals and invalid checkpoints (the run's event log).
     """
 
-    def __init__(self, folder: str | os.PathLike, keep_last: int = 5,
-                 log: Callable[..., None] | None = None) -> None:
+    def __init__(self, folder: str | os.PathLike, keep_last: int = 5, log: Callable[..., None] | None = None) -> None:
         self.folder = Path(folder)
         self.keep_last = int(keep_last)
         self.log = log or (lambda kind, **fields: None)
@@ -211,8 +220,7 @@ class CheckpointManager:
             try:
                 validate_checkpoint(path)
             except CheckpointError as e:
-                self.log("checkpoint_invalid", path=str(path), step=step, error=str(e),
-                         removed=remove_invalid)
+                self.log("checkpoint_invalid", path=str(path), step=step, error=str(e), removed=remove_invalid)
                 if remove_invalid:
                     self._remove(path)
                 continue
@@ -251,8 +259,13 @@ class CheckpointManager:
             files = {}
             for p in sorted(tmp.iterdir()):
                 files[p.name] = {"size": p.stat().st_size, "sha256": sha256_file(p)}
-            manifest = {"format": MANIFEST_FORMAT, "version": MANIFEST_VERSION, "step": step,
-                        "epoch": trainer_state.get("epoch"), "files": files}
+            manifest = {
+                "format": MANIFEST_FORMAT,
+                "version": MANIFEST_VERSION,
+                "step": step,
+                "epoch": trainer_state.get("epoch"),
+                "files": files,
+            }
             atomic_write_text(tmp / MANIFEST_FILE, json.dumps(manifest, indent=2) + "\n")
             _debug_delay()
             if final.exists():  # the same step written before (e.g. after a rollback): swap it out
@@ -265,8 +278,13 @@ class CheckpointManager:
             _fsync_dir(self.folder)
         except BaseException as e:
             shutil.rmtree(tmp, ignore_errors=True)
-            if isinstance(e, OSError) and e.errno is not None and e.filename is not None and e.filename2 is None \
-                    and Path(os.fsdecode(e.filename)).parent == tmp:  # name the file the user will look for
+            if (
+                isinstance(e, OSError)
+                and e.errno is not None
+                and e.filename is not None
+                and e.filename2 is None
+                and Path(os.fsdecode(e.filename)).parent == tmp
+            ):  # name the file the user will look for
                 raise OSError(e.errno, e.strerror, str(final / Path(os.fsdecode(e.filename)).name)) from None
             raise
         self.prune()
@@ -305,6 +323,15 @@ def _jsonable(x: Any) -> Any:
 
 
 __all__ = [
-    "CheckpointManager", "LoadedCheckpoint", "MANIFEST_FILE", "REQUIRED_FILES", "checkpoint_name", "get_rng_state",
-    "load_checkpoint", "read_model_state", "save_model_files", "set_rng_state", "validate_checkpoint",
+    "CheckpointManager",
+    "LoadedCheckpoint",
+    "MANIFEST_FILE",
+    "REQUIRED_FILES",
+    "checkpoint_name",
+    "get_rng_state",
+    "load_checkpoint",
+    "read_model_state",
+    "save_model_files",
+    "set_rng_state",
+    "validate_checkpoint",
 ]

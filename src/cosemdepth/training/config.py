@@ -123,13 +123,18 @@ class DataConfig:
             raise ConfigError(f"data.size must be an integer >= 8 or [H, W] of such integers, got {list(self.size)}")
         _check_augment(self.augment)
         _positive_int("data.seq_len", self.seq_len, minimum=2)
-        _positive_int("data.db_seq_len", self.db_seq_len, minimum=self.seq_len,
-                      why=f" (a chunk must hold a window of data.seq_len = {self.seq_len})")
+        _positive_int(
+            "data.db_seq_len",
+            self.db_seq_len,
+            minimum=self.seq_len,
+            why=f" (a chunk must hold a window of data.seq_len = {self.seq_len})",
+        )
         _positive_int("data.val_seq_len", self.val_seq_len)
         check_workers(self.num_workers, "data.num_workers")
         if self.train_decode not in TRAIN_DECODES:
-            raise ConfigError(f"data.train_decode must be one of {', '.join(map(repr, TRAIN_DECODES))}, got "
-                              f"{self.train_decode!r}")
+            raise ConfigError(
+                f"data.train_decode must be one of {', '.join(map(repr, TRAIN_DECODES))}, got {self.train_decode!r}"
+            )
         if self.mix_length is not None:
             _positive_int("data.mix_length", self.mix_length)
 
@@ -222,8 +227,9 @@ class TrainConfig:
         _positive_int("train.max_steps", self.max_steps, minimum=0)
         _positive_int("train.batch_size", self.batch_size)
         if self.optimizer not in typing.get_args(Optimizer):
-            raise ConfigError(f"train.optimizer must be {' or '.join(map(repr, typing.get_args(Optimizer)))}, got "
-                              f"{self.optimizer!r}")
+            raise ConfigError(
+                f"train.optimizer must be {' or '.join(map(repr, typing.get_args(Optimizer)))}, got {self.optimizer!r}"
+            )
         _positive_number("train.lr", self.lr)
         if len(self.betas) != 2 or not all(0.0 <= b < 1.0 for b in self.betas):
             raise ConfigError(f"train.betas must be two numbers in [0, 1), got {list(self.betas)}")
@@ -239,8 +245,10 @@ class TrainConfig:
         if self.semantic_class_weights and not any(self.semantic_class_weights):
             raise ConfigError("train.semantic_class_weights: at least one weight must be > 0, got all zeros")
         if self.init_weights and self.init_from:
-            raise ConfigError("train.init_weights and train.init_from: give one of them (init_from also takes "
-                              "weights of the run's own model)")
+            raise ConfigError(
+                "train.init_weights and train.init_from: give one of them (init_from also takes "
+                "weights of the run's own model)"
+            )
         if not self.device or not (self.device in ("auto", "cpu", "mps") or self.device.startswith("cuda")):
             raise ConfigError(f"train.device must be 'auto', 'cpu', 'cuda', 'cuda:N' or 'mps', got {self.device!r}")
         _positive_int("train.num_threads", self.num_threads, minimum=0)
@@ -268,8 +276,9 @@ class DebugConfig:
 
     def __post_init__(self) -> None:
         if any(s < 1 for s in self.inject_nonfinite_steps):
-            raise ConfigError(f"debug.inject_nonfinite_steps must be step numbers >= 1, got "
-                              f"{list(self.inject_nonfinite_steps)}")
+            raise ConfigError(
+                f"debug.inject_nonfinite_steps must be step numbers >= 1, got {list(self.inject_nonfinite_steps)}"
+            )
 
 
 @dataclass(frozen=True)
@@ -286,8 +295,10 @@ class RunConfig:
         if n and not self.model.has_semantic:
             raise ConfigError(f"train.semantic_class_weights: the {self.model.arch} model has no semantic decoder")
         if n and n != self.model.num_classes:
-            raise ConfigError(f"train.semantic_class_weights must hold one weight per class: {n} given for "
-                              f"model.num_classes = {self.model.num_classes}")
+            raise ConfigError(
+                f"train.semantic_class_weights must hold one weight per class: {n} given for "
+                f"model.num_classes = {self.model.num_classes}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -324,6 +335,7 @@ def _positive_number(key: str, value: Any, allow_zero: bool = False) -> None:
 # ---------------------------------------------------------------------------------------------------------------
 # Config files: YAML in, overrides on top, YAML out
 # ---------------------------------------------------------------------------------------------------------------
+
 
 def builtin_configs() -> list[str]:
     """Names of the configs shipped with the package (``midair``, ``synthair-small``...)."""
@@ -362,8 +374,9 @@ def load_config_dict(config: str | Path) -> dict[str, Any]:
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise ConfigError(f"{origin}: the top level must be a mapping with sections model/data/train/debug, "
-                          f"got {type(data).__name__}")
+        raise ConfigError(
+            f"{origin}: the top level must be a mapping with sections model/data/train/debug, got {type(data).__name__}"
+        )
     return data
 
 
@@ -442,6 +455,17 @@ def _plain(x: Any) -> Any:
 
 
 __all__ = [
-    "DataConfig", "DatasetSource", "DebugConfig", "Optimizer", "RunConfig", "TrainConfig", "apply_override",
-    "builtin_configs", "dump_config", "key_path", "load_config_dict", "resolve_config", "set_key",
+    "DataConfig",
+    "DatasetSource",
+    "DebugConfig",
+    "Optimizer",
+    "RunConfig",
+    "TrainConfig",
+    "apply_override",
+    "builtin_configs",
+    "dump_config",
+    "key_path",
+    "load_config_dict",
+    "resolve_config",
+    "set_key",
 ]

@@ -62,8 +62,10 @@ def open_source(
     spec = dataset_spec(src.name)
     if spec.needs_root:
         if src.root is None:
-            raise ConfigError(f"{key}.root: the folder of the {src.name!r} dataset is required (set it in the config "
-                              f"file, or with --data-root / --set {key_path(key)}.root=PATH)")
+            raise ConfigError(
+                f"{key}.root: the folder of the {src.name!r} dataset is required (set it in the config "
+                f"file, or with --data-root / --set {key_path(key)}.root=PATH)"
+            )
         root = Path(src.root)
         if not root.exists():
             raise DatasetError(f"{key}.root: dataset folder {root} not found")
@@ -75,16 +77,26 @@ def open_source(
     if spec.windows:  # (not for single images)
         kwargs.update(mode=mode, db_seq_len=db_seq_len)
     if "reduced_decode" in src.options:
-        raise ConfigError(f"{key}.options.reduced_decode: set data.train_decode instead (it applies to the training "
-                          "datasets only, never to validation)")
+        raise ConfigError(
+            f"{key}.options.reduced_decode: set data.train_decode instead (it applies to the training "
+            "datasets only, never to validation)"
+        )
     if spec.model_classes:
         kwargs.update(num_classes=num_classes)
     kwargs.update(src.options)
     if decode == "reduced" and "reduced_decode" in inspect.signature(spec.opener).parameters:
         kwargs["reduced_decode"] = True
     try:
-        return open_dataset(src.name, src.root, split_dir=src.split_dir, split=split, seq_len=seq_len, size=size,
-                            augment=augment, **kwargs)
+        return open_dataset(
+            src.name,
+            src.root,
+            split_dir=src.split_dir,
+            split=split,
+            seq_len=seq_len,
+            size=size,
+            augment=augment,
+            **kwargs,
+        )
     except (ConfigError, DatasetError) as e:
         where = f" at {src.root}" if src.root is not None else ""
         raise type(e)(f"{key} ({src.name}{where}, split {split!r}): {e}") from e
@@ -93,15 +105,27 @@ def open_source(
 def build_train_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Dataset:
     """The training dataset of a run: one dataset, or a weighted mix of the ``data.train`` datasets."""
     sets = [
-        open_source(src, f"data.train[{i}]", split=data.train_split, seq_len=data.seq_len, size=data.size,
-                    augment=data.augment, mode="train", db_seq_len=data.db_seq_len, seed=seed,
-                    num_classes=model.num_classes, decode=data.train_decode)
+        open_source(
+            src,
+            f"data.train[{i}]",
+            split=data.train_split,
+            seq_len=data.seq_len,
+            size=data.size,
+            augment=data.augment,
+            mode="train",
+            db_seq_len=data.db_seq_len,
+            seed=seed,
+            num_classes=model.num_classes,
+            decode=data.train_decode,
+        )
         for i, src in enumerate(data.train)
     ]
     for i, ds in enumerate(sets):
         if len(ds) == 0:
-            raise DatasetError(f"data.train[{i}] ({data.train[i].name}, split {data.train_split!r}) has no "
-                               f"training sequence of {data.seq_len} frames")
+            raise DatasetError(
+                f"data.train[{i}] ({data.train[i].name}, split {data.train_split!r}) has no "
+                f"training sequence of {data.seq_len} frames"
+            )
     if len(sets) == 1:
         return sets[0]
     weights = [src.weight for src in data.train]
@@ -114,11 +138,23 @@ def build_val_dataset(data: DataConfig, model: ModelConfig, seed: int) -> Datase
     if src is None:
         return None
     key = "data.val" if data.val is not None else "data.train[0] (validation)"
-    ds = open_source(src, key, split=data.val_split, seq_len=data.val_seq_len, size=data.size, augment=False,
-                     mode="windowed", db_seq_len=None, seed=seed, num_classes=model.num_classes)
+    ds = open_source(
+        src,
+        key,
+        split=data.val_split,
+        seq_len=data.val_seq_len,
+        size=data.size,
+        augment=False,
+        mode="windowed",
+        db_seq_len=None,
+        seed=seed,
+        num_classes=model.num_classes,
+    )
     if len(ds) == 0:
-        raise DatasetError(f"{key} ({src.name}, split {data.val_split!r}) has no validation window of "
-                           f"{data.val_seq_len} frames; set data.validate: false to train without validation")
+        raise DatasetError(
+            f"{key} ({src.name}, split {data.val_split!r}) has no validation window of "
+            f"{data.val_seq_len} frames; set data.validate: false to train without validation"
+        )
     return ds
 
 
@@ -137,9 +173,13 @@ def training_operating_point(dataset: Dataset, size: tuple[int, int], what: str 
     steps = getattr(dataset, "step_translations", None)
     norms = steps() if steps is not None else None
     motion = MotionStats.from_samples(norms) if norms is not None and len(norms) else None
-    return OperatingPoint((int(size[0]), int(size[1])), (fx, fy), motion,
-                          f"cosemdepth train: {what} at {size[0]}x{size[1]}"
-                          + (f", {motion.count} window steps" if motion is not None else ""))
+    return OperatingPoint(
+        (int(size[0]), int(size[1])),
+        (fx, fy),
+        motion,
+        f"cosemdepth train: {what} at {size[0]}x{size[1]}"
+        + (f", {motion.count} window steps" if motion is not None else ""),
+    )
 
 
 def check_modalities(dataset: Dataset, model: ModelConfig, what: str) -> None:
@@ -148,13 +188,16 @@ def check_modalities(dataset: Dataset, model: ModelConfig, what: str) -> None:
     item = dataset[0]
     missing = [t.gt_key for t in tasks_for(model) if t.ground_truth(item) is None]
     if model.needs_depth_input and "depth" not in model.decoders and item.get("depth") is None:
-        raise DatasetError(f"{what} has no depth ground truth, which the {model.arch} model with semantic_time 'gt' "
-                           "warps its previous labels with (choose a dataset with depth, or semantic_time 'off')")
+        raise DatasetError(
+            f"{what} has no depth ground truth, which the {model.arch} model with semantic_time 'gt' "
+            "warps its previous labels with (choose a dataset with depth, or semantic_time 'off')"
+        )
     if missing:
         others = [a for a, decoders in ARCHITECTURES.items() if not set(decoders) & set(missing)]
         hint = f"choose another dataset, or the {others[0]} model" if others else "choose another dataset"
-        raise DatasetError(f"{what} has no {' and no '.join(missing)} ground truth, which the {model.arch} model "
-                           f"needs ({hint})")
+        raise DatasetError(
+            f"{what} has no {' and no '.join(missing)} ground truth, which the {model.arch} model needs ({hint})"
+        )
 
 
 class ResumableSampler(DistributedSampler):
@@ -165,8 +208,9 @@ class ResumableSampler(DistributedSampler):
     first ``start`` of them are skipped.
     """
 
-    def __init__(self, dataset: Dataset, *, num_replicas: int = 1, rank: int = 0, shuffle: bool = True,
-                 seed: int = 0) -> None:
+    def __init__(
+        self, dataset: Dataset, *, num_replicas: int = 1, rank: int = 0, shuffle: bool = True, seed: int = 0
+    ) -> None:
         super().__init__(dataset, num_replicas=num_replicas, rank=rank, shuffle=shuffle, seed=seed, drop_last=True)
         self.base_seed = int(seed)
         self.start = 0
@@ -178,7 +222,7 @@ class ResumableSampler(DistributedSampler):
         self.start = int(start)
 
     def __iter__(self) -> Iterator[int]:
-        return iter(list(super().__iter__())[self.start:])
+        return iter(list(super().__iter__())[self.start :])
 
     def __len__(self) -> int:
         return max(0, self.num_samples - self.start)
@@ -195,8 +239,14 @@ def collate(items: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 
 def _loader(dataset: Dataset, num_workers: int, seed: int, pin_memory: bool, **kwargs) -> DataLoader:
     """A DataLoader with our collation and its worker seeds from ``seed`` (without touching the global RNG)."""
-    return DataLoader(dataset, num_workers=check_workers(num_workers, "data.num_workers"), collate_fn=collate, pin_memory=pin_memory,
-                      generator=torch.Generator().manual_seed(seed), **kwargs)
+    return DataLoader(
+        dataset,
+        num_workers=check_workers(num_workers, "data.num_workers"),
+        collate_fn=collate,
+        pin_memory=pin_memory,
+        generator=torch.Generator().manual_seed(seed),
+        **kwargs,
+    )
 
 
 def make_loader(dataset: Dataset, batch_size: int, num_workers: int, seed: int, pin_memory: bool = False) -> DataLoader:
@@ -212,8 +262,16 @@ class EpochBatchSampler(Sampler[list[tuple[int, int]]]):
     ``drop_last`` DataLoader of that epoch does). Stops after ``num_batches`` batches (None: never).
     """
 
-    def __init__(self, sampler: ResumableSampler, batch_size: int, *, epoch: int, start: int = 0, salt: int = 0,
-                 num_batches: int | None = None) -> None:
+    def __init__(
+        self,
+        sampler: ResumableSampler,
+        batch_size: int,
+        *,
+        epoch: int,
+        start: int = 0,
+        salt: int = 0,
+        num_batches: int | None = None,
+    ) -> None:
         if batch_size < 1:
             raise ValueError(f"batch_size must be positive, got {batch_size}")
         self.sampler = sampler
@@ -233,7 +291,7 @@ class EpochBatchSampler(Sampler[list[tuple[int, int]]]):
                 raise ValueError(f"epoch {epoch} has no full batch of {b} items ({len(order)} items for this rank)")
             take = full if left is None else min(full, left)
             for k in range(take):
-                yield [(epoch, i) for i in order[k * b:(k + 1) * b]]
+                yield [(epoch, i) for i in order[k * b : (k + 1) * b]]
             if left is not None:
                 left -= take
             epoch, start = epoch + 1, 0
@@ -261,13 +319,24 @@ class EpochItems(Dataset):
         return self.dataset[index]
 
 
-def make_train_stream(dataset: Dataset, sampler: ResumableSampler, batch_size: int, num_workers: int, *,
-                      epoch: int, start_batch: int, salt: int, num_batches: int | None, seed: int,
-                      pin_memory: bool = False) -> DataLoader:
+def make_train_stream(
+    dataset: Dataset,
+    sampler: ResumableSampler,
+    batch_size: int,
+    num_workers: int,
+    *,
+    epoch: int,
+    start_batch: int,
+    salt: int,
+    num_batches: int | None,
+    seed: int,
+    pin_memory: bool = False,
+) -> DataLoader:
     """The training batches from batch ``start_batch`` of ``epoch`` on, across epochs (see :class:`EpochBatchSampler`),
     ``num_batches`` of them; one iterator of it keeps its ``num_workers`` worker processes for the whole stream."""
-    batches = EpochBatchSampler(sampler, batch_size, epoch=epoch, start=start_batch * batch_size, salt=salt,
-                                num_batches=num_batches)
+    batches = EpochBatchSampler(
+        sampler, batch_size, epoch=epoch, start=start_batch * batch_size, salt=salt, num_batches=num_batches
+    )
     return _loader(EpochItems(dataset), num_workers, seed, pin_memory, batch_sampler=batches)
 
 
@@ -287,7 +356,19 @@ def total_steps(epochs: int, per_epoch: int, max_steps: int) -> int:
 
 
 __all__ = [
-    "SALT_STRIDE", "EpochBatchSampler", "EpochItems", "ResumableSampler", "build_train_dataset", "build_val_dataset",
-    "check_modalities", "collate", "make_loader", "make_train_stream", "open_source", "steps_per_epoch", "to_device",
-    "total_steps", "training_operating_point",
+    "SALT_STRIDE",
+    "EpochBatchSampler",
+    "EpochItems",
+    "ResumableSampler",
+    "build_train_dataset",
+    "build_val_dataset",
+    "check_modalities",
+    "collate",
+    "make_loader",
+    "make_train_stream",
+    "open_source",
+    "steps_per_epoch",
+    "to_device",
+    "total_steps",
+    "training_operating_point",
 ]

@@ -123,5 +123,4 @@ def on_main(fn: Callable[[], T], info: DistInfo) -> T:
     return result
 
 
-__all__ = ["DistInfo", "all_true", "barrier", "broadcast", "init_distributed", "mean_over_ranks", "on_main",
-           "shutdown"]
+__all__ = ["DistInfo", "all_true", "barrier", "broadcast", "init_distributed", "mean_over_ranks", "on_main", "shutdown"]

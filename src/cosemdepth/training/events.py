@@ -23,8 +23,19 @@ from tqdm import tqdm
 
 #: Kinds shown on the console (the others only go to the file).
 CONSOLE_KINDS = {
-    "start", "resume", "config_changed", "nonfinite_step", "rollback", "checkpoint", "checkpoint_deferred",
-    "checkpoint_invalid", "validation", "best", "epoch_end", "done", "error",
+    "start",
+    "resume",
+    "config_changed",
+    "nonfinite_step",
+    "rollback",
+    "checkpoint",
+    "checkpoint_deferred",
+    "checkpoint_invalid",
+    "validation",
+    "best",
+    "epoch_end",
+    "done",
+    "error",
 }
 
 
@@ -51,8 +62,13 @@ class EventLog:
         listeners: callables receiving each event dict after it was written (tests hook in here).
     """
 
-    def __init__(self, path: str | os.PathLike | None, console: bool = True,
-                 listeners: Iterable[Callable[[dict], None]] = (), console_kinds: Iterable[str] | None = None) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike | None,
+        console: bool = True,
+        listeners: Iterable[Callable[[dict], None]] = (),
+        console_kinds: Iterable[str] | None = None,
+    ) -> None:
         self.path = Path(path) if path is not None else None
         self.console = console
         self.console_kinds = set(CONSOLE_KINDS if console_kinds is None else console_kinds)

@@ -22,10 +22,10 @@ from typing import Mapping
 
 import torch
 
-from ..models.config import ModelConfig
-from ..errors import CheckpointError
 from ..checkpoints.convert import expected_param_shapes
 from ..checkpoints.model_io import read_weights
+from ..errors import CheckpointError
+from ..models.config import ModelConfig
 from ..models.semantic_decoder import semantic_refiner_inputs
 
 #: ModelConfig fields a transfer may change: they add decoders or append input channels to existing layers
@@ -53,12 +53,17 @@ class TransferPlan:
     def summary(self, prefix: str = "") -> dict:
         """``copied`` (a count), ``grown`` (``"name C_src->C_target"``), ``new`` and ``dropped`` (names), the keys
         prefixed with ``prefix`` (the ``start`` event's ``init_copied``, ...)."""
-        return {f"{prefix}copied": len(self.copied), f"{prefix}grown": [f"{k} {a}->{b}" for k, a, b in self.grown],
-                f"{prefix}new": list(self.new), f"{prefix}dropped": list(self.dropped)}
+        return {
+            f"{prefix}copied": len(self.copied),
+            f"{prefix}grown": [f"{k} {a}->{b}" for k, a, b in self.grown],
+            f"{prefix}new": list(self.new),
+            f"{prefix}dropped": list(self.dropped),
+        }
 
 
-def plan_transfer(source: Mapping[str, tuple[int, ...]], target: Mapping[str, tuple[int, ...]],
-                  origin: str = "source") -> TransferPlan:
+def plan_transfer(
+    source: Mapping[str, tuple[int, ...]], target: Mapping[str, tuple[int, ...]], origin: str = "source"
+) -> TransferPlan:
     """The :class:`TransferPlan` of source shapes into target shapes (name -> shape).
 
     Raises:
@@ -76,22 +81,27 @@ def plan_transfer(source: Mapping[str, tuple[int, ...]], target: Mapping[str, tu
             bad.append(f"{k} has shape {list(s)}, the target {list(t)}")
     if bad:
         more = f" ({len(bad)} in all)" if len(bad) > 3 else ""
-        raise CheckpointError(f"{origin}: the weights do not transfer: {'; '.join(bad[:3])}{more}; only a weight's "
-                              "input channels (dim 1) may grow")
-    return TransferPlan(tuple(copied), tuple(grown), tuple(sorted(set(target) - set(source))),
-                        tuple(sorted(set(source) - set(target))))
+        raise CheckpointError(
+            f"{origin}: the weights do not transfer: {'; '.join(bad[:3])}{more}; only a weight's "
+            "input channels (dim 1) may grow"
+        )
+    return TransferPlan(
+        tuple(copied), tuple(grown), tuple(sorted(set(target) - set(source))), tuple(sorted(set(source) - set(target)))
+    )
 
 
-def transfer_state_dict(source: Mapping[str, torch.Tensor], target: Mapping[str, torch.Tensor],
-                        origin: str = "source") -> tuple[dict[str, torch.Tensor], TransferPlan]:
+def transfer_state_dict(
+    source: Mapping[str, torch.Tensor], target: Mapping[str, torch.Tensor], origin: str = "source"
+) -> tuple[dict[str, torch.Tensor], TransferPlan]:
     """A full state dict for the target (its names, shapes and dtypes) from ``source``, and the plan it followed.
 
     Copied tensors and the leading input channels of grown weights take the source's values (cast to the target's
     dtype); the new input channels of a grown weight are zero; tensors the source lacks are the target's own
     (cloned). Raises :class:`CheckpointError` as :func:`plan_transfer`.
     """
-    plan = plan_transfer({k: tuple(v.shape) for k, v in source.items()},
-                         {k: tuple(v.shape) for k, v in target.items()}, origin)
+    plan = plan_transfer(
+        {k: tuple(v.shape) for k, v in source.items()}, {k: tuple(v.shape) for k, v in target.items()}, origin
+    )
     out = {k: target[k].detach().clone() for k in plan.new}
     for k in plan.copied:
         out[k] = source[k].detach().to(dtype=target[k].dtype, device=target[k].device).clone()
@@ -106,35 +116,49 @@ def check_transferable(source: ModelConfig, target: ModelConfig, origin: str = "
     """Raise :class:`CheckpointError` unless a model of ``target`` can start from one of ``source`` by
     :func:`transfer_state_dict`: every field but :data:`TRANSFERABLE_FIELDS` equal, and the semantic refiners'
     input blocks of the source the leading blocks of the target's (so the new channels are the last ones)."""
-    differ = [f"{f.name} {getattr(source, f.name)!r} (run: {getattr(target, f.name)!r})"
-              for f in dataclasses.fields(ModelConfig)
-              if f.name not in TRANSFERABLE_FIELDS and getattr(source, f.name) != getattr(target, f.name)]
+    differ = [
+        f"{f.name} {getattr(source, f.name)!r} (run: {getattr(target, f.name)!r})"
+        for f in dataclasses.fields(ModelConfig)
+        if f.name not in TRANSFERABLE_FIELDS and getattr(source, f.name) != getattr(target, f.name)
+    ]
     if differ:
-        raise CheckpointError(f"{origin}: the weights do not transfer: {', '.join(differ)}; only "
-                              f"{', '.join(TRANSFERABLE_FIELDS)} may differ")
+        raise CheckpointError(
+            f"{origin}: the weights do not transfer: {', '.join(differ)}; only "
+            f"{', '.join(TRANSFERABLE_FIELDS)} may differ"
+        )
     if source.has_semantic and target.has_semantic:
         src = [name for name, _ in semantic_refiner_inputs(0, source)]
         dst = [name for name, _ in semantic_refiner_inputs(0, target)]
         if dst[: len(src)] != src:
-            raise CheckpointError(f"{origin}: the weights do not transfer: the semantic refiners' inputs "
-                                  f"{', '.join(src)} are not the leading inputs of the run's "
-                                  f"({', '.join(dst)})")
+            raise CheckpointError(
+                f"{origin}: the weights do not transfer: the semantic refiners' inputs "
+                f"{', '.join(src)} are not the leading inputs of the run's "
+                f"({', '.join(dst)})"
+            )
 
 
-def read_transfer_source(path: str, model_config: ModelConfig, what: str = "train.init_from"
-                         ) -> tuple[dict[str, torch.Tensor], TransferPlan]:
+def read_transfer_source(
+    path: str, model_config: ModelConfig, what: str = "train.init_from"
+) -> tuple[dict[str, torch.Tensor], TransferPlan]:
     """The float32 state dict of the model at ``path`` and the plan of its transfer into a model of
     ``model_config``; every problem (unreadable weights, a config or a shape that does not transfer) is a
     :class:`CheckpointError` starting with ``what``."""
     try:
         state_dict, source_config, origin = read_weights(path)
         check_transferable(source_config, model_config, origin)
-        plan = plan_transfer({k: tuple(v.shape) for k, v in state_dict.items()}, expected_param_shapes(model_config),
-                             origin)
+        plan = plan_transfer(
+            {k: tuple(v.shape) for k, v in state_dict.items()}, expected_param_shapes(model_config), origin
+        )
     except CheckpointError as e:
         raise CheckpointError(f"{what}: {e}") from None
     return {k: v.float() if v.is_floating_point() else v for k, v in state_dict.items()}, plan
 
 
-__all__ = ["TRANSFERABLE_FIELDS", "TransferPlan", "check_transferable", "plan_transfer", "read_transfer_source",
-           "transfer_state_dict"]
+__all__ = [
+    "TRANSFERABLE_FIELDS",
+    "TransferPlan",
+    "check_transferable",
+    "plan_transfer",
+    "read_transfer_source",
+    "transfer_state_dict",
+]

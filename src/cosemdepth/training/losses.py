@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 import statistics
-
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -66,7 +65,9 @@ def depth_level_weights(levels: int) -> list[float]:
     return [0.64 / 2.0 ** (i - 1) for i in range(levels)]
 
 
-def log_depth(depth: torch.Tensor, min_depth: float = LOSS_MIN_DEPTH, max_depth: float = LOSS_MAX_DEPTH) -> torch.Tensor:
+def log_depth(
+    depth: torch.Tensor, min_depth: float = LOSS_MIN_DEPTH, max_depth: float = LOSS_MAX_DEPTH
+) -> torch.Tensor:
     """``log(clip(depth, min_depth, max_depth))`` (the loss's ``pre``); NaN passes through as in TF."""
     return torch.log(depth.clamp(min_depth, max_depth))
 
@@ -139,8 +140,9 @@ def depth_loss(
     log_gt = log_depth(gt, min_depth, max_depth).reshape(b * n_frames, 1, h, w)
     if mask is not None:
         if mask.shape != gt_depth.shape:
-            raise ValueError(f"depth_loss: mask must have the shape of gt_depth {list(gt_depth.shape)}, "
-                             f"got {list(mask.shape)}")
+            raise ValueError(
+                f"depth_loss: mask must have the shape of gt_depth {list(gt_depth.shape)}, got {list(mask.shape)}"
+            )
         m = mask[:, first_frame:].reshape(b * n_frames, 1, h, w).to(dtype)
         masked_log_gt = log_gt * m
 
@@ -203,23 +205,27 @@ def semantic_loss(
     _check_levels(pred_semantic, b, t, "semantic_loss", channels=None)
     n_classes = pred_semantic[0].shape[2]
     if any(p.shape[2] != n_classes for p in pred_semantic):
-        raise ValueError("semantic_loss: all levels must have the same number of classes, got "
-                         f"{[p.shape[2] for p in pred_semantic]}")
+        raise ValueError(
+            f"semantic_loss: all levels must have the same number of classes, got {[p.shape[2] for p in pred_semantic]}"
+        )
     weights = _weights(level_weights, [1.0] * len(pred_semantic), len(pred_semantic), "semantic_loss")
 
     labels = gt_labels[:, first_frame:].reshape(b * n_frames, 1, h, w).long()
     lo, hi = int(labels.min()), int(labels.max())
     if lo < 0 or hi >= n_classes:
-        raise ValueError(f"semantic_loss: labels must lie in [0, {n_classes - 1}] for {n_classes} classes, "
-                         f"found values in [{lo}, {hi}]")
+        raise ValueError(
+            f"semantic_loss: labels must lie in [0, {n_classes - 1}] for {n_classes} classes, "
+            f"found values in [{lo}, {hi}]"
+        )
 
     dtype = torch.promote_types(pred_semantic[0].dtype, torch.float32)
     class_w = None
     if class_weights is not None:
         class_w = torch.as_tensor(class_weights, dtype=dtype, device=labels.device).flatten()
         if class_w.numel() != n_classes or not bool(torch.isfinite(class_w).all()) or bool((class_w < 0).any()):
-            raise ValueError(f"semantic_loss: class_weights must be {n_classes} finite numbers >= 0, got "
-                             f"{class_w.tolist()}")
+            raise ValueError(
+                f"semantic_loss: class_weights must be {n_classes} finite numbers >= 0, got {class_w.tolist()}"
+            )
     total = labels.new_zeros((), dtype=dtype)
     for i, pred in enumerate(pred_semantic):
         size = tuple(pred.shape[-2:])
@@ -254,8 +260,10 @@ def median_frequency_weights(counts: Sequence[int], power: float = 0.5) -> list[
     """
     freq = torch.as_tensor(counts, dtype=torch.float64)
     if freq.dim() != 1 or freq.numel() == 0 or bool((freq < 0).any()) or float(freq.sum()) <= 0:
-        raise ValueError(f"median_frequency_weights: counts must be N >= 1 non-negative numbers with a positive sum, "
-                         f"got {freq.tolist()}")
+        raise ValueError(
+            f"median_frequency_weights: counts must be N >= 1 non-negative numbers with a positive sum, "
+            f"got {freq.tolist()}"
+        )
     if not (math.isfinite(power) and power >= 0):
         raise ValueError(f"median_frequency_weights: power must be a finite number >= 0, got {power}")
     freq = freq / freq.sum()
@@ -338,12 +346,25 @@ def total_loss(
     if has_depth:
         parts["depth"] = depth_loss(pred_depths, gt_depth, mask=depth_mask, first_frame=first_frame)
     if has_sem:
-        parts["semantic"] = semantic_loss(pred_semantic, gt_labels, from_logits=from_logits, first_frame=first_frame,
-                                          class_weights=class_weights)
+        parts["semantic"] = semantic_loss(
+            pred_semantic, gt_labels, from_logits=from_logits, first_frame=first_frame, class_weights=class_weights
+        )
     return weighted_total(parts, {"depth": 1.0, "semantic": semantic_weight})
 
+
 __all__ = [
-    "FIRST_SUPERVISED_FRAME", "LOSS_MAX_DEPTH", "LOSS_MIN_DEPTH", "LossTerms", "SCCE_EPSILON", "SEMANTIC_WEIGHT",
-    "depth_level_weights", "depth_loss", "log_depth", "median_frequency_weights", "sanitize_gt_depth", "semantic_loss",
-    "total_loss", "weighted_total",
+    "FIRST_SUPERVISED_FRAME",
+    "LOSS_MAX_DEPTH",
+    "LOSS_MIN_DEPTH",
+    "LossTerms",
+    "SCCE_EPSILON",
+    "SEMANTIC_WEIGHT",
+    "depth_level_weights",
+    "depth_loss",
+    "log_depth",
+    "median_frequency_weights",
+    "sanitize_gt_depth",
+    "semantic_loss",
+    "total_loss",
+    "weighted_total",
 ]

@@ -34,12 +34,20 @@ class KerasAdam(torch.optim.Optimizer):
     ops over all its parameters, instead of a Python loop of six ops per parameter; both give the same numbers
     (the same elementwise operations in the same order)."""
 
-    def __init__(self, params: Iterable, lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999),
-                 eps: float = 1e-7, weight_decay: float = 0.0, foreach: bool = True) -> None:
+    def __init__(
+        self,
+        params: Iterable,
+        lr: float = 1e-3,
+        betas: tuple[float, float] = (0.9, 0.999),
+        eps: float = 1e-7,
+        weight_decay: float = 0.0,
+        foreach: bool = True,
+    ) -> None:
         if not lr > 0 or not eps > 0 or weight_decay < 0 or not all(0.0 <= b < 1.0 for b in betas):
             raise ValueError(f"bad Adam settings lr={lr} betas={betas} eps={eps} weight_decay={weight_decay}")
-        super().__init__(params, dict(lr=lr, betas=tuple(betas), eps=eps, weight_decay=weight_decay,
-                                      foreach=bool(foreach)))
+        super().__init__(
+            params, dict(lr=lr, betas=tuple(betas), eps=eps, weight_decay=weight_decay, foreach=bool(foreach))
+        )
         #: Per-parameter buffers of the foreach update's denominator, kept between steps (not in the state dict):
         #: allocating all the denominators afresh every step (the model's size in float32 at once) costs page
         #: faults that made the update slower than the loop, whose per-parameter temporaries the allocator recycles.
@@ -70,8 +78,7 @@ class KerasAdam(torch.optim.Optimizer):
                 steps.append(state["step"])
             if params:
                 # (a group loaded from an older or a torch.optim.Adam state dict may lack "foreach" or hold None)
-                hyper = dict(lr=group["lr"], betas=group["betas"], eps=group["eps"],
-                             weight_decay=group["weight_decay"])
+                hyper = dict(lr=group["lr"], betas=group["betas"], eps=group["eps"], weight_decay=group["weight_decay"])
                 if group.get("foreach") is False:
                     _keras_adam_single(params, grads, ms, vs, steps, **hyper)
                 else:
@@ -85,7 +92,7 @@ class KerasAdam(torch.optim.Optimizer):
 
 def _alphas(steps: list[torch.Tensor], lr: float, b1: float, b2: float) -> list[float]:
     """Keras' step size ``lr * sqrt(1 - b2^t) / (1 - b1^t)`` of each parameter (after its step count's increment)."""
-    return [lr * math.sqrt(1 - b2 ** t) / (1 - b1 ** t) for t in (float(s) for s in steps)]
+    return [lr * math.sqrt(1 - b2**t) / (1 - b1**t) for t in (float(s) for s in steps)]
 
 
 def _keras_adam_single(params, grads, ms, vs, steps, *, lr, betas, eps, weight_decay) -> None:
@@ -117,8 +124,9 @@ def _keras_adam_foreach(params, grads, ms, vs, steps, denom, *, lr, betas, eps, 
     torch._foreach_addcdiv_(params, ms, denom, [-a for a in _alphas(steps, lr, b1, b2)])
 
 
-def make_optimizer(kind: str, params: Iterable, lr: float, betas: tuple[float, float], eps: float,
-                   weight_decay: float = 0.0) -> torch.optim.Optimizer:
+def make_optimizer(
+    kind: str, params: Iterable, lr: float, betas: tuple[float, float], eps: float, weight_decay: float = 0.0
+) -> torch.optim.Optimizer:
     """``"adam_keras"`` -> :class:`KerasAdam`; ``"adam_torch"`` -> ``torch.optim.Adam``."""
     if kind == "adam_keras":
         return KerasAdam(params, lr=lr, betas=betas, eps=eps, weight_decay=weight_decay)

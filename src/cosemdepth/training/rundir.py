@@ -20,15 +20,13 @@ from typing import Any, Mapping
 import torch
 import yaml
 
-from ..models.config import ModelConfig
-from .config import RunConfig
 from ..errors import ConfigError
-from ..output_safety.outdir import probe_writable
-from ..output_safety.atomic import _fsync_dir, atomic_write_text
-from ..output_safety.outdir import Input, check_not_input, check_not_other_input
+from ..models.config import ModelConfig
 from ..operating_point import OperatingPoint
+from ..output_safety.atomic import _fsync_dir, atomic_write_text
+from ..output_safety.outdir import Input, check_not_input, check_not_other_input, probe_writable
 from .checkpoint import _jsonable, save_model_files
-from .config import dump_config
+from .config import RunConfig, dump_config
 
 CONFIG_NAME = "config.yaml"
 EVENTS_NAME = "events.jsonl"
@@ -65,14 +63,18 @@ def check_output_dir(run_dir: str | os.PathLike, config: RunConfig | None = None
     check_not_other_input(p, command="train", what="--out run folder")  # no dataset, model... of another command
     if p.exists() or p.is_symlink():
         if not p.is_dir():
-            raise ConfigError(f"--out {p}: exists and is not a folder (the run folder must be a new or empty "
-                              "folder, or a previous run to resume)")
+            raise ConfigError(
+                f"--out {p}: exists and is not a folder (the run folder must be a new or empty "
+                "folder, or a previous run to resume)"
+            )
         if (p / CONFIG_NAME).is_file():
             _check_writable(p)
             return True
         if any(p.iterdir()):
-            raise ConfigError(f"--out {p}: the folder is not empty and is not a cosemdepth run (no {CONFIG_NAME}); "
-                              "choose a new or empty folder")
+            raise ConfigError(
+                f"--out {p}: the folder is not empty and is not a cosemdepth run (no {CONFIG_NAME}); "
+                "choose a new or empty folder"
+            )
         _check_writable(p)
         return False
     parent = p.absolute().parent
@@ -142,8 +144,10 @@ def compare_configs(saved: Mapping[str, Any], new: RunConfig, run_dir: Path) -> 
     old = RunConfig.from_dict(saved).to_dict()
     cur = new.to_dict()
     if old["model"] != cur["model"]:
-        raise ConfigError(f"--out {run_dir}: this run trains the model {old['model']}, but the config asks for "
-                          f"{cur['model']}; use a new --out folder for another model")
+        raise ConfigError(
+            f"--out {run_dir}: this run trains the model {old['model']}, but the config asks for "
+            f"{cur['model']}; use a new --out folder for another model"
+        )
     return [f"{k}: {o!r} -> {n!r}" for k, o, n in _diff(old, cur, "")]
 
 
@@ -155,9 +159,14 @@ def _diff(a: Any, b: Any, prefix: str):
         yield prefix, a, b
 
 
-def save_best(run_dir: str | os.PathLike, model_state: Mapping[str, torch.Tensor], model_config: ModelConfig,
-              metrics: Mapping[str, Any], source: Mapping[str, Any],
-              operating_point: OperatingPoint | None = None) -> Path:
+def save_best(
+    run_dir: str | os.PathLike,
+    model_state: Mapping[str, torch.Tensor],
+    model_config: ModelConfig,
+    metrics: Mapping[str, Any],
+    source: Mapping[str, Any],
+    operating_point: OperatingPoint | None = None,
+) -> Path:
     """Replace ``RUN_DIR/best`` by a new model folder (with ``metrics.json``, and the run's ``operating_point`` in
     its ``config.json``), atomically: the new folder is fully written under a temporary name, then swapped in.
     :func:`recover_best` repairs an interrupted swap."""
@@ -193,6 +202,16 @@ def recover_best(run_dir: str | os.PathLike) -> None:
 
 
 __all__ = [
-    "BEST_NAME", "CHECKPOINTS_NAME", "CONFIG_NAME", "EVENTS_NAME", "TENSORBOARD_NAME", "check_output_dir",
-    "compare_configs", "create_run_dir", "read_run_config", "recover_best", "remove_created", "save_best",
+    "BEST_NAME",
+    "CHECKPOINTS_NAME",
+    "CONFIG_NAME",
+    "EVENTS_NAME",
+    "TENSORBOARD_NAME",
+    "check_output_dir",
+    "compare_configs",
+    "create_run_dir",
+    "read_run_config",
+    "recover_best",
+    "remove_created",
+    "save_best",
 ]

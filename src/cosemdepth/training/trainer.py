@@ -45,20 +45,20 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
-from ..models.config import ModelConfig
-from .config import RunConfig
+from ..checkpoints.model_io import read_weights
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device, retain_freed_host_memory
 from ..errors import CheckpointError, ConfigError, CosemdepthError, DatasetError
 from ..evaluation.metrics import selection_rule
-from ..output_safety.atomic import atomic_write_text
-from ..checkpoints.model_io import read_weights
 from ..models import build_model
+from ..models.config import ModelConfig
 from ..models.footprint import check_size
 from ..ops.resample import resize_nn2
+from ..output_safety.atomic import atomic_write_text
 from ..tasks import tasks_for
 from . import distributed as D
 from .board import Board
 from .checkpoint import CheckpointManager, get_rng_state, load_checkpoint, set_rng_state
+from .config import RunConfig, dump_config
 from .data import (
     ResumableSampler,
     build_train_dataset,
@@ -75,7 +75,6 @@ from .events import CONSOLE_KINDS, EventLog
 from .init import read_transfer_source, transfer_state_dict
 from .losses import FIRST_SUPERVISED_FRAME, LossTerms, weighted_total
 from .optim import make_optimizer
-from .config import dump_config
 from .rundir import (
     BEST_METRICS_NAME,
     BEST_NAME,
@@ -163,8 +162,15 @@ def forward_batch(net: torch.nn.Module, batch: dict):
     frame on (the semantic decoder skips frame 0, which no loss term reads); a model whose semantic decoder warps with
     the ground-truth depth (``semantic_time="gt"``) is given the batch's depth."""
     guide = batch["depth"] if getattr(net, "module", net).config.needs_depth_input else None
-    return net(batch["rgb"], batch["rot"], batch["trans"], batch["intrinsics"], batch.get("reset"),
-               first_frame=FIRST_SUPERVISED_FRAME, guide_depth=guide)
+    return net(
+        batch["rgb"],
+        batch["rot"],
+        batch["trans"],
+        batch["intrinsics"],
+        batch.get("reset"),
+        first_frame=FIRST_SUPERVISED_FRAME,
+        guide_depth=guide,
+    )
 
 
 def bf16_supported(device: torch.device) -> bool:
@@ -204,9 +210,11 @@ def read_init_weights(path: str, model_config: ModelConfig) -> dict[str, torch.T
         state_dict, weights_config, origin = read_weights(path)
     except CheckpointError as e:
         raise CheckpointError(f"train.init_weights: {e}") from None
-    differ = [f"{f.name} {getattr(weights_config, f.name)!r} (run: {getattr(model_config, f.name)!r})"
-              for f in dataclasses.fields(ModelConfig)
-              if f.name != "pscv_dtype" and getattr(weights_config, f.name) != getattr(model_config, f.name)]
+    differ = [
+        f"{f.name} {getattr(weights_config, f.name)!r} (run: {getattr(model_config, f.name)!r})"
+        for f in dataclasses.fields(ModelConfig)
+        if f.name != "pscv_dtype" and getattr(weights_config, f.name) != getattr(model_config, f.name)
+    ]
     if differ:
         raise CheckpointError(f"train.init_weights: {origin}: the weights are of another model: {', '.join(differ)}")
     state_dict = {k: v.float() if v.is_floating_point() else v for k, v in state_dict.items()}
@@ -215,8 +223,9 @@ def read_init_weights(path: str, model_config: ModelConfig) -> dict[str, torch.T
     try:
         model.load_state_dict(state_dict, strict=True, assign=True)
     except RuntimeError as e:
-        raise CheckpointError(f"train.init_weights: {origin}: the weights do not fit the run's model "
-                              f"({str(e).splitlines()[0]})") from None
+        raise CheckpointError(
+            f"train.init_weights: {origin}: the weights do not fit the run's model ({str(e).splitlines()[0]})"
+        ) from None
     return state_dict
 
 
@@ -266,8 +275,15 @@ class Trainer:
         # the size against the memory here, before anything is read or written (an absurd data.size is one line)
         with torch.device("meta"):
             shapes_only = build_model(config.model)
-        check_size(shapes_only, *config.data.size, device=device, batch=tc.batch_size, frames=config.data.seq_len,
-                   training=True, what="data.size")
+        check_size(
+            shapes_only,
+            *config.data.size,
+            device=device,
+            batch=tc.batch_size,
+            frames=config.data.seq_len,
+            training=True,
+            what="data.size",
+        )
         # the run folder first (output policy): nothing is read or built for a run that cannot be written
         self.resuming = D.on_main(lambda: check_output_dir(self.run_dir, config), self.dist)
         if tc.num_threads:
@@ -276,26 +292,30 @@ class Trainer:
             # a step's activations reused from the heap, not faulted in afresh each step (docs/training.md)
             retain_freed_host_memory()
         # the weights a new run starts from, read now so that a bad path fails before anything is written
-        self._init_state = read_init_weights(tc.init_weights, config.model) if tc.init_weights and not \
-            self.resuming else None
+        self._init_state = (
+            read_init_weights(tc.init_weights, config.model) if tc.init_weights and not self.resuming else None
+        )
         #: ``train.init_from``: the source weights, read now for the same reason (the plan is made again at set-up)
-        self._init_source = read_transfer_source(tc.init_from, config.model)[0] if tc.init_from and not \
-            self.resuming else None
+        self._init_source = (
+            read_transfer_source(tc.init_from, config.model)[0] if tc.init_from and not self.resuming else None
+        )
 
-        self.train_set = train_dataset if train_dataset is not None else build_train_dataset(
-            config.data, config.model, tc.seed)
+        self.train_set = (
+            train_dataset if train_dataset is not None else build_train_dataset(config.data, config.model, tc.seed)
+        )
         check_modalities(self.train_set, config.model, "the training data")
         #: What every model folder the run writes records (config.json "operating_point").
         self.operating_point = training_operating_point(self.train_set, config.data.size)
-        self.val_set = val_dataset if val_dataset is not None else build_val_dataset(
-            config.data, config.model, tc.seed)
+        self.val_set = val_dataset if val_dataset is not None else build_val_dataset(config.data, config.model, tc.seed)
         if self.val_set is not None:
             check_modalities(self.val_set, config.model, "the validation data")
         self.steps_per_epoch = steps_per_epoch(self.train_set, tc.batch_size, self.dist.world_size)
         if self.steps_per_epoch == 0:
-            raise DatasetError(f"the training data has {len(self.train_set)} sequences, fewer than one batch of "
-                               f"train.batch_size = {tc.batch_size} per process ({self.dist.world_size} "
-                               "process(es)); lower the batch size or add data")
+            raise DatasetError(
+                f"the training data has {len(self.train_set)} sequences, fewer than one batch of "
+                f"train.batch_size = {tc.batch_size} per process ({self.dist.world_size} "
+                "process(es)); lower the batch size or add data"
+            )
         self.total_steps = total_steps(tc.epochs, self.steps_per_epoch, tc.max_steps)
         self.is_better = selection_rule(tc.best)
 
@@ -335,8 +355,9 @@ class Trainer:
         changes = D.on_main(prepare, dist)
         if main:
             kinds = set(CONSOLE_KINDS) | ({"train"} if not self._progress_bar_shown() else set())
-            self.events = EventLog(self.run_dir / EVENTS_NAME, console=self.console, listeners=self.listeners,
-                                   console_kinds=kinds)
+            self.events = EventLog(
+                self.run_dir / EVENTS_NAME, console=self.console, listeners=self.listeners, console_kinds=kinds
+            )
             self.events.open()
             if changes:
                 self.events("config_changed", changes=changes)
@@ -351,10 +372,12 @@ class Trainer:
         else:
             self.net = self.model
         t = cfg.train
-        self.optimizer = make_optimizer(t.optimizer, self.model.parameters(), lr=t.lr, betas=t.betas, eps=t.eps,
-                                        weight_decay=t.weight_decay)
-        self.sampler = ResumableSampler(self.train_set, num_replicas=dist.world_size, rank=dist.rank, shuffle=True,
-                                        seed=t.seed)
+        self.optimizer = make_optimizer(
+            t.optimizer, self.model.parameters(), lr=t.lr, betas=t.betas, eps=t.eps, weight_decay=t.weight_decay
+        )
+        self.sampler = ResumableSampler(
+            self.train_set, num_replicas=dist.world_size, rank=dist.rank, shuffle=True, seed=t.seed
+        )
 
         def find_checkpoint() -> str | None:
             self.ckpts.cleanup()
@@ -367,8 +390,14 @@ class Trainer:
             best = self._read_best()
             if best is not None:
                 self.state.best = best
-            self.events("resume", checkpoint=path, step=self.state.step, epoch=self.state.epoch,
-                        batch_in_epoch=self.state.batch_in_epoch, total_steps=self.total_steps)
+            self.events(
+                "resume",
+                checkpoint=path,
+                step=self.state.step,
+                epoch=self.state.epoch,
+                batch_in_epoch=self.state.batch_in_epoch,
+                total_steps=self.total_steps,
+            )
         else:
             if cfg.train.init_weights:
                 if self._init_state is None:  # a resumed folder without a valid checkpoint starts over
@@ -379,18 +408,27 @@ class Trainer:
             if cfg.train.init_from:
                 if self._init_source is None:
                     self._init_source = read_transfer_source(cfg.train.init_from, cfg.model)[0]
-                state, transfer = transfer_state_dict(self._init_source, self.model.state_dict(),
-                                                      f"train.init_from: {cfg.train.init_from}")
+                state, transfer = transfer_state_dict(
+                    self._init_source, self.model.state_dict(), f"train.init_from: {cfg.train.init_from}"
+                )
                 self.model.load_state_dict(state)
                 self._init_source = None
-            self.events("start", run_dir=str(self.run_dir), total_steps=self.total_steps,
-                        init_weights=cfg.train.init_weights or None, init_from=cfg.train.init_from or None,
-                        **({} if transfer is None else transfer.summary(prefix="init_")),
-                        steps_per_epoch=self.steps_per_epoch, world_size=dist.world_size, device=str(self.device),
-                        bf16_autocast=bf16_supported(self.device) and bool(cfg.train.bf16),
-                        num_parameters=self.model.num_parameters(), train_items=len(self.train_set),
-                        val_items=None if self.val_set is None else len(self.val_set),
-                        operating_point=self.operating_point.to_dict())
+            self.events(
+                "start",
+                run_dir=str(self.run_dir),
+                total_steps=self.total_steps,
+                init_weights=cfg.train.init_weights or None,
+                init_from=cfg.train.init_from or None,
+                **({} if transfer is None else transfer.summary(prefix="init_")),
+                steps_per_epoch=self.steps_per_epoch,
+                world_size=dist.world_size,
+                device=str(self.device),
+                bf16_autocast=bf16_supported(self.device) and bool(cfg.train.bf16),
+                num_parameters=self.model.num_parameters(),
+                train_items=len(self.train_set),
+                val_items=None if self.val_set is None else len(self.val_set),
+                operating_point=self.operating_point.to_dict(),
+            )
             self._save_checkpoint()
         if main:
             self.board = _make_board(self.run_dir / TENSORBOARD_NAME, self.state.step if path else None)
@@ -418,8 +456,13 @@ class Trainer:
     # ------------------------------------------------------------------------------------------------ checkpoints
     def _trainer_state(self) -> dict:
         d = asdict(self.state)
-        d.update(total_steps=self.total_steps, steps_per_epoch=self.steps_per_epoch,
-                 world_size=self.dist.world_size, batch_size=self.cfg.train.batch_size, saved_at=time.time())
+        d.update(
+            total_steps=self.total_steps,
+            steps_per_epoch=self.steps_per_epoch,
+            world_size=self.dist.world_size,
+            batch_size=self.cfg.train.batch_size,
+            saved_at=time.time(),
+        )
         return d
 
     def _save_checkpoint(self) -> None:
@@ -467,7 +510,8 @@ class Trainer:
         if self._rollbacks_since_good > self.cfg.train.max_rollbacks:
             raise TrainingDiverged(
                 f"step {bad_step}: {self.guard.streak} non-finite steps in a row again after "
-                f"{self.cfg.train.max_rollbacks} rollback(s) without progress; see {self.run_dir / EVENTS_NAME}")
+                f"{self.cfg.train.max_rollbacks} rollback(s) without progress; see {self.run_dir / EVENTS_NAME}"
+            )
         path = D.on_main(self._latest_valid_path, self.dist)
         if path is None:
             raise TrainingDiverged(f"step {bad_step}: non-finite steps and no valid checkpoint to roll back to")
@@ -480,8 +524,15 @@ class Trainer:
         streak = self.guard.streak
         self.guard.reset()
         self._pending_checkpoint = False
-        self.events("rollback", from_step=bad_step, to_step=self.state.step, checkpoint=path, streak=streak,
-                    rollbacks_without_progress=self._rollbacks_since_good, data_salt=self.state.data_salt)
+        self.events(
+            "rollback",
+            from_step=bad_step,
+            to_step=self.state.step,
+            checkpoint=path,
+            streak=streak,
+            rollbacks_without_progress=self._rollbacks_since_good,
+            data_salt=self.state.data_salt,
+        )
 
     # ------------------------------------------------------------------------------------------------ steps
     def _autocast(self):
@@ -519,9 +570,16 @@ class Trainer:
             self._acc_n += 1
         else:
             self.optimizer.zero_grad(set_to_none=True)
-            self.events("nonfinite_step", step=step, epoch=st.epoch, loss=float(loss.detach()),
-                        grad_norm=float(grad_norm), streak=self.guard.streak, action=verdict,
-                        injected=step in self._injected)
+            self.events(
+                "nonfinite_step",
+                step=step,
+                epoch=st.epoch,
+                loss=float(loss.detach()),
+                grad_norm=float(grad_norm),
+                streak=self.guard.streak,
+                action=verdict,
+                injected=step in self._injected,
+            )
         st.step = step
         st.batch_in_epoch += 1
         if finite and self._pending_checkpoint:
@@ -568,13 +626,16 @@ class Trainer:
         st = self.state
 
         def run() -> dict:
-            loader = make_loader(self.val_set, self.cfg.train.val_batch_size, self.cfg.data.num_workers,
-                                 seed=self.cfg.train.seed)
-            metrics, example = validate(self.model, loader, self.device, max_batches=self.cfg.train.val_max_batches,
-                                        autocast=self._autocast())
+            loader = make_loader(
+                self.val_set, self.cfg.train.val_batch_size, self.cfg.data.num_workers, seed=self.cfg.train.seed
+            )
+            metrics, example = validate(
+                self.model, loader, self.device, max_batches=self.cfg.train.val_max_batches, autocast=self._autocast()
+            )
             if self.board is not None and example is not None:
-                self.board.image("val/rgb_depth_true_pred_labels_true_pred", example_strip_of(example, self.cfg.model),
-                                 st.step)
+                self.board.image(
+                    "val/rgb_depth_true_pred_labels_true_pred", example_strip_of(example, self.cfg.model), st.step
+                )
             return metrics
 
         # Every rank validates (same weights, same data): no rank waits in a collective for the length of a
@@ -589,11 +650,17 @@ class Trainer:
         best = None if st.best is None else st.best.get("metrics")
         if self.is_better(metrics, best):
             if self.dist.is_main:
-                path = save_best(self.run_dir, self.model.state_dict(), self.cfg.model, metrics,
-                                 {"step": st.step, "epoch": st.epoch, "rule": self.cfg.train.best},
-                                 self.operating_point)
-                self.events("best", step=st.step, epoch=st.epoch, path=str(path), rule=self.cfg.train.best,
-                            metrics=metrics)
+                path = save_best(
+                    self.run_dir,
+                    self.model.state_dict(),
+                    self.cfg.model,
+                    metrics,
+                    {"step": st.step, "epoch": st.epoch, "rule": self.cfg.train.best},
+                    self.operating_point,
+                )
+                self.events(
+                    "best", step=st.step, epoch=st.epoch, path=str(path), rule=self.cfg.train.best, metrics=metrics
+                )
             D.barrier(self.dist)
             st.best = {"step": st.step, "metrics": metrics}
 
@@ -603,10 +670,20 @@ class Trainer:
         its worker processes live until the run ends or rolls back (no restart, and prefetching, at epoch ends)."""
         st, tc = self.state, self.cfg.train
         seed = (tc.seed * 1_000_003 + st.epoch) * 1_000_033 + st.data_salt
-        return iter(make_train_stream(self.train_set, self.sampler, tc.batch_size, self.cfg.data.num_workers,
-                                      epoch=st.epoch, start_batch=st.batch_in_epoch, salt=st.data_salt,
-                                      num_batches=self.total_steps - st.step, seed=seed,
-                                      pin_memory=self.device.type == "cuda"))
+        return iter(
+            make_train_stream(
+                self.train_set,
+                self.sampler,
+                tc.batch_size,
+                self.cfg.data.num_workers,
+                epoch=st.epoch,
+                start_batch=st.batch_in_epoch,
+                salt=st.data_salt,
+                num_batches=self.total_steps - st.step,
+                seed=seed,
+                pin_memory=self.device.type == "cuda",
+            )
+        )
 
     def fit(self) -> dict:
         """Train (or resume) until ``train.epochs`` epochs or ``train.max_steps`` steps; return a summary dict:
@@ -614,11 +691,20 @@ class Trainer:
         try:
             self._setup()
             self._loop()
-            summary = {"run_dir": str(self.run_dir), "step": self.state.step, "epoch": self.state.epoch,
-                       "best": self.state.best, "last_validation": self.state.last_validation,
-                       "checkpoint": str(self.ckpts.folder / f"ckpt-{self.state.step:08d}")}
-            self.events("done", step=self.state.step, epoch=self.state.epoch,
-                        best_step=None if self.state.best is None else self.state.best.get("step"))
+            summary = {
+                "run_dir": str(self.run_dir),
+                "step": self.state.step,
+                "epoch": self.state.epoch,
+                "best": self.state.best,
+                "last_validation": self.state.last_validation,
+                "checkpoint": str(self.ckpts.folder / f"ckpt-{self.state.step:08d}"),
+            }
+            self.events(
+                "done",
+                step=self.state.step,
+                epoch=self.state.epoch,
+                best_step=None if self.state.best is None else self.state.best.get("step"),
+            )
             return summary
         except BaseException as e:
             if not isinstance(e, (KeyboardInterrupt, ConfigError)):
@@ -634,8 +720,15 @@ class Trainer:
 
     def _loop(self) -> None:
         st, tc = self.state, self.cfg.train
-        self._bar = tqdm(total=self.total_steps, initial=min(st.step, self.total_steps), desc="train", unit="step",
-                         dynamic_ncols=True, disable=not self._progress_bar_shown(), smoothing=0.05)
+        self._bar = tqdm(
+            total=self.total_steps,
+            initial=min(st.step, self.total_steps),
+            desc="train",
+            unit="step",
+            dynamic_ncols=True,
+            disable=not self._progress_bar_shown(),
+            smoothing=0.05,
+        )
         self._t_log, self._steps_at_log, self._data_wait_s = time.time(), st.step, 0.0
         batches = None
         try:
@@ -645,8 +738,10 @@ class Trainer:
                     batches = self._stream()  # (starting the workers counts as waiting)
                 batch = next(batches, None)
                 if batch is None:
-                    raise RuntimeError(f"the training data ran out at step {self.state.step}, batch "
-                                       f"{self.state.batch_in_epoch} of an epoch of {self.steps_per_epoch}")
+                    raise RuntimeError(
+                        f"the training data ran out at step {self.state.step}, batch "
+                        f"{self.state.batch_in_epoch} of an epoch of {self.steps_per_epoch}"
+                    )
                 self._data_wait_s += time.perf_counter() - t_wait
                 verdict = self._train_step(batch)
                 st = self.state
@@ -666,7 +761,8 @@ class Trainer:
                     self.events("epoch_end", step=st.step, epoch=st.epoch)
                 validate_now = self.val_set is not None and (
                     (epoch_done and tc.validate_every_epochs and st.epoch % tc.validate_every_epochs == 0)
-                    or (tc.validate_every_steps and st.step % tc.validate_every_steps == 0))
+                    or (tc.validate_every_steps and st.step % tc.validate_every_steps == 0)
+                )
                 if validate_now:
                     self._validate()
                 if epoch_done or (tc.checkpoint_every and st.step % tc.checkpoint_every == 0):
@@ -674,8 +770,11 @@ class Trainer:
         finally:
             batches = None  # stop the workers now, not when an exception's traceback is freed
         st = self.state
-        if self.val_set is not None and st.last_validation_step != st.step and (
-                tc.validate_every_epochs or tc.validate_every_steps):
+        if (
+            self.val_set is not None
+            and st.last_validation_step != st.step
+            and (tc.validate_every_epochs or tc.validate_every_steps)
+        ):
             self._validate()
         self._save_checkpoint()
 
@@ -698,6 +797,16 @@ def _scalars(metrics: dict) -> dict:
     return {k: v for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
 
 
-__all__ = ["LoopState", "NonFiniteGuard", "Trainer", "TrainingDiverged", "bf16_autocast", "bf16_supported",
-           "compute_loss", "learning_rate", "prepare_for_training",
-           "resolve_device", "seed_everything"]
+__all__ = [
+    "LoopState",
+    "NonFiniteGuard",
+    "Trainer",
+    "TrainingDiverged",
+    "bf16_autocast",
+    "bf16_supported",
+    "compute_loss",
+    "learning_rate",
+    "prepare_for_training",
+    "resolve_device",
+    "seed_everything",
+]

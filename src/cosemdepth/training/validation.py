@@ -35,8 +35,15 @@ def run_window(model: torch.nn.Module, batch: Mapping[str, Any]):
     out = None
     guide = batch["depth"] if model.config.needs_depth_input else None
     for k in range(t):
-        out, state = model.step(rgb[:, k], rot[:, k], trans[:, k], intr, reset[:, k], state,
-                                guide_depth=None if guide is None else guide[:, k])
+        out, state = model.step(
+            rgb[:, k],
+            rot[:, k],
+            trans[:, k],
+            intr,
+            reset[:, k],
+            state,
+            guide_depth=None if guide is None else guide[:, k],
+        )
     return out
 
 

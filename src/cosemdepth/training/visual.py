@@ -13,8 +13,9 @@ from ..data.midair.format import PALETTE_7
 DEPTH_VIS_RANGE = (0.5, 200.0)
 
 
-def depth_to_rgb(depth: torch.Tensor | np.ndarray, lo: float = DEPTH_VIS_RANGE[0],
-                 hi: float = DEPTH_VIS_RANGE[1]) -> np.ndarray:
+def depth_to_rgb(
+    depth: torch.Tensor | np.ndarray, lo: float = DEPTH_VIS_RANGE[0], hi: float = DEPTH_VIS_RANGE[1]
+) -> np.ndarray:
     """``[H, W]`` metres -> ``[H, W, 3]`` uint8, log scale from ``lo`` (bright) to ``hi`` (dark), "magma" colours.
     Non-finite values are black."""
     from matplotlib import colormaps  # deferred: matplotlib is heavy to import and only needed for TensorBoard images

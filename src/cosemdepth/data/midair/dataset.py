@@ -30,8 +30,7 @@ import torch
 from ...errors import ConfigError
 from ...models.config import MIDAIR_IMAGE_SIZE
 from ..csvsplits import open_csv_split
-from ..decode import (DEFAULT_JPEG_IDCT, check_jpeg_idct, check_nonnegative, read_label_ids, read_rgb,
-                      read_uint16_png)
+from ..decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, check_nonnegative, read_label_ids, read_rgb, read_uint16_png
 from ..frames import Size, depth_to_tensor, labels_to_tensor, rgb_to_tensor
 from ..sequence import FrameRecord, SequenceDataset
 from . import format as fmt
@@ -75,8 +74,9 @@ _MAP_14_TO_7 = torch.from_numpy(fmt.MIDAIR_TO_7.astype(np.int64))
 class MidAirFrameLoader:
     """Loads one row at the output size (see the module docstring). Picklable, for DataLoader workers."""
 
-    def __init__(self, size: Size, labels: str = "midair", jpeg_idct: str = DEFAULT_JPEG_IDCT,
-                 reduced_decode: bool = False) -> None:
+    def __init__(
+        self, size: Size, labels: str = "midair", jpeg_idct: str = DEFAULT_JPEG_IDCT, reduced_decode: bool = False
+    ) -> None:
         if labels not in LABEL_MODES:
             raise ConfigError(f"labels must be one of {sorted(LABEL_MODES)}, got {labels!r}")
         if not isinstance(reduced_decode, bool):

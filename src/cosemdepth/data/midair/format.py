@@ -21,8 +21,20 @@ ENVIRONMENTS = {
 
 #: The 14 Mid-Air label IDs, in ID order.
 MIDAIR_CLASSES = (
-    "sky", "animals", "trees", "dirt_ground", "ground_vegetation", "rocky_ground", "boulders",
-    "empty", "water", "man_made_construction", "road", "train_track", "road_sign", "others",
+    "sky",
+    "animals",
+    "trees",
+    "dirt_ground",
+    "ground_vegetation",
+    "rocky_ground",
+    "boulders",
+    "empty",
+    "water",
+    "man_made_construction",
+    "road",
+    "train_track",
+    "road_sign",
+    "others",
 )
 
 #: Mid-Air ID -> Co-SemDepth class (design 10.5).

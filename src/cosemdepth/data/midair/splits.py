@@ -31,8 +31,14 @@ GT_PER_ROW = fmt.FRAME_SKIP * GT_PER_FRAME
 
 #: Co-SemDepth's validation trajectories (taken out of the M4Depth test split), by (environment, number).
 MIDAIR_VALIDATION = {
-    ("Kite_training", 6), ("Kite_training", 1009), ("Kite_training", 2000), ("Kite_training", 3012),
-    ("PLE_training", 4006), ("PLE_training", 4015), ("PLE_training", 5018), ("PLE_training", 6021),
+    ("Kite_training", 6),
+    ("Kite_training", 1009),
+    ("Kite_training", 2000),
+    ("Kite_training", 3012),
+    ("PLE_training", 4006),
+    ("PLE_training", 4015),
+    ("PLE_training", 5018),
+    ("PLE_training", 6021),
 }
 
 SPLITS = ("train", "val", "test")
@@ -50,8 +56,9 @@ class Trajectory:
         return fmt.trajectory_dir(self.number)
 
 
-def relative_motions(attitude: np.ndarray, position: np.ndarray,
-                     stride: int = GT_PER_ROW) -> tuple[np.ndarray, np.ndarray]:
+def relative_motions(
+    attitude: np.ndarray, position: np.ndarray, stride: int = GT_PER_ROW
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-row relative motion in camera axes from 100 Hz ground truth (body NED, quaternion w-first).
 
     Args:
@@ -127,8 +134,9 @@ def list_trajectories(root: Path, env: str, climate: str) -> list[Trajectory]:
     return out
 
 
-def trajectory_rows(traj: Trajectory, attitude: np.ndarray, position: np.ndarray,
-                    frame_step: int = fmt.FRAME_SKIP) -> list[dict]:
+def trajectory_rows(
+    traj: Trajectory, attitude: np.ndarray, position: np.ndarray, frame_step: int = fmt.FRAME_SKIP
+) -> list[dict]:
     """The CSV rows of one trajectory (paths relative to the dataset root), one every ``frame_step`` camera
     frames: row ``k`` is frame ``frame_step (k + 1)`` with the motion from frame ``frame_step k``."""
     q, t = relative_motions(attitude, position, stride=frame_step * GT_PER_FRAME)
@@ -142,8 +150,13 @@ def trajectory_rows(traj: Trajectory, attitude: np.ndarray, position: np.ndarray
                 "camera_l": f"{base}/{fmt.COLOR_DIR}/{traj.name}/{fmt.frame_name(frame, fmt.COLOR_EXT)}",
                 "disp": f"{base}/{fmt.DISPARITY_DIR}/{traj.name}/{fmt.frame_name(frame, fmt.DISPARITY_EXT)}",
                 "semantic": f"{base}/{fmt.SEGMENTATION_DIR}/{traj.name}/{fmt.frame_name(frame, fmt.SEGMENTATION_EXT)}",
-                "qw": q[k, 0], "qx": q[k, 1], "qy": q[k, 2], "qz": q[k, 3],
-                "tx": t[k, 0], "ty": t[k, 1], "tz": t[k, 2],
+                "qw": q[k, 0],
+                "qx": q[k, 1],
+                "qy": q[k, 2],
+                "qz": q[k, 3],
+                "tx": t[k, 0],
+                "ty": t[k, 1],
+                "tz": t[k, 2],
             }
         )
     return rows
@@ -266,6 +279,7 @@ def generate_splits(
     elif rule == "generic":
         rule_fn = generic_split_rule(trajs)
     elif rule in SPLITS:
+
         def rule_fn(traj: Trajectory, _split: str = rule) -> str:
             return _split
     elif callable(rule):
@@ -297,8 +311,9 @@ def generate_splits(
     return write_split_files(out_dir, planned, written)
 
 
-def write_split_files(out_dir: Path, planned: list, written: dict[str, list[Path]],
-                      columns: tuple[str, ...] | None = None) -> dict[str, list[Path]]:
+def write_split_files(
+    out_dir: Path, planned: list, written: dict[str, list[Path]], columns: tuple[str, ...] | None = None
+) -> dict[str, list[Path]]:
     """Make the planned ``(split, relative path, rows)`` CSVs the contents of ``out_dir``, under the output policy
     (:mod:`cosemdepth.output_safety.outdir`): a previous ``splits`` output there is replaced as a whole (no CSV of another
     rule is left over), a folder holding anything else (a CSV nobody wrote or one edited since) is refused. Returns
