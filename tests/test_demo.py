@@ -10,7 +10,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "evaluation"))
-from _outputs import leftovers, tiny_midair  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
+from _outputs import _one_thread, leftovers, model_dir, tiny_midair  # noqa: E402 (some are pytest fixtures)
 
 from cosemdepth import demo as demo_mod  # noqa: E402
 from cosemdepth.cli.main import main  # noqa: E402

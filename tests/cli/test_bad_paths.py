@@ -9,7 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
-from _outputs import SIZE, leftovers  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
+from _outputs import SIZE, _one_thread, data, leftovers, model_dir  # noqa: E402 (some are pytest fixtures)
 from _writers import snapshot  # noqa: E402
 
 from cosemdepth.cli.main import COMMANDS, main  # noqa: E402

@@ -10,7 +10,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
-from _outputs import SIZE, leftovers, unwritable_folder  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
+from _outputs import SIZE, _one_thread, data, leftovers, model_dir, unwritable_folder  # noqa: E402 (some are pytest fixtures)
 
 import cosemdepth.cli.predict as predict_cli  # noqa: E402
 from cosemdepth.cli.main import main  # noqa: E402

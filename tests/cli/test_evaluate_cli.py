@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
-from _outputs import SIZE, leftovers, tiny_model, unwritable_folder  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
+from _outputs import SIZE, _one_thread, data, leftovers, model_dir, tiny_model, unwritable_folder  # noqa: E402 (some are pytest fixtures)
 
 from cosemdepth.cli.main import main  # noqa: E402
 

@@ -218,7 +218,7 @@ def test_a_video_frame_is_the_picture(tmp_path):
 
 # ---------------------------------------------------------------------------------------------------- the commands
 
-from _outputs import SIZE, tiny_midair  # noqa: E402  # noqa: E402, F401 (pytest fixtures)
+from _outputs import SIZE, _one_thread, model_dir, tiny_midair  # noqa: E402 (some are pytest fixtures)
 
 
 @pytest.fixture(scope="module")
