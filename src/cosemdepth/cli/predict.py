@@ -62,7 +62,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--backend",
         choices=["pytorch", "onnxruntime"],
         default="pytorch",
-        help="pytorch (default: the fast path, or --reference) or onnxruntime: the graph --onnx "
+        help="pytorch (default; the fast path, or --reference) or onnxruntime: the graph --onnx "
         "(written by 'cosemdepth export --onnx' from --model at the input size) run by ONNX Runtime's "
         "CPU provider with the state fed back (fp32; --threads intra-op threads)",
     )
