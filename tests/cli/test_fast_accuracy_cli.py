@@ -130,3 +130,18 @@ def test_a_report_changed_since_is_kept(model_dir, data, tmp_path, capsys):
     out.write_text(edited)
     assert fast_accuracy(model_dir, data, out, "--modes", "fast-fp32", "--max-frames", 2) == 2
     assert str(out) in capsys.readouterr().err and out.read_text() == edited
+
+
+def test_onnx_modes_run_the_exported_graphs(model_dir, data, tmp_path):
+    """onnx-fp32 is the reference up to float rounding; onnx-int8 leaves the depth decoder float (its depth metrics
+    are onnx-fp32's) and records its calibration."""
+    out = tmp_path / "fa.json"
+    extra = ("--modes", "onnx-fp32", "onnx-int8", "--max-frames", 4, "--calibration-frames", 3)
+    assert fast_accuracy(model_dir, data, out, *extra) in (0, 1)
+    rep = json.loads(out.read_text())
+    assert validate(rep) == [] and set(rep["results"]["metrics"]) == {"reference", "onnx-fp32", "onnx-int8"}
+    assert rep["params"]["int8_calibration"]["frames"] == 3
+    m, v = rep["results"]["metrics"], rep["results"]["verdicts"]
+    assert v["onnx-fp32"]["ok"] and abs(v["onnx-fp32"]["abs_rel_rel_diff"]) < 1e-4
+    for key in ("abs_rel", "rmse", "delta1"):
+        assert m["onnx-int8"][key] == pytest.approx(m["onnx-fp32"][key], rel=1e-9), key

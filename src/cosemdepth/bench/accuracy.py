@@ -8,7 +8,9 @@ a freshly loaded copy of the weights; mIoU and the depth metrics come from
 
 from __future__ import annotations
 
+import tempfile
 import time
+from pathlib import Path
 from typing import Iterable, Optional, Sequence
 
 import torch
@@ -24,7 +26,11 @@ MODES = {
     "fast-bf16": ("fast", "bfloat16"),
     "fast-fp16": ("fast", "float16"),
     "fast-int8": ("fast", "int8"),
+    "onnx-fp32": ("onnx", "float32"),
+    "onnx-int8": ("onnx", "int8"),
 }
+#: the modes that calibrate on the calibration frames
+CALIBRATED = ("fast-int8", "onnx-int8")
 #: the fast modes a run compares by default
 DEFAULT_MODES = ("fast-fp32", "fast-bf16")
 #: a fast mode's mIoU may differ from the reference's by this many points (percent)
@@ -115,14 +121,32 @@ def compare_modes(
     for name in ["reference", *modes]:
         path, dtype = MODES[name]
         model = load()
-        if path == "fast":
-            model = FastModel(model, dtype, **({"calibration": calibration} if dtype == "int8" else {}))
-        results[name] = stream_metrics(model, dataset, device, max_frames)
+        with tempfile.TemporaryDirectory(prefix="cosemdepth-accuracy-") as work:
+            if path == "fast":
+                model = FastModel(model, dtype, **({"calibration": calibration} if dtype == "int8" else {}))
+            elif path == "onnx":
+                model = onnx_model(model, dataset, Path(work), calibration if dtype == "int8" else None)
+            results[name] = stream_metrics(model, dataset, device, max_frames)
         report(name, {k: v for k, v in results[name].items() if k in SHOWN})
     verdicts = {name: verdict(results[name], results["reference"]) for name in modes}
     for name, v in verdicts.items():
         report(name, v)
     return {"metrics": results, "verdicts": verdicts}
+
+
+def onnx_model(model, dataset, work: Path, calibration: Optional[list] = None):
+    """``model`` exported as by ``cosemdepth export --onnx`` at the size of ``dataset``'s frames (batch 1) into
+    ``work``, int8 as by ``--int8`` when ``calibration`` steps are given, run by ONNX Runtime's CPU provider behind
+    the model's ``step`` (:class:`~cosemdepth.export.runtime.OnnxModel`)."""
+    from ..export.onnx import export_onnx  # deferred: optional (onnx, onnxruntime)
+    from ..export.quantize import quantize_onnx
+    from ..export.runtime import OnnxModel, OnnxStep
+
+    h, w = (int(x) for x in dataset[0]["rgb"].shape[-2:])
+    graph = export_onnx(model, work / "float32.onnx", h, w)
+    if calibration is not None:
+        graph = quantize_onnx(model, graph, work / "int8.onnx", calibration)
+    return OnnxModel(model, OnnxStep(graph, threads=torch.get_num_threads()))
 
 
 def all_ok(verdicts: Iterable[dict]) -> bool:
@@ -131,6 +155,7 @@ def all_ok(verdicts: Iterable[dict]) -> bool:
 
 __all__ = [
     "ABSREL_TOL_REL",
+    "CALIBRATED",
     "CALIBRATION_FRAMES",
     "DEFAULT_MODES",
     "MIOU_TOL_POINTS",
@@ -138,6 +163,7 @@ __all__ = [
     "all_ok",
     "calibration_frames",
     "compare_modes",
+    "onnx_model",
     "stream_metrics",
     "verdict",
 ]

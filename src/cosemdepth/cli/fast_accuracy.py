@@ -6,7 +6,8 @@
 
 Streams the split frame by frame (the test protocol: reset frames count in no metric) through the reference path
 and through each fast mode, and checks each mode against the reference: mIoU within 0.5 points and AbsRel within 1 %
-(relative). ``fast-int8`` calibrates on the first ``--calibration-frames`` frames of ``--calibration-root`` (another
+(relative). ``onnx-fp32`` and ``onnx-int8`` run the graph ``cosemdepth export --onnx`` (``--int8``) writes at the
+split's size in ONNX Runtime. ``fast-int8`` and ``onnx-int8`` calibrate on the first ``--calibration-frames`` frames of ``--calibration-root`` (another
 flight; by default the evaluated split itself, which the report then says). Writes the report (the benchmark JSON
 shape of :mod:`cosemdepth.bench.harness`) to ``--out``. Exit status 0 when every mode is within the tolerances, 1
 when one is not, 2 on bad input.
@@ -21,6 +22,7 @@ from pathlib import Path
 
 from ..bench.accuracy import (
     ABSREL_TOL_REL,
+    CALIBRATED,
     CALIBRATION_FRAMES,
     DEFAULT_MODES,
     MIOU_TOL_POINTS,
@@ -34,6 +36,7 @@ from ..checkpoints.model_io import load_model
 from ..data import open_dataset
 from ..data.registry import dataset_spec
 from ..devices import resolve_device
+from ..optional import require
 from ..output_safety.outdir import Input, check_output_file, model_inputs, record_output_file
 from ._shared import (
     add_device_args,
@@ -81,20 +84,20 @@ def configure(parser: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         metavar="ROOT",
-        help="fast-int8: dataset root whose first frames calibrate (default: --root)",
+        help="fast-int8, onnx-int8: dataset root whose first frames calibrate (default: --root)",
     )
     parser.add_argument(
         "--calibration-split",
         default=None,
         metavar="SPLIT",
-        help="fast-int8: split of --calibration-root (default: --split)",
+        help="fast-int8, onnx-int8: split of --calibration-root (default: --split)",
     )
     parser.add_argument(
         "--calibration-frames",
         type=positive_int,
         default=CALIBRATION_FRAMES,
         metavar="N",
-        help=f"fast-int8: calibration frames (default {CALIBRATION_FRAMES})",
+        help=f"fast-int8, onnx-int8: calibration frames (default {CALIBRATION_FRAMES})",
     )
     parser.add_argument(
         "--out",
@@ -123,13 +126,16 @@ def run(args: argparse.Namespace) -> int:
     ]
     check_output_file(args.out, what="--out file", inputs=inputs, recognize=_is_ours)
     check_split_dir(args)
+    if any(MODES[m][0] == "onnx" for m in args.modes):
+        require("onnx", "fast-accuracy --modes onnx-*")
+        require("onnxruntime", "fast-accuracy --modes onnx-*")
     device = resolve_device(args.device)
     size = input_size(args.size, model_operating_point(args.model))
     dataset = open_dataset(args.dataset, args.root, split_dir=args.split_dir, split=args.split, seq_len=1, size=size)
     size = list(dataset[0]["rgb"].shape[-2:])  # what it runs at (recorded in the report)
     calib_root = args.calibration_root or args.root
     calibration = None
-    if "fast-int8" in args.modes:
+    if any(m in CALIBRATED for m in args.modes):
         cal = open_dataset(
             args.dataset,
             calib_root,
