@@ -91,3 +91,25 @@ def test_acceptance_against_hand_computed_differences(script):
     assert acc["time_increase"]["measured"] == pytest.approx(0.11) and not acc["time_increase"]["met"]
     assert acc["s_prev_gt_miou_gain_points"]["measured"] == pytest.approx(1.0)
     assert script.acceptance({"cosemdepth": summary["cosemdepth"]}) == {}
+
+
+def test_a_derived_variant_is_the_source_weights_under_the_config_change(script, tmp_path):
+    import torch
+
+    from cosemdepth.checkpoints.model_io import load_model, save_model
+    from cosemdepth.models import build_model
+
+    torch.manual_seed(0)
+    src = tmp_path / "cosemdepth_t-s0"
+    save_model(build_model(arch="cosemdepth-t", levels=2), src / "best")
+    run = tmp_path / "cosemdepth_t_avg-s0"
+    source_v, changes = script.DERIVED["cosemdepth_t_avg"]
+    assert source_v == "cosemdepth_t" and changes == {"semantic_fusion": 0.5}
+    script.derive_run(src, run, changes)
+    a, b = load_model(src / "best", mode="reference"), load_model(run / "best", mode="reference")
+    assert b.config.semantic_fusion == 0.5 and a.config.semantic_fusion == 0.0
+    assert b.config.to_dict() == {**a.config.to_dict(), "semantic_fusion": 0.5}
+    assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values()))
+    before = (run / "best" / "model.safetensors").stat().st_mtime_ns
+    script.derive_run(src, run, changes)  # an existing derived run is kept
+    assert (run / "best" / "model.safetensors").stat().st_mtime_ns == before

@@ -73,6 +73,7 @@ def test_config_json_content(tmp_path):
         "pscv_dtype": "float32",
         "semantic_sncv": False,
         "semantic_time": "off",
+        "semantic_fusion": 0.0,
     }
     assert meta["source"] == {}
     assert meta["num_parameters"] == sum(s.numel() for s in _random_state(cfg).values())

@@ -8,7 +8,12 @@ from cosemdepth.errors import ConfigError
 from cosemdepth.export.check import synthetic_sequence
 from cosemdepth.models import build_model
 from cosemdepth.models.config import ModelConfig
-from cosemdepth.models.semantic_decoder import SemanticFrame, SemanticLevel, semantic_refiner_in_channels
+from cosemdepth.models.semantic_decoder import (
+    SemanticFrame,
+    SemanticLevel,
+    fuse_previous,
+    semantic_refiner_in_channels,
+)
 
 N = 7
 
@@ -102,3 +107,86 @@ def test_the_ground_truth_variant_needs_a_depth_and_the_others_refuse_one():
         build_model(arch="cosemdepth-t", levels=2).step(
             rgb[:, 0], rot[:, 0], trans[:, 0], K, None, None, guide_depth=torch.ones(1, 1, 32, 32)
         )
+
+
+def test_fusion_by_hand():
+    p = torch.tensor([0.8, 0.2]).view(1, 2, 1, 1).expand(1, 2, 1, 2).contiguous()
+    w = torch.tensor([0.0, 1.0]).view(1, 2, 1, 1).expand(1, 2, 1, 2).contiguous()
+    v = torch.tensor([1.0, 0.0]).view(1, 1, 1, 2)  # the second pixel's warp is not valid
+    out = fuse_previous(p, w * v, v, 0.25)
+    assert torch.allclose(out[0, :, 0, 0], torch.tensor([0.6, 0.4])) and torch.equal(out[0, :, 0, 1], p[0, :, 0, 1])
+
+
+def test_fusion_switch_rules():
+    assert ModelConfig(arch="cosemdepth-t", semantic_fusion=0.5).semantic_fusion == 0.5
+    assert ModelConfig(semantic_time="gt", semantic_fusion=0).semantic_fusion == 0.0
+    for bad in (1.0, -0.1, True, "0.5"):
+        with pytest.raises(ConfigError, match=r"semantic_fusion must be a number in \[0, 1\)"):
+            ModelConfig(arch="cosemdepth-t", semantic_fusion=bad)
+    with pytest.raises(ConfigError, match="needs semantic_time 'own'"):
+        ModelConfig(semantic_fusion=0.5)
+
+
+def fused_pair(weight: float):
+    torch.manual_seed(3)
+    plain = build_model(arch="cosemdepth-t", levels=2).eval()
+    fused = build_model(arch="cosemdepth-t", levels=2, semantic_fusion=weight).eval()
+    fused.load_state_dict(plain.state_dict())  # no parameter of its own
+    return plain, fused
+
+
+def test_fusion_averages_the_output_with_the_warped_previous_output():
+    """On a reset the output is the softmax; then, on the finest level, (1 - a V) P + a V W with W the previous
+    fused output warped as the decoder warps it, V its validity; the coarser level and the depth untouched."""
+    a = 0.4
+    plain, fused = fused_pair(a)
+    rgb, rot, trans, K = synthetic_sequence(1, 3, 32, 32, seed=4)
+    with torch.no_grad():
+        o0, s0 = fused.step(rgb[:, 0], rot[:, 0], trans[:, 0], K, torch.tensor([True]), None)
+        p0, _ = plain.step(rgb[:, 0], rot[:, 0], trans[:, 0], K, torch.tensor([True]), None)
+        assert torch.equal(o0.semantic, p0.semantic)  # nothing to average with on a reset
+        # the next frame from the same state: the plain model gives P (and, through its level, W and V)
+        o1, s1 = fused.step(rgb[:, 1], rot[:, 1], trans[:, 1], K, torch.tensor([False]), s0)
+        p1, q1 = plain.step(rgb[:, 1], rot[:, 1], trans[:, 1], K, torch.tensor([False]), s0)
+    assert torch.equal(o1.depth, p1.depth)
+    assert torch.equal(s1.components["semantic"][1], q1.components["semantic"][1])  # level 2 untouched
+    lvl = fused.semantic_decoder.levels[0]
+    dec = fused.semantic_decoder
+    frame = dec.frame(rot[:, 1], trans[:, 1], K, torch.tensor([False]), {dec.reads[0]: o1.levels[dec.reads[0]]})
+    h, w = s0.components["semantic"][0].shape[-2:]
+    warped, valid = lvl.previous_probs(torch.zeros(1, 1, h, w), frame, s0.components["semantic"][0])
+    assert 0 < valid.mean() < 1
+    expected = (1 - a * valid) * q1.components["semantic"][0] + a * warped
+    assert torch.allclose(s1.components["semantic"][0], expected, atol=1e-6)
+    assert torch.allclose(s1.components["semantic"][0].sum(1), torch.ones(1, h, w), atol=1e-5)
+
+
+def test_fusion_in_the_fast_path_and_the_onnx_graph(tmp_path):
+    import numpy as np
+    import onnxruntime as ort
+
+    from cosemdepth.export import export_onnx
+    from cosemdepth.inference import FastModel
+
+    _, fused = fused_pair(0.5)
+    with torch.no_grad():  # well-conditioned depth (see tests/inference/test_fast_engine.py::tame)
+        for lvl in fused.depth_decoder.levels:
+            lvl.refiner.convs[-1].weight.mul_(0.1)
+    rgb, rot, trans, K = synthetic_sequence(1, 4, 32, 32, seed=6)
+    fast = FastModel(fused, "float32")
+    path = export_onnx(fused, tmp_path / "fused.onnx", 32, 32)
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    names = [i.name for i in sess.get_inputs()]
+    outs = [o.name for o in sess.get_outputs()]
+    st_ref = st_fast = None
+    st_onnx = [np.zeros(i.shape, np.float32) for i in sess.get_inputs()[5:]]
+    with torch.no_grad():
+        for t in range(4):
+            args = (rgb[:, t], rot[:, t], trans[:, t], K, torch.tensor([t == 0]))
+            ref, st_ref = fused.step(*args, st_ref)
+            fo, st_fast = fast.step(*args, st_fast)
+            feeds = dict(zip(names, [a.numpy() for a in args] + st_onnx))
+            res = dict(zip(outs, sess.run(None, feeds)))
+            st_onnx = [res["next_" + n] for n in names[5:]]
+            assert torch.allclose(fo.semantic, ref.semantic, atol=1e-5), t
+            assert np.allclose(res["semantic"], ref.semantic.numpy(), atol=1e-4), t

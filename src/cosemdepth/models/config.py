@@ -77,6 +77,11 @@ class ModelConfig:
     #: input of every forward pass) or "own" (with the model's own depth: Co-SemDepth-T). None: the architecture's
     #: (``ARCH_SEMANTIC_TIME``, else "off").
     semantic_time: Optional[SemanticTime] = None
+    #: Semantic decoder with a ``semantic_time``: the weight ``a`` in [0, 1) of the warped previous output in the
+    #: output, ``P_t = (1 - a) softmax(logits_t) + a W(P_{t-1})`` on the finest level's pixels whose warp is valid
+    #: (a motion-compensated running average of the labels' probabilities; it has no parameters, and the loss reads
+    #: the logits). 0 (default): the output is the softmax.
+    semantic_fusion: float = 0.0
 
     def __post_init__(self) -> None:
         if self.arch not in ARCHITECTURES:
@@ -100,6 +105,15 @@ class ModelConfig:
             raise ConfigError(
                 f"model semantic_time 'own' warps with the model's own depth: the {self.arch} model has "
                 "no depth decoder (use 'gt', or arch 'cosemdepth-t')"
+            )
+        fusion = self.semantic_fusion
+        if isinstance(fusion, bool) or not isinstance(fusion, (int, float)) or not 0.0 <= fusion < 1.0:
+            raise ConfigError(f"model semantic_fusion must be a number in [0, 1), got {fusion!r}")
+        object.__setattr__(self, "semantic_fusion", float(fusion))
+        if fusion and self.semantic_time == SEMANTIC_TIME_OFF:
+            raise ConfigError(
+                "model semantic_fusion averages the output with the warped previous output of a temporal semantic "
+                "decoder: it needs semantic_time 'own' (arch 'cosemdepth-t') or 'gt'"
             )
         if not isinstance(self.levels, int) or not 1 <= self.levels <= len(ENCODER_CHANNELS):
             raise ConfigError(f"model levels must be an integer in 1..{len(ENCODER_CHANNELS)}, got {self.levels!r}")

@@ -72,6 +72,21 @@ class SemanticFrame:
     depth: Optional[Sequence[torch.Tensor]]
 
 
+def fuse_previous(probs: torch.Tensor, warped: torch.Tensor, valid: torch.Tensor, weight: float) -> torch.Tensor:
+    """``(1 - a V) P + a V W``: the probabilities ``P`` averaged with the warped previous ones ``W`` where the warp is
+    valid (``V`` = 1), untouched elsewhere (``ModelConfig.semantic_fusion``).
+
+    Args:
+        probs: ``[B, N, h, w]`` this frame's probabilities.
+        warped: ``[B, N, h, w]`` the previous output warped into this frame, zero where not valid.
+        valid: ``[B, 1, h, w]`` 1 where the warp is valid, else 0.
+        weight: ``a`` in [0, 1).
+    Returns:
+        ``[B, N, h, w]``, each pixel's probabilities summing to one as ``P``'s and ``W``'s do.
+    """
+    return torch.lerp(probs, warped.to(probs.dtype), valid.to(probs.dtype) * weight)
+
+
 class SemanticLevel(PyramidLevel):
     """One level l (absolute, 1 = finest) of the semantic decoder."""
 
@@ -83,6 +98,8 @@ class SemanticLevel(PyramidLevel):
         self.normalize = cfg.feature_normalization
         self.use_sncv = cfg.semantic_sncv
         self.time = cfg.semantic_time
+        #: the output's running-average weight (``ModelConfig.semantic_fusion``): the finest level only
+        self.fusion = cfg.semantic_fusion if level == 1 else 0.0
         self.refiner = Refiner(semantic_refiner_in_channels(level, channels, cfg), cfg.num_classes + 4)
 
     def coarse_inputs(
@@ -105,11 +122,16 @@ class SemanticLevel(PyramidLevel):
         blocks = [inputs.probs, inputs.other, f_hat]
         if self.use_sncv:
             blocks.append(ops.sncv(f_hat, 1, SEMANTIC_SNCV_RADIUS))
+        previous = None
         if self.time != SEMANTIC_TIME_OFF:
-            blocks.extend(self.previous_probs(f_hat, frame, None if prev is None else prev[0]))
+            previous = self.previous_probs(f_hat, frame, None if prev is None else prev[0])
+            blocks.extend(previous)
         y = (ops.refiner or self.refiner)(ops.concat(blocks))
         logits = y[:, : self.num_classes]
-        return SemanticLevelOutput(torch.softmax(logits, dim=1), logits, y[:, self.num_classes :])
+        probs = torch.softmax(logits, dim=1)
+        if self.fusion and previous is not None:
+            probs = fuse_previous(probs, *previous, self.fusion)
+        return SemanticLevelOutput(probs, logits, y[:, self.num_classes :])
 
     def previous_probs(
         self, f_hat: torch.Tensor, frame: SemanticFrame, prev: Optional[torch.Tensor]
