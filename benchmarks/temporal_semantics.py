@@ -471,7 +471,8 @@ def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: 
     ]
     rows += [(_label(v), [colorize_labels(c.pred[f], palette) for f in frames]) for v, c in collectors.items()]
     h, w = rows[0][1][0].shape[:2]
-    label_w, gap = 150, 2
+    measure = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    label_w, gap = max(150, 12 + max(int(measure.textlength(name)) for name, _ in rows)), 2
     canvas = Image.new("RGB", (label_w + len(frames) * (w + gap), len(rows) * (h + gap) + 16), "white")
     draw = ImageDraw.Draw(canvas)
     for j, f in enumerate(frames):
