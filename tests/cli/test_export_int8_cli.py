@@ -45,6 +45,8 @@ def test_int8_export_calibrated_on_a_dataset(tmp_path, data, capsys):
     "extra, words",
     [
         (["--calibration-root", "{D}"], "--calibration-root calibrates --int8"),
+        (["--calibration-frames", "4"], "--calibration-frames calibrates --int8"),
+        (["--calibration-dataset", "synthair"], "--calibration-dataset calibrates --int8"),
         (["--arch", "m4depth", "--int8"], "no convolution the int8 policy quantises"),
         (["--int8", "--calibration-root", "{T}/nowhere"], "--calibration-root {T}/nowhere: not a folder"),
         (["--int8", "--calibration-root", "{D}"], "needs --calibration-split-dir"),

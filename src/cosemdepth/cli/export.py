@@ -79,7 +79,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--calibration-dataset",
-        default="midair",
+        default=None,
         choices=split_datasets(),
         metavar="NAME",
         help=f"--int8: dataset of --calibration-root: {', '.join(split_datasets())} (default midair)",
@@ -89,7 +89,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--calibration-frames",
         type=positive_int,
-        default=CALIBRATION_FRAMES,
+        default=None,
         metavar="N",
         help=f"--int8: calibration frames (default {CALIBRATION_FRAMES})",
     )
@@ -100,9 +100,17 @@ def run(args: argparse.Namespace) -> int:
     if args.batch < 1:
         raise ConfigError(f"--batch must be at least 1, got {args.batch}")
     if not args.int8:
-        for flag in ("calibration_root", "calibration_split_dir", "calibration_split"):
+        for flag in (
+            "calibration_root",
+            "calibration_dataset",
+            "calibration_split_dir",
+            "calibration_split",
+            "calibration_frames",
+        ):
             if getattr(args, flag) is not None:
                 raise ConfigError(f"--{flag.replace('_', '-')} calibrates --int8, which is not given")
+    args.calibration_dataset = args.calibration_dataset or "midair"
+    args.calibration_frames = args.calibration_frames or CALIBRATION_FRAMES
     inputs = model_inputs(args.model)
     if args.calibration_root is not None:
         inputs = [*inputs, Input("--calibration-root", args.calibration_root)]
