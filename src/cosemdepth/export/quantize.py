@@ -83,20 +83,10 @@ def calibration_feeds(step: OnnxStep, frames: Iterable[tuple]) -> list[dict[str,
     """Every input of the float32 graph over a stream: ``frames`` are ``(rgb, rot, trans, intrinsics, reset)`` torch
     tensors of batch 1 (:func:`~cosemdepth.bench.accuracy.calibration_frames`), the state fed back as a stream."""
     feeds, state = [], None
-    for rgb, rot, trans, intrinsics, reset in frames:
-        f = {
-            "rgb": rgb.detach().float().cpu().numpy(),
-            "rot": rot.detach().float().cpu().numpy(),
-            "trans": trans.detach().float().cpu().numpy(),
-            "intrinsics": intrinsics.detach().float().cpu().numpy(),
-            "reset": reset.detach().cpu().bool().numpy(),
-        }
-        if step.reset_float:
-            f["reset"] = f["reset"].astype(np.float32)
+    for frame in frames:
+        f = step.frame_feeds(*frame)
         state = step.zero_state(f["rgb"].shape[0]) if state is None else state
-        full = {k: v for k, v in f.items() if k in step.input_names}
-        full.update(zip(step.state_inputs, state))
-        feeds.append(full)
+        feeds.append(step.inputs(f, state))
         _, state = step.run(f, state)
     if not feeds:
         raise ConfigError("the int8 calibration stream is empty")
@@ -170,14 +160,8 @@ def quantized_convolutions(path: str | Path) -> list[str]:
     import onnx  # deferred: optional
 
     graph = onnx.load(str(path), load_external_data=False).graph
-    names = []
-    for node in graph.node:
-        if node.op_type == "DequantizeLinear":
-            src = node.input[0]
-            m = _REFINER_WEIGHT.match(src.removesuffix("_quantized"))
-            if m:
-                names.append(src.removesuffix("_quantized"))
-    return sorted(set(names))
+    weights = (n.input[0].removesuffix("_quantized") for n in graph.node if n.op_type == "DequantizeLinear")
+    return sorted({w for w in weights if _REFINER_WEIGHT.match(w)})
 
 
 __all__ = [

@@ -81,16 +81,33 @@ class OnnxStep:
     def zero_state(self, batch: int) -> list[np.ndarray]:
         return [np.zeros([d if isinstance(d, int) else batch for d in s], np.float32) for s in self._state_shapes]
 
+    def inputs(self, feeds: dict[str, np.ndarray], state: Sequence[np.ndarray]) -> dict[str, np.ndarray]:
+        """Every input of one call: the graph's own of ``feeds`` (M4Semantic's takes the image only), ``reset`` as
+        the graph takes it, and ``state`` as the ``state_*`` inputs."""
+        full = {k: v for k, v in feeds.items() if k in self.input_names}
+        if self.reset_float and "reset" in full:
+            full["reset"] = full["reset"].astype(np.float32)
+        full.update(zip(self.state_inputs, state))
+        return full
+
     def run(
         self, feeds: dict[str, np.ndarray], state: Sequence[np.ndarray]
     ) -> tuple[dict[str, np.ndarray], list[np.ndarray]]:
         """One call on numpy arrays: ``(outputs by name, next state)``."""
-        feeds = {k: v for k, v in feeds.items() if k in self.input_names}  # M4Semantic's graph takes the image only
-        if self.reset_float and "reset" in feeds:
-            feeds["reset"] = feeds["reset"].astype(np.float32)
-        feeds.update(zip(self.state_inputs, state))
-        res = dict(zip(self.output_names, self.session.run(None, feeds)))
+        res = dict(zip(self.output_names, self.session.run(None, self.inputs(feeds, state))))
         return res, [res["next_" + n] for n in self.state_inputs]
+
+    @staticmethod
+    def frame_feeds(rgb, rot, trans, intrinsics, reset) -> dict[str, np.ndarray]:
+        """The per-frame inputs of a call from torch tensors (float32 on the CPU; ``reset`` bool)."""
+        f32 = lambda t: t.detach().to("cpu", torch.float32).contiguous().numpy()  # noqa: E731
+        return {
+            "rgb": f32(rgb),
+            "rot": f32(rot),
+            "trans": f32(trans),
+            "intrinsics": f32(intrinsics),
+            "reset": reset.detach().cpu().bool().numpy(),
+        }
 
     def step(
         self,
@@ -108,15 +125,12 @@ class OnnxStep:
             raise ConfigError(f"{self.path}: the graph takes images of shape {list(want)}, got {list(rgb.shape)}")
         if reset is None:
             reset = torch.zeros(b, dtype=torch.bool)
-        f32 = lambda t: t.detach().to("cpu", torch.float32).contiguous().numpy()  # noqa: E731
-        feeds = {
-            "rgb": f32(rgb),
-            "rot": f32(rot),
-            "trans": f32(trans),
-            "intrinsics": f32(intrinsics),
-            "reset": reset.detach().cpu().bool().numpy(),
-        }
-        st = [f32(t) for t in state.flatten()] if state is not None and state.flatten() else self.zero_state(b)
+        feeds = self.frame_feeds(rgb, rot, trans, intrinsics, reset)
+        st = (
+            [t.detach().to("cpu", torch.float32).contiguous().numpy() for t in state.flatten()]
+            if state is not None and state.flatten()
+            else self.zero_state(b)
+        )
         res, nxt = self.run(feeds, st)
         dev = rgb.device
         heads = {k: torch.from_numpy(v).to(dev) for k, v in res.items() if not k.startswith("next_")}
