@@ -389,18 +389,18 @@ class Check:
             for path in paths:
                 row = {"precision": precision, "path": path, "batch": 1}
                 stage.results.append(row)
-                if precision == "fp16" and not self.cuda:
-                    row.update(status="not_run", reason="fp16 convolutions are for CUDA (on the CPU: bf16)")
-                    continue
-                if precision == "bf16" and not bf16_convolutions(self.plan.device):
-                    row.update(status="not_run", reason="no bf16 convolutions on this CPU")
-                    continue
                 if path == "graph" and not self.cuda:
                     row.update(
                         status="not_run",
                         reason="CUDA graphs need CUDA (the same static program runs "
                         "eagerly on the CPU in tests/inference/test_static_streamer.py)",
                     )
+                    continue
+                if precision == "fp16" and not self.cuda:
+                    row.update(status="not_run", reason="fp16 convolutions are for CUDA (on the CPU: bf16)")
+                    continue
+                if precision == "bf16" and not bf16_convolutions(self.plan.device):
+                    row.update(status="not_run", reason="no bf16 convolutions on this CPU")
                     continue
                 if self.left_s() <= 0:
                     row.update(status="not_run", reason="time budget spent")
