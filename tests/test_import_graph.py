@@ -40,8 +40,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.inference",
             "cosemdepth.checkpoints",
             "cosemdepth.data",
-            "cosemdepth.synthair",
             "cosemdepth.flightlogs",
+            "cosemdepth.synthair",
         ),
     ),
     (
