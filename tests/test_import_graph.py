@@ -45,9 +45,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.evaluation.metrics",
             "cosemdepth.evaluation.classes",
             "cosemdepth.evaluation.temporal",
-            "cosemdepth.evaluation.visualize",
             "cosemdepth.training.losses",
-            "cosemdepth.training.visual",
+            "cosemdepth.render",
         ),
     ),
     ("streaming", ("cosemdepth.streaming",)),
@@ -176,7 +175,7 @@ def test_the_scanner_sees_relative_function_local_and_package_imports():
     assert "cosemdepth.models.model" in g["cosemdepth.models"]  # from .model import ... in a package __init__
     assert "cosemdepth.models.config" in g["cosemdepth.models.model"]  # from .config import ...
     assert g["cosemdepth.models.config"] == {"cosemdepth.errors": False, "cosemdepth.coerce": False}  # from ..x
-    assert g["cosemdepth.evaluation.tfref_fixture"]["cosemdepth.checkpoints.tf_checkpoint"] is True  # function-local
+    assert g["cosemdepth.bench.accuracy"]["cosemdepth.export.runtime"] is True  # function-local
     assert g["cosemdepth.training.config"]["cosemdepth.data.registry"] is False  # module level
     assert "cosemdepth.models.model" in g["cosemdepth.inference.fast_model"]  # inference sits above models
     assert not any(
