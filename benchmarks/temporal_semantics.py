@@ -460,7 +460,7 @@ def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: 
     from PIL import Image, ImageDraw
 
     from cosemdepth.evaluation.classes import class_info
-    from cosemdepth.evaluation.visualize import colorize_labels, rgb_to_uint8
+    from cosemdepth.render.visualize import colorize_labels, rgb_to_uint8
 
     _, palette = class_info(num_classes, "synthair")
     any_c = next(iter(collectors.values()))

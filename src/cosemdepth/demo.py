@@ -14,7 +14,7 @@ Steps:
 5. write the report folder: ``metrics.json`` (schema below), ``report.md``, ``iou.png`` (per-class IoU chart),
    ``qualitative.png`` (RGB | predicted depth | ground-truth depth | predicted labels | ground-truth labels for a few
    frames, with a depth colour bar and a class legend) and ``flight.mp4`` (the same panels, captions, colour bar and
-   legend for every frame; ``flight.gif`` without ffmpeg). Both are drawn by :mod:`cosemdepth.evaluation.figures`
+   legend for every frame; ``flight.gif`` without ffmpeg). Both are drawn by :mod:`cosemdepth.render.figures`
    with one depth range for the whole flight (``metrics.json``'s ``pictures``).
 
 ``metrics.json``::
@@ -53,16 +53,16 @@ from .data.frames import FocalSize, midair_intrinsics
 from .errors import CheckpointError, ConfigError, DatasetError
 from .evaluation.classes import class_info
 from .evaluation.evaluator import Evaluator, to_json
-from .evaluation.figures import FlightPictures, frame_maps
 from .evaluation.metrics import EPS, EVAL_MAX_DEPTH, ConfusionMatrix, DepthMetrics
 from .evaluation.resources import machine_info, resolve_device
-from .evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 from .inference.fast_model import reference_model
 from .models.footprint import check_size
 from .operating_point import OperatingPoint
 from .output_safety.atomic import atomic_path, atomic_write_text
 from .output_safety.outdir import Input, check_not_input, model_inputs
 from .output_safety.staging import StagedDir
+from .render.figures import FlightPictures, frame_maps
+from .render.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 from .synthair.climate import CLIMATES
 from .synthair.writer import MAX_FRAMES
 from .tasks import class_count
@@ -317,7 +317,7 @@ def plot_iou(path: Path, class_names, model_iou, baseline_iou, model_miou, basel
 
 
 def plot_qualitative(path: Path, figure, picks) -> None:
-    """The strip: one row per picked frame (:class:`~cosemdepth.evaluation.figures.FrameMaps`), drawn by the flight's
+    """The strip: one row per picked frame (:class:`~cosemdepth.render.figures.FrameMaps`), drawn by the flight's
     ``figure`` (the captions, panel order, colour bar and legend of the video), written atomically."""
     save_png(path, figure.rows(picks))
 

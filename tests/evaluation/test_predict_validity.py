@@ -17,9 +17,9 @@ from PIL import Image
 
 from cosemdepth.data.sequence import SequenceDataset, Trajectory
 from cosemdepth.evaluation.predict import predict
-from cosemdepth.evaluation.visualize import DEPTH_PNG_SCALE
 from cosemdepth.models import StepOutput, StreamState
 from cosemdepth.models.config import ModelConfig
+from cosemdepth.render.visualize import DEPTH_PNG_SCALE
 
 H = W = 9
 K = [8.0, 8.0, 4.5, 4.5]

@@ -20,8 +20,8 @@ from ..demo import (
     run_demo,
 )
 from ..errors import ConfigError
-from ..evaluation.visualize import DEFAULT_VIDEO, VIDEO_FORMATS
 from ..inference.policy import BASELINE, EVERY_FRAME
+from ..render.visualize import DEFAULT_VIDEO, VIDEO_FORMATS
 from ..synthair.writer import SUPERSAMPLES
 from ._shared import (
     add_device_args,

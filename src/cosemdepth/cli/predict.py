@@ -26,11 +26,11 @@ from ..data.poses import CONVENTIONS
 from ..data.stamps import UNITS, parse_stamp_unit
 from ..errors import ConfigError
 from ..evaluation.predict import DEFAULT_INVALID, INVALID_MODES, predict
-from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
 from ..inference.policy import BASELINE, EVERY_FRAME
 from ..models.outputs import ESTIMATED, HELD, RESET
 from ..output_safety.outdir import Input, model_inputs
 from ..output_safety.staging import StagedDir
+from ..render.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
 from ..robotics.bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP
 from ..robotics.cli import add_robotics_args, bag_report, check_args, make_sinks, open_bag
 from ..robotics.rerun_writer import check_rrd_path

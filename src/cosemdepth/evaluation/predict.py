@@ -17,7 +17,7 @@ twice in one trajectory gets ``_<row>`` appended)::
                                                panel >= 384 px, a depth colour bar and a class legend below
     OUT/<trajectory>/video.mp4                 the side-by-side frames as a video (GIF without ffmpeg)
 
-The pictures (:mod:`cosemdepth.evaluation.figures`) colour depth on a range fixed per trajectory, chosen from its
+The pictures (:mod:`cosemdepth.render.figures`) colour depth on a range fixed per trajectory, chosen from its
 first frames (recorded in ``predictions.json`` under the trajectory's ``pictures``) unless ``depth_range`` is given.
 
 Depth outputs are absent for M4Semantic, label outputs for M4Depth. A depth map says which pixels it could not
@@ -46,13 +46,13 @@ from ..inference.policy import Streamer, StreamPolicy, policy_info
 from ..output_safety.atomic import atomic_write_text
 from ..output_safety.outdir import Input
 from ..output_safety.staging import StagedDir
+from ..render.figures import FlightPictures, frame_maps
+from ..render.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 from ..tasks import TASKS, DecoderTask, TaskWriter, WriteOptions, class_count, tasks_for
 from ..tasks.depth import valid_mask
 from .classes import class_info
 from .evaluator import _model_config, to_json
-from .figures import FlightPictures, frame_maps
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
-from .visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 
 MANIFEST = "predictions.json"
 
@@ -329,7 +329,7 @@ def predict(
             for sink in sinks:
                 sink.open(tmp)
                 opened.append(sink)
-            for batch in stream(streamer, dataset, schedule=schedule, num_workers=num_workers):
+            for batch in stream(streamer, dataset, lanes=lanes, max_frames=max_frames, num_workers=num_workers):
                 writer(batch)
                 for sink in sinks:
                     sink(batch)
