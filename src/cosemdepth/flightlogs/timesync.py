@@ -36,6 +36,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from ..errors import ConfigError
+from ..geometry.mount import CameraMount, camera_poses
 from .image_rotation import frame_rotation
 
 #: Rotation rate (radians per second, 2 degrees/s) under which a frame pair counts as still.
@@ -434,8 +435,71 @@ def match_rotations(
     return OffsetEstimate(float(tau), confidence, details)
 
 
+# --- a video and a log ------------------------------------------------------------------------------------------
+
+
+def camera_attitude(log, mount: CameraMount) -> Attitude:
+    """The camera's optical-frame attitude on the log's clock from a :class:`~cosemdepth.flightlogs.FlightLog`'s
+    attitude and ``mount`` (the gimbal's rotation instead of the mount's where the log records one: only the
+    attitude samples inside the gimbal's series are kept then)."""
+    att = log.attitude
+    if att is None:
+        raise ConfigError(
+            f"{log.path}: the log has no attitude, so the clock offset cannot be found from the camera's rotation; {ASK}"
+        )
+    t, q = att.t, att.v
+    gimbal = None
+    if getattr(log, "gimbal", None) is not None:
+        gimbal, ok = log.gimbal_at(t)
+        t, q, gimbal = t[ok], q[ok], gimbal[ok]
+        if len(t) < 2:
+            raise ConfigError(f"{log.path}: the log's gimbal angles do not overlap its attitude; {ASK}")
+    q_opt, _ = camera_poses(q, np.zeros((len(t), 3)), mount.R_body_optical, mount.lever_arm, gimbal)
+    return Attitude(t, q_opt)
+
+
+def estimate_time_offset(
+    video, log, mount: CameraMount, *, focal_px: float, progress=None, min_confidence: float = MIN_CONFIDENCE
+) -> OffsetEstimate:
+    """The log time of ``video``'s first frame (a :class:`~cosemdepth.data.video.VideoReader`) for ``log`` (a
+    :class:`~cosemdepth.flightlogs.FlightLog`) with the camera on ``mount``, ``focal_px`` the horizontal focal
+    length in pixels of the video's displayed frames.
+
+    * A DJI subtitle file is on the video's own clock: the offset is the first frame's presentation time (confidence
+      1, nothing measured).
+    * Otherwise the camera's rotation is matched (:func:`match_rotations`; the video decoded once more, small and
+      gray). Where both the video (its ``creation_time``) and the log (``utc_offset_s``: ULog GPS time, a tlog's
+      wall clock...) have an absolute clock, the offset they imply is recorded beside the estimate as a check
+      (``details["creation_time_offset_s"]``, ``details["creation_time_difference_s"]``); camera clocks are
+      whole seconds at best and may mark the end of the recording, so it does not steer the estimate.
+
+    Raises the one-line :class:`~cosemdepth.errors.ConfigError` of :func:`match_rotations` asking for
+    ``--time-offset`` when the rotation does not decide."""
+    what = f"{video.path} against {log.path}"
+    if log.format == "srt":
+        return OffsetEstimate(
+            float(video.start_s), 1.0, {"method": "srt: the subtitles are on the video's clock (nothing estimated)"}
+        )
+    att = camera_attitude(log, mount)
+    h, w = measure_size(video.size)
+    rot = measure_video_rotations(
+        video.frames(size=(h, w), gray=True), focal_px, video.size[1], count=video.count_hint, progress=progress
+    )
+    est = match_rotations(rot, att, what=what, min_confidence=min_confidence)
+    details = dict(est.details)
+    details["measured_on"] = [h, w]
+    utc = getattr(log, "utc_offset_s", None)
+    if video.creation_time_utc is not None and utc is not None:
+        prior = float(video.creation_time_utc - utc)
+        details["creation_time_offset_s"] = round(prior, 3)
+        details["creation_time_difference_s"] = round(est.offset_s - prior, 3)
+    return OffsetEstimate(est.offset_s, est.confidence, details)
+
+
 __all__ = [
     "Attitude",
+    "camera_attitude",
+    "estimate_time_offset",
     "MIN_CONFIDENCE",
     "OffsetEstimate",
     "VideoRotations",

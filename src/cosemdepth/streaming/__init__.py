@@ -8,8 +8,10 @@ from .frames import FrameBatch, Sink, Source, StreamBatch
 from .pipeline import run
 from .registry import SINKS, SOURCES, register_sink, register_source
 from .sources.dataset import DatasetSource
+from .sources.video_log import VideoLogOptions, VideoLogSource
 
 register_source("dataset", DatasetSource)
+register_source("video", VideoLogSource)
 
 __all__ = [
     "DatasetSource",
@@ -19,6 +21,8 @@ __all__ = [
     "Sink",
     "Source",
     "StreamBatch",
+    "VideoLogOptions",
+    "VideoLogSource",
     "register_sink",
     "register_source",
     "run",

@@ -3,5 +3,6 @@
 from __future__ import annotations
 
 from .dataset import DatasetSource
+from .video_log import VideoLogOptions, VideoLogSource
 
-__all__ = ["DatasetSource"]
+__all__ = ["DatasetSource", "VideoLogOptions", "VideoLogSource"]
