@@ -111,10 +111,11 @@ def quat_to_euler(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     pitch in ``[-pi/2, pi/2]`` (at +-90 degrees of pitch only ``yaw - roll`` or ``yaw + roll`` is defined; the
     angles returned still give the same rotation)."""
     r = quat_to_matrix(q)
-    pitch = np.arcsin(np.clip(-r[..., 2, 0], -1.0, 1.0))
+    cos_pitch = np.hypot(r[..., 2, 1], r[..., 2, 2])
+    pitch = np.arctan2(-r[..., 2, 0], cos_pitch)  # well conditioned near +-90 degrees, unlike arcsin
     roll = np.arctan2(r[..., 2, 1], r[..., 2, 2])
     yaw = np.arctan2(r[..., 1, 0], r[..., 0, 0])
-    lock = np.abs(r[..., 2, 0]) > 1 - 1e-12  # gimbal lock: put the whole turn into yaw
+    lock = cos_pitch < 1e-9  # gimbal lock: put the whole turn into yaw
     if np.any(lock):
         roll = np.where(lock, 0.0, roll)
         yaw = np.where(lock, np.arctan2(-r[..., 0, 1], r[..., 1, 1]), yaw)
