@@ -396,10 +396,15 @@ def match_rotations(
     outside[left : right + 1] = False
     fit = 1.0 - cost / max(problem.energy, 1e-30)
     if outside.any():
-        k2 = int(np.flatnonzero(outside)[np.argmin(coarse[outside])])
-        distinct = 1.0 - max(c_best, 0.0) / max(float(coarse[k2]), 1e-30)
-        details["runner_up_s"] = round(float(offsets[k2]), 4)
-        details["runner_up_cost"] = round(float(coarse[k2]), 4)
+        # the runner-up: the best refined candidate outside the valley, else the coarse minimum there, refined
+        others = [(t, c) for k, (t, c) in zip(picked, refined) if outside[k]]
+        if not others:
+            k2 = int(np.flatnonzero(outside)[np.argmin(coarse[outside])])
+            others = [_refine(problem, float(offsets[k2]), h, lo, hi)]
+        tau2, cost2 = min(others, key=lambda tc: tc[1])
+        distinct = 1.0 - max(cost, 0.0) / max(cost2, 1e-30)
+        details["runner_up_s"] = round(float(tau2), 4)
+        details["runner_up_fit"] = round(float(1.0 - cost2 / max(problem.energy, 1e-30)), 4)
     else:
         distinct = fit
         details["runner_up_s"] = None
