@@ -87,9 +87,9 @@ def read_dataflash(path: Path) -> FlightLog:
 
 def _time(path: Path, row: dict, name: str) -> float:
     if "TimeUS" in row:
-        return row["TimeUS"] * 1e-6
+        return _number(row["TimeUS"]) * 1e-6
     if "TimeMS" in row:
-        return row["TimeMS"] * 1e-3
+        return _number(row["TimeMS"]) * 1e-3
     raise DatasetError(f"{path}: ArduPilot message {name} has no TimeUS or TimeMS field")
 
 
@@ -98,20 +98,30 @@ def _columns(path: Path, rows: list[dict], name: str, fields: tuple[str, ...]) -
     if missing:
         raise DatasetError(f"{path}: ArduPilot message {name} has no field(s) {missing}")
     t = np.array([_time(path, r, name) for r in rows])
-    return [t] + [np.array([float(r[f]) for r in rows]) for f in fields]
+    return [t] + [np.array([_number(r.get(f)) for r in rows]) for f in fields]
+
+
+def _number(value) -> float:
+    """A field's value as a float; NaN (the sample is then dropped) for a value of another type (a damaged FMT)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
 
 
 def _core0(rows: list[dict]) -> list[dict]:
-    return [r for r in rows if int(r.get("C", 0)) == 0]
+    return [r for r in rows if _number(r.get("C", 0)) == 0]
 
 
 def _utc_offset(rows: list[dict]) -> float | None:
     offsets = []
     for r in rows:
-        if int(r.get("Status", 0)) >= 3 and int(r.get("GWk", 0)) > 0 and "TimeUS" in r:
-            utc = GPS_EPOCH_UNIX + r["GWk"] * 604800 + r["GMS"] * 1e-3 - GPS_LEAP_SECONDS
-            offsets.append(utc - r["TimeUS"] * 1e-6)
-    return float(np.median(offsets)) if offsets and math.isfinite(float(np.median(offsets))) else None
+        status, week, ms, us = (_number(r.get(k)) for k in ("Status", "GWk", "GMS", "TimeUS"))
+        if status >= 3 and week > 0:
+            utc = GPS_EPOCH_UNIX + week * 604800 + ms * 1e-3 - GPS_LEAP_SECONDS
+            offsets.append(utc - us * 1e-6)
+    offsets = [o for o in offsets if math.isfinite(o)]
+    return float(np.median(offsets)) if offsets else None
 
 
 def _first_line(e: BaseException) -> str:

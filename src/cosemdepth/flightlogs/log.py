@@ -133,7 +133,8 @@ def make_series(path: Path, what: str, t, v) -> Series | None:
     come after every earlier one dropped (duplicates, reordering); None if nothing is left. A step back of the
     clock by more than ``MAX_BACKSTEP_S`` is a DatasetError naming ``what`` (a restart inside the log)."""
     t = np.asarray(t, dtype=np.float64).reshape(-1)
-    v = np.asarray(v, dtype=np.float64).reshape(len(t), -1)
+    v = np.asarray(v, dtype=np.float64)
+    v = v.reshape(len(t), -1) if v.size else v.reshape(len(t), v.shape[-1] if v.ndim > 1 else 1)
     keep = np.isfinite(t) & np.all(np.isfinite(v), axis=1)
     t, v = t[keep], v[keep]
     if len(t) == 0:

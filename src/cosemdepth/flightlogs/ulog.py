@@ -59,7 +59,7 @@ def read_ulog(path: Path) -> FlightLog:
         used["position"] = describe("vehicle_odometry.position", position, note)
     elif "vehicle_attitude" in topics:
         d = topics["vehicle_attitude"]
-        t, clock = _times(d)
+        t, clock = _times(path, d, "vehicle_attitude")
         attitude = quaternion_series(path, "vehicle_attitude", t, _columns(path, d, "vehicle_attitude", "q", 4))
         used["attitude"] = describe("vehicle_attitude.q", attitude, clock)
     elif odo_att is not None and note.startswith("NED"):  # the same NED world as vehicle_local_position
@@ -68,7 +68,7 @@ def read_ulog(path: Path) -> FlightLog:
     resolution = 0.0
     if position is None and "vehicle_local_position" in topics:
         d = topics["vehicle_local_position"]
-        t, clock = _times(d)
+        t, clock = _times(path, d, "vehicle_local_position")
         xyz = np.stack([_field(path, d, "vehicle_local_position", k) for k in "xyz"], 1)
         valid = np.ones(len(t), dtype=bool)
         for flag in ("xy_valid", "z_valid"):
@@ -78,7 +78,7 @@ def read_ulog(path: Path) -> FlightLog:
         used["position"] = describe("vehicle_local_position.x/y/z where xy_valid and z_valid", position, clock)
     if position is None and "vehicle_global_position" in topics:
         d = topics["vehicle_global_position"]
-        t, clock = _times(d)
+        t, clock = _times(path, d, "vehicle_global_position")
         lat, lon, alt = (_field(path, d, "vehicle_global_position", k) for k in ("lat", "lon", "alt"))
         ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt) & ~((lat == 0) & (lon == 0))
         if ok.any():
@@ -108,7 +108,7 @@ def read_ulog(path: Path) -> FlightLog:
 
 def _odometry(path: Path, d: dict):
     """vehicle_odometry -> (attitude, position, "NED" / "FRD" note) in its most common valid frame."""
-    t, clock = _times(d)
+    t, clock = _times(path, d, "vehicle_odometry")
     key = next((k for k in POSE_FRAMES if k in d), None)
     if key is None:
         return None, None, ""
@@ -132,11 +132,11 @@ def _odometry(path: Path, d: dict):
     return attitude, position, note
 
 
-def _times(d: dict) -> tuple[np.ndarray, str]:
+def _times(path: Path, d: dict, topic: str) -> tuple[np.ndarray, str]:
     ts = d.get("timestamp_sample")
     if ts is not None and len(ts) and np.all(ts > 0):
         return ts.astype(np.float64) * 1e-6, "timestamp_sample"
-    return d["timestamp"].astype(np.float64) * 1e-6, "timestamp"
+    return _field(path, d, topic, "timestamp") * 1e-6, "timestamp"
 
 
 def _field(path: Path, d: dict, topic: str, name: str) -> np.ndarray:
@@ -152,7 +152,7 @@ def _columns(path: Path, d: dict, topic: str, name: str, n: int) -> np.ndarray:
 def _utc_offset(topics: dict) -> tuple[float, str] | None:
     for name in ("sensor_gps", "vehicle_gps_position"):
         d = topics.get(name)
-        if d is None or "time_utc_usec" not in d:
+        if d is None or "time_utc_usec" not in d or "timestamp" not in d:
             continue
         utc = d["time_utc_usec"].astype(np.float64)
         ok = utc > 0

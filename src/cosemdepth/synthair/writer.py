@@ -8,13 +8,15 @@ Layout under the output folder ``DIR``::
     DIR/SynthAir/<climate>/stereo_disparity/trajectory_XXXX/NNNNNN.PNG    float16 bits of 512/z-depth (any S)
     DIR/SynthAir/<climate>/segmentation/trajectory_XXXX/NNNNNN.PNG        8-bit Mid-Air label IDs
     DIR/splits/{train,val,test}_data/SynthAir/<climate>/traj_XXXX.csv      from generate_splits(DIR, DIR/splits)
+    DIR/SynthAir/<climate>/flight_export/trajectory_XXXX/...               with ``export``: video and logs (.export)
 
 Trajectory numbers are ``climate_number * 1000 + i`` with Mid-Air's climate numbers (sunny 0, sunset 1, foggy 2,
 cloudy 3). By default only the frames that the split CSVs use are rendered (K, 2K, ..., R K with R CSV rows and
 the frame step K, 4 by default as in Mid-Air); ``all_frames`` renders every 25 Hz frame. A motion profile
-(``motion``, :mod:`.motion`) warps the timeline of every flight. Every file is written atomically; an interrupted
-run can be resumed by running the same command again (frames already on disk are kept, and they are identical to
-what would be written).
+(``motion``, :mod:`.motion`) warps the timeline of every flight. A camera mount (``camera_mount``) puts the camera on
+the flying body: the tree (frames, ground truth, CSVs) is then the mounted camera's, and the exports hold the body's
+logs. Every file is written atomically; an interrupted run can be resumed by running the same command again (frames
+already on disk are kept, and they are identical to what would be written).
 """
 
 from __future__ import annotations
@@ -163,9 +165,9 @@ class SynthConfig:
             plan.frame_times((self.frames * SAMPLES_PER_FRAME - 1) / fmt.GROUNDTRUTH_RATE)
 
     def metadata(self) -> dict:
-        """Everything that determines the output bytes (what ``synthair.json`` records). ``motion`` and
-        ``frame_step`` appear only when they differ from the defaults (the normal flight, step 4), so that the
-        default output stays what it was."""
+        """Everything that determines the output bytes (what ``synthair.json`` records). ``motion``,
+        ``frame_step``, ``camera_mount`` and ``export`` appear only when they differ from the defaults (the normal
+        flight, step 4, the forward camera, no export), so that the default output stays what it was."""
         meta = {
             "generator": "cosemdepth synth",
             "version": VERSION,
