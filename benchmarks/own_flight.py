@@ -255,7 +255,9 @@ def srt_validity(manifest: dict) -> dict:
     """Estimated / held frames against the positions' resolution (``dataset.log.position_resolution_m``)."""
     res = float(((manifest.get("dataset") or {}).get("log") or {}).get("position_resolution_m") or 0.0)
     short_valid = [
-        r for r in manifest["frames"] if r.get("status") == "estimated" and r.get("baseline_m", 0.0) < res and r.get("valid_fraction", 0) > 0
+        r
+        for r in manifest["frames"]
+        if r.get("status") == "estimated" and r.get("baseline_m", 0.0) < res and r.get("valid_fraction", 0) > 0
     ]
     held = [r for r in manifest["frames"] if r.get("status") == "held"]
     return {

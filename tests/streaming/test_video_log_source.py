@@ -21,7 +21,8 @@ from cosemdepth.errors import ConfigError, DatasetError  # noqa: E402
 from cosemdepth.flightlogs.timesync import attitude_at  # noqa: E402
 from cosemdepth.flightlogs.ulog_writer import PX4_FORMATS, Topic, write_ulog  # noqa: E402
 from cosemdepth.geometry.mount import parse_mount  # noqa: E402
-from cosemdepth.streaming import SOURCES, VideoLogOptions  # noqa: E402
+from cosemdepth.streaming import SOURCES  # noqa: E402
+from cosemdepth.streaming.sources.video_log import VideoLogOptions  # noqa: E402
 
 RATE = 100.0  # log samples per second
 LOG_START, LOG_END = 5.0, 20.0  # seconds since boot

@@ -4,14 +4,11 @@
 
 from __future__ import annotations
 
+from . import sinks, sources  # noqa: F401 (the built-in sources and sinks register themselves)
 from .frames import FrameBatch, Sink, Source, StreamBatch
 from .pipeline import run
 from .registry import SINKS, SOURCES, register_sink, register_source
 from .sources.dataset import DatasetSource
-from .sources.video_log import VideoLogOptions, VideoLogSource
-
-register_source("dataset", DatasetSource)
-register_source("video", VideoLogSource)
 
 __all__ = [
     "DatasetSource",
@@ -21,8 +18,6 @@ __all__ = [
     "Sink",
     "Source",
     "StreamBatch",
-    "VideoLogOptions",
-    "VideoLogSource",
     "register_sink",
     "register_source",
     "run",

@@ -39,7 +39,9 @@ from ...errors import ConfigError, DatasetError
 from ...flightlogs import LOG_FORMATS, read_log
 from ...flightlogs.timesync import estimate_time_offset
 from ...geometry.mount import CameraMount, camera_poses, parse_mount
+from ...output_safety.outdir import Input
 from ..frames import FrameBatch
+from ..registry import register_source
 
 #: ``time_offset`` value that estimates the offset (the default for a video with a log).
 AUTO = "auto"
@@ -78,6 +80,9 @@ class VideoLogOptions:
     max_pose_gap: float | None = None
     trajectory: str | None = None
 
+    #: the source table's name of this input
+    source = "video"
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "video", Path(self.video))
         object.__setattr__(self, "log", Path(self.log))
@@ -103,6 +108,25 @@ class VideoLogOptions:
         if self.max_pose_gap is not None and not float(self.max_pose_gap) >= 0:
             raise ConfigError(f"--max-pose-gap must be >= 0 seconds, got {self.max_pose_gap}")
         self.mount()  # the spec and the lever arm checked now
+
+    def inputs(self) -> list[Input]:
+        """The paths it reads (the output policy of :mod:`cosemdepth.output_safety.outdir`)."""
+        return [Input("--images", self.video), Input("--log", self.log)]
+
+    def settings(self) -> dict[str, Any]:
+        """``predictions.json``'s ``run`` entries about the input (the offset itself: the source's
+        :meth:`VideoLogSource.describe`)."""
+        return {
+            "intrinsics_given": None if self.intrinsics is None else [float(v) for v in self.intrinsics],
+            "hfov_deg": self.hfov,
+            "convention": "opencv",
+            "frame_skip": self.frame_skip,
+            "log": str(self.log),
+            "log_format": self.log_format,
+            "time_offset": self.time_offset,
+            "camera_mount": self.mount().spec,
+            "max_pose_gap": self.max_pose_gap,
+        }
 
     def mount(self) -> CameraMount:
         """The camera mount of ``camera_mount`` and ``lever_arm``."""
@@ -333,8 +357,23 @@ class VideoLogSource:
                 f"(time offset {self.time_offset:.3f} s); check --time-offset"
             )
 
+    def report(self) -> str:
+        """``"; video: 251 frames, clock offset 49.874 s (estimated from the camera's rotation, confidence 0.81)"``
+        (and the frames outside the log)."""
+        how = "given" if self.confidence is None else self.offset_details.get("method", "estimated")
+        if self.confidence is not None and self.log.format != "srt":
+            how = f"estimated from the camera's rotation, confidence {self.confidence:.2f}"
+        text = f"; video: {self.frames_streamed} frames, clock offset {self.time_offset:.3f} s ({how})"
+        if self.frames_outside_log:
+            text += f"; {self.frames_outside_log} frames outside the log (resets without depth)"
+        if self.depth_unavailable():
+            text += f"; no depth: {self.depth_unavailable()}"
+        return text
+
     def close(self) -> None:
         """Nothing stays open between batches (each pass opens the file anew)."""
 
+
+register_source("video", VideoLogSource)
 
 __all__ = ["AUTO", "VideoLogOptions", "VideoLogSource"]
