@@ -14,47 +14,15 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "flightlogs"))
 from _rotation_signals import random_attitude, render_sphere  # noqa: E402
-from _videos import pattern, write_pyav  # noqa: E402
+from _video_flights import LOG_START, RATE, SPEED, YAW_RATE, write_log, write_video  # noqa: E402
+from _videos import write_pyav  # noqa: E402
 
 from cosemdepth.data.quaternion import qmul  # noqa: E402
 from cosemdepth.errors import ConfigError, DatasetError  # noqa: E402
 from cosemdepth.flightlogs.timesync import attitude_at  # noqa: E402
-from cosemdepth.flightlogs.ulog_writer import PX4_FORMATS, Topic, write_ulog  # noqa: E402
 from cosemdepth.geometry.mount import parse_mount  # noqa: E402
 from cosemdepth.streaming import SOURCES  # noqa: E402
 from cosemdepth.streaming.sources.video_log import VideoLogOptions  # noqa: E402
-
-RATE = 100.0  # log samples per second
-LOG_START, LOG_END = 5.0, 20.0  # seconds since boot
-SPEED = 2.0  # m/s north
-YAW_RATE = 0.2  # rad/s, turning right (clockwise from above)
-
-
-def body_pose(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The vehicle flies north at SPEED while yawing right at YAW_RATE: body FRD -> NED quaternions, NED metres."""
-    yaw = YAW_RATE * (t - LOG_START)
-    q = np.stack([np.cos(yaw / 2), 0 * t, 0 * t, np.sin(yaw / 2)], -1)
-    p = np.stack([SPEED * (t - LOG_START), 0 * t, -10.0 + 0 * t], -1)
-    return q, p
-
-
-def write_log(path: Path, q_fn=body_pose, positions: bool = True, start=LOG_START, end=LOG_END) -> Path:
-    t = np.arange(start, end, 1 / RATE)
-    q, p = q_fn(t)
-    us = np.round(t * 1e6).astype(np.uint64)
-    topics = [
-        Topic("vehicle_attitude", PX4_FORMATS["vehicle_attitude"], {"timestamp": us, "timestamp_sample": us, "q": q})
-    ]
-    if positions:
-        data = {"timestamp": us, "timestamp_sample": us, "x": p[:, 0], "y": p[:, 1], "z": p[:, 2]}
-        data.update(xy_valid=np.ones(len(t)), z_valid=np.ones(len(t)))
-        topics.append(Topic("vehicle_local_position", PX4_FORMATS["vehicle_local_position"], data))
-    write_ulog(path, topics, start_us=int(start * 1e6) - 1000)
-    return path
-
-
-def write_video(path: Path, n: int = 20, fps: float = 25.0) -> Path:
-    return write_pyav(path, [pattern(k) for k in range(n)], np.arange(n) / fps)
 
 
 def options(tmp_path, **kw) -> VideoLogOptions:
@@ -91,7 +59,7 @@ def test_times_names_and_motions_of_a_forward_camera(tmp_path):
     np.testing.assert_allclose(pose[:3, 2], [np.cos(1.0), np.sin(1.0), 0.0], atol=1e-5)  # optical z = heading
     info = src.describe()
     assert info["time_offset_s"] == 10.0 and info["time_offset_confidence"] is None
-    assert info["log"]["format"] == "ulog" and info["frames_outside_log"] == 0 and info["video"]["frames"] == 20
+    assert info["log"]["format"] == "ulog" and src.frames_outside_log == 0 and info["video"]["frames"] == 20
     assert src.min_baseline_m == 0.0
 
 
@@ -122,7 +90,8 @@ def test_frames_before_the_log_are_resets_without_depth(tmp_path):
     )
     assert [bool(b.reset[0]) for b in batches[:10]] == [True] * 9 + [False]  # the first covered frame starts afresh
     assert batches[0].pose is None and batches[8].pose is not None
-    assert src.describe()["frames_outside_log"] == 8
+    assert src.frames_outside_log == 8
+    assert src.report().endswith("; 8 frames outside the log (resets without depth)")
 
 
 def test_a_video_the_log_does_not_cover(tmp_path):

@@ -265,6 +265,9 @@ def run_settings(options: PredictOptions, source) -> dict[str, Any]:
     ):
         out[key] = own.get(key)
     out["jpeg_idct"] = getattr(options.source, "jpeg_idct", None)
+    entries = getattr(source, "run_entries", None)  # a source's own settings found while opening (a clock offset)
+    if callable(entries):
+        out.update(entries())
     return out
 
 
@@ -300,12 +303,21 @@ def run_predict(options: PredictOptions) -> CommandResult:
         staged,
         files=options.files,
         run=options.run,
-        streamer=Streamer(model, policy, min_baseline=min_baseline),
+        streamer=floored(Streamer(model, policy, min_baseline=min_baseline), source),
         dataset_name=getattr(options.source, "dataset_name", None),
         info=info,
         sinks=sinks,
     )
     return CommandResult(manifest, *predict_report(manifest, options, source.report()))
+
+
+def floored(streamer: Streamer, source) -> Streamer:
+    """``streamer`` with its minimum baseline raised to the source's ``min_baseline_m`` where that is larger (the
+    resolution of a log's positions: a baseline shorter than it is not measured), whatever the policy."""
+    floor = float(getattr(source, "min_baseline_m", 0.0) or 0.0)
+    if streamer.has_depth and floor > (streamer.min_baseline or 0.0):
+        streamer.min_baseline = floor
+    return streamer
 
 
 def output_sinks(options: PredictOptions, source, model) -> list:
@@ -390,6 +402,7 @@ __all__ = [
     "PredictOptions",
     "default_policy",
     "depth_report",
+    "floored",
     "no_depth_reason",
     "output_sinks",
     "predict",

@@ -15,6 +15,7 @@ from typing import Any, Callable, Iterator, Optional, Sequence
 import torch
 
 from ..errors import ConfigError, NonFiniteOutputError
+from ..models.outputs import RESET
 from .frames import FrameBatch, Sink, StreamBatch, with_outputs
 
 
@@ -103,6 +104,16 @@ def _guided(streamer):
     return Streamer(guide, streamer.policy, min_baseline=streamer.min_baseline), guide
 
 
+def no_depth_where_not_ok(depth_ok, valid, status: list[str]):
+    """``(valid, status)`` with nothing valid and the status ``reset`` on the rows whose ``depth_ok`` is False (the
+    source could give no usable motion for them: the frame keeps its labels, not its depth)."""
+    if depth_ok is None or valid is None or bool(depth_ok.all()):
+        return valid, status
+    bad = ~depth_ok.to(device=valid.device, dtype=torch.bool)
+    valid = valid & ~bad.view(-1, *([1] * (valid.dim() - 1)))
+    return valid, [RESET if b else s for s, b in zip(status, bad.tolist())]
+
+
 def steps(
     source,
     streamer,
@@ -144,11 +155,14 @@ def steps(
             seconds = time.perf_counter() - t0
             heads = dict(getattr(out, "heads", None) or {})
             check_finite_outputs(heads, frames)
+            valid, status = no_depth_where_not_ok(
+                frames.depth_ok, getattr(out, "valid", None), list(getattr(out, "status", None) or ())
+            )
             batch = with_outputs(
                 frames,
                 heads=heads,
-                valid=getattr(out, "valid", None),
-                status=list(getattr(out, "status", None) or ()),
+                valid=valid,
+                status=status,
                 baseline=getattr(out, "baseline", None),
                 seconds=seconds,
             )
@@ -208,6 +222,7 @@ __all__ = [
     "model_device",
     "model_dtype",
     "needs_depth_input",
+    "no_depth_where_not_ok",
     "run",
     "steps",
 ]

@@ -2,7 +2,7 @@
 
 Output folder (one sub-folder per trajectory; ``NNNNNN`` is the input image's file stem, so that a user can match
 outputs and inputs (for a bag frame: ``<topic's last part>_<seconds, 10 digits>.<nanoseconds, 9 digits>``, the
-image's full stamp); the frame's row in its trajectory, 6 digits, when the dataset has no file names; a stem seen
+image's full stamp; for a video frame: its 0-based index in decoding order, 6 digits); the frame's row in its trajectory, 6 digits, when the dataset has no file names; a stem seen
 twice in one trajectory gets ``_<row>`` appended)::
 
     OUT/predictions.json                       what was run, the encodings below, every frame's status and files
@@ -111,7 +111,9 @@ _EXTENSION = re.compile(r"\.[A-Za-z][A-Za-z0-9]{0,4}$")
 
 def file_stem(source: str) -> str:
     """The last part of a frame's source (a path, or a bag frame's ``bag:topic@stamp``) without its file-type
-    extension."""
+    extension; a video frame's (``<video>#000042``) is its index."""
+    if "#" in source:
+        return source.rsplit("#", 1)[1]
     return _EXTENSION.sub("", Path(source).name)
 
 

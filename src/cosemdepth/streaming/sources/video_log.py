@@ -14,7 +14,7 @@ from the log at the frame's time.
   (:func:`cosemdepth.data.poses.relative_camera_motions` in optical axes).
 * **Frames without a usable motion** are still streamed (their labels are estimated) with ``depth_ok`` False and the
   reason in ``meta["depth_invalid_reason"]``: frames outside the log's span or in a gap of it (these are also resets:
-  the motion breaks there; counted in :meth:`describe` ``frames_outside_log``), and every frame of a log without
+  the motion breaks there; counted in :attr:`frames_outside_log` and :meth:`report`), and every frame of a log without
   positions or without attitude. A video none of whose frames falls inside the log is an error. Positions coarser
   than an estimator's (GPS latitude/longitude) set :attr:`min_baseline_m` to their resolution: the baseline policy
   never estimates depth from a shorter baseline.
@@ -114,17 +114,13 @@ class VideoLogOptions:
         return [Input("--images", self.video), Input("--log", self.log)]
 
     def settings(self) -> dict[str, Any]:
-        """``predictions.json``'s ``run`` entries about the input (the offset itself: the source's
-        :meth:`VideoLogSource.describe`)."""
+        """``predictions.json``'s ``run`` entries about the input that every flight has (the log's: the source's
+        :meth:`VideoLogSource.run_entries`)."""
         return {
             "intrinsics_given": None if self.intrinsics is None else [float(v) for v in self.intrinsics],
             "hfov_deg": self.hfov,
             "convention": "opencv",
             "frame_skip": self.frame_skip,
-            "log": str(self.log),
-            "log_format": self.log_format,
-            "time_offset": self.time_offset,
-            "camera_mount": self.mount().spec,
             "max_pose_gap": self.max_pose_gap,
         }
 
@@ -188,6 +184,20 @@ class VideoLogSource:
         """The shortest baseline the log's positions can measure (their resolution; 0 for an estimator's)."""
         return float(self.log.position_resolution_m)
 
+    def run_entries(self) -> dict[str, Any]:
+        """``predictions.json``'s ``run`` entries of the log and the clock: ``time_offset_s`` (the offset used,
+        given or estimated), ``time_offset_confidence`` (None when given), ``time_offset_method``, the log, its
+        format, the camera mount."""
+        return {
+            "log": str(self.options.log),
+            "log_format": self.log.format,
+            "time_offset_s": self.time_offset,
+            "time_offset_confidence": self.confidence,
+            "time_offset_method": self.offset_details.get("method"),
+            "camera_mount": self.mount_.spec,
+            "lever_arm_m": [float(v) for v in self.mount_.lever_arm],
+        }
+
     def log_time(self, pts_s: float) -> float:
         """The log time of a frame with presentation time ``pts_s``."""
         return self.time_offset + (float(pts_s) - self.video.start_s)
@@ -238,8 +248,6 @@ class VideoLogSource:
             "time_offset_confidence": self.confidence,
             "time_offset": self.offset_details,
             "depth_unavailable": self.depth_unavailable(),
-            "frames_streamed": self.frames_streamed,
-            "frames_outside_log": self.frames_outside_log,
         }
 
     # ------------------------------------------------------------------ poses
