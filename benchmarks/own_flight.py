@@ -5,7 +5,7 @@ log (PX4 ULog, ArduPilot DataFlash, MAVLink tlog, DJI SRT), clocks that disagree
         [--flights forward pitch30 down] [--threads N] [--out benchmarks/results/own_flight]
 
 Flights (:data:`FLIGHTS`): one sunny trajectory of world ``--seed`` (held out: the shipped weights were trained on
-worlds 11-17), 128x128 px, 3x supersampled, :data:`FRAMES` frames, exported by ``cosemdepth synth --export ...
+worlds 11-17), 128x128 px, :data:`FRAMES` frames, exported by ``cosemdepth synth --export ...
 --time-offset 12.37``: the video starts 12.37 s into the flight and its logs (a quarter of a frame off the 25 Hz
 grid), with the camera looking forward, pitched down 30 degrees (``--camera-mount 0,-30,0``) or straight down
 (``down``). Generated into ``<cache>/<flight>`` and kept.
@@ -92,8 +92,8 @@ def generate(cache: Path, name: str, seed: int, env: dict) -> Path:
     cmd = [sys.executable, "-m", "cosemdepth", "synth", "--out", str(root), "--trajectories", "1"]
     cmd += ["--climates", CLIMATE, "--frames", str(FRAMES), "--size", str(SIZE), "--supersample", str(SUPERSAMPLE)]
     cmd += ["--seed", str(seed), "--camera-mount", mount, "--export", formats, "--time-offset", str(TIME_OFFSET)]
-    done = root / "synthair.json"
-    if not (done.is_file() and all((export_folder(root) / LOGS.get(f, "video.mp4")).is_file() for f in ("ulog",))):
+    exported = sorted(root.glob(f"SynthAir/{CLIMATE}/flight_export/trajectory_*/truth.csv"))
+    if not ((root / "synthair.json").is_file() and exported):
         print(f"generating {name} ...", flush=True)
         cache.mkdir(parents=True, exist_ok=True)
         sh([*cmd, "--no-progress"], cache / f"{name}.synth.log", env)
@@ -234,10 +234,12 @@ def run_flight(name: str, args, env: dict) -> dict:
         run = m.get("run", {})
         if route != "images":
             offset = run.get("time_offset_s")
+            # the subtitles are on the video's clock: their true offset is the first frame's video time
+            truth_s = truth[0]["video_time_s"] if route == "srt" else true_offset
             entry.update(
                 time_offset_s=offset,
-                offset_error_s=None if offset is None else offset - true_offset,
-                offset_error_frames=None if offset is None else (offset - true_offset) / frame_s,
+                offset_error_s=None if offset is None else offset - truth_s,
+                offset_error_frames=None if offset is None else (offset - truth_s) / frame_s,
                 time_offset_confidence=run.get("time_offset_confidence"),
                 time_offset=(m.get("dataset") or {}).get("time_offset"),
             )

@@ -22,12 +22,16 @@ def pattern(k: int, h: int = 48, w: int = 64) -> np.ndarray:
     return img
 
 
-def write_pyav(path: Path, frames, times_s, *, codec: str = "libx264", pix_fmt: str = "yuv444p", tb=1000):
-    """``frames`` [N] of ``[H, W, 3]`` uint8 at presentation times ``times_s`` (seconds, a multiple of ``1/tb``)."""
+def write_pyav(
+    path: Path, frames, times_s, *, codec: str = "libx264", pix_fmt: str = "yuv444p", tb=1000, metadata=None
+):
+    """``frames`` [N] of ``[H, W, 3]`` uint8 at presentation times ``times_s`` (seconds, a multiple of ``1/tb``);
+    ``metadata``: the container's tags (``creation_time``...)."""
     import av
 
     base = Fraction(1, tb)
     with av.open(str(path), "w") as c:
+        c.metadata.update(metadata or {})
         h, w = frames[0].shape[:2]
         s = c.add_stream(codec, rate=25)
         s.width, s.height, s.pix_fmt = w, h, pix_fmt

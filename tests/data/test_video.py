@@ -37,6 +37,12 @@ def test_pyav_variable_rate_times_are_kept_exactly_and_frames_come_in_order(tmp_
     assert skipped == [(i, VFR_TIMES[i]) for i in range(0, len(VFR_TIMES), 3)]
 
 
+def test_creation_time_is_read_as_utc(tmp_path):
+    tagged = write_pyav(tmp_path / "t.mp4", [pattern(0)], [0.0], metadata={"creation_time": "2026-12-07T10:00:50Z"})
+    assert open_video(tagged).creation_time_utc == 1_796_637_650.0  # 2026-12-07 10:00:50 UTC
+    assert open_video(write_pyav(tmp_path / "u.mp4", [pattern(0)], [0.0])).creation_time_utc is None
+
+
 def test_imageio_ffmpeg_constant_rate_video(tmp_path):
     frames = [pattern(k, 40, 56) for k in range(9)]
     path = write_imageio(tmp_path / "cfr.mov", frames, fps=30)

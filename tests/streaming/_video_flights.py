@@ -26,7 +26,11 @@ def body_pose(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return q, p
 
 
-def write_log(path: Path, q_fn=body_pose, positions: bool = True, start=LOG_START, end=LOG_END) -> Path:
+def write_log(
+    path: Path, q_fn=body_pose, positions: bool = True, start=LOG_START, end=LOG_END, utc_at_boot: float | None = None
+) -> Path:
+    """A ULog of ``q_fn``'s attitude (and positions) at RATE Hz from log time ``start``; with ``utc_at_boot``, a
+    ``sensor_gps`` topic whose UTC clock says the boot was at that Unix time."""
     t = np.arange(start, end, 1 / RATE)
     q, p = q_fn(t)
     us = np.round(t * 1e6).astype(np.uint64)
@@ -37,6 +41,11 @@ def write_log(path: Path, q_fn=body_pose, positions: bool = True, start=LOG_STAR
         data = {"timestamp": us, "timestamp_sample": us, "x": p[:, 0], "y": p[:, 1], "z": p[:, 2]}
         data.update(xy_valid=np.ones(len(t)), z_valid=np.ones(len(t)))
         topics.append(Topic("vehicle_local_position", PX4_FORMATS["vehicle_local_position"], data))
+    if utc_at_boot is not None:
+        g = us[::20]
+        utc = (g + np.uint64(round(utc_at_boot * 1e6))).astype(np.uint64)
+        data = {"timestamp": g, "timestamp_sample": g, "time_utc_usec": utc, "fix_type": np.full(len(g), 3)}
+        topics.append(Topic("sensor_gps", PX4_FORMATS["sensor_gps"], data))
     write_ulog(path, topics, start_us=int(start * 1e6) - 1000)
     return path
 

@@ -142,18 +142,23 @@ def test_the_offset_is_estimated_from_a_video_of_the_logged_attitude(tmp_path):
     for q in q_cam:
         img = render_sphere(q, size, focal)
         frames.append(np.repeat(np.clip(128 + 30 * img, 0, 255).astype(np.uint8)[..., None], 3, axis=2))
-    video = write_pyav(tmp_path / "sphere.mp4", frames, pts)
+    # the camera's clock (creation_time, whole seconds) says the video started 0.63 s after the truth
+    boot = 1_796_637_600.0
+    tag = {"creation_time": "2026-12-07T10:00:13Z"}  # boot + 13 s; the truth is boot + 12.37 s
+    video = write_pyav(tmp_path / "sphere.mp4", frames, pts, metadata=tag)
 
     def log_q(t):
         return attitude_at(att, t), np.zeros((len(t), 3))
 
-    log = write_log(tmp_path / "wander.ulg", log_q, end=LOG_START + 24.9)
+    log = write_log(tmp_path / "wander.ulg", log_q, end=LOG_START + 24.9, utc_at_boot=boot)
     opts = VideoLogOptions(video=video, log=log, hfov=90.0, camera_mount="0,-30,0")
     src = SOURCES["video"].from_options(opts, None)
     assert abs(src.time_offset - offset) < 0.01  # a quarter of a frame
     assert src.confidence > 0.5
     info = src.describe()
     assert info["time_offset"]["method"].startswith("image rotation") and info["time_offset_s"] == src.time_offset
+    assert info["time_offset"]["creation_time_offset_s"] == pytest.approx(13.0, abs=1e-3)  # recorded as a check
+    assert info["time_offset"]["creation_time_difference_s"] == pytest.approx(-0.63, abs=0.01)
     # the wrong mount (forward instead of pitched down) rotates the log's rates into other axes: a worse fit
     wrong = SOURCES["video"].from_options(
         VideoLogOptions(video=video, log=log, hfov=90.0, camera_mount="forward"), None

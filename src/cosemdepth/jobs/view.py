@@ -19,7 +19,7 @@ from ..streaming.sinks.status import StatusSink
 from ..tasks import class_count
 from .model import ModelOptions, check_run_size, load_for
 from .options import RunOptions, open_source
-from .predict import CommandResult, default_policy, depth_report
+from .predict import CommandResult, default_policy, depth_report, floored
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ def run_view(options: ViewOptions) -> CommandResult:
     except BaseException:
         source.close()
         raise
-    streamer = Streamer(model, policy, min_baseline=min_baseline)
+    streamer = floored(Streamer(model, policy, min_baseline=min_baseline), source)
     total = source.total_frames(options.run.max_frames) if hasattr(source, "total_frames") else None
     bar = tqdm(total=total, unit="frame", desc="view", disable=not options.run.progress, leave=False)
     try:

@@ -366,10 +366,13 @@ class VideoLogSource:
             )
 
     def report(self) -> str:
-        """``"; video: 251 frames, clock offset 49.874 s (estimated from the camera's rotation, confidence 0.81)"``
-        (and the frames outside the log)."""
-        how = "given" if self.confidence is None else self.offset_details.get("method", "estimated")
-        if self.confidence is not None and self.log.format != "srt":
+        """``"; video: 251 frames, clock offset 49.875 s (estimated from the camera's rotation, confidence 0.81)"``
+        (and the frames outside the log, and why there is no depth where there is none)."""
+        if self.confidence is None:
+            how = "given"
+        elif self.log.format == "srt":
+            how = "the DJI subtitles are on the video's clock"
+        else:
             how = f"estimated from the camera's rotation, confidence {self.confidence:.2f}"
         text = f"; video: {self.frames_streamed} frames, clock offset {self.time_offset:.3f} s ({how})"
         if self.frames_outside_log:
