@@ -18,6 +18,7 @@ from ..inference.policy import BASELINE, EVERY_FRAME, POLICIES
 from ..jobs.model import PRECISION_DTYPES
 from ..models import build_model
 from ..models.config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
+from ..models.protocol import StreamingModel
 from ..workers import WORKERS_PER_CORE
 
 #: The model config's defaults (``--arch/--levels/--classes`` read them: one home for defaults).
@@ -115,7 +116,7 @@ def load_or_build(args: argparse.Namespace, device: str = "cpu"):
     return build_model(cfg).to(device).eval()
 
 
-def model_size_pair(values: list[int] | None, model, warn: bool = True) -> tuple[int, int]:
+def model_size_pair(values: list[int] | None, model: StreamingModel, warn: bool = True) -> tuple[int, int]:
     """``--size H W`` of export / benchmark: as given, else the model's training size (its operating point), else
     :data:`DEFAULT_SIZE_PAIR`. With ``warn``, a given size far from the model's focal length (its camera's field of
     view assumed) gets a warning on stderr."""

@@ -40,6 +40,8 @@ from tqdm.auto import tqdm
 from .. import __version__
 from ..errors import ConfigError
 from ..inference.policy import EVERY_FRAME, Streamer, policy_info
+from ..models.config import ModelConfig
+from ..models.protocol import StreamingModel
 from ..streaming import pipeline
 from ..streaming.frames import Sink, StreamBatch
 from ..streaming.sinks.metrics import MetricsSink
@@ -68,7 +70,7 @@ def dataset_modalities(dataset) -> tuple[bool, bool]:
     return "depth" in found, "semantic" in found
 
 
-def _model_config(model):
+def _model_config(model: StreamingModel) -> ModelConfig:
     cfg = getattr(model, "config", None)
     if cfg is None or not hasattr(cfg, "decoders"):
         raise ConfigError(
@@ -242,7 +244,7 @@ class Evaluator:
 
     def __init__(
         self,
-        model,
+        model: StreamingModel,
         dataset,
         *,
         lanes: int = 1,
@@ -387,7 +389,7 @@ def _dataset_size(ds) -> list[int] | None:
     return [int(s) for s in size] if isinstance(size, (tuple, list)) else [int(size), int(size)]
 
 
-def evaluate(model, dataset, **options: Any) -> EvaluationResult:
+def evaluate(model: StreamingModel, dataset, **options: Any) -> EvaluationResult:
     """Evaluate ``model`` on ``dataset`` with the test protocol (see the module docstring).
 
     The keyword-only options are those of :class:`Evaluator` (one signature, shown as this function's).

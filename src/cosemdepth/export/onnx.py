@@ -28,7 +28,9 @@ from .. import __version__
 from ..errors import ConfigError
 from ..inference.fast_model import reference_model
 from ..models.config import MIDAIR_IMAGE_SIZE
+from ..models.model import SceneModel
 from ..models.outputs import StreamState
+from ..models.protocol import StreamingModel
 from ..output_safety.atomic import atomic_path
 
 #: ONNX opset (``--opset``): GridSample needs at least ``MIN_OPSET``.
@@ -58,7 +60,7 @@ def state_components(names) -> tuple[str, ...]:
     return tuple(comps)
 
 
-def state_shapes(model, batch: int, height: int, width: int) -> list[tuple[int, ...]]:
+def state_shapes(model: StreamingModel, batch: int, height: int, width: int) -> list[tuple[int, ...]]:
     """Shapes of the flattened state for a ``batch x 3 x height x width`` input (empty for M4Semantic)."""
     return [s for comp in model.state_shapes(batch, height, width).values() for s in comp]
 
@@ -67,7 +69,7 @@ class StreamingStep(nn.Module):
     """``forward(rgb, rot, trans, intrinsics, reset, *state) -> (depth?, semantic?, *next_state)``, a pure function of
     its inputs: :meth:`SceneModel.step` with the state flattened, in static mode."""
 
-    def __init__(self, model, reset_float: bool = False):
+    def __init__(self, model: SceneModel, reset_float: bool = False):
         super().__init__()
         self.model = model
         self.reset_float = reset_float
@@ -105,7 +107,7 @@ class StreamingStep(nn.Module):
 
 
 def export_onnx(
-    model,
+    model: StreamingModel,
     path: str | Path,
     height: int = MIDAIR_IMAGE_SIZE,
     width: int = MIDAIR_IMAGE_SIZE,
@@ -193,7 +195,7 @@ def is_our_onnx(path: str | Path) -> bool:
 
 
 @contextlib.contextmanager
-def _frozen_for_export(model):
+def _frozen_for_export(model: SceneModel):
     """Eval mode, static numerics, float32 on CPU; everything restored on exit."""
     p = next(model.parameters())
     device, dtype, training = p.device, p.dtype, model.training

@@ -16,6 +16,7 @@ from ..devices import resolve_device
 from ..errors import CheckpointError, ConfigError
 from ..inference.fast_model import FastModel, reference_model
 from ..models.footprint import check_size
+from ..models.protocol import StreamingModel
 from ..operating_point import OperatingPoint
 from ..output_safety.outdir import Input, model_inputs
 
@@ -171,7 +172,7 @@ def warn_far_size(op: OperatingPoint | None, requested, intrinsics, what: str = 
 
 
 def check_run_size(
-    model, size: tuple[int, int] | None, device, batch: int = 1, trajectories: int | None = None
+    model: StreamingModel, size: tuple[int, int] | None, device, batch: int = 1, trajectories: int | None = None
 ) -> None:
     """The size check of a streaming run (:func:`cosemdepth.models.footprint.check_size` at the input's frame
     ``size``, ``batch`` trajectories at once: at most one lane per trajectory), before the first frame is read."""

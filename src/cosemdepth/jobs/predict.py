@@ -17,16 +17,19 @@ from typing import Any, Optional, Sequence
 
 from tqdm.auto import tqdm
 
+from ..data.sequence import SequenceDataset
 from ..errors import ConfigError
 from ..evaluation.classes import class_info
 from ..evaluation.evaluator import _model_config, to_json
 from ..inference.policy import Streamer, StreamPolicy, policy_info
 from ..models.outputs import ESTIMATED, HELD, RESET
+from ..models.protocol import StreamingModel
 from ..output_safety.atomic import atomic_write_text
 from ..output_safety.outdir import Input
 from ..output_safety.staging import StagedDir
 from ..render.visualize import DEFAULT_FPS, DEFAULT_VIDEO
 from ..streaming import pipeline
+from ..streaming.frames import Source
 from ..streaming.sinks.bag import DEFAULT_NAMESPACE, BagSink, check_namespace
 from ..streaming.sinks.files import DEFAULT_INVALID, MANIFEST, FileOptions, FilesSink
 from ..streaming.sinks.rerun import RerunSink, check_rrd_path, require_rerun
@@ -85,8 +88,8 @@ def _as_source(source):
 
 
 def predict(
-    model,
-    source,
+    model: StreamingModel,
+    source: Source | SequenceDataset,
     out: str | Path,
     *,
     video: str | None = DEFAULT_VIDEO,
@@ -150,8 +153,8 @@ def predict(
 
 
 def _predict(
-    model,
-    source,
+    model: StreamingModel,
+    source: Source,
     staged: StagedDir,
     *,
     files: FileOptions,
@@ -308,7 +311,7 @@ def run_predict(options: PredictOptions) -> CommandResult:
     return CommandResult(manifest, *predict_report(manifest, options, source.report()))
 
 
-def output_sinks(options: PredictOptions, source, model) -> list:
+def output_sinks(options: PredictOptions, source: Source, model: StreamingModel) -> list:
     """The outputs of ``predict`` besides its files: the output bag (a bag input) and the rerun recording
     (``rerun``)."""
     cfg = _model_config(model)

@@ -5,6 +5,7 @@ from .encoder import DINL, Encoder
 from .layers import Refiner
 from .model import MODELS, CoSemDepth, CoSemDepthT, M4Depth, M4Semantic, SceneModel, build_model
 from .outputs import SequenceOutput, StepOutput, StreamState
+from .protocol import StreamingModel
 from .pyramid import LevelOps, PyramidDecoder, PyramidLevel
 from .registry import DECODERS, register_architecture, register_decoder
 from .semantic_decoder import SemanticDecoder, SemanticLevel
@@ -30,6 +31,7 @@ __all__ = [
     "SequenceOutput",
     "StepOutput",
     "StreamState",
+    "StreamingModel",
     "build_model",
     "register_architecture",
     "register_decoder",

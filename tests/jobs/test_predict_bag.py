@@ -4,10 +4,13 @@ nothing in --out)."""
 
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))  # the commands' test helpers
 from _bags import camera_info_msg, compressed_msg, frames, image_msg, pose_msg, trajectory, typestore, write_bag
 from _outputs import (  # noqa: F401 (pytest fixtures)
     _one_thread,

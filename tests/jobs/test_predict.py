@@ -2,10 +2,13 @@
 
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))  # the commands' test helpers
 from _outputs import SIZE, _one_thread, data, leftovers, model_dir, unwritable_folder  # noqa: F401 (pytest fixtures)
 from PIL import Image
 
