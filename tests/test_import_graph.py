@@ -22,6 +22,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth",
             "cosemdepth._lazy",
             "cosemdepth.errors",
+            "cosemdepth.defaults",
             "cosemdepth.coerce",
             "cosemdepth.plugins",
             "cosemdepth.models.config",
@@ -45,9 +46,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         ),
     ),
     (
-        "tasks",
+        "measures and pictures",
         (
-            "cosemdepth.tasks",
             "cosemdepth.evaluation.metrics",
             "cosemdepth.evaluation.classes",
             "cosemdepth.evaluation.temporal",
@@ -55,6 +55,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.render",
         ),
     ),
+    ("tasks", ("cosemdepth.tasks",)),
     ("streaming", ("cosemdepth.streaming",)),
     (
         "jobs",

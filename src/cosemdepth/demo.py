@@ -49,6 +49,7 @@ from .checkpoints.model_io import load_model, read_config_file
 from .data import open_dataset
 from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from .data.frames import FocalSize, midair_intrinsics
+from .defaults import DEFAULT_DEVICE
 from .errors import CheckpointError, ConfigError, DatasetError
 from .evaluation.classes import class_info
 from .evaluation.evaluator import Evaluator, to_json
@@ -464,7 +465,7 @@ def run_demo(
     supersample: int = DEFAULT_SUPERSAMPLE,
     data_root: str | os.PathLike | None = None,
     data_dir: str | os.PathLike | None = None,
-    device: str = "cpu",
+    device: str = DEFAULT_DEVICE,
     video: str | None = DEFAULT_VIDEO,
     overwrite: bool = False,
     progress: bool = True,

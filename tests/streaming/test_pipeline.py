@@ -30,6 +30,17 @@ def toy_frames(n: int, seed: int = 0) -> list[dict]:
     ]
 
 
+@dataclass(frozen=True)
+class ToyOptions:
+    """The toy source's options, as a command would build them."""
+
+    lengths: tuple = (3, 2)
+    source = "toy"
+
+    def inputs(self) -> list:
+        return []
+
+
 class ToySource:
     """Trajectories of random frames, one lane per trajectory; its frames are named and stamped."""
 
@@ -40,8 +51,8 @@ class ToySource:
         self.closed = False
 
     @classmethod
-    def from_options(cls, options, size=None):
-        return cls(options)
+    def from_options(cls, options: ToyOptions, size=None):
+        return cls(options.lengths)
 
     def describe(self) -> dict:
         return {"name": "toy", "trajectories": len(self.trajs)}
@@ -114,7 +125,7 @@ def tables():
 
 
 def test_a_toy_source_and_sink_through_the_pipeline(model, tmp_path):
-    source = SOURCES["toy"].from_options((3, 2))
+    source = SOURCES["toy"].from_options(ToyOptions((3, 2)))
     sink = SINKS["toy"]()
     assert isinstance(source, Source) and isinstance(sink, Sink)
     summary = run_stream(source, Streamer(model, "every-frame"), [sink], lanes=2, out=tmp_path)
@@ -169,7 +180,13 @@ def test_a_toy_source_and_sink_through_predict(model, tmp_path):
     sink = SINKS["toy"]()
     out = tmp_path / "pred"
     man = predict(
-        model, SOURCES["toy"].from_options((3, 2)), out, sinks=[sink], video=None, lanes=2, policy="every-frame"
+        model,
+        SOURCES["toy"].from_options(ToyOptions((3, 2))),
+        out,
+        sinks=[sink],
+        video=None,
+        lanes=2,
+        policy="every-frame",
     )
     assert man["toy_frames"] == 5 == man["frames_written"] and sink.opened != out  # written into the staging folder
     assert json.loads((out / "predictions.json").read_text())["toy_frames"] == 5
@@ -179,3 +196,27 @@ def test_a_toy_source_and_sink_through_predict(model, tmp_path):
     # the written depth is the one the sink saw
     (batch,) = [b for b in sink.batches if 2 in b.frame.tolist()]
     np.testing.assert_array_equal(np.load(out / "t0" / "depth" / "t0_002.npy"), batch.depth[0, 0].numpy())
+
+
+def test_a_toy_source_through_the_predict_command_s_options(model, tmp_path):
+    """run_predict (what ``cosemdepth predict`` runs once its arguments are parsed) opens a source by its table
+    entry, from its options."""
+    from cosemdepth import save_model
+    from cosemdepth.jobs.model import ModelOptions
+    from cosemdepth.jobs.options import RunOptions
+    from cosemdepth.jobs.predict import PredictOptions, run_predict
+    from cosemdepth.streaming.sinks.files import FileOptions
+
+    folder = save_model(model, tmp_path / "m")
+    options = PredictOptions(
+        source=ToyOptions(),
+        model=ModelOptions(folder, reference=True, device="cpu"),
+        out=tmp_path / "pred",
+        run=RunOptions(lanes=2, policy="every-frame"),
+        files=FileOptions(video=None),
+    )
+    result = run_predict(options)
+    man = result.manifest
+    assert man["dataset"] == {"name": "toy", "trajectories": 2} and man["run"]["input_size"] == [H, W]
+    assert man["frames_written"] == 5 and [t["name"] for t in man["trajectories"]] == ["t0", "t1"]
+    assert result.lines[0] == f"wrote 5 frames of 2 trajectories to {tmp_path / 'pred'}"

@@ -40,8 +40,7 @@ from tqdm.auto import tqdm
 from .. import __version__
 from ..errors import ConfigError
 from ..inference.policy import EVERY_FRAME, Streamer, policy_info
-from ..models.config import ModelConfig
-from ..models.protocol import StreamingModel
+from ..models.protocol import StreamingModel, model_config
 from ..streaming import pipeline
 from ..streaming.frames import Sink, StreamBatch
 from ..streaming.sinks.metrics import MetricsSink
@@ -68,15 +67,6 @@ def dataset_modalities(dataset) -> tuple[bool, bool]:
     """``(has_depth, has_labels)`` of a sequence dataset (from its trajectories, else from its first item)."""
     found = dataset_ground_truth(dataset)
     return "depth" in found, "semantic" in found
-
-
-def _model_config(model: StreamingModel) -> ModelConfig:
-    cfg = getattr(model, "config", None)
-    if cfg is None or not hasattr(cfg, "decoders"):
-        raise ConfigError(
-            f"evaluate needs a cosemdepth model with a ModelConfig in .config, got {type(model).__name__}"
-        )
-    return cfg
 
 
 def _finite_or_none(x: Any) -> Any:
@@ -262,7 +252,7 @@ class Evaluator:
         self.policy = policy
         self.min_baseline = min_baseline
         self.dataset = dataset
-        self.cfg = _model_config(model)
+        self.cfg = model_config(model, "evaluate")
         self.lanes = lanes
         self.max_frames = max_frames
         self.num_workers = num_workers

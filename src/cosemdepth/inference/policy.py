@@ -30,6 +30,7 @@ from typing import Iterator, Optional, Sequence
 
 import torch
 
+from ..defaults import DEPTH_CAP_M, MIN_DEPTH_M
 from ..errors import ConfigError
 from ..geometry.motion import baseline, compose_motion, identity_motion
 from ..geometry.reproject import carry_depth
@@ -54,7 +55,7 @@ MIN_BASELINE_FACTOR = 0.75
 MAX_LOG_RATIO = 0.7
 #: Depths compared by the consistency check are clipped to this range (metres): beyond FAR_DEPTH both are "far"
 #: (the evaluation's cap, design 10.1).
-MIN_DEPTH, FAR_DEPTH = 1e-3, 80.0
+MIN_DEPTH, FAR_DEPTH = MIN_DEPTH_M, DEPTH_CAP_M
 
 
 @dataclass(frozen=True)

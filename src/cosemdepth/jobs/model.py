@@ -12,6 +12,7 @@ import torch
 
 from ..checkpoints.model_io import load_model, operating_point_of
 from ..data.frames import FocalSize, as_size
+from ..defaults import DEFAULT_DEVICE
 from ..devices import resolve_device
 from ..errors import CheckpointError, ConfigError
 from ..inference.fast_model import FastModel, reference_model
@@ -24,8 +25,6 @@ from ..output_safety.outdir import Input, model_inputs
 PRECISION_DTYPES = {"fp32": "float32", "bf16": "bfloat16", "int8": "int8"}
 #: The inference backends (``--backend``): the PyTorch paths, or an exported ONNX graph run by ONNX Runtime.
 BACKENDS = ("pytorch", "onnxruntime")
-#: Where a model runs when no device is named: CUDA when available, else the CPU.
-DEFAULT_DEVICE = "auto"
 
 
 @dataclass(frozen=True)
@@ -99,30 +98,27 @@ def model_operating_point(model_path) -> OperatingPoint | None:
         return None
 
 
-def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32"):
+def load(model_path, device_name: str = DEFAULT_DEVICE, fast: bool = True, precision: str = "fp32"):
     """``(model, device)``: the model at ``model_path`` on the device named ``device_name``, in eval mode: a
     :class:`~cosemdepth.inference.FastModel` in ``precision`` (``--precision``), or with ``fast`` False
-    (``--reference``) the :class:`~cosemdepth.models.SceneModel`."""
-    if precision not in PRECISION_DTYPES:
-        raise ConfigError(f"--precision must be one of {list(PRECISION_DTYPES)}, got {precision!r}")
-    if not fast and precision != "fp32":
-        raise ConfigError(f"--precision {precision} is a setting of the fast path: drop --reference (which runs fp32)")
-    device = resolve_device(device_name)
-    model = load_model(model_path, device=device, mode="reference")
-    if not fast:
-        return model, device
-    try:
-        return FastModel(model, PRECISION_DTYPES[precision]), device
-    except ValueError as e:
-        raise ConfigError(f"--precision {precision}: {e}") from None
+    (``--reference``) the :class:`~cosemdepth.models.SceneModel` (checked as :class:`ModelOptions`)."""
+    return load_for(ModelOptions(model_path, reference=not fast, precision=precision, device=device_name))
 
 
 def load_for(options: ModelOptions, frame_size: tuple[int, int] | None = None, lanes: int = 1):
-    """``(model, device)`` of ``options``: :func:`load`, or for ``backend="onnxruntime"`` the graph behind the
-    model's ``step``, checked against the input's ``frame_size`` and ``lanes`` before any frame is read."""
+    """``(model, device)`` of ``options``: the PyTorch paths (:func:`load`), or for ``backend="onnxruntime"`` the
+    graph behind the model's ``step``, checked against the input's ``frame_size`` and ``lanes`` before any frame is
+    read."""
     if options.backend == "onnxruntime":
         return _onnx_model(options, frame_size, lanes)
-    return load(options.path, options.device, fast=not options.reference, precision=options.precision)
+    device = resolve_device(options.device)
+    model = load_model(options.path, device=device, mode="reference")
+    if options.reference:
+        return model, device
+    try:
+        return FastModel(model, PRECISION_DTYPES[options.precision]), device
+    except ValueError as e:
+        raise ConfigError(f"--precision {options.precision}: {e}") from None
 
 
 def _onnx_model(options: ModelOptions, frame_size: tuple[int, int] | None, lanes: int):
@@ -190,7 +186,6 @@ def check_run_size(
 
 __all__ = [
     "BACKENDS",
-    "DEFAULT_DEVICE",
     "ModelOptions",
     "PRECISION_DTYPES",
     "check_run_size",

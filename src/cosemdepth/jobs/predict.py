@@ -20,10 +20,10 @@ from tqdm.auto import tqdm
 from ..data.sequence import SequenceDataset
 from ..errors import ConfigError
 from ..evaluation.classes import class_info
-from ..evaluation.evaluator import _model_config, to_json
+from ..evaluation.evaluator import to_json
 from ..inference.policy import Streamer, StreamPolicy, policy_info
 from ..models.outputs import ESTIMATED, HELD, RESET
-from ..models.protocol import StreamingModel
+from ..models.protocol import StreamingModel, model_config
 from ..output_safety.atomic import atomic_write_text
 from ..output_safety.outdir import Input
 from ..output_safety.staging import StagedDir
@@ -94,11 +94,11 @@ def predict(
     *,
     video: str | None = DEFAULT_VIDEO,
     fps: float = DEFAULT_FPS,
-    max_frames: int | None = None,
-    lanes: int = 1,
-    num_workers: int = 0,
+    max_frames: int | None = RunOptions.max_frames,
+    lanes: int = RunOptions.lanes,
+    num_workers: int = RunOptions.workers,
     overwrite: bool = False,
-    progress: bool = False,
+    progress: bool = RunOptions.progress,
     dataset_name: str | None = None,
     info: dict[str, Any] | None = None,
     depth_range: tuple[float, float] | None = None,
@@ -165,8 +165,13 @@ def _predict(
     sinks: Sequence,
 ) -> dict[str, Any]:
     """:func:`predict` into a checked staging folder."""
-    cfg = _model_config(model)
-    name = dataset_name or getattr(getattr(source, "dataset", None), "name", None) or ""
+    cfg = model_config(model, "predict")
+    name = (
+        dataset_name
+        or getattr(getattr(source, "dataset", None), "name", None)
+        or source.describe().get("name")
+        or getattr(source, "name", "")
+    )
     total = source.total_frames(run.max_frames) if hasattr(source, "total_frames") else None
     if total == 0:
         raise ConfigError("predict: the dataset has no frame")
@@ -308,13 +313,19 @@ def run_predict(options: PredictOptions) -> CommandResult:
         info=info,
         sinks=sinks,
     )
-    return CommandResult(manifest, *predict_report(manifest, options, source.report()))
+    return CommandResult(manifest, *predict_report(manifest, options, source_report(source)))
+
+
+def source_report(source: Source) -> str:
+    """What a run's summary line says about its input beyond the frames (a source's optional ``report()``)."""
+    report = getattr(source, "report", None)
+    return report() if callable(report) else ""
 
 
 def output_sinks(options: PredictOptions, source: Source, model: StreamingModel) -> list:
     """The outputs of ``predict`` besides its files: the output bag (a bag input) and the rerun recording
     (``rerun``)."""
-    cfg = _model_config(model)
+    cfg = model_config(model, "predict")
     classes = class_count(cfg)
     names, palette = class_info(classes, "flight") if classes else ((), None)
     sinks: list = []
@@ -399,4 +410,5 @@ __all__ = [
     "predict_report",
     "run_predict",
     "run_settings",
+    "source_report",
 ]

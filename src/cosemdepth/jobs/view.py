@@ -11,15 +11,15 @@ from typing import Any
 from tqdm.auto import tqdm
 
 from ..evaluation.classes import class_info
-from ..evaluation.evaluator import _model_config
 from ..inference.policy import Streamer, policy_info
+from ..models.protocol import model_config
 from ..streaming import pipeline
 from ..streaming.sinks.rerun import RerunSink, check_rrd_path, require_rerun
 from ..streaming.sinks.status import StatusSink
 from ..tasks import class_count
 from .model import ModelOptions, check_run_size, load_for
 from .options import RunOptions, open_source
-from .predict import CommandResult, default_policy, depth_report
+from .predict import CommandResult, default_policy, depth_report, source_report
 
 
 @dataclass(frozen=True)
@@ -46,7 +46,7 @@ def run_view(options: ViewOptions) -> CommandResult:
     try:
         model, device = load_for(options.model, source.frame_size(), options.run.lanes)
         check_run_size(model, source.frame_size(), device, options.run.lanes, getattr(source, "trajectories", None))
-        classes = class_count(_model_config(model))
+        classes = class_count(model_config(model, "view"))
         names, palette = class_info(classes, "flight") if classes else ((), None)
         recording = RerunSink(
             options.rrd,
@@ -76,7 +76,7 @@ def run_view(options: ViewOptions) -> CommandResult:
     rrd = options.rrd
     lines = [
         f"wrote a rerun recording of {summary['rerun']['frames']} frames to {rrd}; open it with: rerun {rrd}"
-        + source.report()
+        + source_report(source)
     ]
     if summary["frames_by_status"]:
         lines.append(depth_report(summary["frames_by_status"], policy_info(streamer), summary["valid_fractions"]))

@@ -14,6 +14,7 @@ from typing import Any, Collection, Iterator, Optional, Protocol, Sequence, Type
 
 import torch
 
+from ..errors import ConfigError
 from ..operating_point import OperatingPoint
 from .config import ModelConfig
 from .outputs import StepOutput
@@ -101,6 +102,15 @@ class StreamingModel(Protocol[State]):
         ...
 
 
+def model_config(model: StreamingModel, what: str = "this") -> ModelConfig:
+    """``model.config``; a :class:`~cosemdepth.errors.ConfigError` naming ``what`` (the command that needs it) when
+    ``model`` has no :class:`~cosemdepth.models.config.ModelConfig` there."""
+    cfg = getattr(model, "config", None)
+    if cfg is None or not hasattr(cfg, "decoders"):
+        raise ConfigError(f"{what} needs a cosemdepth model with a ModelConfig in .config, got {type(model).__name__}")
+    return cfg
+
+
 def model_device(model: StreamingModel) -> torch.device:
     """The device of ``model``'s weights (the CPU for a model without any)."""
     for p in model.parameters():
@@ -116,4 +126,4 @@ def model_dtype(model: StreamingModel) -> torch.dtype:
     return torch.float32
 
 
-__all__ = ["State", "StreamingModel", "model_device", "model_dtype"]
+__all__ = ["State", "StreamingModel", "model_config", "model_device", "model_dtype"]
