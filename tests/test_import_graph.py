@@ -41,6 +41,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.inference",
             "cosemdepth.checkpoints",
             "cosemdepth.data",
+            "cosemdepth.flightlogs",
             "cosemdepth.synthair",
             "cosemdepth.robotics",
         ),
