@@ -220,3 +220,34 @@ def test_a_toy_source_through_the_predict_command_s_options(model, tmp_path):
     assert man["dataset"] == {"name": "toy", "trajectories": 2} and man["run"]["input_size"] == [H, W]
     assert man["frames_written"] == 5 and [t["name"] for t in man["trajectories"]] == ["t0", "t1"]
     assert result.lines[0] == f"wrote 5 frames of 2 trajectories to {tmp_path / 'pred'}"
+
+
+class UnusableMotion(ToySource):
+    """The toy trajectory whose frame 1 has a motion the source cannot vouch for (attitude only); its positions are
+    known to 3 m."""
+
+    min_baseline_m = 3.0
+
+    def batches(self, **kw):
+        for b in super().batches(**kw):
+            b.depth_ok = b.frame != 1
+            b.meta = [{"depth_invalid_reason": "attitude only"} if f == 1 else {} for f in b.frame.tolist()]
+            yield b
+
+
+def test_a_frame_without_a_usable_motion_has_no_depth_and_restarts_the_reference(model):
+    sink = ToySink()
+    run_stream(UnusableMotion((4,)), Streamer(model, "every-frame"), [sink])
+    assert [b.status[0] for b in sink.batches] == ["reset", "reset", "estimated", "estimated"]
+    assert [bool(b.reset[0]) for b in sink.batches] == [True, True, False, False]
+    assert not sink.batches[1].valid.any() and sink.batches[1].meta[0]["depth_invalid_reason"] == "attitude only"
+    assert float(sink.batches[2].baseline[0]) == 1.0  # estimated from frame 1
+
+
+def test_the_source_s_baseline_floor_raises_the_policy_s_minimum(model):
+    from cosemdepth.jobs.predict import make_streamer
+
+    assert make_streamer(model, "baseline", 1.0, UnusableMotion((2,))).min_baseline == 3.0
+    assert make_streamer(model, "baseline", 5.0, UnusableMotion((2,))).min_baseline == 5.0
+    assert make_streamer(model, "baseline", 1.0, ToySource((2,))).min_baseline == 1.0
+    assert make_streamer(model, "every-frame", None, UnusableMotion((2,))).min_baseline == 0.0

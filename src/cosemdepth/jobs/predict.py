@@ -21,7 +21,7 @@ from ..data.sequence import SequenceDataset
 from ..errors import ConfigError
 from ..evaluation.classes import class_info
 from ..evaluation.evaluator import to_json
-from ..inference.policy import Streamer, StreamPolicy, policy_info
+from ..inference.policy import BASELINE, Streamer, StreamPolicy, policy_info
 from ..models.outputs import ESTIMATED, HELD, RESET
 from ..models.protocol import StreamingModel, model_config
 from ..output_safety.atomic import atomic_write_text
@@ -79,6 +79,19 @@ def default_policy(source_options) -> str | None:
     """The streaming policy of an input when none is asked for: its options' ``default_policy`` (every-frame for
     dataset splits, the paper's protocol), else None (baseline when the model records its training motion)."""
     return getattr(source_options, "default_policy", None)
+
+
+def make_streamer(
+    model: StreamingModel, policy: StreamPolicy | str | None, min_baseline: float | None, source: Source
+) -> Streamer:
+    """The :class:`~cosemdepth.inference.policy.Streamer` of a run: ``policy`` and ``min_baseline`` as given (None:
+    the model's), raised to the source's floor ``source.min_baseline_m`` when it has one (e.g. the resolution of its
+    positions) and the policy holds frames."""
+    streamer = Streamer(model, policy, min_baseline=min_baseline)
+    floor = getattr(source, "min_baseline_m", None)
+    if floor is not None and streamer.policy.mode == BASELINE and streamer.has_depth and streamer.min_baseline < floor:
+        streamer = Streamer(model, streamer.policy, min_baseline=float(floor))
+    return streamer
 
 
 def _as_source(source):
@@ -145,7 +158,7 @@ def predict(
         staged,
         files=files,
         run=RunOptions(max_frames=max_frames, lanes=lanes, workers=num_workers, progress=progress),
-        streamer=Streamer(model, policy, min_baseline=min_baseline),
+        streamer=make_streamer(model, policy, min_baseline, source),
         dataset_name=dataset_name,
         info=info,
         sinks=sinks,
@@ -308,7 +321,7 @@ def run_predict(options: PredictOptions) -> CommandResult:
         staged,
         files=options.files,
         run=options.run,
-        streamer=Streamer(model, policy, min_baseline=min_baseline),
+        streamer=make_streamer(model, policy, min_baseline, source),
         dataset_name=getattr(options.source, "dataset_name", None),
         info=info,
         sinks=sinks,
@@ -404,6 +417,7 @@ __all__ = [
     "PredictOptions",
     "default_policy",
     "depth_report",
+    "make_streamer",
     "no_depth_reason",
     "output_sinks",
     "predict",

@@ -11,7 +11,7 @@ from typing import Any
 from tqdm.auto import tqdm
 
 from ..evaluation.classes import class_info
-from ..inference.policy import Streamer, policy_info
+from ..inference.policy import policy_info
 from ..models.protocol import model_config
 from ..streaming import pipeline
 from ..streaming.sinks.rerun import RerunSink, check_rrd_path, require_rerun
@@ -19,7 +19,7 @@ from ..streaming.sinks.status import StatusSink
 from ..tasks import class_count
 from .model import ModelOptions, check_run_size, load_for
 from .options import RunOptions, open_source
-from .predict import CommandResult, default_policy, depth_report, source_report
+from .predict import CommandResult, default_policy, depth_report, make_streamer, source_report
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ def run_view(options: ViewOptions) -> CommandResult:
     except BaseException:
         source.close()
         raise
-    streamer = Streamer(model, policy, min_baseline=min_baseline)
+    streamer = make_streamer(model, policy, min_baseline, source)
     total = source.total_frames(options.run.max_frames) if hasattr(source, "total_frames") else None
     bar = tqdm(total=total, unit="frame", desc="view", disable=not options.run.progress, leave=False)
     try:

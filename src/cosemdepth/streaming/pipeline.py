@@ -1,7 +1,9 @@
 """One streaming run: a source's frames through a :class:`~cosemdepth.inference.policy.Streamer` into sinks.
 
 :func:`run` opens the sinks, iterates ``source.batches(...)``, calls ``streamer.step`` with the lanes' state (sliced
-and reordered when a lane ends), stops on a non-finite output (naming the frame), hands each
+and reordered when a lane ends; a frame whose motion the source says is unusable for depth, ``depth_ok`` False, is
+streamed as a reset: no depth, status reset, a new reference), stops on a non-finite output (naming the frame), hands
+each
 :class:`~cosemdepth.streaming.frames.StreamBatch` to every sink, closes them and returns their merged summaries. On
 any exception every opened sink is aborted (nothing half-written) and the exception propagates.
 """
@@ -98,7 +100,8 @@ def steps(
                 guide["guide_depth"] = gt["depth"].to(dtype=dtype)
             _sync(device)
             t0 = time.perf_counter()
-            out, state = streamer.step(rgb, rot, trans, intr, frames.reset.to(device), state, **guide)
+            reset = frames.reset if frames.depth_ok is None else frames.reset | ~frames.depth_ok.bool()
+            out, state = streamer.step(rgb, rot, trans, intr, reset.to(device), state, **guide)
             _sync(device)
             seconds = time.perf_counter() - t0
             heads = dict(getattr(out, "heads", None) or {})
@@ -112,6 +115,7 @@ def steps(
                 seconds=seconds,
             )
             batch.rgb, batch.rot, batch.trans, batch.intrinsics, batch.gt = rgb, rot, trans, intr, gt
+            batch.reset = reset
             yield batch
 
 
