@@ -14,8 +14,7 @@ from ..inference.policy import EVERY_FRAME
 from ..output_safety.staging import OutputFiles
 from ..streaming.sources.dataset import DatasetOptions
 from .model import ModelOptions, check_run_size, load_for
-from .options import RunOptions, open_source
-from .predict import CommandResult
+from .options import CommandResult, RunOptions, open_source
 
 #: The files ``evaluate --out DIR`` writes.
 METRICS_FILES = ("metrics.json", "metrics.md")

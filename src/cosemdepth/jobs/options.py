@@ -1,10 +1,11 @@
 """The options every streaming command shares (:class:`RunOptions`): the input size, the streaming policy, how many
-frames and trajectories at once, the data-loading workers, a progress bar; checked here once."""
+frames and trajectories at once, the data-loading workers, a progress bar; checked here once. Also what a command's
+library run returns (:class:`CommandResult`) and its source opened from its options (:func:`open_source`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Optional
+from dataclasses import dataclass, field
+from typing import Any, Optional
 
 from ..data.frames import FocalSize, as_size
 from ..errors import ConfigError
@@ -59,6 +60,16 @@ class RunOptions:
         return (self.policy if self.policy is not None else (BASELINE if mb is not None else default)), mb
 
 
+@dataclass
+class CommandResult:
+    """What a command's library run returns: its ``manifest`` (or summary), the ``lines`` it reports on stdout and
+    the ``warnings`` on stderr."""
+
+    manifest: dict[str, Any]
+    lines: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
 def open_source(source_options, run: RunOptions, op):
     """The source of ``source_options`` (its table entry in :data:`cosemdepth.streaming.SOURCES`) at ``run.size``,
     or else at the model's focal length (``op``: its operating point; :func:`~cosemdepth.jobs.model.input_size`); a
@@ -71,4 +82,4 @@ def open_source(source_options, run: RunOptions, op):
     return source
 
 
-__all__ = ["RunOptions", "open_source"]
+__all__ = ["CommandResult", "RunOptions", "open_source"]

@@ -36,7 +36,7 @@ from ..streaming.sinks.rerun import RerunSink, check_rrd_path, require_rerun
 from ..streaming.sources.dataset import DatasetSource
 from ..tasks import class_count, tasks_for
 from .model import ModelOptions, check_run_size, load_for
-from .options import RunOptions, open_source
+from .options import CommandResult, RunOptions, open_source
 
 
 @dataclass(frozen=True)
@@ -246,16 +246,6 @@ _FILE_ENTRIES = (
 )
 
 
-@dataclass
-class CommandResult:
-    """What a command's library run returns: its ``manifest`` (or summary), the ``lines`` it reports on stdout and
-    the ``warnings`` on stderr."""
-
-    manifest: dict[str, Any]
-    lines: list[str] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
-
-
 def run_settings(options: PredictOptions, source) -> dict[str, Any]:
     """What determines predict's outputs besides the frames: ``predictions.json``'s ``run`` entry. ``input_size``
     ``[H, W]`` and ``intrinsics`` ``[fx, fy, cx, cy]`` (package convention: pixel centres at +0.5) are those the model
@@ -413,7 +403,6 @@ def no_depth_reason(statuses: dict) -> str:
 
 
 __all__ = [
-    "CommandResult",
     "PredictOptions",
     "default_policy",
     "depth_report",

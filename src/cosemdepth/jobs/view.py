@@ -18,8 +18,8 @@ from ..streaming.sinks.rerun import RerunSink, check_rrd_path, require_rerun
 from ..streaming.sinks.status import StatusSink
 from ..tasks import class_count
 from .model import ModelOptions, check_run_size, load_for
-from .options import RunOptions, open_source
-from .predict import CommandResult, default_policy, depth_report, make_streamer, source_report
+from .options import CommandResult, RunOptions, open_source
+from .predict import default_policy, depth_report, make_streamer, source_report
 
 
 @dataclass(frozen=True)
