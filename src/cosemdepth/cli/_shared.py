@@ -340,8 +340,9 @@ def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32
         raise ConfigError(f"--precision {precision}: {e}") from None
 
 
-def open_split(args: argparse.Namespace, size):
-    """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1)."""
+def open_split(args: argparse.Namespace, size, calibration=None):
+    """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1);
+    ``calibration``: a lens file for the readers that take one (Mid-Air, SynthAir)."""
     check_workers(args.workers)
     check_split_dir(args)
     return open_dataset(
@@ -352,6 +353,7 @@ def open_split(args: argparse.Namespace, size):
         seq_len=1,
         size=size,
         jpeg_idct=args.jpeg_idct,
+        **({} if calibration is None else {"calibration": calibration}),
     )
 
 

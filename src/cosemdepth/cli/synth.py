@@ -108,6 +108,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=d.jpeg_quality,
         help=f"JPEG quality (default {d.jpeg_quality}, 4:4:4 chroma; photo-consistency suffers below about 95)",
     )
+    parser.add_argument(
+        "--distortion",
+        default=d.distortion,
+        metavar="LENS",
+        help="render through a distorting lens with the same intrinsics: radtan:k1,k2,p1,p2[,k3] (OpenCV/ROS "
+        "plumb_bob) or equidistant:k1,k2,k3,k4 (fisheye); every pixel's ray exactly, ground truth in the distorted "
+        "pixels; the calibration files go to DIR/calibration/ (default: the pinhole)",
+    )
     parser.add_argument("--workers", type=int, default=d.workers, help=f"render processes (default {d.workers})")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -125,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
         jpeg_quality=args.jpeg_quality,
         motion=args.motion,
         frame_step=args.frame_step,
+        distortion=args.distortion,
         workers=args.workers,
     )
     summary = generate(cfg, progress=not args.no_progress)

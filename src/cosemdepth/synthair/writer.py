@@ -32,9 +32,12 @@ import torch
 from PIL import Image
 from tqdm import tqdm
 
+from ..camera.calibration import Calibration
+from ..camera.distortion import invert_profile
+from ..camera.writers import calibration_files
 from ..data.midair import format as fmt
 from ..data.midair.splits import generate_splits
-from ..errors import ConfigError
+from ..errors import ConfigError, DatasetError
 from ..models.config import MIDAIR_IMAGE_SIZE
 from ..output_safety.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ..output_safety.outdir import check_output_dir
@@ -66,6 +69,31 @@ MAX_FRAMES = 1_000_000
 MIN_SIZE = 16
 #: Camera frames per flight when neither ``frames`` nor a motion profile says otherwise.
 DEFAULT_FRAMES = 200
+#: ``--distortion`` lens models and their coefficient counts (radtan: k1, k2, p1, p2 and optionally k3..k6).
+DISTORTIONS = {"radtan": (4, 8), "equidistant": (4, 4)}
+#: Folder of the calibration files written beside a flight rendered through a lens.
+CALIBRATION_DIR = "calibration"
+
+
+def parse_distortion(spec: str) -> tuple[str, tuple[float, ...]]:
+    """``"radtan:k1,k2,p1,p2[,k3[,k4,k5,k6]]"`` or ``"equidistant:k1,k2,k3,k4"`` -> ``(model, coefficients)``; a
+    ConfigError naming ``--distortion`` otherwise."""
+    model, _, rest = str(spec).partition(":")
+    model = model.strip()
+    if model not in DISTORTIONS:
+        raise ConfigError(
+            f"--distortion {spec!r}: unknown lens model {model!r}; expected radtan:k1,k2,p1,p2[,k3] or "
+            "equidistant:k1,k2,k3,k4"
+        )
+    try:
+        coeffs = tuple(float(v) for v in rest.split(",")) if rest.strip() else ()
+    except ValueError:
+        raise ConfigError(f"--distortion {spec!r}: the coefficients must be numbers separated by commas") from None
+    lo, hi = DISTORTIONS[model]
+    if not lo <= len(coeffs) <= hi or not all(np.isfinite(coeffs)):
+        want = f"{lo}" if lo == hi else f"{lo} to {hi}"
+        raise ConfigError(f"--distortion {spec!r}: {model} takes {want} finite coefficients, got {len(coeffs)}")
+    return model, coeffs
 
 
 @dataclass(frozen=True)
@@ -87,6 +115,7 @@ class SynthConfig:
     jpeg_quality: int = 98
     motion: str | None = None
     frame_step: int = fmt.FRAME_SKIP
+    distortion: str | None = None
     workers: int = field(default=1, compare=False)
 
     def __post_init__(self) -> None:
@@ -102,6 +131,40 @@ class SynthConfig:
     @cached_property
     def motion_profile(self) -> MotionProfile | None:
         return None if self.motion is None else parse_motion(self.motion)
+
+    @cached_property
+    def lens(self) -> Calibration | None:
+        """The camera with ``distortion`` (``--distortion``): the 90-degree intrinsics at ``size`` and the lens
+        model; None for the pinhole. A ConfigError when the lens folds over the image or sees 90 degrees or more
+        off-axis at its corners (every SynthAir ray must have a z-depth)."""
+        if self.distortion is None:
+            return None
+        model, coeffs = parse_distortion(self.distortion)
+        s = self.size
+        try:
+            lens = Calibration(
+                (s, s),
+                s / 2,
+                s / 2,
+                s / 2,
+                s / 2,
+                model=model,
+                coefficients=coeffs,
+                source="--distortion",
+                layout="synthair",
+            ).check()
+        except DatasetError as e:
+            raise ConfigError(str(e)) from None
+        if model == "equidistant":
+            theta, _ = lens.limit()
+            corner = torch.tensor(lens.corner_radius(), dtype=torch.float64)
+            reach = float(invert_profile(model, corner, coeffs, theta))
+            if not reach < np.radians(89.0):
+                raise ConfigError(
+                    f"--distortion {self.distortion!r}: the image corners look {np.degrees(reach):.1f} degrees "
+                    "off-axis; SynthAir renders rays up to 89 degrees (z-depth in front of the camera)"
+                )
+        return lens
 
     def validate(self) -> None:
         if not isinstance(self.size, int) or not MIN_SIZE <= self.size <= MAX_SIZE:
@@ -135,6 +198,7 @@ class SynthConfig:
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError(f"--jpeg-quality must be in [1, 100], got {self.jpeg_quality!r}")
         check_workers(self.workers, minimum=1)
+        _ = self.lens  # checks --distortion
 
     def metadata(self) -> dict:
         """Everything that determines the output bytes (what ``synthair.json`` records). ``motion`` and
@@ -165,6 +229,12 @@ class SynthConfig:
             "groundtruth_rate_hz": fmt.GROUNDTRUTH_RATE,
             "depth_encoding": DEPTH_ENCODING,
         }
+        if self.lens is not None:
+            meta["camera"]["distortion"] = {
+                "model": self.lens.model,
+                "coefficients": list(self.lens.coefficients),
+                "calibration": {name: f"{CALIBRATION_DIR}/{name}" for name in calibration_files(self.lens)},
+            }
         if self.motion_profile is not None:
             meta["motion"] = self.motion_profile.metadata()
         if self.frame_step != fmt.FRAME_SKIP:
@@ -302,7 +372,7 @@ def _render_task(task: _Task) -> int:
     climate = get_climate(task.climate).with_sun_azimuth(task.sun_azimuth)
     att = np.array([task.attitudes[i] for i, _ in todo])
     pos = np.array([task.positions[i] for i, _ in todo])
-    frames = render_frames(world, climate, att, pos, cfg.size, cfg.size, supersample=cfg.supersample)
+    frames = render_frames(world, climate, att, pos, cfg.size, cfg.size, supersample=cfg.supersample, lens=cfg.lens)
     for (_, paths), frame in zip(todo, frames):
         atomic_write_bytes(paths[0], encode_jpeg(frame.rgb, cfg.jpeg_quality))
         atomic_write_bytes(paths[1], encode_png(depth_to_png_disparity(frame.depth)))
@@ -372,6 +442,9 @@ def generate(cfg: SynthConfig, progress: bool = True) -> dict:
     meta["complete"] = False
     if not resuming:
         atomic_write_text(out / METADATA, json.dumps(meta, indent=2) + "\n")
+    if cfg.lens is not None:  # the calibration of the lens, in the layouts users have, beside the flights
+        for name, text in calibration_files(cfg.lens).items():
+            atomic_write_text(out / CALIBRATION_DIR / name, text)
 
     world = get_world(cfg.seed)
     flights = plan_flights(cfg, world)
