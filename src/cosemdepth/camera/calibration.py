@@ -58,8 +58,11 @@ class Calibration:
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise DatasetError(f"{self.where}: lens model {self.model!r} is not one of {', '.join(MODELS)}")
-        n = MODELS[self.model]
         c = tuple(float(v) for v in self.coefficients)
+        if self.model == "radtan" and not any(v != 0 for v in c):  # a radtan lens without distortion is a pinhole
+            object.__setattr__(self, "model", "pinhole")
+            c = ()
+        n = MODELS[self.model]
         if len(c) > n and any(v != 0 for v in c[n:]):
             raise DatasetError(f"{self.where}: the {self.model} model takes {n} coefficients, got {len(c)}")
         object.__setattr__(self, "coefficients", (c + (0.0,) * n)[:n])
