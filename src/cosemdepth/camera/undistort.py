@@ -5,8 +5,11 @@ The target camera is a pinhole with the calibration's focal lengths scaled to th
 default, the calibration's image size (``canvas="same"``), scaled to ``focal_px`` when given (the model's focal
 length: :func:`cosemdepth.operating_point.size_for_focal`, as for pinhole inputs), or ``size`` itself. Each target
 pixel centre is taken through the lens model (:func:`cosemdepth.camera.distortion.distort`) to its source position
-and sampled bilinearly from the native image: undistortion and resizing are one resampling step. Without
-distortion and with a centred principal point this is exactly BL2 (the readers' half-pixel bilinear resize).
+and sampled bilinearly from the native image: undistortion and resizing are one resampling step. The source
+positions are computed once, in float64; each frame is one ``torch.nn.functional.grid_sample`` (bilinear, border
+padding) at them (measured against OpenCV's ``remap`` and a gather from the uint8 image: benchmarks/undistortion.py).
+Without distortion and with a centred principal point this is BL2 (the readers' half-pixel bilinear resize) up to
+float32 rounding of the coordinates.
 
 A target pixel is *valid* when its ray is inside the monotonic part of the lens and lands inside the source image
 (``0 <= u <= W``, ``0 <= v <= H``). A barrel or fisheye lens at the default canvas covers every target pixel and
@@ -138,17 +141,10 @@ class Undistorter:
         in_image = (u >= 0) & (u <= w) & (v >= 0) & (v <= h)
         self.valid = (inside & in_image).contiguous()
         self.valid_fraction = float(self.valid.double().mean())
-        # bilinear taps (half-pixel: pixel centres at +0.5), clamped to the border as an edge-replicating pad
-        a = (u - 0.5).clamp(0, w - 1)
-        b = (v - 0.5).clamp(0, h - 1)
-        x0, y0 = a.floor(), b.floor()
-        self._wx = (a - x0).to(torch.float32).reshape(-1, 1)
-        self._wy = (b - y0).to(torch.float32).reshape(-1, 1)
-        x0, y0 = x0.long(), y0.long()
-        dx = ((x0 + 1).clamp(max=w - 1) - x0).reshape(-1)
-        dy = (((y0 + 1).clamp(max=h - 1) - y0) * w).reshape(-1)
-        i00 = (y0 * w + x0).reshape(-1)
-        self._taps = torch.cat([i00, i00 + dx, i00 + dy, i00 + dy + dx])
+        # grid_sample's normalised coordinates (align_corners=False: pixel centres at +0.5, as the package's); its
+        # "border" padding clamps to the edge pixels, an edge-replicating pad
+        grid = torch.stack([2 * u / w - 1, 2 * v / h - 1], -1).clamp(-1e4, 1e4)
+        self._grid = grid.to(torch.float32)[None].contiguous()  # [1, H', W', 2]
         xn = u.floor().clamp(0, w - 1).long()
         yn = v.floor().clamp(0, h - 1).long()
         self._nearest = (yn * w + xn).reshape(-1)
@@ -178,19 +174,14 @@ class Undistorter:
                 f"{w}x{h} images"
             )
 
-    def _blend(self, flat: torch.Tensor, scale: float | None) -> torch.Tensor:
-        """Bilinear taps of ``flat [H*W, C]`` -> ``[C, H', W']`` float32 (divided by ``scale`` first)."""
-        n = self._nearest.numel()
-        t = flat.index_select(0, self._taps).to(torch.float32)
-        if scale is not None:
-            t = t / scale
-        t00, t01, t10, t11 = t[:n], t[n : 2 * n], t[2 * n : 3 * n], t[3 * n :]
-        top = t00 + (t01 - t00) * self._wx
-        bottom = t10 + (t11 - t10) * self._wx
-        out = top + (bottom - top) * self._wy
+    def _sample(self, image: torch.Tensor) -> torch.Tensor:
+        """Bilinear sampling of ``image [C, H, W]`` float32 at the target's source positions -> ``[C, H', W']``."""
+        out = torch.nn.functional.grid_sample(
+            image[None], self._grid, mode="bilinear", padding_mode="border", align_corners=False
+        )[0]
         if self.fill == "black":
-            out = out * self.valid.reshape(-1, 1)
-        return out.T.reshape(-1, *self.size).contiguous()
+            out = out * self.valid
+        return out
 
     def __call__(self, rgb: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         """One frame: ``rgb [H, W, 3]`` uint8 (or uint16) at the calibration's size -> ``(rgb [3, H', W']`` float32
@@ -201,14 +192,13 @@ class Undistorter:
         if scale is None or rgb.ndim != 3 or rgb.shape[2] != 3:
             raise TypeError(f"expected an [H, W, 3] uint8 or uint16 image, got {rgb.dtype} {list(rgb.shape)}")
         self._check(rgb.shape[:2], "the image")
-        src = torch.from_numpy(rgb.astype(np.int32) if rgb.dtype == np.uint16 else rgb).reshape(-1, 3)
-        return self._blend(src, scale), self.valid
+        src = torch.from_numpy(rgb.astype(np.int32) if rgb.dtype == np.uint16 else rgb).permute(2, 0, 1)
+        return self._sample(src.to(torch.float32)).div_(scale), self.valid
 
     def remap(self, image: torch.Tensor) -> torch.Tensor:
-        """Bilinear remap of a float image ``[C, H, W]`` -> ``[C, H', W']`` (the same arithmetic as ``__call__``)."""
+        """Bilinear remap of a float image ``[C, H, W]`` -> ``[C, H', W']`` (as ``__call__``)."""
         self._check(tuple(image.shape[-2:]), "the image")
-        c = image.shape[0]
-        return self._blend(image.reshape(c, -1).T, None)
+        return self._sample(image.to(torch.float32))
 
     def remap_nearest(self, image: torch.Tensor) -> torch.Tensor:
         """Nearest-pixel remap of ``[..., H, W]`` (labels, depth) -> ``[..., H', W']``: each target pixel takes the
