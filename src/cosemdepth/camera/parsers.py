@@ -103,6 +103,8 @@ def _yaml(text: str, where: str) -> Any:
         at = f" (line {mark.line + 1})" if mark is not None else ""
         problem = getattr(e, "problem", None) or str(e).splitlines()[0]
         raise DatasetError(f"{where}: not valid YAML{at}: {problem}") from None
+    except (ValueError, RecursionError) as e:  # a number PyYAML cannot convert, nesting too deep
+        raise DatasetError(f"{where}: not a calibration file ({type(e).__name__}: {str(e).splitlines()[0]})") from None
 
 
 def _number(value: Any, where: str, what: str) -> float:
@@ -110,8 +112,8 @@ def _number(value: Any, where: str, what: str) -> float:
         raise DatasetError(f"{where}: {what} must be a number, got {value!r}")
     try:
         return float(value)
-    except (TypeError, ValueError):
-        raise DatasetError(f"{where}: {what} must be a number, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise DatasetError(f"{where}: {what} must be a number, got {str(value)[:40]!r}") from None
 
 
 def _integer(value: Any, where: str, what: str) -> int:

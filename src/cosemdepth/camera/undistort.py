@@ -192,7 +192,8 @@ class Undistorter:
         if scale is None or rgb.ndim != 3 or rgb.shape[2] != 3:
             raise TypeError(f"expected an [H, W, 3] uint8 or uint16 image, got {rgb.dtype} {list(rgb.shape)}")
         self._check(rgb.shape[:2], "the image")
-        src = torch.from_numpy(rgb.astype(np.int32) if rgb.dtype == np.uint16 else rgb).permute(2, 0, 1)
+        src = torch.from_numpy(rgb.astype(np.int32) if rgb.dtype == np.uint16 else np.require(rgb, requirements="W"))
+        src = src.permute(2, 0, 1)
         return self._sample(src.to(torch.float32)).div_(scale), self.valid
 
     def remap(self, image: torch.Tensor) -> torch.Tensor:
