@@ -41,6 +41,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.checkpoints",
             "cosemdepth.camera",
             "cosemdepth.data",
+            "cosemdepth.flightlogs",
             "cosemdepth.synthair",
         ),
     ),
