@@ -18,7 +18,8 @@ reset frames left out), streamed at the model's focal length (64 px: 128x128):
   calibration's focal length); ``<lens>_ignored``: the distorted images read as if they were the pinhole's;
 * ``radtan_full_edge`` / ``radtan_full_black``: the undistorted canvas widened to the whole source image
   (``canvas="full"``), where the pixels without a source are fed edge-replicated or black (the choice of
-  ``Undistorter``'s default fill);
+  ``Undistorter``'s default fill); ``centre_128_abs_rel``: AbsRel inside its central 128x128 pixels, the view of
+  the default canvas (the periphery's share of the difference);
 * per entry: ``abs_rel``, ``rmse``, ``delta1`` over the pixels with ground truth (0 where no source pixel exists),
   ``valid_abs_rel`` and ``coverage`` over the pixels marked valid, ``target_valid_fraction`` (target pixels with a
   source) and ``source_coverage`` (share of the distorted image the target shows: 1 - the coverage lost at the
@@ -74,9 +75,20 @@ def depth_entry(model, root: Path, *, calibration=None, canvas: str = "same", fi
         ds.load_frame = UndistortedFrames(ds.load_frame.inner, und)
         ds.intrinsics = und.intrinsics
         info = und.info()
+    callbacks, centre = [], None
+    if canvas == "full":  # the same canvas's view inside the full one: separates the periphery from the rest
+        from cosemdepth.evaluation.metrics import DepthMetrics
+
+        centre = DepthMetrics()
+        (h, w), (ch, cw) = ds.load_frame.size, (128, 128)
+        top, left = (h - ch) // 2, (w - cw) // 2
+        crop = (slice(None), slice(None), slice(top, top + ch), slice(left, left + cw))
+        callbacks.append(lambda b, inc: centre.update(b.gt_depth[crop], b.depth[crop], inc))
     t0 = time.perf_counter()
-    m = evaluate(model, ds, progress=False).metrics
+    m = evaluate(model, ds, progress=False, callbacks=callbacks).metrics
     out = {k: m.get(k) for k in ("abs_rel", "rmse", "delta1", "valid_abs_rel", "coverage", "depth_frames")}
+    if centre is not None:
+        out["centre_128_abs_rel"] = centre.compute()["abs_rel"]
     out["seconds"] = round(time.perf_counter() - t0, 1)
     out["size"] = list(ds.load_frame.size) if hasattr(ds.load_frame, "size") else None
     out["target_valid_fraction"] = None if info is None else info["valid_fraction"]
