@@ -251,9 +251,9 @@ def marked(model):
 
         return pre, post
 
+    from cosemdepth.decoders.semantic import SemanticDecoder
     from cosemdepth.models.encoder import DINL, Encoder
     from cosemdepth.models.layers import Refiner
-    from cosemdepth.models.semantic_decoder import SemanticDecoder
 
     for m in model.modules():
         part = None

@@ -7,7 +7,7 @@ import torch
 from _fakes import FakeModel, fake_dataset
 
 from cosemdepth.evaluation.evaluator import evaluate
-from cosemdepth.evaluation.temporal import PairCounts, TemporalConsistency, pair_counts, warp_previous_labels
+from cosemdepth.measures.temporal import PairCounts, TemporalConsistency, pair_counts, warp_previous_labels
 
 IDENTITY = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
 
