@@ -118,6 +118,7 @@ def test_nothing_of_a_decoder_is_declared_outside_its_folder():
 def test_the_one_registration_fills_every_table(monkeypatch):
     """The edge plugin's folder unregistered, then its ``__init__`` run again: its one call makes the decoder, its
     task and its architecture known, and a model of that architecture is built with the decoder's weights."""
+    registry.load_builtin()
     for table in ("_entries", "_architectures", "_architecture_fields"):  # restored after the test
         monkeypatch.setattr(registry, table, dict(getattr(registry, table)))
     registry.unregister("edge")
