@@ -51,11 +51,11 @@ from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from .data.frames import FocalSize, midair_intrinsics
 from .defaults import DEFAULT_DEVICE
 from .errors import CheckpointError, ConfigError, DatasetError
-from .evaluation.classes import class_info
 from .evaluation.evaluator import Evaluator, to_json
-from .evaluation.metrics import EPS, EVAL_MAX_DEPTH, ConfusionMatrix, DepthMetrics
 from .evaluation.resources import machine_info, resolve_device
 from .inference.fast_model import reference_model
+from .measures.classes import class_info
+from .measures.metrics import EPS, EVAL_MAX_DEPTH, ConfusionMatrix, DepthMetrics
 from .models.footprint import check_size
 from .operating_point import OperatingPoint
 from .output_safety.atomic import atomic_path, atomic_write_text

@@ -31,8 +31,10 @@ def test_every_path_has_the_protocol_s_step(cls):
 
 def test_the_policy_s_step_is_the_protocol_s_without_decoders():
     """The Streamer chooses the decoders of each frame itself; everything else, the ground-truth guide included, is
-    the protocol's."""
-    assert list(inspect.signature(Streamer.step).parameters) == [p for p in STEP if p != "decoders"]
+    the protocol's; its own input, the pixels an undistorted image has, is keyword-only after them."""
+    params = inspect.signature(Streamer.step).parameters
+    assert list(params) == [*(p for p in STEP if p != "decoders"), "source_valid"]
+    assert params["source_valid"].kind is inspect.Parameter.KEYWORD_ONLY
     for cls in (SceneModel, FastModel, OnnxModel, Streamer):
         assert list(inspect.signature(cls.infer).parameters) == INFER, cls
 

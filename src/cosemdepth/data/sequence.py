@@ -17,6 +17,8 @@ key             shape / type        meaning
 ``id``          [T] int64           the row's id column (CSV ``id``; row index for flights/Aeroscapes)
 ``trajectory``  str                 trajectory name (e.g. the CSV path relative to the split folder)
 ``timestamp``   [T] f64             only for datasets with timestamps (your own flights)
+``source_valid`` [T, 1, H, W] bool  only for undistorted cameras: the pixels with a source pixel
+                                    (:class:`cosemdepth.camera.Undistorter`); the depth elsewhere is not an estimate
 ==============  ==================  ==============================================================================
 
 Window modes:
@@ -281,7 +283,7 @@ class SequenceDataset(Dataset):
         records = [traj.frame(r) for r in rows]
         frames = [self.load_frame(rec) for rec in records]
         sample: dict = {"rgb": torch.stack([f["rgb"] for f in frames])}
-        for key in ("depth", "semantic"):
+        for key in ("depth", "semantic", "source_valid"):
             present = [key in f for f in frames]
             if all(present):
                 sample[key] = torch.stack([f[key] for f in frames])

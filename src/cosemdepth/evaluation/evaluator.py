@@ -40,13 +40,13 @@ from tqdm.auto import tqdm
 from .. import __version__
 from ..errors import ConfigError
 from ..inference.policy import EVERY_FRAME, Streamer, policy_info
+from ..measures.metrics import ALL_DEPTH_METRICS, format_markdown_table
 from ..models.protocol import StreamingModel, model_config
 from ..streaming import pipeline
 from ..streaming.frames import Sink, StreamBatch
 from ..streaming.sinks.metrics import MetricsSink
 from ..streaming.sources.dataset import DatasetSource, make_schedule, trajectory_rows
 from ..tasks import TASKS, TEST, MetricContext, tasks_for
-from .metrics import ALL_DEPTH_METRICS, format_markdown_table
 from .resources import PeakMemory, machine_info
 
 
@@ -98,7 +98,7 @@ class EvaluationResult:
             ``rmse_log_fixed``, ``delta1..3`` as fractions, ``depth_frames``) and/or ``miou`` (fraction), ``iou``
             (per-class list, NaN for a class absent from GT and prediction), ``semantic_frames``; with labels and
             depth in the dataset, the labels' temporal consistency (``flicker`` ... ``flicker_pairs``,
-            :mod:`cosemdepth.evaluation.temporal`).
+            :mod:`cosemdepth.measures.temporal`).
         confusion_matrix: ``[N, N]`` int64 counts (rows ground truth, columns prediction) or None.
         class_names: names of the N classes (or empty).
         params: parameter count; ms_per_frame: see the module docstring; peak_memory_mb and memory_method.
@@ -115,7 +115,7 @@ class EvaluationResult:
     info: dict[str, Any] = field(default_factory=dict)
 
     def table_row(self) -> dict[str, Any]:
-        """The flat dict :func:`~cosemdepth.evaluation.metrics.format_markdown_table` takes."""
+        """The flat dict :func:`~cosemdepth.measures.metrics.format_markdown_table` takes."""
         return {**self.metrics, "params": self.params, "ms_per_frame": self.ms_per_frame}
 
     def to_dict(self) -> dict[str, Any]:

@@ -198,10 +198,15 @@ class Streamer:
         reset: Optional[torch.Tensor] = None,
         state: Optional[StreamerState] = None,
         guide_depth: Optional[torch.Tensor] = None,
+        *,
+        source_valid: Optional[torch.Tensor] = None,
     ) -> tuple[StepOutput, StreamerState]:
         """The streaming step (:class:`~cosemdepth.models.protocol.StreamingModel`) under the policy; ``state`` None
         starts every sample afresh; ``guide_depth`` is handed to the model's step. Returns ``(out, new_state)`` with
-        ``out.valid``, ``out.status`` and ``out.baseline``."""
+        ``out.valid``, ``out.status`` and ``out.baseline``. ``source_valid``: ``[B, 1, H, W]`` (or ``[B, H, W]``)
+        bool, the pixels of an undistorted image that have a source pixel (:class:`cosemdepth.camera.Undistorter`);
+        the others are never valid, whatever the policy (an estimate or a carried depth there describes
+        edge-replicated or black pixels)."""
         guide = {} if guide_depth is None else {"guide_depth": guide_depth}
         b = rgb.shape[0]
         dev = rgb.device
@@ -266,11 +271,12 @@ class Streamer:
         hold = ~run_depth
         depth = _where(hold, carried, new_depth)
         valid = _where(hold, carried_valid, new_valid)
+        if source_valid is not None:
+            valid = valid & source_valid.to(device=valid.device, dtype=torch.bool).reshape(valid.shape)
         status = [
             RESET if r else ESTIMATED if e else HELD if h else RESET
             for r, e, h in zip(reset.tolist(), estimate.tolist(), has_depth.tolist())
         ]
-        out.depth = depth
         out.heads = {**out.heads, "depth": depth}
         out.valid, out.status, out.baseline = valid, status, _where(reset, torch.zeros_like(base), base)
         # the new reference: this frame where it was estimated or reset

@@ -66,6 +66,8 @@ def run_evaluate(options: EvaluateOptions) -> CommandResult:
             split=options.source.split or dataset_spec(options.source.dataset).split,
             split_dir=None if options.source.split_dir is None else str(options.source.split_dir),
         )
+        if getattr(dataset, "calibration", None):
+            result.info["dataset"]["undistortion"] = dataset.calibration
         text = result.to_markdown()
         if files is not None:
             files.add_text("metrics.json", result.to_json())

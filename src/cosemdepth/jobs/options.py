@@ -4,6 +4,7 @@ library run returns (:class:`CommandResult`) and its source opened from its opti
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -70,15 +71,20 @@ class CommandResult:
     warnings: list[str] = field(default_factory=list)
 
 
-def open_source(source_options, run: RunOptions, op):
+def open_source(source_options, run: RunOptions, op, *, note: bool = False):
     """The source of ``source_options`` (its table entry in :data:`cosemdepth.streaming.SOURCES`) at ``run.size``,
     or else at the model's focal length (``op``: its operating point; :func:`~cosemdepth.jobs.model.input_size`); a
-    ``--size`` far from the model's focal length gets a warning on stderr."""
+    ``--size`` far from the model's focal length gets a warning on stderr, and with ``note`` what the undistortion
+    says about the calibration it was given (e.g. scaled to the images' size) a note."""
     from ..streaming import SOURCES
     from .model import input_size, warn_far_size
 
     source = SOURCES[source_options.source].from_options(source_options, input_size(run.size, op))
     warn_far_size(op, run.size, getattr(source, "intrinsics", None))
+    calibration_note = getattr(source, "calibration_note", None)
+    text = calibration_note() if note and callable(calibration_note) else None
+    if text:
+        print(f"cosemdepth: note: {text}", file=sys.stderr)
     return source
 
 

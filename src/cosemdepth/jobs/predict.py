@@ -19,9 +19,9 @@ from tqdm.auto import tqdm
 
 from ..data.sequence import SequenceDataset
 from ..errors import ConfigError
-from ..evaluation.classes import class_info
 from ..evaluation.evaluator import to_json
 from ..inference.policy import BASELINE, Streamer, StreamPolicy, policy_info
+from ..measures.classes import class_info
 from ..models.outputs import ESTIMATED, HELD, RESET
 from ..models.protocol import StreamingModel, model_config
 from ..output_safety.atomic import atomic_write_text
@@ -264,6 +264,7 @@ def run_settings(options: PredictOptions, source) -> dict[str, Any]:
     for key in (
         "intrinsics_given",
         "hfov_deg",
+        "calibration",
         "camera_info_topic",
         "convention",
         "frame_skip",
@@ -275,6 +276,8 @@ def run_settings(options: PredictOptions, source) -> dict[str, Any]:
         "skip_unposed",
     ):
         out[key] = own.get(key)
+    calibration = getattr(options.source, "calibration", None)
+    out["calibration"] = None if calibration is None else str(calibration)
     out["jpeg_idct"] = getattr(options.source, "jpeg_idct", None)
     return out
 
@@ -290,7 +293,7 @@ def run_predict(options: PredictOptions) -> CommandResult:
     staged.check()
     if options.rerun is not None:
         check_rrd_path(options.rerun, inputs=[*inputs, Input("--out", options.out)])
-    source = open_source(options.source, options.run, options.model.operating_point())
+    source = open_source(options.source, options.run, options.model.operating_point(), note=True)
     try:
         model, device = load_for(options.model, source.frame_size(), options.run.lanes)
         check_run_size(model, source.frame_size(), device, options.run.lanes, getattr(source, "trajectories", None))

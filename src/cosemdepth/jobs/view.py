@@ -10,8 +10,8 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from ..evaluation.classes import class_info
 from ..inference.policy import policy_info
+from ..measures.classes import class_info
 from ..models.protocol import model_config
 from ..streaming import pipeline
 from ..streaming.sinks.rerun import RerunSink, check_rrd_path, require_rerun
@@ -42,7 +42,7 @@ def run_view(options: ViewOptions) -> CommandResult:
     options.model.apply_threads()
     policy, min_baseline = options.run.stream_policy(default_policy(options.source))
     check_rrd_path(options.rrd, option="--rrd", inputs=[*options.model.inputs(), *options.source.inputs()])
-    source = open_source(options.source, options.run, options.model.operating_point())
+    source = open_source(options.source, options.run, options.model.operating_point(), note=True)
     try:
         model, device = load_for(options.model, source.frame_size(), options.run.lanes)
         check_run_size(model, source.frame_size(), device, options.run.lanes, getattr(source, "trajectories", None))

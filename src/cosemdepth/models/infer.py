@@ -47,7 +47,7 @@ def infer_sequence(
         )
         heads.append(out.heads)
     full = {h: torch.stack([o[h] for o in heads], 1)[0 if single else slice(None)] for h in heads[0]}
-    return StepOutput(full.get("depth"), full.get("semantic"), heads=full)
+    return StepOutput(heads=full)
 
 
 def _motions(

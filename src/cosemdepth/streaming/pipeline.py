@@ -90,18 +90,20 @@ def steps(
             trans = frames.trans.to(device=device, dtype=dtype)
             intr = frames.intrinsics.to(device=device, dtype=dtype)
             gt = {k: v.to(device) for k, v in frames.gt.items()}
-            guide = {}
+            extra = {}
             if guided:
                 if "depth" not in gt:
                     raise ConfigError(
                         "the model's semantic decoder warps the previous labels with the ground-truth "
                         "depth (semantic_time 'gt'), and this dataset has no depth"
                     )
-                guide["guide_depth"] = gt["depth"].to(dtype=dtype)
+                extra["guide_depth"] = gt["depth"].to(dtype=dtype)
             _sync(device)
             t0 = time.perf_counter()
             reset = frames.reset if frames.depth_ok is None else frames.reset | ~frames.depth_ok.bool()
-            out, state = streamer.step(rgb, rot, trans, intr, reset.to(device), state, **guide)
+            if frames.source_valid is not None:  # an undistorted image: no depth where it has no source pixel
+                extra["source_valid"] = frames.source_valid.to(device)
+            out, state = streamer.step(rgb, rot, trans, intr, reset.to(device), state, **extra)
             _sync(device)
             seconds = time.perf_counter() - t0
             heads = dict(getattr(out, "heads", None) or {})

@@ -34,7 +34,7 @@ from ..data.augment import resolve_augment
 from ..data.registry import DATASETS
 from ..defaults import DEFAULT_DEVICE
 from ..errors import ConfigError
-from ..evaluation.metrics import selection_rule
+from ..measures.metrics import selection_rule
 from ..models.config import MIDAIR_IMAGE_SIZE, ModelConfig
 from ..workers import check_workers
 
