@@ -51,6 +51,10 @@ def test_infer_equals_step_by_step(model):
     assert out.depth.shape == (2, 5, 1, 32, 48) and out.semantic.shape == (2, 5, 7, 32, 48)
     torch.testing.assert_close(out.depth, d, rtol=0, atol=0)
     torch.testing.assert_close(out.semantic, s, rtol=0, atol=0)
+    # class labels of every frame of every sample: the class axis is reduced, not the time axis
+    assert out.labels.shape == (2, 5, 32, 48)
+    for k in range(5):
+        torch.testing.assert_close(out.labels[:, k], s[:, k].argmax(1), rtol=0, atol=0)
     # frame 0 is a reset: the initial depth of 1000 m everywhere (design 5.4), whatever the motion given for it
     assert torch.all(out.depth[:, 0] == 1000.0)
 

@@ -112,8 +112,9 @@ class StepOutput:
 
     @property
     def labels(self) -> Optional[Tensor]:
-        """``[B, H, W]`` int64 argmax of ``semantic``."""
-        return None if self.semantic is None else self.semantic.argmax(dim=1)
+        """int64 argmax of ``semantic`` over its class axis (third from last, whatever the rank): ``[B, H, W]`` for a
+        step, ``[T, H, W]`` / ``[B, T, H, W]`` for a sequence from ``infer``."""
+        return None if self.semantic is None else self.semantic.argmax(dim=-3)
 
 
 @dataclass
