@@ -181,7 +181,9 @@ def _validate(args: argparse.Namespace) -> None:
     check_args(args)
     if args.backend == "onnxruntime":
         if args.reference or args.precision != "fp32":
-            raise ConfigError("--backend onnxruntime runs the exported fp32 graph: drop --reference / --precision")
+            raise ConfigError(
+                "--backend onnxruntime runs --onnx at the precision it was exported in: drop --reference / --precision"
+            )
         if args.onnx is None:
             raise ConfigError("--backend onnxruntime needs --onnx FILE (a graph written by 'cosemdepth export --onnx')")
         if args.device not in ("auto", "cpu"):
@@ -277,10 +279,12 @@ def flight_report(dataset) -> str:
     return f"; flight: {matching['describe']}" if matching else ""
 
 
-def run_settings(args: argparse.Namespace, dataset) -> dict:
+def run_settings(args: argparse.Namespace, dataset, model=None) -> dict:
     """What determines predict's outputs besides the frames: ``predictions.json``'s ``run`` entry. ``input_size``
     ``[H, W]`` and ``intrinsics`` ``[fx, fy, cx, cy]`` (package convention: pixel centres at +0.5) are those the model
-    was fed; the pose settings are null for dataset splits (whose readers fix them)."""
+    was fed; the pose settings are null for dataset splits (whose readers fix them); ``precision`` is the graph's
+    own (its metadata) with ``--backend onnxruntime``."""
+    graph = getattr(model, "onnx", None) if getattr(args, "backend", "pytorch") == "onnxruntime" else None
     own = bool(args.flight or args.bag)
     convention = args.convention or (DEFAULT_BAG_CONVENTION if args.bag else DEFAULT_CONVENTION)
     size = frame_size(dataset)
@@ -292,7 +296,7 @@ def run_settings(args: argparse.Namespace, dataset) -> dict:
         if args.reference
         else "fast",
         "onnx": str(args.onnx) if getattr(args, "onnx", None) is not None else None,
-        "precision": args.precision,
+        "precision": graph.precision if graph is not None else args.precision,
         "input_size": None if size is None else list(size),
         "intrinsics": [float(v) for v in dataset.intrinsics.tolist()],
         "intrinsics_given": None if args.intrinsics is None else [float(v) for v in args.intrinsics],
@@ -331,7 +335,7 @@ def run(args: argparse.Namespace) -> int:
             **({"pose_matching": dataset.pose_matching} if hasattr(dataset, "pose_matching") else {}),
         },
         "device": str(device),
-        "run": run_settings(args, dataset),
+        "run": run_settings(args, dataset, model),
     }
     manifest = predict(
         model,
@@ -391,6 +395,7 @@ def _onnx_model(args: argparse.Namespace, dataset):
         raise ConfigError(f"--onnx {args.onnx}: no such file")
     model, device = load(args.model, "cpu", fast=False)
     step = OnnxStep(args.onnx, threads=args.threads)
+    onnx_model = OnnxModel(model, step, model_name=f"--model {args.model}")  # refuses a graph of another model
     want = (None, 3, *frame_size(dataset)) if frame_size(dataset) is not None else None
     got = step.shape
     if want is not None and tuple(got[1:]) != tuple(want[1:]):
@@ -403,7 +408,7 @@ def _onnx_model(args: argparse.Namespace, dataset):
             f"--onnx {args.onnx}: the graph has a fixed batch of {got[0]}; streaming needs batch 1 "
             "(and --trajectories-per-batch 1) or a graph exported with --dynamic-batch"
         )
-    return OnnxModel(model, step), torch.device("cpu")
+    return onnx_model, torch.device("cpu")
 
 
 def input_policy(args: argparse.Namespace) -> tuple[str | None, float | None]:
