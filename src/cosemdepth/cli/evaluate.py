@@ -94,6 +94,9 @@ def run(args: argparse.Namespace) -> int:
         )
         text = result.to_markdown()
         print(text)
+        no_depth = result.depth_warning()
+        if no_depth:
+            print(f"cosemdepth evaluate: warning: {no_depth}", file=sys.stderr)
         if files is not None:
             files.add_text("metrics.json", result.to_json())
             files.add_text("metrics.md", text)

@@ -34,6 +34,7 @@ from ..output_safety.staging import StagedDir
 from ..robotics.bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP
 from ..robotics.cli import add_robotics_args, bag_report, check_args, make_sinks, open_bag
 from ..robotics.rerun_writer import check_rrd_path
+from ..tasks.depth import no_depth_warning
 from ..workers import check_workers
 from ._shared import (
     add_model_args,
@@ -374,11 +375,15 @@ def run(args: argparse.Namespace) -> int:
                 [f.get("valid_fraction", 0.0) for f in manifest["frames"]],
             )
         )
-        if not manifest["frames_by_status"].get(ESTIMATED) and not manifest["frames_by_status"].get(HELD):
-            print(
-                f"cosemdepth predict: warning: no depth was produced: {no_depth_reason(manifest['frames_by_status'])}",
-                file=sys.stderr,
-            )
+        counts, fractions = manifest["frames_by_status"], [f.get("valid_fraction", 0.0) for f in manifest["frames"]]
+        no_depth = no_depth_warning(
+            sum(counts.values()),
+            counts.get(ESTIMATED, 0),
+            counts.get(HELD, 0),
+            sum(fractions) / len(fractions) if fractions else None,
+        )
+        if no_depth:
+            print(f"cosemdepth predict: warning: {no_depth}", file=sys.stderr)
     return 0
 
 
@@ -432,17 +437,3 @@ def depth_report(statuses: dict, policy: dict, valid_fractions) -> str:
     if fractions:
         parts.append(f"{100.0 * sum(fractions) / len(fractions):.1f} % of the pixels valid")
     return f"depth (policy {policy['mode']}): " + "; ".join(parts)
-
-
-def no_depth_reason(statuses: dict) -> str:
-    """Why no frame has depth (every frame a reset)."""
-    n = int(statuses.get(RESET, 0))
-    if n == 1:
-        return (
-            "the input has 1 frame: the first frame of a flight is a reset, and depth needs the camera to move "
-            "between frames"
-        )
-    return (
-        f"all {n} frames are resets (the first frame of each trajectory, and the frames until the camera had "
-        "moved the minimum baseline from it)"
-    )
