@@ -574,8 +574,10 @@ def run_demo(
         # an existing dataset without --size: at the model's focal length (its camera, its aspect ratio)
         at_model = data_root is not None and requested is None and op is not None
         dataset, split = open_flight_split(root, FocalSize(op.focal) if at_model else size, jpeg_idct=jpeg_idct)
-        if requested is not None and op is not None:
-            warning = op.size_warning((size, size), float(dataset.intrinsics[0]))
+        if requested is not None and op is not None:  # without --size: the rule above on the input's own camera
+            warning = op.size_warning(
+                (size, size), float(dataset.intrinsics[0]), default_size=FocalSize(op.focal)(*dataset.native_camera())
+            )
             if warning:
                 print(warning, file=sys.stderr)
 

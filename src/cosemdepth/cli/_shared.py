@@ -130,8 +130,8 @@ def model_size_pair(values: list[int] | None, model, warn: bool = True) -> tuple
     if values is None:
         return tuple(op.size) if op is not None else DEFAULT_SIZE_PAIR
     h, w = parse_size_pair(values)
-    if warn and op is not None:
-        msg = op.size_warning((h, w), op.focal * w / op.size[1])
+    if warn and op is not None:  # without --size: the training size (above)
+        msg = op.size_warning((h, w), op.focal * w / op.size[1], default_size=op.size)
         if msg:
             print(msg, file=sys.stderr)
     return h, w
@@ -235,10 +235,13 @@ def input_size(requested, op: OperatingPoint | None):
 def warn_far_size(op: OperatingPoint | None, requested, dataset, what: str = "--size") -> str | None:
     """When the user's ``requested`` size puts the input's focal length (``dataset.intrinsics``) more than
     :data:`~cosemdepth.operating_point.FOCAL_WARN_FACTOR` away from the model's, print one warning line on stderr
-    naming both (and return it)."""
+    naming both and the size the input runs at without ``what`` (:func:`input_size`'s rule applied to the input's
+    native camera), and return it."""
     if op is None or requested is None or getattr(dataset, "intrinsics", None) is None:
         return None
-    msg = op.size_warning(as_size(requested, what), float(dataset.intrinsics[0]), what)
+    native = dataset.native_camera() if hasattr(dataset, "native_camera") else None
+    default = None if native is None else input_size(None, op)(*native)
+    msg = op.size_warning(as_size(requested, what), float(dataset.intrinsics[0]), what, default_size=default)
     if msg:
         print(msg, file=sys.stderr)
     return msg

@@ -132,4 +132,5 @@ def open_aeroscapes(
         augment=resolve_augment(augment),
         seed=seed,
         name=name,
+        native=native,
     )

@@ -179,4 +179,5 @@ def open_csv_split(
         augment=resolve_augment(augment),
         seed=seed,
         name=name,
+        native=native,
     )

@@ -282,6 +282,7 @@ def open_flight(
         augment=resolve_augment(augment),
         seed=seed,
         name=name,
+        native=lambda: (native, float(k_native[0])),
     )
     dataset.pose_matching = {**matched.summary(), "describe": matched.describe()}
     return dataset

@@ -184,6 +184,8 @@ class SequenceDataset(Dataset):
         augment: per-sequence augmentation (``None``: none).
         seed: base seed of the per-item random draws.
         name: dataset name (stored in ``self.name``).
+        native: ``() -> ((H, W), fx)``, the native images' size and horizontal focal length in pixels, the camera
+            the reader's size rule (:class:`~cosemdepth.data.frames.FocalSize`) applies to (:meth:`native_camera`).
     """
 
     def __init__(
@@ -197,6 +199,7 @@ class SequenceDataset(Dataset):
         augment: AugmentConfig | None = None,
         seed: int = 0,
         name: str = "",
+        native: Callable[[], tuple[tuple[int, int], float]] | None = None,
     ) -> None:
         if mode not in MODES:
             raise ConfigError(f"window mode must be one of {MODES}, got {mode!r}")
@@ -215,6 +218,7 @@ class SequenceDataset(Dataset):
         self.seed = int(seed)
         self.epoch = 0
         self.name = name
+        self._native = native
         chunk = self.db_seq_len
         #: (trajectory index, first row) of every window/chunk
         self.windows: list[tuple[int, int]] = [
@@ -226,6 +230,12 @@ class SequenceDataset(Dataset):
                 f"{name or 'dataset'}: no window of {chunk} rows fits in any trajectory (the longest has {longest} "
                 "rows); lower seq_len/db_seq_len"
             )
+
+    def native_camera(self) -> tuple[tuple[int, int], float] | None:
+        """``((H, W), fx)`` of the native images (before any resize; None when the reader does not say): what a
+        :class:`~cosemdepth.data.frames.FocalSize` rule is applied to, e.g. to tell the size a run without ``--size``
+        would have."""
+        return None if self._native is None else self._native()
 
     def set_epoch(self, epoch: int) -> None:
         """Select the random draws of ``epoch`` (train windows and augmentation)."""

@@ -303,7 +303,9 @@ def open_bag_flight(
     )
     loader = BagFrameLoader(path, image_topic, out_size, native, jpeg_idct)
     intr = scale_intrinsics(k_native, native, out_size)
-    dataset = SequenceDataset([traj], loader, intr, seq_len=1, mode="stream", name="flight")
+    dataset = SequenceDataset(
+        [traj], loader, intr, seq_len=1, mode="stream", name="flight", native=lambda: (native, float(k_native[0]))
+    )
     return BagFlight(path, image_topic, dataset, idx, m, intr, out_size, loader)
 
 
