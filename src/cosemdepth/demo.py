@@ -51,13 +51,13 @@ from .data import open_dataset
 from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from .data.frames import FocalSize, midair_intrinsics
 from .errors import CheckpointError, ConfigError, DatasetError
-from .evaluation.classes import class_info
 from .evaluation.evaluator import Evaluator, to_json
 from .evaluation.figures import FlightPictures, frame_maps
-from .evaluation.metrics import EPS, EVAL_MAX_DEPTH, ConfusionMatrix, DepthMetrics
 from .evaluation.resources import machine_info, resolve_device
 from .evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 from .inference.fast_model import reference_model
+from .measures.classes import class_info
+from .measures.metrics import EPS, EVAL_MAX_DEPTH, ConfusionMatrix, DepthMetrics
 from .models.footprint import check_size
 from .operating_point import OperatingPoint
 from .output_safety.atomic import atomic_path, atomic_write_text

@@ -46,8 +46,8 @@ class PlaneModel:
             self.runs += 1
             depth = torch.full((1, 1, N, N), float(d))
         probs = torch.full((1, 2, N, N), 0.5)
-        new = StreamState((torch.full((1,), float(frame)),), ()) if run or state is None else state
-        return StepOutput(depth, probs), new
+        new = StreamState(feat=(torch.full((1,), float(frame)),)) if run or state is None else state
+        return StepOutput(heads={"semantic": probs} if depth is None else {"depth": depth, "semantic": probs}), new
 
 
 def run(model, motions, policy=BASELINE, min_baseline=1.0, **kw):

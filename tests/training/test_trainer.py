@@ -264,9 +264,9 @@ def test_bf16_autocast_keeps_the_loss_in_float32(tiny_config, bf16_cpu):
 def test_compute_loss_applies_the_configured_class_weights(tiny_config):
     """train.semantic_class_weights reaches the semantic loss: the trainer's loss is the weighted one."""
     from cosemdepth.data.toy import ToyDataset
+    from cosemdepth.measures.losses import semantic_loss
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
-    from cosemdepth.training.losses import semantic_loss
     from cosemdepth.training.trainer import compute_loss
 
     cfg = tiny_config()

@@ -24,6 +24,7 @@ from ..data.flight import DEFAULT_CONVENTION
 from ..data.pose_matching import DEFAULT_MAX_GAP, MATCHES
 from ..data.poses import CONVENTIONS
 from ..data.stamps import UNITS, parse_stamp_unit
+from ..decoders.depth.task import no_depth_warning
 from ..errors import ConfigError
 from ..evaluation.predict import DEFAULT_INVALID, INVALID_MODES, predict
 from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
@@ -34,7 +35,6 @@ from ..output_safety.staging import StagedDir
 from ..robotics.bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP
 from ..robotics.cli import add_robotics_args, bag_report, check_args, make_sinks, open_bag
 from ..robotics.rerun_writer import check_rrd_path
-from ..tasks.depth import no_depth_warning
 from ..workers import check_workers
 from ._shared import (
     add_model_args,

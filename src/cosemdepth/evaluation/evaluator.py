@@ -41,12 +41,12 @@ import torch
 from tqdm.auto import tqdm
 
 from .. import __version__
+from ..decoders.depth.task import no_depth_warning
 from ..errors import ConfigError
 from ..inference.policy import EVERY_FRAME, Streamer, policy_info
+from ..measures.metrics import ALL_DEPTH_METRICS, format_markdown_table
 from ..models.outputs import ESTIMATED, HELD
 from ..tasks import TASKS, TEST, MetricContext, tasks_for
-from ..tasks.depth import no_depth_warning
-from .metrics import ALL_DEPTH_METRICS, format_markdown_table
 from .resources import PeakMemory, machine_info
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
 
@@ -111,7 +111,7 @@ class EvaluationResult:
             ``rmse_log_fixed``, ``delta1..3`` as fractions, ``depth_frames``) and/or ``miou`` (fraction), ``iou``
             (per-class list, NaN for a class absent from GT and prediction), ``semantic_frames``; with labels and
             depth in the dataset, the labels' temporal consistency (``flicker`` ... ``flicker_pairs``,
-            :mod:`cosemdepth.evaluation.temporal`).
+            :mod:`cosemdepth.measures.temporal`).
         confusion_matrix: ``[N, N]`` int64 counts (rows ground truth, columns prediction) or None.
         class_names: names of the N classes (or empty).
         params: parameter count; ms_per_frame: see the module docstring; peak_memory_mb and memory_method.
@@ -128,7 +128,7 @@ class EvaluationResult:
     info: dict[str, Any] = field(default_factory=dict)
 
     def table_row(self) -> dict[str, Any]:
-        """The flat dict :func:`~cosemdepth.evaluation.metrics.format_markdown_table` takes."""
+        """The flat dict :func:`~cosemdepth.measures.metrics.format_markdown_table` takes."""
         return {**self.metrics, "params": self.params, "ms_per_frame": self.ms_per_frame}
 
     def to_dict(self) -> dict[str, Any]:
@@ -167,7 +167,7 @@ class EvaluationResult:
 
     def depth_warning(self) -> str | None:
         """Why the run gave no usable depth (every frame a reset, or not one valid pixel), as the commands warn it
-        (:func:`~cosemdepth.tasks.depth.no_depth_warning`); None when it gave some, or the model has no depth."""
+        (:func:`~cosemdepth.decoders.depth.task.no_depth_warning`); None when it gave some, or the model has no depth."""
         proto = self.info.get("protocol", {})
         counts = proto.get("frames_by_status")
         if not counts:

@@ -150,7 +150,7 @@ class OnnxStep:
         res, nxt = self.run(feeds, st)
         dev = rgb.device
         heads = {k: torch.from_numpy(v).to(dev) for k, v in res.items() if not k.startswith("next_")}
-        out = StepOutput(depth=heads.get("depth"), semantic=heads.get("semantic"), heads=heads)
+        out = StepOutput(heads=heads)
         new = (
             StreamState.unflatten([torch.from_numpy(s).to(dev) for s in nxt], self.components) if nxt else StreamState()
         )

@@ -29,7 +29,6 @@ import torch
 import torch.nn.functional as F
 
 from ..devices import bf16_convolutions, no_bf16_reason, onednn_enabled
-from ..models.depth_decoder import DepthLevel
 from ..models.outputs import StepOutput, StreamState
 from ..models.pyramid import LevelOps, PyramidLevel, decode_step
 from ..ops.concat import write_blocks
@@ -120,17 +119,16 @@ def _nearest_nn1(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 
 def _fast_ops(level: PyramidLevel, refiner: _Refiner) -> LevelOps:
     """The fast operations of one level: packed refiner, channels-last concatenation, nearest resize by pixel
-    replication, the channel-loop SNCV; for a depth level NCHW features (one layout change here instead of one per
-    cost volume and per frame) and ``hypot`` (the PSCV is the reference's own function)."""
+    replication, the channel-loop SNCV, and the level's own choices (:attr:`PyramidLevel.fast_ops`: a depth level's
+    NCHW features, one layout change here instead of one per cost volume and per frame, and ``hypot``; the PSCV is
+    the reference's own function)."""
     ops = LevelOps(
         concat=functools.partial(write_blocks, dtype=refiner.dtype, memory_format=_CL),
         refiner=refiner,
         nearest=_nearest_nn1,
         sncv=spatial_cost_volume_fast,
     )
-    if not isinstance(level, DepthLevel):
-        return ops
-    return dataclasses.replace(ops, layout=torch.Tensor.contiguous, hypot=True)
+    return dataclasses.replace(ops, **level.fast_ops) if level.fast_ops else ops
 
 
 class FastEngine:

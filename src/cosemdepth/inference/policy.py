@@ -247,7 +247,6 @@ class Streamer:
             RESET if r else ESTIMATED if e else HELD if h else RESET
             for r, e, h in zip(reset.tolist(), estimate.tolist(), has_depth.tolist())
         ]
-        out.depth = depth
         out.heads = {**out.heads, "depth": depth}
         out.valid, out.status, out.baseline = valid, status, _where(reset, torch.zeros_like(base), base)
         # the new reference: this frame where it was estimated or reset

@@ -56,7 +56,7 @@ def infer_sequence(
             raise ValueError(f"{e} (frame {k} of the sequence)") from None
         heads.append(out.heads)
     full = {h: torch.stack([o[h] for o in heads], 1)[0 if single else slice(None)] for h in heads[0]}
-    return StepOutput(full.get("depth"), full.get("semantic"), heads=full)
+    return StepOutput(heads=full)
 
 
 def _motions(

@@ -7,8 +7,8 @@ import argparse
 from pathlib import Path
 
 from ..errors import ConfigError
-from ..evaluation.classes import class_info
 from ..evaluation.evaluator import _model_config
+from ..measures.classes import class_info
 from ..tasks import class_count
 from .bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP, open_bag_flight
 from .bag_writer import DEFAULT_NAMESPACE, BagWriter, check_namespace

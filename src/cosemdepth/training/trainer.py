@@ -48,7 +48,8 @@ from tqdm import tqdm
 from ..checkpoints.model_io import read_weights
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device, retain_freed_host_memory
 from ..errors import CheckpointError, ConfigError, CosemdepthError, DatasetError
-from ..evaluation.metrics import selection_rule
+from ..measures.losses import FIRST_SUPERVISED_FRAME, LossTerms, weighted_total
+from ..measures.metrics import selection_rule
 from ..models import build_model
 from ..models.config import ModelConfig
 from ..models.footprint import check_size
@@ -73,7 +74,6 @@ from .data import (
 )
 from .events import CONSOLE_KINDS, EventLog
 from .init import read_transfer_source, transfer_state_dict
-from .losses import FIRST_SUPERVISED_FRAME, LossTerms, weighted_total
 from .optim import make_optimizer
 from .rundir import (
     BEST_METRICS_NAME,

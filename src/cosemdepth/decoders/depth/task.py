@@ -1,6 +1,6 @@
 """The depth decoder's task: the multi-level log-depth L1 loss (design 8.1), the depth metrics (design 11.1; with the
-streaming policy's validity and frame statuses in the test protocol), its ``predict`` files and pictures, and its
-refiners in the official checkpoints (``disp_refiner``)."""
+streaming policy's validity and frame statuses in the test protocol), its ``predict`` files and its training
+pictures."""
 
 from __future__ import annotations
 
@@ -10,14 +10,12 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from ..evaluation.metrics import DepthMetrics, ValidDepthMetrics
-from ..evaluation.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png
-from ..models.config import ModelConfig
-from ..models.depth_decoder import DepthDecoder
-from ..models.outputs import ESTIMATED, RESET, STATUSES
-from ..training.losses import depth_loss
-from ..training.visual import depth_to_rgb
-from .base import (
+from ...evaluation.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png
+from ...measures.losses import depth_loss
+from ...measures.metrics import DepthMetrics, ValidDepthMetrics
+from ...models.config import ModelConfig
+from ...models.outputs import ESTIMATED, RESET, STATUSES
+from ...tasks.base import (
     TEST,
     DecoderTask,
     Frames,
@@ -26,8 +24,9 @@ from .base import (
     TaskWriter,
     WriteOptions,
     float32_levels,
-    register_task,
 )
+from ...training.visual import depth_to_rgb
+from .decoder import DepthDecoder
 
 
 def valid_mask(depth: np.ndarray, valid: np.ndarray | None, reset: bool) -> np.ndarray:
@@ -65,8 +64,8 @@ def no_depth_warning(frames: int, estimated: int, held: int, valid_fraction: flo
 
 
 class DepthTaskMetrics(TaskMetrics):
-    """The depth metrics of design 11.1 (:class:`~cosemdepth.evaluation.metrics.DepthMetrics`); in the test protocol
-    also those of the valid pixels (:class:`~cosemdepth.evaluation.metrics.ValidDepthMetrics`) and the frames by
+    """The depth metrics of design 11.1 (:class:`~cosemdepth.measures.metrics.DepthMetrics`); in the test protocol
+    also those of the valid pixels (:class:`~cosemdepth.measures.metrics.ValidDepthMetrics`) and the frames by
     status. A frame without depth (status ``reset``: the first of a trajectory, or one held before any estimate) is
     never in the depth metrics, whatever ``exclude_resets`` says: its depth is a placeholder, not a measurement
     (``exclude_resets=False``, a dataset of independent images, counts its labels)."""
@@ -141,6 +140,9 @@ class DepthWriter(TaskWriter):
 
 
 class DepthTask(DecoderTask):
+    """The depth decoder's task: ground truth ``"depth"`` (metres), the multi-level log-depth loss, the depth
+    metrics, the ``depth`` / ``depth_valid`` / ``depth_png`` files of ``predict`` and the depth pictures."""
+
     name = "depth"
     decoder = DepthDecoder
     gt_key = "depth"
@@ -192,7 +194,4 @@ class DepthTask(DecoderTask):
         }
 
 
-#: the depth decoder's task, registered under the decoder name "depth"
-DEPTH = register_task(DepthTask())
-
-__all__ = ["DEPTH", "DepthTask", "DepthTaskMetrics", "DepthWriter", "no_depth_warning", "valid_mask"]
+__all__ = ["DepthTask", "DepthTaskMetrics", "DepthWriter", "no_depth_warning", "valid_mask"]

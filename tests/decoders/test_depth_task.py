@@ -2,7 +2,7 @@
 
 import pytest
 
-from cosemdepth.tasks.depth import no_depth_warning
+from cosemdepth.decoders.depth.task import no_depth_warning
 
 
 @pytest.mark.parametrize(
