@@ -151,12 +151,15 @@ def test_export_check_reports_what_it_compared_and_fails_a_broken_graph(tmp_path
     from cosemdepth.cli import export as export_cli
 
     def broken_export(*args, **kwargs):  # the export, then the semantic decoder's last convolution scaled by 1.01
+        from cosemdepth.export.provenance import stamp
+
         path = export_onnx(*args, **kwargs)
         proto = onnx.load(str(path))
         name = "model.semantic_decoder.levels.0.refiner.convs.6.weight"
         init = next(i for i in proto.graph.initializer if i.name == name)
         init.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(init) * np.float32(1.01), name))
         onnx.save(proto, str(path))
+        stamp(path, {})  # stamped as the exporter stamps its graph: a wrong graph, not one changed after export
         return path
 
     monkeypatch.setattr(export_cli, "export_onnx", broken_export)

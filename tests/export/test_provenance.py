@@ -114,5 +114,9 @@ def test_a_graph_without_provenance_is_refused(exported, tmp_path):
     onnx.save(proto, str(old))
     with pytest.raises(ConfigError, match=r"old.onnx: the graph records no provenance .* re-export it"):
         OnnxStep(old)
+    timed = OnnxStep(old, provenance=False)  # timing an older export side by side: run as it is
+    assert timed.provenance is None and timed.precision is None
+    with pytest.raises(ConfigError, match="records no provenance"):
+        OnnxModel(m, timed)  # run for a model, it must say it is that model's
     with pytest.raises(ConfigError, match="records no provenance"):
         read_provenance(old)

@@ -43,6 +43,8 @@ class OnnxStep:
         threads: intra-op threads (default: ONNX Runtime's choice).
         profile_prefix: write ONNX Runtime's per-node profile (JSON) with this file prefix (:meth:`end_profiling`).
         model: the PyTorch model the graph must have been exported from (:meth:`check_model`), if given.
+        provenance: False: run the graph whatever its metadata records (timing an older export side by side,
+            ``benchmarks/infer_vs_original.py``); :attr:`provenance` and :attr:`precision` are then None.
 
     A graph without the provenance an export records, or changed since, is refused
     (:func:`~cosemdepth.export.provenance.read_provenance`); :attr:`provenance` holds it, :attr:`precision` is
@@ -56,14 +58,15 @@ class OnnxStep:
         threads: Optional[int] = None,
         profile_prefix: Optional[str] = None,
         model=None,
+        provenance: bool = True,
     ):
         try:
             import onnxruntime as ort  # deferred: an optional dependency (cosemdepth[export])
         except ImportError:  # pragma: no cover - optional dependency
             raise ConfigError("running an ONNX graph needs onnxruntime (pip install 'cosemdepth[export]')") from None
         self.path = Path(path)
-        self.provenance = read_provenance(self.path)
-        self.precision = self.provenance[PRECISION]
+        self.provenance = read_provenance(self.path) if provenance or model is not None else None
+        self.precision = None if self.provenance is None else self.provenance[PRECISION]
         if model is not None:
             self.check_model(model)
         try:
@@ -87,6 +90,9 @@ class OnnxStep:
     def check_model(self, model, model_name: str = "the model") -> None:
         """Refuse, in one line naming the file and what differs, a graph not exported from ``model`` (its
         architecture, config and weights; :func:`~cosemdepth.export.provenance.check_model`)."""
+        if self.provenance is None:  # opened without it: a model's graph must have it all the same
+            self.provenance = read_provenance(self.path)
+            self.precision = self.provenance[PRECISION]
         check_model(self.provenance, model, self.path, model_name)
 
     @property
