@@ -134,7 +134,9 @@ def check_model(record: Mapping[str, str], model, path, model_name: str = "the m
     mine = cfg.to_dict()
     keys = sorted(k for k in set(graph_cfg) | set(mine) if graph_cfg.get(k, "(none)") != mine.get(k, "(none)"))
     if keys:
-        diff = ", ".join(f"{k} {graph_cfg.get(k, '(none)')!r} in the graph, {mine.get(k, '(none)')!r}" for k in keys)
+        diff = ", ".join(
+            f"{k} {graph_cfg.get(k, '(none)')!r} in the graph, {mine.get(k, '(none)')!r} in the model" for k in keys
+        )
         raise ConfigError(f"{where}: its config differs from the model's: {diff}")
     digest = weights_digest(model)
     if record[WEIGHTS] != digest:
