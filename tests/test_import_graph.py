@@ -40,6 +40,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "cosemdepth.inference",
             "cosemdepth.checkpoints",
+            "cosemdepth.camera",
             "cosemdepth.data",
             "cosemdepth.flightlogs",
             "cosemdepth.synthair",

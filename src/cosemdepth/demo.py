@@ -576,7 +576,7 @@ def run_demo(
         dataset, split = open_flight_split(root, FocalSize(op.focal) if at_model else size, jpeg_idct=jpeg_idct)
         if requested is not None and op is not None:  # without --size: the rule above on the input's own camera
             warning = op.size_warning(
-                (size, size), float(dataset.intrinsics[0]), default_size=FocalSize(op.focal)(*dataset.native_camera())
+                (size, size), float(dataset.intrinsics[0]), default_size=dataset.opened_size(FocalSize(op.focal))
             )
             if warning:
                 print(warning, file=sys.stderr)

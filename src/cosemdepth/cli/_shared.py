@@ -235,12 +235,11 @@ def input_size(requested, op: OperatingPoint | None):
 def warn_far_size(op: OperatingPoint | None, requested, dataset, what: str = "--size") -> str | None:
     """When the user's ``requested`` size puts the input's focal length (``dataset.intrinsics``) more than
     :data:`~cosemdepth.operating_point.FOCAL_WARN_FACTOR` away from the model's, print one warning line on stderr
-    naming both and the size the input runs at without ``what`` (:func:`input_size`'s rule applied to the input's
-    native camera), and return it."""
+    naming both and the size the input runs at without ``what`` (:func:`input_size`'s rule, opened as the input's
+    reader opens it), and return it."""
     if op is None or requested is None or getattr(dataset, "intrinsics", None) is None:
         return None
-    native = dataset.native_camera() if hasattr(dataset, "native_camera") else None
-    default = None if native is None else input_size(None, op)(*native)
+    default = dataset.opened_size(input_size(None, op)) if hasattr(dataset, "opened_size") else None
     msg = op.size_warning(as_size(requested, what), float(dataset.intrinsics[0]), what, default_size=default)
     if msg:
         print(msg, file=sys.stderr)
@@ -343,8 +342,9 @@ def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32
         raise ConfigError(f"--precision {precision}: {e}") from None
 
 
-def open_split(args: argparse.Namespace, size):
-    """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1)."""
+def open_split(args: argparse.Namespace, size, calibration=None):
+    """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1);
+    ``calibration``: a lens file for the readers that take one (Mid-Air, SynthAir)."""
     check_workers(args.workers)
     check_split_dir(args)
     return open_dataset(
@@ -355,6 +355,7 @@ def open_split(args: argparse.Namespace, size):
         seq_len=1,
         size=size,
         jpeg_idct=args.jpeg_idct,
+        **({} if calibration is None else {"calibration": calibration}),
     )
 
 

@@ -86,6 +86,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="pinhole intrinsics in pixels of the original images",
     )
     flight.add_argument(
+        "--calibration",
+        type=Path,
+        metavar="FILE",
+        help="the camera's calibration (ROS camera_info YAML, OpenCV FileStorage YAML, Kalibr camchain, COLMAP "
+        "cameras.txt; instead of --intrinsics / --hfov / --camera-info-topic): images undistorted to a pinhole at "
+        "the model's focal length (docs/data.md)",
+    )
+    flight.add_argument(
         "--hfov",
         type=float,
         metavar="DEG",
@@ -200,8 +208,10 @@ def _validate(args: argparse.Namespace) -> None:
             raise ConfigError("--flight needs --images DIR")
         if args.poses is None:
             raise ConfigError("--flight needs --poses FILE")
-        if (args.intrinsics is None) == (args.hfov is None):
-            raise ConfigError("--flight needs exactly one of --intrinsics FX FY CX CY and --hfov DEG")
+        if sum(x is not None for x in (args.intrinsics, args.hfov, getattr(args, "calibration", None))) != 1:
+            raise ConfigError(
+                "--flight needs exactly one of --intrinsics FX FY CX CY, --hfov DEG and --calibration FILE"
+            )
         if args.hfov is not None and not 0 < args.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {args.hfov}")
         parse_stamp_unit(args.stamp_unit)
@@ -240,6 +250,7 @@ def _open(args: argparse.Namespace):
             stamp_unit=args.stamp_unit,
             max_gap=DEFAULT_MAX_GAP if args.max_pose_gap is None else args.max_pose_gap,
             skip_unposed=args.skip_unposed,
+            calibration=args.calibration,
         )
     else:
         check_split_dir(args)
@@ -251,8 +262,12 @@ def _open(args: argparse.Namespace):
             seq_len=1,
             size=size,
             jpeg_idct=args.jpeg_idct,
+            **({"calibration": args.calibration} if args.calibration is not None else {}),
         )
     warn_far_size(op, args.size, dataset)
+    note = ((getattr(dataset, "calibration", None) or {}).get("calibration") or {}).get("note")
+    if note:
+        print(f"cosemdepth: note: {note}", file=sys.stderr)
     return dataset
 
 
@@ -268,6 +283,7 @@ def command_inputs(args: argparse.Namespace) -> list:
                 ("--images", args.images),
                 ("--poses", args.poses),
                 ("--bag", args.bag),
+                ("--calibration", args.calibration),
             )
             if p is not None
         ),
@@ -302,6 +318,7 @@ def run_settings(args: argparse.Namespace, dataset, model=None) -> dict:
         "intrinsics": [float(v) for v in dataset.intrinsics.tolist()],
         "intrinsics_given": None if args.intrinsics is None else [float(v) for v in args.intrinsics],
         "hfov_deg": args.hfov,
+        "calibration": None if args.calibration is None else str(args.calibration),
         "camera_info_topic": args.camera_info_topic,
         "convention": convention if own else None,
         "frame_skip": args.frame_skip if own else None,
@@ -334,6 +351,7 @@ def run(args: argparse.Namespace) -> int:
             "root": str(args.bag if args.bag else args.images if args.flight else args.root),
             "split": None if args.flight else args.split,
             **({"pose_matching": dataset.pose_matching} if hasattr(dataset, "pose_matching") else {}),
+            **({"undistortion": dataset.calibration} if getattr(dataset, "calibration", None) else {}),
         },
         "device": str(device),
         "run": run_settings(args, dataset, model),
