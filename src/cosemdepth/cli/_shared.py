@@ -128,8 +128,8 @@ def model_size_pair(values: list[int] | None, model: StreamingModel, warn: bool 
     if values is None:
         return tuple(op.size) if op is not None else DEFAULT_SIZE_PAIR
     h, w = parse_size_pair(values)
-    if warn and op is not None:
-        msg = op.size_warning((h, w), op.focal * w / op.size[1])
+    if warn and op is not None:  # without --size: the training size (above)
+        msg = op.size_warning((h, w), op.focal * w / op.size[1], default_size=op.size)
         if msg:
             print(msg, file=sys.stderr)
     return h, w

@@ -14,6 +14,7 @@ into place together at the end; nothing is written if the run fails).
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..inference.policy import EVERY_FRAME
@@ -52,6 +53,9 @@ def options(args: argparse.Namespace) -> EvaluateOptions:
 
 
 def run(args: argparse.Namespace) -> int:
-    for line in run_evaluate(options(args)).lines:
+    result = run_evaluate(options(args))
+    for line in result.lines:
         print(line)
+    for line in result.warnings:
+        print(line, file=sys.stderr)
     return 0

@@ -193,6 +193,7 @@ def open_csv_split(
         augment=resolve_augment(augment),
         seed=seed,
         name=name,
+        size_at=lambda rule: resolve_size(rule, native) or native()[0],
     )
     dataset.calibration = None if undistorter is None else undistorter.info()
     return dataset

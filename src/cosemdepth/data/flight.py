@@ -307,6 +307,11 @@ def open_flight(
         augment=resolve_augment(augment),
         seed=seed,
         name=name,
+        size_at=lambda rule: (
+            undistorter_for(calibration, native, rule, "the flight's images").size
+            if calibration is not None
+            else resolve_size(rule, lambda: (native, float(k_native[0]))) or native
+        ),
     )
     dataset.pose_matching = {**matched.summary(), "describe": matched.describe()}
     dataset.calibration = None if undistorter is None else undistorter.info()

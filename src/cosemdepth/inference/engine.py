@@ -74,14 +74,17 @@ def is_int8(dtype) -> bool:
     return dtype is torch.int8 or (isinstance(dtype, str) and dtype.lower() in INT8_NAMES)
 
 
-def parse_dtype(dtype: torch.dtype | str) -> torch.dtype:
-    """``torch.float32`` / ``"fp32"`` / ``"bf16"`` / ``"float16"`` ... -> a torch dtype of the fast path."""
+def parse_dtype(dtype: torch.dtype | str, name: str = "dtype", int8: bool = False) -> torch.dtype:
+    """``torch.float32`` / ``"fp32"`` / ``"bf16"`` / ``"float16"`` ... -> a torch dtype of the fast path; else a
+    ValueError naming the argument ``name`` and every value it takes (``int8``: "int8" too, handled by the
+    caller)."""
     if isinstance(dtype, torch.dtype):
         if dtype in _DTYPES.values():
             return dtype
     elif isinstance(dtype, str) and dtype.lower() in _DTYPES:
         return _DTYPES[dtype.lower()]
-    raise ValueError(f"dtype must be one of {sorted(_DTYPES)} (or the torch dtypes), got {dtype!r}")
+    names = sorted([*_DTYPES, *(INT8_NAMES[:1] if int8 else ())])
+    raise ValueError(f"{name} must be one of {names} (or the torch dtypes), got {dtype!r}")
 
 
 def upsample_nearest(x: torch.Tensor, size: tuple[int, int], half_pixel: bool) -> torch.Tensor:
@@ -173,9 +176,9 @@ class FastEngine:
         self.int8_keep_float = dict(INT8_KEEP_FLOAT if int8_keep_float is None else int8_keep_float)
         if int8_float_dtype is None:
             int8_float_dtype = torch.bfloat16 if native_bf16() else torch.float32
-        self.int8_float_dtype = parse_dtype(int8_float_dtype)
+        self.int8_float_dtype = parse_dtype(int8_float_dtype, "int8_float_dtype")
         self.int8 = is_int8(dtype)
-        dtype = torch.float32 if self.int8 else parse_dtype(dtype)
+        dtype = torch.float32 if self.int8 else parse_dtype(dtype, int8=True)
         p = next(model.parameters())
         self.device = torch.device(device) if device is not None else p.device
         if torch.bfloat16 in (dtype, self.int8_float_dtype if self.int8 else dtype) and not bf16_convolutions(

@@ -75,7 +75,8 @@ def run_evaluate(options: EvaluateOptions) -> CommandResult:
     lines = [text]
     if options.out:
         lines.append(f"wrote {Path(options.out) / 'metrics.json'} and {Path(options.out) / 'metrics.md'}")
-    return CommandResult(result.to_dict(), lines)
+    no_depth = result.depth_warning()
+    return CommandResult(result.to_dict(), lines, [f"cosemdepth evaluate: warning: {no_depth}"] if no_depth else [])
 
 
 __all__ = ["EvaluateOptions", "METRICS_FILES", "run_evaluate"]

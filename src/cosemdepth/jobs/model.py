@@ -56,7 +56,9 @@ class ModelOptions:
             raise ConfigError(f"--threads must be a positive integer, got {self.threads!r}")
         if self.backend == "onnxruntime":
             if self.reference or self.precision != "fp32":
-                raise ConfigError("--backend onnxruntime runs the exported fp32 graph: drop --reference / --precision")
+                raise ConfigError(
+                    "--backend onnxruntime runs --onnx at the precision it was exported in: drop --reference / --precision"
+                )
             if self.onnx is None:
                 raise ConfigError(
                     "--backend onnxruntime needs --onnx FILE (a graph written by 'cosemdepth export --onnx')"
@@ -131,6 +133,7 @@ def _onnx_model(options: ModelOptions, frame_size: tuple[int, int] | None, lanes
         raise ConfigError(f"--onnx {onnx}: no such file")
     model, _ = load(options.path, "cpu", fast=False)
     step = OnnxStep(onnx, threads=options.threads)
+    onnx_model = OnnxModel(model, step, model_name=f"--model {options.path}")  # refuses a graph of another model
     want = (None, 3, *frame_size) if frame_size is not None else None
     got = step.shape
     if want is not None and tuple(got[1:]) != tuple(want[1:]):
@@ -143,7 +146,7 @@ def _onnx_model(options: ModelOptions, frame_size: tuple[int, int] | None, lanes
             f"--onnx {onnx}: the graph has a fixed batch of {got[0]}; streaming needs batch 1 "
             "(and --trajectories-per-batch 1) or a graph exported with --dynamic-batch"
         )
-    return OnnxModel(model, step), torch.device("cpu")
+    return onnx_model, torch.device("cpu")
 
 
 def input_size(requested, op: OperatingPoint | None):
@@ -155,13 +158,16 @@ def input_size(requested, op: OperatingPoint | None):
     return FocalSize(op.focal)
 
 
-def warn_far_size(op: OperatingPoint | None, requested, intrinsics, what: str = "--size") -> str | None:
+def warn_far_size(
+    op: OperatingPoint | None, requested, intrinsics, what: str = "--size", default_size=None
+) -> str | None:
     """When the user's ``requested`` size puts the input's focal length (``intrinsics[0]``, at that size) more than
     :data:`~cosemdepth.operating_point.FOCAL_WARN_FACTOR` away from the model's, print one warning line on stderr
-    naming both (and return it)."""
+    naming both and ``default_size``, the size the input runs at without ``what`` (:func:`input_size`'s rule, as
+    the input's reader opens it), and return it."""
     if op is None or requested is None or intrinsics is None:
         return None
-    msg = op.size_warning(as_size(requested, what), float(intrinsics[0]), what)
+    msg = op.size_warning(as_size(requested, what), float(intrinsics[0]), what, default_size=default_size)
     if msg:
         print(msg, file=sys.stderr)
     return msg

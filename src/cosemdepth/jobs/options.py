@@ -80,7 +80,9 @@ def open_source(source_options, run: RunOptions, op, *, note: bool = False):
     from .model import input_size, warn_far_size
 
     source = SOURCES[source_options.source].from_options(source_options, input_size(run.size, op))
-    warn_far_size(op, run.size, getattr(source, "intrinsics", None))
+    dataset = getattr(source, "dataset", None)
+    default = dataset.opened_size(input_size(None, op)) if hasattr(dataset, "opened_size") and op else None
+    warn_far_size(op, run.size, getattr(source, "intrinsics", None), default_size=default)
     calibration_note = getattr(source, "calibration_note", None)
     text = calibration_note() if note and callable(calibration_note) else None
     if text:

@@ -18,6 +18,7 @@ from typing import Any, Optional, Sequence
 from tqdm.auto import tqdm
 
 from ..data.sequence import SequenceDataset
+from ..decoders.depth.task import no_depth_warning
 from ..errors import ConfigError
 from ..evaluation.evaluator import to_json
 from ..inference.policy import BASELINE, Streamer, StreamPolicy, policy_info
@@ -246,10 +247,12 @@ _FILE_ENTRIES = (
 )
 
 
-def run_settings(options: PredictOptions, source) -> dict[str, Any]:
+def run_settings(options: PredictOptions, source: Source, model: StreamingModel | None = None) -> dict[str, Any]:
     """What determines predict's outputs besides the frames: ``predictions.json``'s ``run`` entry. ``input_size``
     ``[H, W]`` and ``intrinsics`` ``[fx, fy, cx, cy]`` (package convention: pixel centres at +0.5) are those the model
-    was fed; the pose settings are null for dataset splits (whose readers fix them)."""
+    was fed; the pose settings are null for dataset splits (whose readers fix them); ``precision`` is the graph's
+    own (its metadata) with ``backend="onnxruntime"``."""
+    graph = getattr(model, "onnx", None) if options.model.backend == "onnxruntime" else None
     size = source.frame_size()
     intrinsics = getattr(source, "intrinsics", None)
     own = options.source.settings() if hasattr(options.source, "settings") else {}
@@ -257,7 +260,7 @@ def run_settings(options: PredictOptions, source) -> dict[str, Any]:
         "model": str(options.model.path),
         "path": options.model.path_name,
         "onnx": None if options.model.onnx is None else str(options.model.onnx),
-        "precision": options.model.precision,
+        "precision": graph.precision if graph is not None else options.model.precision,
         "input_size": None if size is None else list(size),
         "intrinsics": None if intrinsics is None else [float(v) for v in intrinsics.tolist()],
     }
@@ -302,7 +305,7 @@ def run_predict(options: PredictOptions) -> CommandResult:
             "model": {"path": str(options.model.path)},
             "dataset": describe,
             "device": str(device),
-            "run": run_settings(options, source),
+            "run": run_settings(options, source, model),
         }
         sinks = output_sinks(options, source, model)
     except BaseException:
@@ -366,11 +369,16 @@ def predict_report(manifest: dict[str, Any], options: PredictOptions, source_rep
     warnings = []
     statuses = manifest.get("frames_by_status")
     if statuses is not None:
-        lines.append(
-            depth_report(statuses, manifest["policy"], [f.get("valid_fraction", 0.0) for f in manifest["frames"]])
+        fractions = [f.get("valid_fraction", 0.0) for f in manifest["frames"]]
+        lines.append(depth_report(statuses, manifest["policy"], fractions))
+        no_depth = no_depth_warning(
+            sum(statuses.values()),
+            statuses.get(ESTIMATED, 0),
+            statuses.get(HELD, 0),
+            sum(fractions) / len(fractions) if fractions else None,
         )
-        if not statuses.get(ESTIMATED) and not statuses.get(HELD):
-            warnings.append(f"cosemdepth predict: warning: no depth was produced: {no_depth_reason(statuses)}")
+        if no_depth:
+            warnings.append(f"cosemdepth predict: warning: {no_depth}")
     return lines, warnings
 
 
@@ -391,26 +399,11 @@ def depth_report(statuses: dict, policy: dict, valid_fractions) -> str:
     return f"depth (policy {policy['mode']}): " + "; ".join(parts)
 
 
-def no_depth_reason(statuses: dict) -> str:
-    """Why no frame has depth (every frame a reset)."""
-    n = int(statuses.get(RESET, 0))
-    if n == 1:
-        return (
-            "the input has 1 frame: the first frame of a flight is a reset, and depth needs the camera to move "
-            "between frames"
-        )
-    return (
-        f"all {n} frames are resets (the first frame of each trajectory, and the frames until the camera had "
-        "moved the minimum baseline from it)"
-    )
-
-
 __all__ = [
     "PredictOptions",
     "default_policy",
     "depth_report",
     "make_streamer",
-    "no_depth_reason",
     "output_sinks",
     "predict",
     "predict_report",

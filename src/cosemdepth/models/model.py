@@ -269,3 +269,29 @@ def _check_inputs(rgb, rot, trans, intrinsics, reset, sequence: bool) -> None:
         raise ValueError(
             f"argument reset must be a bool tensor of shape [{dims}], got {reset.dtype} {list(reset.shape)}"
         )
+    if not torch.jit.is_tracing():  # values: only of real inputs (an export traces placeholders)
+        _check_motion(rot, trans, reset, sequence)
+
+
+def _check_motion(rot: torch.Tensor, trans: torch.Tensor, reset: Optional[torch.Tensor], sequence: bool) -> None:
+    """The motion of every sample that does not reset (a reset ignores it; frame 0 of a sequence always resets) is
+    a rotation quaternion of finite, non-zero norm and a finite translation: else a ValueError naming the sample."""
+    used = torch.ones(rot.shape[:-1], dtype=torch.bool, device=rot.device)
+    if reset is not None:
+        used &= ~reset.to(rot.device)
+    if sequence:
+        used[:, 0] = False
+    norm2 = rot.detach().float().pow(2).sum(-1)
+    bad_rot = used & ~(torch.isfinite(norm2) & (norm2 > 0))
+    bad_trans = used & ~torch.isfinite(trans.detach().float()).all(-1)
+    if not bool((bad_rot | bad_trans).any()):
+        return
+    for name, bad, t, what in (
+        ("rot", bad_rot, rot, "not a rotation quaternion (w, x, y, z): zero or non-finite"),
+        ("trans", bad_trans, trans, "not a finite translation"),
+    ):
+        if bool(bad.any()):
+            idx = [int(i) for i in bad.nonzero()[0].tolist()]
+            where = f"sample {idx[0]}" + (f", frame {idx[1]}" if sequence else "")
+            values = [round(float(v), 6) for v in t[tuple(idx)].tolist()]
+            raise ValueError(f"argument {name}: {where} is {what}: {values}")

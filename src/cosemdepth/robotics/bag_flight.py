@@ -342,7 +342,13 @@ def open_bag_flight(
     )
     loader = BagFrameLoader(path, image_topic, out_size, native, jpeg_idct, undistorter)
     intr = undistorter.intrinsics if undistorter is not None else scale_intrinsics(k_native, native, out_size)
-    dataset = SequenceDataset([traj], loader, intr, seq_len=1, mode="stream", name="flight")
+
+    def size_at(rule) -> Size:  # the size these images open at for a size or size rule, as above
+        if calibration is not None:
+            return undistorter_for(calibration, native, rule, f"the images of {image_topic}").size
+        return resolve_size(rule, lambda: (native, float(k_native[0]))) or native
+
+    dataset = SequenceDataset([traj], loader, intr, seq_len=1, mode="stream", name="flight", size_at=size_at)
     info = None if undistorter is None else undistorter.info()
     dataset.calibration = info
     return BagFlight(path, image_topic, dataset, idx, m, intr, out_size, loader, info)

@@ -38,15 +38,40 @@ def valid_mask(depth: np.ndarray, valid: np.ndarray | None, reset: bool) -> np.n
     return ok & (not reset)
 
 
+def no_depth_warning(frames: int, estimated: int, held: int, valid_fraction: float | None) -> str | None:
+    """Why a run of ``frames`` frames, ``estimated`` and ``held`` of them with depth and ``valid_fraction`` of their
+    pixels valid (None: not known), gave no usable depth; None when it gave some. The warning every command that
+    streams depth prints (``cosemdepth CMD: warning: ...``)."""
+    if frames <= 0:
+        return None
+    if not estimated and not held:
+        if frames == 1:
+            return (
+                "no depth was produced: the input has 1 frame: the first frame of a flight is a reset, and depth "
+                "needs the camera to move between frames"
+            )
+        return (
+            f"no depth was produced: all {frames} frames are resets (the first frame of each trajectory, and the "
+            "frames until the camera had moved the minimum baseline from it)"
+        )
+    if valid_fraction is not None and valid_fraction <= 0.0:
+        n = estimated + held
+        return (
+            f"no valid depth: not one pixel of the {n} frame{'s' * (n != 1)} with depth is valid: the camera barely "
+            "moved between frames (a hover or a yaw in place gives no parallax; docs/motion.md)"
+        )
+    return None
+
+
 class DepthTaskMetrics(TaskMetrics):
     """The depth metrics of design 11.1 (:class:`~cosemdepth.measures.metrics.DepthMetrics`); in the test protocol
     also those of the valid pixels (:class:`~cosemdepth.measures.metrics.ValidDepthMetrics`) and the frames by
     status. A frame without depth (status ``reset``: the first of a trajectory, or one held before any estimate) is
-    left out of the depth metrics as the paper's protocol leaves out resets; its labels still count."""
+    never in the depth metrics, whatever ``exclude_resets`` says: its depth is a placeholder, not a measurement
+    (``exclude_resets=False``, a dataset of independent images, counts its labels)."""
 
     def __init__(self, context: MetricContext) -> None:
         self.test = context.protocol == TEST
-        self.exclude_resets = context.exclude_resets
         self.depth = DepthMetrics()
         self.valid = ValidDepthMetrics() if self.test else None
         self.statuses = {s: 0 for s in STATUSES}
@@ -60,9 +85,9 @@ class DepthTaskMetrics(TaskMetrics):
         no_depth = (
             torch.tensor([st == RESET for st in frames.status], dtype=torch.bool, device=include.device)
             if frames.status
-            else torch.zeros_like(include)
+            else frames.reset.to(device=include.device, dtype=torch.bool)
         )
-        depth_include = include & ~no_depth if self.exclude_resets else include
+        depth_include = include & ~no_depth
         self.frames += int(depth_include.sum())
         self.depth.update(gt, pred, depth_include)
         if frames.valid is not None:
@@ -169,4 +194,4 @@ class DepthTask(DecoderTask):
         }
 
 
-__all__ = ["DepthTask", "DepthTaskMetrics", "DepthWriter", "valid_mask"]
+__all__ = ["DepthTask", "DepthTaskMetrics", "DepthWriter", "no_depth_warning", "valid_mask"]
