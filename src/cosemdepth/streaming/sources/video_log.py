@@ -17,7 +17,8 @@ from the log at the frame's time.
   the motion breaks there; counted in :attr:`frames_outside_log` and :meth:`report`), and every frame of a log without
   positions or without attitude. A video none of whose frames falls inside the log is an error. Positions coarser
   than an estimator's (GPS latitude/longitude) set :attr:`min_baseline_m` to their resolution: the baseline policy
-  never estimates depth from a shorter baseline.
+  never estimates depth from a shorter baseline, and under any policy no frame whose baseline from its reference is
+  shorter has valid depth (:func:`cosemdepth.streaming.pipeline.no_depth_below_floor`).
 """
 
 from __future__ import annotations
