@@ -20,14 +20,17 @@ Routes, each a ``cosemdepth predict`` run (baseline policy, the model's defaults
   from ``truth.csv`` (TUM, ``--convention opencv``, ``--match order``): the reference, on the very same pixels;
 * ``<log>``: ``--images video.mp4 --log flight.<ext> --time-offset auto`` (and ``--camera-mount`` for the mounted
   cameras); ``ulog+0.04`` etc.: the ULog with the true offset plus 0.04 s, 0.2 s, 1 s (the cost of a wrong clock);
-* ``srt``: the DJI subtitles (positions from latitude/longitude printed to 6 decimals, the camera's attitude from
-  the gimbal angles).
+* ``srt``: the DJI subtitles (positions from latitude/longitude printed to 6 decimals, 0.11 m; the camera's attitude
+  from the gimbal angles); ``srt-1e-5``: the same file with latitude/longitude rounded to 5 decimals (1.1 m, the
+  resolution of older models' once-a-second lines, about a GPS receiver's noise).
 
-Metrics (:mod:`cosemdepth.evaluation.metrics`, the test protocol): AbsRel and delta1 over the pixels with ground truth
-(up to 80 m) of the frames that are not resets in any route of the flight (``common``), and the same over the pixels
-each route marks valid (``valid_abs_rel``, ``coverage``). ``acceptance``: the estimated offsets within one frame of
-the truth; AbsRel of the video routes within 3 % (relative) of the images route; for the SRT, no estimated frame with
-a baseline below the positions' resolution has a valid pixel. Writes ``OUT.json`` and ``OUT.md``.
+Metrics (:mod:`cosemdepth.measures.metrics`, the test protocol): AbsRel and delta1 over the pixels with ground truth
+(up to 80 m), whatever the mask, of the frames that are resets neither in the route nor in the images route
+(``paired``: the route's and the images route's figures on the same decoded frames), and over the pixels the route
+marks valid (``valid_abs_rel``, ``coverage``). ``acceptance``: the estimated offsets within one frame of the truth;
+AbsRel of the video routes with the clock found (``--time-offset auto``) within 3 % (relative) of the images route;
+for the subtitles, no frame (estimated or held) whose baseline from its reference is below the positions' resolution
+has a valid pixel. Writes ``OUT.json`` and ``OUT.md``.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ import argparse
 import csv
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -47,7 +51,7 @@ from PIL import Image
 
 from cosemdepth.bench.harness import command_line, make_report, run_meta, write_report
 from cosemdepth.data.video import open_video
-from cosemdepth.evaluation.metrics import DepthMetrics, ValidDepthMetrics
+from cosemdepth.measures.metrics import DepthMetrics, ValidDepthMetrics
 from cosemdepth.output_safety.atomic import atomic_path, atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,6 +67,8 @@ FLIGHTS = {
 }
 #: Log routes: name -> file of the export folder.
 LOGS = {"ulog": "flight.ulg", "dataflash": "flight.bin", "tlog": "flight.tlog", "srt": "video.SRT"}
+#: The subtitles again, latitude/longitude rounded to this many decimals (route ``srt-1e-5``).
+COARSE_SRT_DECIMALS = 5
 #: Offsets off the truth (seconds) run with the ULog.
 OFFSET_ERRORS = (0.04, 0.2, 1.0)
 #: Acceptance: relative AbsRel difference to the images route at most this.
@@ -148,6 +154,20 @@ def images_route(folder: Path, truth: list[dict]) -> tuple[Path, Path]:
     return images, poses
 
 
+def coarse_srt(folder: Path, decimals: int = COARSE_SRT_DECIMALS) -> Path:
+    """``video.SRT`` with its latitudes and longitudes rounded to ``decimals`` decimals (``video_1e-5.SRT``)."""
+    path = folder / f"video_1e-{decimals}.SRT"
+    if not path.is_file():
+        text = (folder / LOGS["srt"]).read_text(encoding="utf-8")
+        text = re.sub(
+            r"\[(latitude|longitude|longtitude)\s*:\s*([-+0-9.]+)\]",
+            lambda m: f"[{m.group(1)}: {float(m.group(2)):.{decimals}f}]",
+            text,
+        )
+        atomic_write_text(path, text)
+    return path
+
+
 def predict(model: Path, out: Path, source: list[str], threads: int, env: dict) -> tuple[dict, str]:
     cmd = [sys.executable, "-m", "cosemdepth", "predict", "--model", str(model), "--flight", *source]
     cmd += ["--hfov", str(HFOV), "--out", str(out), "--video", "none", "--threads", str(threads), "--no-progress"]
@@ -200,6 +220,7 @@ def run_flight(name: str, args, env: dict) -> dict:
         if (folder / file).is_file():
             routes[log] = [*video, "--log", str(folder / file), "--time-offset", "auto", *mount_args]
     if name == "forward":
+        routes[f"srt-1e-{COARSE_SRT_DECIMALS}"] = [*video, "--log", str(coarse_srt(folder)), "--time-offset", "auto"]
         for err in OFFSET_ERRORS:
             given = ["--time-offset", f"{true_offset + err:.6f}"]
             routes[f"ulog+{err:g}"] = [*video, "--log", str(folder / LOGS["ulog"]), *given]
@@ -211,22 +232,23 @@ def run_flight(name: str, args, env: dict) -> dict:
         t0 = time.perf_counter()
         manifest, printed = predict(args.model, outs / route, [*source], args.threads, env)
         runs[route] = {"manifest": manifest, "printed": printed, "seconds": round(time.perf_counter() - t0, 1)}
-    common = set.intersection(*({k for k, s in statuses(r["manifest"]).items() if s != "reset"} for r in runs.values()))
+    kept = {route: {k for k, s in statuses(r["manifest"]).items() if s != "reset"} for route, r in runs.items()}
     result: dict = {
         "export": str(folder.relative_to(args.cache)),
         "camera_mount": mount,
         "video_frames": len(truth),
         "true_offset_s": true_offset,
-        "common_frames": len(common),
         "routes": {},
     }
     frame_s = float(truth[1]["video_time_s"] - truth[0]["video_time_s"])
     for route, r in runs.items():
         m = r["manifest"]
         st = statuses(m)
+        paired = kept["images"] & kept[route]
         entry = {
-            "common": route_metrics(outs / route, m, gt, common),
-            "own": route_metrics(outs / route, m, gt, {k for k, s in st.items() if s != "reset"}),
+            "paired": route_metrics(outs / route, m, gt, paired),
+            "images_paired": route_metrics(outs / "images", runs["images"]["manifest"], gt, paired),
+            "own": route_metrics(outs / route, m, gt, kept[route]),
             "frames_by_status": {s: sum(1 for v in st.values() if v == s) for s in ("estimated", "held", "reset")},
             "printed": r["printed"].splitlines(),
             "seconds": r["seconds"],
@@ -235,7 +257,7 @@ def run_flight(name: str, args, env: dict) -> dict:
         if route != "images":
             offset = run.get("time_offset_s")
             # the subtitles are on the video's clock: their true offset is the first frame's video time
-            truth_s = truth[0]["video_time_s"] if route == "srt" else true_offset
+            truth_s = truth[0]["video_time_s"] if route.startswith("srt") else true_offset
             entry.update(
                 time_offset_s=offset,
                 offset_error_s=None if offset is None else offset - truth_s,
@@ -243,73 +265,102 @@ def run_flight(name: str, args, env: dict) -> dict:
                 time_offset_confidence=run.get("time_offset_confidence"),
                 time_offset=(m.get("dataset") or {}).get("time_offset"),
             )
-        if route == "srt":
+        if route.startswith("srt"):
             entry["srt_validity"] = srt_validity(m)
+        entry["abs_rel_relative_to_images"] = entry["paired"]["abs_rel"] / entry["images_paired"]["abs_rel"] - 1.0
         result["routes"][route] = entry
-    base = result["routes"]["images"]["common"]["abs_rel"]
-    for route, entry in result["routes"].items():
-        entry["abs_rel_relative_to_images"] = entry["common"]["abs_rel"] / base - 1.0
     return result
 
 
 def srt_validity(manifest: dict) -> dict:
-    """Estimated / held frames against the positions' resolution (``dataset.log.position_resolution_m``)."""
+    """The frames against the positions' resolution (``dataset.log.position_resolution_m``): how many have a
+    baseline from their reference below it, and how many of those have a valid pixel (none may)."""
     res = float(((manifest.get("dataset") or {}).get("log") or {}).get("position_resolution_m") or 0.0)
-    short_valid = [
-        r
-        for r in manifest["frames"]
-        if r.get("status") == "estimated" and r.get("baseline_m", 0.0) < res and r.get("valid_fraction", 0) > 0
-    ]
-    held = [r for r in manifest["frames"] if r.get("status") == "held"]
+    frames = [r for r in manifest["frames"] if r.get("status") != "reset"]
+    short = [r for r in frames if r.get("baseline_m", 0.0) < res]
+    estimated = [r for r in frames if r.get("status") == "estimated"]
     return {
         "position_resolution_m": res,
         "min_baseline_m": (manifest.get("policy") or {}).get("min_baseline_m"),
-        "estimated_below_resolution_with_valid_pixels": len(short_valid),
-        "held_frames": len(held),
-        "held_with_valid_pixels": sum(1 for r in held if r.get("valid_fraction", 0) > 0),
+        "frames_below_resolution": {s: sum(1 for r in short if r["status"] == s) for s in ("estimated", "held")},
+        "frames_below_resolution_with_valid_pixels": sum(1 for r in short if r.get("valid_fraction", 0) > 0),
+        "min_estimated_baseline_m": min((r["baseline_m"] for r in estimated), default=None),
+        "frames_with_valid_pixels": sum(1 for r in frames if r.get("valid_fraction", 0) > 0),
     }
 
 
 def acceptance(results: dict) -> dict:
+    """Per flight and route: the clock within one frame and AbsRel within :data:`MAX_RELATIVE` of the images route
+    (the logs with ``--time-offset auto``); the subtitles: no frame below the positions' resolution valid."""
     out: dict = {}
     for name, flight in results.items():
         checks = {}
         for route, e in flight["routes"].items():
             if route == "images" or "+" in route:
                 continue
-            c = {"abs_rel_relative_to_images": e["abs_rel_relative_to_images"]}
-            c["abs_rel_ok"] = abs(e["abs_rel_relative_to_images"]) <= MAX_RELATIVE
-            if e.get("offset_error_frames") is not None:
+            c: dict = {}
+            if route.startswith("srt"):
+                c["srt_ok"] = e["srt_validity"]["frames_below_resolution_with_valid_pixels"] == 0
+            else:
+                c["abs_rel_relative_to_images"] = e["abs_rel_relative_to_images"]
+                c["abs_rel_ok"] = abs(e["abs_rel_relative_to_images"]) <= MAX_RELATIVE
                 c["offset_error_frames"] = e["offset_error_frames"]
-                c["offset_ok"] = abs(e["offset_error_frames"]) <= 1.0
-            if "srt_validity" in e:
-                c["srt_ok"] = e["srt_validity"]["estimated_below_resolution_with_valid_pixels"] == 0
+                c["offset_ok"] = e["offset_error_frames"] is not None and abs(e["offset_error_frames"]) <= 1.0
             checks[route] = c
         out[name] = checks
+    out["all_ok"] = all(v for f in out.values() for c in f.values() for k, v in c.items() if k.endswith("_ok"))
     return out
 
 
-def markdown(results: dict, meta: dict) -> str:
+def markdown(results: dict, meta: dict, params: dict) -> str:
+    load = meta.get("loadavg")
     lines = [
         "# Own flights: images + poses against video + log (benchmarks/own_flight.py)",
         "",
-        f"{meta.get('cpu_model')}, {meta.get('date_utc')}; 128x128 px, batch 1, float32, baseline policy.",
+        f"`{meta.get('command')}`: {meta.get('cpu_model')} ({meta.get('cpu_count')} cores"
+        + (f", load average {load[0]:.1f}" if load else "")
+        + f"), {params['threads']} threads, {meta.get('date_utc')}; model {params['model']}; SynthAir world "
+        f"{params['seed']}, {params['size']}x{params['size']} px, batch 1, float32, baseline policy; the video starts "
+        f"{params['time_offset_s']} s into the flight.",
         "",
-        "| flight | route | offset used - truth (frames) | confidence | AbsRel (common frames) | vs images | "
+        "AbsRel over the frames that are resets neither in the route nor in the images route (the same decoded "
+        "frames), every pixel with ground truth; valid AbsRel and coverage over the pixels the route marks valid.",
+        "",
+        "| flight | route | offset used - truth | confidence | frames | AbsRel | AbsRel images | vs images | "
         "valid AbsRel | coverage | estimated / held / reset |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for name, flight in results.items():
         for route, e in flight["routes"].items():
-            err = e.get("offset_error_frames")
+            err, err_f = e.get("offset_error_s"), e.get("offset_error_frames")
             conf = e.get("time_offset_confidence")
             fs = e["frames_by_status"]
             lines.append(
-                f"| {name} | {route} | {'' if err is None else f'{err:+.3f}'} | "
-                f"{'' if conf is None else f'{conf:.2f}'} | {e['common']['abs_rel']:.4f} | "
-                f"{100 * e['abs_rel_relative_to_images']:+.2f} % | {e['common']['valid_abs_rel']:.4f} | "
-                f"{100 * e['common']['coverage']:.1f} % | {fs['estimated']} / {fs['held']} / {fs['reset']} |"
+                f"| {name} | {route} | {'' if err is None else f'{1000 * err:+.1f} ms ({err_f:+.2f} frames)'} | "
+                f"{'' if conf is None else f'{conf:.2f}'} | {e['paired']['frames']} | {e['paired']['abs_rel']:.4f} | "
+                f"{e['images_paired']['abs_rel']:.4f} | {100 * e['abs_rel_relative_to_images']:+.2f} % | "
+                f"{e['paired']['valid_abs_rel']:.4f} | {100 * e['paired']['coverage']:.1f} % | "
+                f"{fs['estimated']} / {fs['held']} / {fs['reset']} |"
             )
+    lines += [
+        "",
+        "DJI subtitles: frames (not resets) whose baseline from their reference frame is below the positions' "
+        "resolution, and those of them with a valid pixel (none may).",
+        "",
+        "| route | resolution | min baseline (policy) | below resolution: estimated / held | of them valid | "
+        "shortest estimated baseline | frames with valid pixels |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for name, flight in results.items():
+        for route, e in flight["routes"].items():
+            v = e.get("srt_validity")
+            if v:
+                below = v["frames_below_resolution"]
+                lines.append(
+                    f"| {route} | {v['position_resolution_m']:.3f} m | {v['min_baseline_m']:.3f} m | "
+                    f"{below['estimated']} / {below['held']} | {v['frames_below_resolution_with_valid_pixels']} | "
+                    f"{v['min_estimated_baseline_m']:.3f} m | {v['frames_with_valid_pixels']} |"
+                )
     return "\n".join(lines) + "\n"
 
 
@@ -337,11 +388,12 @@ def main(argv=None) -> int:
         "climate": CLIMATE,
         "hfov": HFOV,
         "offset_errors_s": list(OFFSET_ERRORS),
+        "coarse_srt_decimals": COARSE_SRT_DECIMALS,
         "threads": args.threads,
     }
     report = make_report("own_flight", params, results, meta=meta, acceptance=acceptance(results))
     write_report(args.out.with_suffix(".json"), report)
-    atomic_write_text(args.out.with_suffix(".md"), markdown(results, meta))
+    atomic_write_text(args.out.with_suffix(".md"), markdown(results, meta, params))
     print(json.dumps(report["acceptance"], indent=1))
     return 0
 
