@@ -103,6 +103,8 @@ def test_rotation_metadata_turns_the_frames(model_dir, flight, tmp_path):
         (("--time-offset", "100"), "log", "{log}: the log (5.000 .. 19.990 s) does not cover the video"),
         (("--camera-mount", "sideways"), "log", "--camera-mount 'sideways': not forward, down, R,P,Y"),
         (("--log-format", "tlog"), "log", "{log}: not a tlog log (its content is that of a ulog log)"),
+        (("--calibration", "cam.yaml"), "log", "--calibration does not apply to a video (--images {video})"),
+        (("--jpeg-idct", "accurate"), "log", "--jpeg-idct applies to JPEG images, not to a video"),
     ],
 )
 def test_bad_input_is_one_line_and_writes_nothing(model_dir, flight, tmp_path, capsys, extra, log, message):

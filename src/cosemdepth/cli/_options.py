@@ -71,6 +71,13 @@ def video_options(args: argparse.Namespace) -> VideoLogOptions:
                 f"{flag} applies to a folder of images with a pose file, not to a video (--images {args.images}: "
                 "its poses come from --log)"
             )
+    if "--calibration" in explicit(args):
+        raise ConfigError(
+            f"--calibration does not apply to a video (--images {args.images}): its frames are read as a pinhole "
+            "camera's; give --hfov DEG or --intrinsics FX FY CX CY"
+        )
+    if "--jpeg-idct" in explicit(args):
+        raise ConfigError(f"--jpeg-idct applies to JPEG images, not to a video (--images {args.images})")
     if args.log is None:
         raise ConfigError(f"--images {args.images} is a video: give the flight controller's log with --log FILE")
     return VideoLogOptions(
