@@ -107,6 +107,22 @@ def test_a_log_without_positions_gives_labels_but_no_depth(tmp_path):
     assert torch.all(batches[1].trans == 0) and not torch.allclose(batches[1].rot, torch.tensor([[1.0, 0, 0, 0]]))
 
 
+def test_a_log_without_attitude_gives_labels_but_no_depth(tmp_path):
+    """DJI subtitles without gimbal angles (most models): positions only, on the video's clock."""
+    from cosemdepth.flightlogs.srt_writer import write_srt
+
+    t = np.arange(20) / 25
+    lat, lon = 46.5 + 1e-5 * np.arange(20), np.full(20, 6.5)
+    write_srt(tmp_path / "flight.SRT", t, lat, lon, np.full(20, 12.0), np.full(20, 500.0), None)
+    opts = options(tmp_path, log=tmp_path / "flight.SRT", time_offset="auto")
+    src = SOURCES["video"].from_options(opts, 32)
+    batches = list(src.batches())
+    assert src.time_offset == 0.0 and len(batches) == 20 and src.frames_outside_log == 0
+    assert not any(bool(b.depth_ok[0]) for b in batches) and all(b.pose is None for b in batches)
+    assert all("the log has no attitude (positions only)" in b.meta[0]["depth_invalid_reason"] for b in batches)
+    assert all(torch.all(b.trans == 0) and torch.equal(b.rot, torch.tensor([[1.0, 0, 0, 0]])) for b in batches)
+
+
 @pytest.mark.parametrize(
     "change, message",
     [

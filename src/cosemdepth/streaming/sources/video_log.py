@@ -271,12 +271,16 @@ class VideoLogSource:
 
     def _pose(self, t: float) -> tuple[np.ndarray | None, np.ndarray | None, str | None]:
         """The optical frame's pose (``q [4]`` optical -> NED, ``p [3]`` NED) at log time ``t``, or a reason why
-        there is none."""
+        there is none; a log without attitude gives ``(None, p, None)`` inside its positions' span (the body's
+        position: without the attitude the lever arm cannot be turned)."""
         gap = self.options.max_pose_gap
         tt = np.array([t])
         att, pos = self.log.attitude, self.log.position
         if att is None:
-            return None, None, "outside"
+            if pos is None:
+                return None, None, "outside"
+            p, okp = pos.interpolate(tt, gap)
+            return (None, p[0], None) if okp[0] else (None, None, "outside")
         q, ok = att.interpolate(tt, gap, rotation=True)
         if not ok[0]:
             return None, None, "outside"
@@ -326,14 +330,14 @@ class VideoLogSource:
                 rot, trans = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3)
             else:
                 covered += 1
-                if prev is None:
+                if prev is None or q is None:  # q None: a log without attitude (no motion, no depth)
                     rot, trans = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3)
                 else:
                     qs, ts = relative_camera_motions(np.stack([prev[0], q]), np.stack([prev[1], p]), "opencv")
                     rot, trans = qs[1], ts[1]
                 if self.log.position is None:
                     trans = np.zeros(3)
-                prev = (q, p)
+                prev = None if q is None else (q, p)
                 if no_depth is not None:
                     depth_ok = False
                     meta["depth_invalid_reason"] = no_depth
