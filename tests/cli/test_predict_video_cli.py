@@ -79,6 +79,10 @@ def test_a_log_without_positions_gives_labels_and_no_depth(model_dir, flight, tm
     assert predict(model_dir, video, log, out, "--time-offset", "10", "--policy", "every-frame") == 0
     printed = capsys.readouterr()
     assert "no depth: the log has no positions (attitude only)" in printed.out
+    assert printed.err.strip() == (
+        "cosemdepth predict: warning: no depth was produced: the log has no positions (attitude only): the camera's "
+        "translation between frames is unknown"
+    )
     frames = manifest(out)["frames"]
     assert {f["status"] for f in frames} == {"reset"} and all(f["valid_fraction"] == 0 for f in frames)
     assert all((out / f["files"]["labels"]).is_file() for f in frames)

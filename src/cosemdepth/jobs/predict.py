@@ -380,6 +380,9 @@ def predict_report(manifest: dict[str, Any], options: PredictOptions, source_rep
             statuses.get(HELD, 0),
             sum(fractions) / len(fractions) if fractions else None,
         )
+        unavailable = (manifest.get("dataset") or {}).get("depth_unavailable")  # the source's reason, e.g. a log's
+        if no_depth and unavailable:
+            no_depth = f"no depth was produced: {unavailable}"
         if no_depth:
             warnings.append(f"cosemdepth predict: warning: {no_depth}")
     return lines, warnings
