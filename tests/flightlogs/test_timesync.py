@@ -117,6 +117,18 @@ def test_a_log_shorter_than_the_video():
         match_rotations(video_of(random_attitude(60.0, rng), 1001.0, frames(20.0), rng), att)
 
 
+def test_a_video_that_runs_past_the_log_s_end_is_refused_not_placed_at_the_end():
+    """The true offset would put the video's last 5 s after the log: every offset tried keeps the video inside, the
+    best of them explains little, and the error says which offsets were tried."""
+    rng = np.random.default_rng(9)
+    full = random_attitude(80.0, rng)  # log times 1000 .. 1080; the video (20 s) starts at 1045
+    video = video_of(full, 1045.0, frames(20.0), rng, 0.001)
+    keep = full.t <= 1060.0  # the log stops at 1060
+    cut = Attitude(full.t[keep], full.q[keep])
+    with pytest.raises(ConfigError, match=r"offsets tried 1000\.00 \.\. 1040\.0\d s, those that keep the whole video"):
+        match_rotations(video, cut)
+
+
 def test_a_search_range_restricts_the_offsets():
     rng = np.random.default_rng(7)
     att = random_attitude(100.0, rng)

@@ -442,7 +442,8 @@ def match_rotations(
     if why is not None:
         raise ConfigError(
             f"cannot find the clock offset of {what} from the camera's rotation: best {tau:.3f} s, confidence "
-            f"{confidence:.2f} ({why}); {ASK}"
+            f"{confidence:.2f} ({why}; offsets tried {lo:.2f} .. {hi:.2f} s, those that keep the whole video inside "
+            f"the log's attitude); {ASK}"
         )
     return OffsetEstimate(float(tau), confidence, details)
 
