@@ -274,7 +274,7 @@ def test_no_depth_is_valid_on_a_baseline_the_positions_cannot_measure(model, pol
         assert status == ["reset"] * 3 + ["estimated", "held", "held"] and base == [0, 1, 2, 3, 1, 2]
     for b, s, d in zip(sink.batches, status, base):
         if s != "reset" and d < 2.5:
-            assert not b.valid.any() and "resolution (2.5 m)" in b.meta[0]["depth_invalid_reason"]
+            assert not b.valid.any() and "less than 2.5 m from its reference" in b.meta[0]["depth_invalid_reason"]
         else:
             assert "depth_invalid_reason" not in b.meta[0]
 

@@ -19,6 +19,7 @@ from _videos import write_pyav  # noqa: E402
 
 from cosemdepth.data.quaternion import qmul  # noqa: E402
 from cosemdepth.errors import ConfigError, DatasetError  # noqa: E402
+from cosemdepth.flightlogs.geodetic import METRES_PER_DEGREE  # noqa: E402
 from cosemdepth.flightlogs.timesync import attitude_at  # noqa: E402
 from cosemdepth.geometry.mount import parse_mount  # noqa: E402
 from cosemdepth.streaming import SOURCES  # noqa: E402
@@ -118,6 +119,8 @@ def test_a_log_without_attitude_gives_labels_but_no_depth(tmp_path):
     src = SOURCES["video"].from_options(opts, 32)
     batches = list(src.batches())
     assert src.time_offset == 0.0 and len(batches) == 20 and src.frames_outside_log == 0
+    # latitudes printed to 1e-6 degrees (0.111 m north; altitudes to 1 mm): depth only on 3 steps or more
+    assert src.min_baseline_m == pytest.approx(3 * 1e-6 * METRES_PER_DEGREE)
     assert not any(bool(b.depth_ok[0]) for b in batches) and all(b.pose is None for b in batches)
     assert all("the log has no attitude (positions only)" in b.meta[0]["depth_invalid_reason"] for b in batches)
     assert all(torch.all(b.trans == 0) and torch.equal(b.rot, torch.tensor([[1.0, 0, 0, 0]])) for b in batches)

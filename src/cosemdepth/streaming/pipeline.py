@@ -89,7 +89,8 @@ def no_depth_below_floor(floor: float, baseline, valid, status: list[str], meta:
     for b in (i for i, x in enumerate(short) if x):
         meta[b].setdefault(
             "depth_invalid_reason",
-            f"the camera moved less than the positions' resolution ({floor:.3g} m) from its reference frame",
+            f"the camera moved less than {floor:.3g} m from its reference frame, too little for the input's positions "
+            "to measure (the source's min_baseline_m)",
         )
     mask = torch.tensor(short, device=valid.device).view(-1, *([1] * (valid.dim() - 1)))
     return valid & ~mask

@@ -16,9 +16,9 @@ from the log at the frame's time.
   reason in ``meta["depth_invalid_reason"]``: frames outside the log's span or in a gap of it (these are also resets:
   the motion breaks there; counted in :attr:`frames_outside_log` and :meth:`report`), and every frame of a log without
   positions or without attitude. A video none of whose frames falls inside the log is an error. Positions coarser
-  than an estimator's (GPS latitude/longitude) set :attr:`min_baseline_m` to their resolution: the baseline policy
-  never estimates depth from a shorter baseline, and under any policy no frame whose baseline from its reference is
-  shorter has valid depth (:func:`cosemdepth.streaming.pipeline.no_depth_below_floor`).
+  than an estimator's (GPS latitude/longitude) set :attr:`min_baseline_m` to :data:`BASELINE_STEPS` times their
+  resolution: the baseline policy never estimates depth from a shorter baseline, and under any policy no frame whose
+  baseline from its reference is shorter has valid depth (:func:`cosemdepth.streaming.pipeline.no_depth_below_floor`).
 """
 
 from __future__ import annotations
@@ -46,6 +46,10 @@ from ..registry import register_source
 
 #: ``time_offset`` value that estimates the offset (the default for a video with a log).
 AUTO = "auto"
+#: The shortest baseline depth is estimated (or carried) on, in steps of the positions' resolution: the difference
+#: of two positions each rounded to a step is off by up to a step along every axis, so a baseline of one step may be
+#: wrong by all of itself; at three its error stays within about a third.
+BASELINE_STEPS = 3.0
 
 
 @dataclass(frozen=True)
@@ -182,8 +186,9 @@ class VideoLogSource:
 
     @property
     def min_baseline_m(self) -> float:
-        """The shortest baseline the log's positions can measure (their resolution; 0 for an estimator's)."""
-        return float(self.log.position_resolution_m)
+        """The shortest baseline the log's positions measure well enough: :data:`BASELINE_STEPS` times their
+        resolution (0 for an estimator's positions)."""
+        return BASELINE_STEPS * float(self.log.position_resolution_m)
 
     def run_entries(self) -> dict[str, Any]:
         """``predictions.json``'s ``run`` entries of the log and the clock: ``time_offset_s`` (the offset used,
