@@ -121,9 +121,23 @@ def test_a_log_without_attitude_gives_labels_but_no_depth(tmp_path):
     assert src.time_offset == 0.0 and len(batches) == 20 and src.frames_outside_log == 0
     # latitudes printed to 1e-6 degrees (0.111 m north; altitudes to 1 mm): depth only on 3 steps or more
     assert src.min_baseline_m == pytest.approx(3 * 1e-6 * METRES_PER_DEGREE)
+    assert "no depth: the log has no attitude" in src.report() and "positions to" not in src.report()
     assert not any(bool(b.depth_ok[0]) for b in batches) and all(b.pose is None for b in batches)
     assert all("the log has no attitude (positions only)" in b.meta[0]["depth_invalid_reason"] for b in batches)
     assert all(torch.all(b.trans == 0) and torch.equal(b.rot, torch.tensor([[1.0, 0, 0, 0]])) for b in batches)
+
+
+def test_gps_positions_say_the_shortest_baseline_with_depth(tmp_path):
+    from cosemdepth.flightlogs.srt_writer import write_srt
+
+    t = np.arange(20) / 25
+    lat, lon = 46.5 + 1e-5 * np.arange(20), np.full(20, 6.5)
+    angles = np.zeros((20, 3))  # yaw, pitch, roll of the camera: north, level
+    write_srt(tmp_path / "flight.SRT", t, lat, lon, np.full(20, 12.0), np.full(20, 500.0), angles)
+    src = SOURCES["video"].from_options(options(tmp_path, log=tmp_path / "flight.SRT", time_offset="auto"), 32)
+    step = 1e-6 * METRES_PER_DEGREE  # 6 printed decimals of latitude: 0.111 m
+    assert src.min_baseline_m == pytest.approx(3 * step)
+    assert f"positions to {step:.3g} m: no depth on a baseline under {3 * step:.3g} m" in src.report()
 
 
 @pytest.mark.parametrize(

@@ -389,6 +389,11 @@ class VideoLogSource:
             text += f"; {self.frames_outside_log} frames outside the log (resets without depth)"
         if self.depth_unavailable():
             text += f"; no depth: {self.depth_unavailable()}"
+        elif self.min_baseline_m > 0:
+            text += (
+                f"; positions to {self.log.position_resolution_m:.3g} m: no depth on a baseline under "
+                f"{self.min_baseline_m:.3g} m"
+            )
         return text
 
     def close(self) -> None:
