@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     )
     writer.open()
     try:
-        for batch in stream(streamer, dataset, schedule=schedule, num_workers=args.workers):
+        for batch in stream(streamer, dataset, lanes=args.lanes, max_frames=args.max_frames, num_workers=args.workers):
             writer(batch)
             for b, st in enumerate(batch.status if batch.valid is not None else ()):
                 statuses[st] = statuses.get(st, 0) + 1

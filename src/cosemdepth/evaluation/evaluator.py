@@ -307,7 +307,9 @@ class Evaluator:
         bar = tqdm(total=self.num_frames, unit="frame", desc="evaluate", disable=not self.progress, leave=False)
         with PeakMemory(device) as mem:
             for k, batch in enumerate(
-                stream(streamer, self.dataset, schedule=self.schedule, num_workers=self.num_workers)
+                stream(
+                    streamer, self.dataset, lanes=self.lanes, max_frames=self.max_frames, num_workers=self.num_workers
+                )
             ):
                 include = ~batch.reset if self.exclude_resets else torch.ones_like(batch.reset)
                 for m in metrics.values():

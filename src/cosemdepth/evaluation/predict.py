@@ -329,7 +329,7 @@ def predict(
             for sink in sinks:
                 sink.open(tmp)
                 opened.append(sink)
-            for batch in stream(streamer, dataset, schedule=schedule, num_workers=num_workers):
+            for batch in stream(streamer, dataset, lanes=lanes, max_frames=max_frames, num_workers=num_workers):
                 writer(batch)
                 for sink in sinks:
                     sink(batch)

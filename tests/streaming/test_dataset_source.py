@@ -1,8 +1,17 @@
-import pytest
-from _fakes import fake_dataset
+"""The dataset source: its lanes schedule, its rows, and the frames it yields."""
 
-from cosemdepth.errors import ConfigError
-from cosemdepth.evaluation.streaming import StepPlan, make_schedule, trajectory_rows
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
+from _fakes import fake_dataset  # noqa: E402
+
+from cosemdepth.errors import ConfigError  # noqa: E402
+from cosemdepth.streaming import DatasetSource  # noqa: E402
+from cosemdepth.streaming.sources.dataset import StepPlan, make_schedule, trajectory_rows  # noqa: E402
 
 
 def test_one_lane_runs_trajectories_one_after_the_other():
@@ -49,3 +58,21 @@ def test_bad_arguments():
         trajectory_rows(ds)
     with pytest.raises(ConfigError, match="sequence dataset"):
         trajectory_rows([1, 2, 3])
+
+
+def test_the_frames_of_a_dataset_in_lanes():
+    """Two lanes over trajectories A (codes 0-2) and B (10-11): each row's code, lane, reset and ground truth."""
+    ds = fake_dataset()
+    src = DatasetSource(ds)
+    assert src.total_frames() == 5 and src.total_frames(max_frames=2) == 2
+    batches = list(src.batches(lanes=2))
+    codes = [[round(float(v) * 100) for v in b.rgb[:, 0, 0, 0]] for b in batches]
+    assert codes == [[0, 10], [1, 11], [2]]
+    assert [b.lanes for b in batches] == [(0, 1), (0, 1), (0,)]
+    assert [b.index for b in batches] == [[0, 3], [1, 4], [2]]
+    assert [b.reset.tolist() for b in batches] == [[True, True], [False, False], [False]]
+    assert [b.trajectory for b in batches] == [["A", "B"], ["A", "B"], ["A"]]
+    assert [b.frame.tolist() for b in batches] == [[0, 0], [1, 1], [2]]
+    assert batches[0].name == ["0", "10"] and batches[0].stamp == [None, None] and batches[0].pose is None
+    assert set(batches[0].gt) == {"depth", "semantic"} and batches[0].gt["depth"].shape == (2, 1, 2, 2)
+    assert torch.equal(batches[0].gt["semantic"][0], torch.tensor([[0, 1], [2, 2]]))
