@@ -59,6 +59,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.export",
             "cosemdepth.bench",
             "cosemdepth.robotics",
+            "cosemdepth.ros2",
         ),
     ),
     ("front ends", ("cosemdepth.cli", "cosemdepth.demo", "cosemdepth.__main__")),

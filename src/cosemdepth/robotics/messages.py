@@ -66,6 +66,26 @@ def depth_status(ts, hdr, status: str, values: Sequence[tuple[str, str]]):
     )
 
 
+def point_cloud(ts, hdr, points: np.ndarray):
+    """A ``sensor_msgs/PointCloud2`` of ``points`` ``[N, 3]`` (metres in the header's frame): one row of N points,
+    fields ``x``, ``y``, ``z`` float32 little-endian, 12 bytes a point, dense (no invalid point)."""
+    t = ts.types
+    pts = np.ascontiguousarray(points, dtype="<f4").reshape(-1, 3)
+    field = t["sensor_msgs/msg/PointField"]
+    fields = [field(name=n, offset=4 * i, datatype=field.FLOAT32, count=1) for i, n in enumerate("xyz")]
+    return t["sensor_msgs/msg/PointCloud2"](
+        header=hdr,
+        height=1,
+        width=len(pts),
+        fields=fields,
+        is_bigendian=False,
+        point_step=12,
+        row_step=12 * len(pts),
+        data=pts.view(np.uint8).reshape(-1),
+        is_dense=True,
+    )
+
+
 def frame_status(batch, b: int) -> str:
     """Row ``b``'s depth status (``reset`` for a reset frame of a stream without statuses)."""
     statuses = getattr(batch, "status", None) or []
@@ -126,4 +146,13 @@ def frame_messages(
     yield "camera_info", camera_info(ts, hdr, (int(h), int(w)), intrinsics)
 
 
-__all__ = ["camera_info", "depth_status", "frame_messages", "frame_status", "header", "image", "valid_depth"]
+__all__ = [
+    "camera_info",
+    "depth_status",
+    "frame_messages",
+    "frame_status",
+    "header",
+    "image",
+    "point_cloud",
+    "valid_depth",
+]
