@@ -260,7 +260,11 @@ class RawWriter:
         self.written = 0
 
     def write(self, data) -> None:
-        """Write one serialized sample (bytes, memoryview or uint8 array)."""
+        """Write one serialized sample (bytes, memoryview or uint8 array), padded with zeros to a multiple of 4 bytes
+        as the binding's ``DataWriter.write`` pads (Cyclone pads a shorter sample with unspecified bytes)."""
+        pad = -len(data) % 4
+        if pad:
+            data = bytes(data) + b"\x00" * pad
         ret = self._write(self.writer._ref, data)
         if ret < 0:
             from cyclonedds.core import DDSException
