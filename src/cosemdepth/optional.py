@@ -20,6 +20,7 @@ OPTIONAL_PACKAGES: dict[str, tuple[str, str]] = {
     "onnxruntime": ("onnxruntime", "export"),
     "rosbags": ("rosbags", "ros"),
     "rerun": ("rerun-sdk", "viz"),
+    "cyclonedds": ("cyclonedds", "live"),
 }
 
 

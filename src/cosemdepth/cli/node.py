@@ -19,6 +19,8 @@ from ..errors import ConfigError
 from ..evaluation.classes import class_info
 from ..inference.policy import BASELINE, Streamer, policy_info
 from ..robotics.bag_writer import DEFAULT_NAMESPACE, check_namespace
+from ..ros2.node import REPORT_EVERY
+from ..ros2.source import DEFAULT_MAX_FRAME_GAP, DEFAULT_MAX_POSE_GAP, DEFAULT_POSE_TIMEOUT
 from ..tasks import class_count
 from ._shared import (
     add_jpeg_idct_arg,
@@ -76,23 +78,25 @@ def configure(parser: argparse.ArgumentParser) -> None:
     timing.add_argument(
         "--max-pose-gap",
         type=float,
-        default=0.05,
+        default=DEFAULT_MAX_POSE_GAP,
         metavar="S",
-        help="interpolate an image's pose only between poses at most S seconds apart (default 0.05)",
+        help=f"interpolate an image's pose only between poses at most S seconds apart (default {DEFAULT_MAX_POSE_GAP:g})",
     )
     timing.add_argument(
         "--pose-timeout",
         type=float,
-        default=0.5,
+        default=DEFAULT_POSE_TIMEOUT,
         metavar="S",
-        help="an image whose pose has not arrived S seconds after it is processed without depth (default 0.5)",
+        help="an image whose pose has not arrived S seconds after it is processed without depth "
+        f"(default {DEFAULT_POSE_TIMEOUT:g})",
     )
     timing.add_argument(
         "--max-frame-gap",
         type=float,
-        default=1.0,
+        default=DEFAULT_MAX_FRAME_GAP,
         metavar="S",
-        help="an image more than S seconds after the previous processed one starts afresh (default 1.0)",
+        help="an image more than S seconds after the previous processed one starts afresh "
+        f"(default {DEFAULT_MAX_FRAME_GAP:g})",
     )
     out = parser.add_argument_group("outputs")
     out.add_argument(
@@ -114,14 +118,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--input-qos",
         choices=("sensor", "reliable"),
         default="sensor",
-        help="sensor (default: best effort, volatile, keep last 5; takes best-effort and reliable publishers) or "
+        help="sensor (the default; best effort, volatile, keep last 5; takes best-effort and reliable publishers) or "
         "reliable (keep last 10; takes reliable publishers only)",
     )
     out.add_argument(
         "--output-qos",
         choices=("sensor", "reliable"),
         default="sensor",
-        help="sensor (default: best effort, volatile, keep last 5) or reliable (volatile, keep last 10: for "
+        help="sensor (the default; best effort, volatile, keep last 5) or reliable (volatile, keep last 10: for "
         "subscribers that ask for reliable, e.g. rviz2's default)",
     )
     parser.add_argument(
@@ -145,9 +149,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     run_.add_argument(
         "--report-every",
         type=float,
-        default=60.0,
+        default=REPORT_EVERY,
         metavar="S",
-        help="seconds between two progress lines on stderr (default 60; 0: none)",
+        help=f"seconds between two progress lines on stderr (default {REPORT_EVERY:g}; 0: none)",
     )
     run_.add_argument("--summary", metavar="FILE.json", help="write the run's summary (counters, latency) to FILE")
     add_jpeg_idct_arg(parser)

@@ -25,7 +25,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--qos",
         choices=("sensor", "reliable"),
         default="sensor",
-        help="sensor (default: best effort, volatile, keep last 5) or reliable (keep last 10); /tf_static is "
+        help="sensor (the default; best effort, volatile, keep last 5) or reliable (keep last 10); /tf_static is "
         "always reliable and transient local",
     )
     parser.add_argument(
@@ -39,7 +39,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..ros2.dds import Graph
-    from ..ros2.replay import replay
+    from ..ros2.replay import replay_bag
 
     stop = threading.Event()
     saved = {}
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
             saved[s] = signal.signal(s, lambda *_: stop.set())
     try:
         with Graph() as graph:
-            result = replay(
+            result = replay_bag(
                 graph,
                 args.bag,
                 topics=args.topics,

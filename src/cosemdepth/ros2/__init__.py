@@ -15,7 +15,7 @@ _LAZY = {
     "LiveSource": ".source",
     "TopicSink": ".sink",
     "run_node": ".node",
-    "replay": ".replay",
+    "replay_bag": ".replay",
 }
 
 __getattr__ = _lazy_getattr(__name__, _LAZY)

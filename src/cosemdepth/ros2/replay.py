@@ -23,7 +23,7 @@ from .dds import Graph, ros_topic
 from .idl import idl_type
 
 
-def replay(
+def replay_bag(
     graph: Graph,
     path: str | Path,
     *,
@@ -114,4 +114,4 @@ def _wait_for_subscribers(writers: dict, wait: float, stop: threading.Event) -> 
         stop.wait(0.05)
 
 
-__all__ = ["replay"]
+__all__ = ["replay_bag"]

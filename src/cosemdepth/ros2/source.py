@@ -277,15 +277,16 @@ class LiveSource:
         end = None if timeout is None else time.monotonic() + timeout
         waited = False
         while not self.stopping.is_set():
-            found = self.graph.discover_type(topic, types, 0.5, option)
+            step = 0.5 if end is None else max(0.0, min(0.5, end - time.monotonic()))
+            found = self.graph.discover_type(topic, types, step, option)
             if found is not None:
                 return found
-            if end is not None and time.monotonic() >= end:
-                self.log(f"no publisher on {topic} ({option}) within {timeout:g} s")
-                break
             if not waited:
                 self.log(f"waiting for a publisher on {topic} ({option}: {' or '.join(types)})")
                 waited = True
+            if end is not None and time.monotonic() >= end:
+                self.log(f"no publisher on {topic} ({option}) within {timeout:g} s")
+                break
         return None
 
     # ------------------------------------------------------------------ receiving (the receiver thread)
