@@ -177,3 +177,46 @@ def test_newest_first_drops_timeouts_gaps_jumps_and_restarts():
         "clock jump back": 1,
         "image publisher changed": 1,
     }
+
+
+def test_camera_info_with_distortion_leaves_frames_out_until_a_usable_one():
+    from cosemdepth.robotics.messages import camera_info
+
+    cam = Camera("geometry_msgs/msg/PoseStamped")
+    info = cam.graph.writer("/cam/info", idl_type("sensor_msgs/msg/CameraInfo"), "reliable")
+    graph = Graph()
+    notes = []
+    source = LiveSource(
+        graph, LiveOptions("/cam/image", "/pose", camera_info_topic="/cam/info"), None, log=notes.append
+    )
+    guard = threading.Timer(60, source.stop)
+    try:
+        assert source.start()
+        until(lambda: info.subscribers() > 0 and cam.images.subscribers() > 0 and cam.poses.subscribers() > 0)
+        guard.start()
+        frames = source.batches()
+        for k in range(31):
+            cam.pose(T0 + 10 * k * MS, 0.01 * k)
+        bad = camera_info(TS, header(TS, T0, "cam"), (8, 12), (10.0, 10.0, 6.0, 4.0))
+        bad.d[0] = 0.1
+        info.write(encode(bad))
+        until(lambda: source.info_error is not None)
+        got = []
+        consumer = threading.Thread(target=lambda: got.append(next(frames)))  # the node asking for its next frame
+        consumer.start()
+        cam.image(T0 + 100 * MS)
+        until(lambda: source.stats.rejected == 1)
+        info.write(encode(camera_info(TS, header(TS, T0, "cam"), (8, 12), (10.0, 10.0, 6.0, 4.0))))
+        until(lambda: source.info is not None)
+        cam.image(T0 + 200 * MS)
+        consumer.join(30)
+        f = got[0]
+    finally:
+        guard.cancel()
+        source.close()
+        cam.close()
+    assert any("camera_info has a non-zero distortion" in n for n in notes)
+    assert any(n.startswith("frame left out: /cam/info at stamp") for n in notes)
+    # K written in ROS's pixel convention (camera_info takes the package's: cx - 0.5), read back in the package's
+    assert torch.allclose(f.intrinsics[0], torch.tensor([10.0, 10.0, 6.0, 4.0])) and bool(f.reset[0])
+    assert f.meta[0]["reset_reason"] == "first frame"  # the frame left out was never processed

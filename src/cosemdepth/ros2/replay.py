@@ -5,8 +5,8 @@ Messages go out in the bag's order, each at its recorded log time relative to th
 with the bytes the bag holds (ROS 2 bags store the CDR that ROS 2 sends) on topics of the bag's message types (their
 definitions are the bag's). ``/tf_static`` is published reliable and transient local (late subscribers get it), the
 other topics with ``profile`` (sensor data: best effort, keep last 5; or reliable). Before the first message the
-replay waits up to ``wait`` seconds for a subscriber on every topic (best-effort messages sent before a subscriber
-matched are lost). ROS 1 bags hold another serialisation and other message definitions: convert them first
+replay waits up to ``wait`` seconds for a subscriber on every topic, then half a second more for the subscribers to
+match it in turn (best-effort messages sent before a subscriber matched are lost). ROS 1 bags hold another serialisation and other message definitions: convert them first
 (``rosbags-convert``).
 """
 
@@ -106,10 +106,16 @@ def replay_bag(
     return {"messages": counts, "seconds": seconds, "rounds": rounds}
 
 
+#: Seconds to let the subscribers' side of discovery finish once the writers see them (a reader drops samples of a
+#: writer it has not matched yet).
+SETTLE = 0.5
+
+
 def _wait_for_subscribers(writers: dict, wait: float, stop: threading.Event) -> None:
     end = time.monotonic() + max(0.0, wait)
     while time.monotonic() < end and not stop.is_set():
         if all(w.subscribers() > 0 for w in writers.values()):
+            stop.wait(SETTLE)
             return
         stop.wait(0.05)
 

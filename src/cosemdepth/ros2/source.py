@@ -201,6 +201,7 @@ class LiveSource:
         self.pose_type: str | None = None
         self.poses: PoseInput | None = None
         self.info: CameraInfo | None = None
+        self.info_error: str | None = None
         self.out_size: Size | None = None
         self.convention: np.ndarray | None = None
         # the motion chain: the last processed frame
@@ -349,14 +350,19 @@ class LiveSource:
         elif kind == "camera_info":
             msg = decode(sample.data, CAMERA_INFO_TYPES[0])
             where = f"{o.camera_info_topic} at stamp {format_stamp(stamp_ns(msg.header))}"
-            info = camera_info_intrinsics(msg, where, o.ignore_distortion)
+            try:
+                info = camera_info_intrinsics(msg, where, o.ignore_distortion)
+            except CosemdepthError as e:  # the images are left out (said) until a usable camera_info comes
+                self.info, self.info_error = None, str(e)
+                raise
+            self.info_error = None
             if self.info is not None and info != self.info:
                 notes.append(f"{o.camera_info_topic}: new intrinsics {info.k} for {info.size[1]}x{info.size[0]}")
             self.info = info
 
     # ------------------------------------------------------------------ choosing the next frame
     def _intrinsics_known(self) -> bool:
-        return self.options.camera_info_topic is None or self.info is not None
+        return self.options.camera_info_topic is None or self.info is not None or self.info_error is not None
 
     def _select(self) -> tuple[_Image, bool, int] | None:
         """``(image, posed, dropped)``: the newest queued image whose pose is decided, or else the newest that waited
@@ -412,6 +418,8 @@ class LiveSource:
 
     def _intrinsics(self, native: Size) -> np.ndarray:
         o = self.options
+        if self.info is None and self.info_error is not None:
+            raise CosemdepthError(self.info_error)
         if self.info is not None:
             if self.info.size != tuple(native) and self.info.size != (0, 0):
                 raise CosemdepthError(
