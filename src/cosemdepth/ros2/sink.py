@@ -131,7 +131,7 @@ class TopicSink:
     def _publish(self, batch, b: int) -> None:
         meta = batch.meta[b]
         stamp, frame_id = int(meta["stamp_ns"]), str(meta["frame_id"])
-        k = [float(v) for v in batch.intrinsics[b].tolist()]
+        k = meta.get("intrinsics") or [float(v) for v in batch.intrinsics[b].tolist()]
         depth = valid_depth(batch, b)
         now = time.time_ns()
         latency = (now - int(meta["source_ns"])) / 1e6

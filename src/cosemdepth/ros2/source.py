@@ -17,6 +17,7 @@ stamp that goes back (a clock jump) or jumps forward by more than ``max_frame_ga
 
 from __future__ import annotations
 
+import re
 import sys
 import threading
 import time
@@ -236,6 +237,9 @@ class LiveSource:
         """Log ``message`` unless a message of ``key`` was logged in the last :data:`LOG_EVERY` seconds (then it is
         counted, and the count said with the next one)."""
         now = time.monotonic()
+        key = re.sub(r"[-+0-9.]+", "#", key)[:60]  # one kind whatever its stamps and numbers
+        if len(self._noted) > 256:  # bounded over hours of odd input
+            self._noted.clear()
         last, skipped = self._noted.get(key, (None, 0))
         if last is not None and now - last < LOG_EVERY:
             self._noted[key] = (last, skipped + 1)
@@ -315,7 +319,7 @@ class LiveSource:
             if got:
                 self._cond.notify_all()
         for n in notes:
-            self.limited(n[:40], n)
+            self.limited(n, n)
 
     def _take(self, kind: str, sample: Sample, notes: list[str]) -> None:
         o = self.options
@@ -438,12 +442,14 @@ class LiveSource:
         if self.out_size is None:
             self.out_size = resolve_size(self.size_rule, lambda: (native, float(k_native[0]))) or native
         pose = self.poses.at(image.stamp, int(round(o.max_pose_gap * 1e9))) if posed else None
+        intrinsics = scale_intrinsics(k_native, native, self.out_size)
         meta: dict[str, Any] = {
             "stamp_ns": image.stamp,
             "frame_id": image.frame_id,
             "source_ns": image.source_ns,
             "received_ns": image.received_ns,
             "dropped_before": dropped,
+            "intrinsics": [float(v) for v in intrinsics],  # float32's values (the batch's may be cast to the model's)
         }
         reason = self._break(image, native, k_native)
         if pose is None:
@@ -495,7 +501,7 @@ class LiveSource:
             rgb=rgb_to_tensor(rgb, self.out_size)[None],
             rot=torch.from_numpy(np.asarray(q, dtype=np.float32))[None],
             trans=torch.from_numpy(np.asarray(t, dtype=np.float32))[None],
-            intrinsics=scale_intrinsics(k_native, native, self.out_size)[None],
+            intrinsics=intrinsics[None],
             reset=torch.tensor([reset]),
             trajectory=[f"{o.image_topic}#{self._segment}"],
             frame=torch.tensor([row], dtype=torch.int64),
