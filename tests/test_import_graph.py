@@ -36,7 +36,13 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("models", ("cosemdepth.models",)),
     (
         "engines, model folders, readers",
-        ("cosemdepth.inference", "cosemdepth.checkpoints", "cosemdepth.data", "cosemdepth.synthair"),
+        (
+            "cosemdepth.inference",
+            "cosemdepth.checkpoints",
+            "cosemdepth.data",
+            "cosemdepth.flightlogs",
+            "cosemdepth.synthair",
+        ),
     ),
     (
         "tasks",
