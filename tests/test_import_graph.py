@@ -42,6 +42,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.data",
             "cosemdepth.flightlogs",
             "cosemdepth.synthair",
+            "cosemdepth.robotics",
         ),
     ),
     (
@@ -51,9 +52,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.evaluation.metrics",
             "cosemdepth.evaluation.classes",
             "cosemdepth.evaluation.temporal",
-            "cosemdepth.evaluation.visualize",
             "cosemdepth.training.losses",
-            "cosemdepth.training.visual",
+            "cosemdepth.render",
         ),
     ),
     ("streaming", ("cosemdepth.streaming",)),
@@ -64,7 +64,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.training",
             "cosemdepth.export",
             "cosemdepth.bench",
-            "cosemdepth.robotics",
+            "cosemdepth.jobs",
             "cosemdepth.ros2",
         ),
     ),
@@ -183,7 +183,7 @@ def test_the_scanner_sees_relative_function_local_and_package_imports():
     assert "cosemdepth.models.model" in g["cosemdepth.models"]  # from .model import ... in a package __init__
     assert "cosemdepth.models.config" in g["cosemdepth.models.model"]  # from .config import ...
     assert g["cosemdepth.models.config"] == {"cosemdepth.errors": False, "cosemdepth.coerce": False}  # from ..x
-    assert g["cosemdepth.evaluation.tfref_fixture"]["cosemdepth.checkpoints.tf_checkpoint"] is True  # function-local
+    assert g["cosemdepth.bench.accuracy"]["cosemdepth.export.runtime"] is True  # function-local
     assert g["cosemdepth.training.config"]["cosemdepth.data.registry"] is False  # module level
     assert "cosemdepth.models.model" in g["cosemdepth.inference.fast_model"]  # inference sits above models
     assert not any(
@@ -264,3 +264,36 @@ def test_the_layer_check_catches_an_upward_function_local_import(tmp_path):
     assert upward_imports(g, layers, "pkg")[0] == (
         "pkg.low (low) imports pkg.high (high) inside a function (a function-local import)"
     )
+
+
+def argparse_users(src: Path = SRC, package: str = PACKAGE) -> list[str]:
+    """The modules of ``package`` that import :mod:`argparse` anywhere in their body."""
+    out = []
+    for module, path in module_names(src, package).items():
+        for node, _ in _imports(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+            if any(n == "argparse" or n.startswith("argparse.") for n in names):
+                out.append(module)
+                break
+    return sorted(out)
+
+
+def test_only_the_command_line_parses_arguments():
+    """argparse lives in ``cli/``: below it, a command's options are frozen values built there, never a namespace."""
+    users = argparse_users()
+    assert "cosemdepth.cli.predict" in users  # the scanner sees it
+    assert [m for m in users if not m.startswith("cosemdepth.cli.")] == []
+
+
+def test_predict_reaches_the_model_without_the_command_line():
+    """Below the argument parsing, predict (every source, flights included) never returns into ``cli/``: the modules
+    its library run imports, transitively, hold no ``cosemdepth.cli`` module."""
+    g = graph()
+    seen, todo = set(), ["cosemdepth.jobs.predict"]
+    while todo:
+        m = todo.pop()
+        if m not in seen:
+            seen.add(m)
+            todo.extend(g[m])
+    assert {"cosemdepth.streaming.sources.flight", "cosemdepth.streaming.pipeline", "cosemdepth.models.model"} <= seen
+    assert [m for m in seen if m == "cosemdepth.cli" or m.startswith("cosemdepth.cli.")] == []

@@ -13,8 +13,8 @@ from cosemdepth.cli.main import COMMANDS, build_parser
 from cosemdepth.data.flight import open_flight
 from cosemdepth.data.registry import DATASETS, split_datasets
 from cosemdepth.demo import run_demo
-from cosemdepth.evaluation.predict import predict
 from cosemdepth.export.onnx import export_onnx
+from cosemdepth.jobs.predict import predict
 from cosemdepth.models.config import ModelConfig
 from cosemdepth.robotics.bag_flight import open_bag_flight
 from cosemdepth.synthair.writer import SynthConfig

@@ -12,7 +12,7 @@ from PIL import Image
 from cosemdepth.cli.main import main
 from cosemdepth.data import open_dataset
 from cosemdepth.data.midair.format import PALETTE_7
-from cosemdepth.evaluation.visualize import (
+from cosemdepth.render.visualize import (
     VideoWriter,
     depth_to_png16,
     png16_to_depth,

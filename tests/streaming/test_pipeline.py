@@ -155,3 +155,27 @@ def test_a_failing_step_aborts_every_sink_and_closes_the_source(model):
     with pytest.raises(NonFiniteOutputError, match=r"t0#000 \(dataset row 0, trajectory t0, frame 0\)"):
         run_stream(source, Streamer(Broken(), "every-frame"), sinks)
     assert all(s.aborted for s in sinks) and source.closed
+
+
+def test_a_toy_source_and_sink_through_predict(model, tmp_path):
+    """predict's library entry point takes any registered source and further sinks: the files of every frame are
+    named from the frames' names, their metadata lands in predictions.json, the toy sink's summary too."""
+    import json
+
+    import numpy as np
+
+    from cosemdepth.jobs.predict import predict
+
+    sink = SINKS["toy"]()
+    out = tmp_path / "pred"
+    man = predict(
+        model, SOURCES["toy"].from_options((3, 2)), out, sinks=[sink], video=None, lanes=2, policy="every-frame"
+    )
+    assert man["toy_frames"] == 5 == man["frames_written"] and sink.opened != out  # written into the staging folder
+    assert json.loads((out / "predictions.json").read_text())["toy_frames"] == 5
+    frames = {(f["trajectory"], f["frame"]): f for f in man["frames"]}
+    assert frames["t1", 1]["source"] == "t1#001" and frames["t1", 1]["lane"] == 1
+    assert frames["t0", 2]["files"]["depth"] == "t0/depth/t0_002.npy"  # the stem of the frame's name
+    # the written depth is the one the sink saw
+    (batch,) = [b for b in sink.batches if 2 in b.frame.tolist()]
+    np.testing.assert_array_equal(np.load(out / "t0" / "depth" / "t0_002.npy"), batch.depth[0, 0].numpy())

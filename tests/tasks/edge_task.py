@@ -15,9 +15,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from cosemdepth.evaluation.visualize import save_png
 from cosemdepth.models.layers import Refiner
 from cosemdepth.models.pyramid import PyramidDecoder, PyramidLevel
+from cosemdepth.render.visualize import save_png
 from cosemdepth.tasks import DecoderTask, Frames, MetricContext, TaskMetrics, TaskWriter, WriteOptions, register_task
 from cosemdepth.training.losses import FIRST_SUPERVISED_FRAME
 

@@ -12,6 +12,7 @@ from cosemdepth.data.midair.format import PALETTE_7
 from cosemdepth.data.toy import ToyDataset
 from cosemdepth.errors import ConfigError, DatasetError
 from cosemdepth.models.config import ModelConfig
+from cosemdepth.render.examples import depth_to_rgb, example_strip, labels_to_rgb
 from cosemdepth.tasks import DEPTH, SEMANTIC
 from cosemdepth.training.config import DataConfig, DatasetSource
 from cosemdepth.training.data import (
@@ -26,7 +27,6 @@ from cosemdepth.training.data import (
     steps_per_epoch,
     total_steps,
 )
-from cosemdepth.training.visual import depth_to_rgb, example_strip, labels_to_rgb
 
 
 def test_sampler_matches_distributed_sampler_and_resumes_mid_epoch():

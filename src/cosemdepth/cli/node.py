@@ -18,9 +18,9 @@ from ..data.poses import CONVENTIONS
 from ..errors import ConfigError
 from ..evaluation.classes import class_info
 from ..inference.policy import BASELINE, Streamer, policy_info
-from ..robotics.bag_writer import DEFAULT_NAMESPACE, check_namespace
 from ..ros2.node import REPORT_EVERY
 from ..ros2.source import DEFAULT_MAX_FRAME_GAP, DEFAULT_MAX_POSE_GAP, DEFAULT_POSE_TIMEOUT
+from ..streaming.sinks.bag import DEFAULT_NAMESPACE, check_namespace
 from ..tasks import class_count
 from ._shared import (
     add_jpeg_idct_arg,

@@ -11,10 +11,8 @@ _LAZY = {
     "evaluate": ".evaluator",
     "compare_with_reference": ".fidelity",
     "class_info": ".classes",
-    "open_fixture": ".tfref_fixture",
     "DepthMetrics": ".metrics",
     "ValidDepthMetrics": ".metrics",
-    "colorize_labels": ".visualize",
 }
 
 __getattr__ = _lazy_getattr(__name__, _LAZY)

@@ -1,5 +1,5 @@
 """The ROS 2 messages of one processed frame: what ``predict --bag`` writes to its output bag and ``cosemdepth node``
-publishes (see :mod:`cosemdepth.robotics.bag_writer` for the topics), built as ``rosbags`` message objects of a
+publishes (see :mod:`cosemdepth.streaming.sinks.bag` for the topics), built as ``rosbags`` message objects of a
 typestore (``ts``) with the input image's stamp and frame_id."""
 
 from __future__ import annotations

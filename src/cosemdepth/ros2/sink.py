@@ -35,9 +35,9 @@ import numpy as np
 import torch
 
 from ..geometry.camera import pixel_rays
-from ..robotics.bag_writer import check_namespace
 from ..robotics.messages import frame_messages, header, point_cloud, valid_depth
 from ..streaming.registry import register_sink
+from ..streaming.sinks.bag import check_namespace
 from .dds import Graph, RawWriter, ros_topic
 from .idl import encode, idl_type, typestore
 

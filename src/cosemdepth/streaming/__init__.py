@@ -4,12 +4,11 @@
 
 from __future__ import annotations
 
+from . import sinks, sources  # noqa: F401 (the built-in sources and sinks register themselves)
 from .frames import FrameBatch, Sink, Source, StreamBatch
 from .pipeline import run
 from .registry import SINKS, SOURCES, register_sink, register_source
 from .sources.dataset import DatasetSource
-
-register_source("dataset", DatasetSource)
 
 __all__ = [
     "DatasetSource",

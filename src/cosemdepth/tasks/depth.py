@@ -11,12 +11,12 @@ import numpy as np
 import torch
 
 from ..evaluation.metrics import DepthMetrics, ValidDepthMetrics
-from ..evaluation.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png
 from ..models.config import ModelConfig
 from ..models.depth_decoder import DepthDecoder
 from ..models.outputs import ESTIMATED, RESET, STATUSES
+from ..render.examples import depth_to_rgb
+from ..render.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png
 from ..training.losses import depth_loss
-from ..training.visual import depth_to_rgb
 from .base import (
     TEST,
     DecoderTask,

@@ -15,11 +15,11 @@ from ..errors import ConfigError
 from ..evaluation.classes import class_info, dataset_classes
 from ..evaluation.metrics import ConfusionMatrix
 from ..evaluation.temporal import TemporalConsistency
-from ..evaluation.visualize import colorize_labels, save_png
 from ..models.config import ModelConfig
 from ..models.semantic_decoder import SemanticDecoder
+from ..render.examples import labels_to_rgb
+from ..render.visualize import colorize_labels, save_png
 from ..training.losses import semantic_loss
-from ..training.visual import labels_to_rgb
 from .base import (
     TEST,
     DecoderTask,

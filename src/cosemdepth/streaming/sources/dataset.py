@@ -16,18 +16,22 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterator, Optional, Sequence
 
 import torch
 from torch.utils.data import DataLoader
 
-from ...data.decode import image_size
+from ...data import open_dataset
+from ...data.decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, image_size
 from ...data.frames import as_size
 from ...data.loader import collate
+from ...data.registry import DATASETS
 from ...errors import ConfigError
+from ...output_safety.outdir import Input
 from ...tasks import TASKS
 from ...workers import check_workers
 from ..frames import FrameBatch
+from ..registry import register_source
 
 
 @dataclass(frozen=True)
@@ -118,6 +122,49 @@ def dataset_frame_size(dataset) -> tuple[int, int] | None:
     return size
 
 
+@dataclass(frozen=True)
+class DatasetOptions:
+    """A dataset split as the input (``--dataset NAME --root ROOT [--split-dir D] [--split S]``).
+
+    Attributes:
+        dataset: a registered dataset with split files; root: its root folder.
+        split_dir: the folder of its split files (default: the dataset table's); split: default the table's.
+        jpeg_idct: JPEG decoding (:mod:`cosemdepth.data.decode`).
+    """
+
+    dataset: Optional[str]
+    root: Optional[Path]
+    split_dir: Optional[Path] = None
+    split: Optional[str] = None
+    jpeg_idct: str = DEFAULT_JPEG_IDCT
+
+    #: the source table's name of this input
+    source = "dataset"
+
+    def __post_init__(self) -> None:
+        if not self.dataset or self.root is None:
+            raise ConfigError(
+                "give --dataset NAME --root ROOT (a dataset split), or --flight --images DIR --poses FILE"
+            )
+        check_jpeg_idct(self.jpeg_idct)
+
+    def inputs(self) -> list[Input]:
+        """The paths it reads (the output policy of :mod:`cosemdepth.output_safety.outdir`)."""
+        return [
+            Input(label, p) for label, p in (("--root", self.root), ("--split-dir", self.split_dir)) if p is not None
+        ]
+
+    def check_split_dir(self) -> None:
+        """A ConfigError naming ``--split-dir`` (and how to make one) when the dataset has no default split folder
+        and none is given."""
+        spec = DATASETS.get(self.dataset)
+        if self.split_dir is None and spec is not None and spec.needs_split_dir and spec.split_dir is None:
+            raise ConfigError(
+                f"--dataset {self.dataset} needs --split-dir D, the folder of its split files "
+                f"(<split>_data/**/*.csv); write them with: cosemdepth splits {self.dataset} ROOT D"
+            )
+
+
 class DatasetSource:
     """The frames of a stream-mode ``dataset`` (see the module docstring).
 
@@ -131,6 +178,26 @@ class DatasetSource:
     def __init__(self, dataset, *, info: dict[str, Any] | None = None) -> None:
         self.dataset = dataset
         self.info = dict(info) if info is not None else {"name": getattr(dataset, "name", "") or ""}
+
+    @classmethod
+    def from_options(cls, options: DatasetOptions, size=None) -> "DatasetSource":
+        """The split of ``options`` at ``size`` (an int, ``(H, W)``, a :class:`~cosemdepth.data.frames.FocalSize`
+        or None: the dataset table's size), streamed frame by frame."""
+        options.check_split_dir()
+        dataset = open_dataset(
+            options.dataset,
+            options.root,
+            split_dir=options.split_dir,
+            split=options.split,
+            seq_len=1,
+            size=size,
+            jpeg_idct=options.jpeg_idct,
+        )
+        return cls(dataset, info={"root": str(options.root), "split": options.split})
+
+    def report(self) -> str:
+        """What the summary line of a run says about the input beyond its frames (``""``: nothing)."""
+        return ""
 
     # ------------------------------------------------------------------ what it is
     def describe(self) -> dict[str, Any]:
@@ -218,4 +285,15 @@ class DatasetSource:
             close()
 
 
-__all__ = ["DatasetSource", "StepPlan", "dataset_frame_size", "frame_source", "make_schedule", "trajectory_rows"]
+__all__ = [
+    "DatasetOptions",
+    "DatasetSource",
+    "StepPlan",
+    "dataset_frame_size",
+    "frame_source",
+    "make_schedule",
+    "trajectory_rows",
+]
+
+
+register_source("dataset", DatasetSource)

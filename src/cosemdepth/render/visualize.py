@@ -7,7 +7,7 @@ Depth PNG (``depth_to_png16``): ``uint16 = round(depth_m * 256)``, saturating to
 
 Depth colour map (``colorize_depth``): linear between ``near`` (default 0 m, red) and ``far`` (default 80 m, the
 evaluation cap, dark blue), matplotlib's ``turbo``. The pictures of ``predict`` and ``demo`` (panels, captions, colour
-bar, legend) are drawn by :mod:`cosemdepth.evaluation.figures`, with one range per flight.
+bar, legend) are drawn by :mod:`cosemdepth.render.figures`, with one range per flight.
 """
 
 from __future__ import annotations

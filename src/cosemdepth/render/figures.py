@@ -567,7 +567,7 @@ class FlightPictures:
 
 
 def frame_maps(batch, b: int, *, title: str = "", labels_ok: Callable[[np.ndarray], bool] | None = None) -> FrameMaps:
-    """The :class:`FrameMaps` of sample ``b`` of a :class:`~cosemdepth.evaluation.streaming.StreamBatch`."""
+    """The :class:`FrameMaps` of sample ``b`` of a :class:`~cosemdepth.streaming.frames.StreamBatch`."""
 
     def arr(t, idx):
         return None if t is None else t[idx].detach().cpu().numpy()
