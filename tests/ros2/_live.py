@@ -136,6 +136,10 @@ class Subscriber:
             name: DataReader(self.participant, Topic(self.participant, f"rt{namespace}/{name}", cls), qos)
             for name, cls in self.types.items()
         }
+        # the camera's images too (the replay's progress)
+        self.readers["input"] = DataReader(
+            self.participant, Topic(self.participant, f"rt{IMAGE}", OUTPUTS["depth"]), qos
+        )
         self.publications = BuiltinDataReader(self.participant, BuiltinTopicDcpsPublication)
         self.got: dict[str, list[Received]] = {n: [] for n in self.readers}
         self.endpoints: dict[str, object] = {}
@@ -157,7 +161,7 @@ class Subscriber:
             time.sleep(0.01)
 
     def decode(self, name: str, data: bytes):
-        return self.types[name].deserialize(data)
+        return self.types.get(name, self.types["depth"]).deserialize(data)
 
     def stamps(self, name: str = "depth") -> list[int]:
         out = []

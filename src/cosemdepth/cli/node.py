@@ -13,27 +13,21 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
+from ..data.frames import as_size
 from ..data.poses import CONVENTIONS
 from ..errors import ConfigError
 from ..evaluation.classes import class_info
 from ..inference.policy import BASELINE, Streamer, policy_info
+from ..jobs.model import input_size, load_for
+from ..jobs.options import RunOptions
 from ..ros2.node import REPORT_EVERY
 from ..ros2.source import DEFAULT_MAX_FRAME_GAP, DEFAULT_MAX_POSE_GAP, DEFAULT_POSE_TIMEOUT
 from ..streaming.sinks.bag import DEFAULT_NAMESPACE, check_namespace
 from ..tasks import class_count
-from ._shared import (
-    add_jpeg_idct_arg,
-    add_model_args,
-    add_policy_args,
-    apply_threads,
-    input_size,
-    load,
-    model_operating_point,
-    parse_size,
-    positive_int,
-    stream_policy,
-)
+from ._options import model_options
+from ._shared import add_jpeg_idct_arg, add_model_args, add_policy_args, parse_size, positive_int
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -45,7 +39,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="pytorch (default; the fast path, or --reference) or onnxruntime: the graph --onnx (written by "
         "'cosemdepth export --onnx', fp32 or --int8) at the size it was exported at",
     )
-    parser.add_argument("--onnx", metavar="FILE", help="the exported graph of --backend onnxruntime")
+    parser.add_argument("--onnx", type=Path, metavar="FILE", help="the exported graph of --backend onnxruntime")
     inp = parser.add_argument_group("inputs (topics of the ROS 2 graph; their types are discovered from it)")
     inp.add_argument("--image-topic", required=True, metavar="T", help="sensor_msgs/Image or CompressedImage topic")
     inp.add_argument(
@@ -157,42 +151,22 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_jpeg_idct_arg(parser)
 
 
-def _model(args: argparse.Namespace):
-    """``(model, size)``: the model of ``--backend`` and the input size to open the camera at."""
-    size = input_size(args.size, model_operating_point(args.model))
-    if args.backend == "pytorch":
-        if args.onnx is not None:
-            raise ConfigError("--onnx is the graph of --backend onnxruntime: add --backend onnxruntime")
-        model, _ = load(args.model, args.device, fast=not args.reference, precision=args.precision)
-        return model, size
-    if args.onnx is None:
-        raise ConfigError("--backend onnxruntime needs --onnx FILE (a graph written by 'cosemdepth export --onnx')")
-    if args.reference or args.precision != "fp32" or args.device not in ("auto", "cpu"):
-        raise ConfigError(
-            "--backend onnxruntime runs the graph on the CPU provider: drop --reference/--precision/--device"
-        )
-    from pathlib import Path
-
-    from ..export.runtime import OnnxModel, OnnxStep
-    from ..optional import require
-
-    require("onnxruntime", "node --backend onnxruntime")
-    if not Path(args.onnx).is_file():
-        raise ConfigError(f"--onnx {args.onnx}: no such file")
-    model, _ = load(args.model, "cpu", fast=False)
-    step = OnnxStep(args.onnx, threads=args.threads)
-    graph_size = tuple(int(v) for v in step.shape[2:])
-    if step.shape[0] not in (None, 1):
-        raise ConfigError(f"--onnx {args.onnx}: the graph has a fixed batch of {step.shape[0]}; the node needs batch 1")
-    if args.size is not None and tuple(parse_size_pair(args.size)) != graph_size:
+def _model(args: argparse.Namespace, run: RunOptions):
+    """``(model, size)``: the model of ``--model`` / ``--backend`` and the input size to open the camera at (the
+    graph's with ``--backend onnxruntime``)."""
+    options = model_options(args)
+    options.apply_threads()
+    model, _ = load_for(options)
+    if options.backend != "onnxruntime":
+        return model, input_size(run.size, options.operating_point())
+    graph_size = tuple(int(v) for v in model.onnx.shape[2:])
+    if model.onnx.shape[0] not in (None, 1):
+        raise ConfigError(f"--onnx {args.onnx}: the graph has a fixed batch of {model.onnx.shape[0]}; the node needs 1")
+    if run.size is not None and as_size(run.size, "--size") != graph_size:
         raise ConfigError(
             f"--onnx {args.onnx}: the graph takes {graph_size[0]}x{graph_size[1]} images, not --size {args.size}"
         )
-    return OnnxModel(model, step), graph_size
-
-
-def parse_size_pair(size) -> tuple[int, int]:
-    return (size, size) if isinstance(size, int) else tuple(size)
+    return model, graph_size
 
 
 def run(args: argparse.Namespace) -> int:
@@ -201,7 +175,9 @@ def run(args: argparse.Namespace) -> int:
     from ..ros2.sink import TopicSink, output_names, parse_remaps
     from ..ros2.source import LiveOptions, LiveSource, log_stderr
 
-    apply_threads(args)
+    run_opts = RunOptions(
+        size=args.size, policy=args.policy, min_baseline=args.min_baseline, max_frames=args.max_frames
+    )
     options = LiveOptions(
         image_topic=args.image_topic,
         pose_topic=args.pose_topic,
@@ -223,8 +199,8 @@ def run(args: argparse.Namespace) -> int:
     remaps = parse_remaps(args.remap)
     if args.discovery_timeout is not None and not args.discovery_timeout >= 0:
         raise ConfigError(f"--discovery-timeout must be >= 0 seconds, got {args.discovery_timeout}")
-    policy, min_baseline = stream_policy(args, None)
-    model, size = _model(args)
+    policy, min_baseline = run_opts.stream_policy(None)
+    model, size = _model(args, run_opts)
     streamer = Streamer(model, policy, min_baseline=min_baseline)
     cfg = model.config
     classes = class_count(cfg)
