@@ -150,3 +150,25 @@ def test_node_publishes_predict_bags_messages_and_restarts_with_the_replay(fligh
         assert e.type_name == type_name
         assert Policy.Reliability.BestEffort in e.qos and Policy.Durability.Volatile in e.qos
         assert Policy.DataRepresentation(use_cdrv0_representation=True) in e.qos
+
+
+def test_report_line_and_percentiles():
+    from collections import Counter
+
+    from cosemdepth.ros2.node import Reporter, percentiles
+    from cosemdepth.ros2.source import LiveStats
+
+    assert percentiles([]) == {"p50": None, "p95": None}
+    assert percentiles(range(1, 101)) == {"p50": 50.5, "p95": 95.05}
+
+    class Sink:
+        latencies = [10.0, 20.0, 30.0, 40.0]
+
+    lines = []
+    stats = LiveStats(received=12, processed=4, dropped=8, unposed=1, resets=Counter({"first frame": 1, "gap": 2}))
+    rep = Reporter(stats, Sink(), lines.append, every=0)
+    rep(None)  # every=0: no periodic line
+    assert lines == []
+    line = rep.line(final=True)
+    assert line.startswith("12 frames received, 4 processed (") and "8 dropped, 1 without a pose" in line
+    assert "latency p50 25 ms, p95 38 ms" in line and "resets: first frame 1, gap 2" in line

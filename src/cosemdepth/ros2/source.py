@@ -346,6 +346,8 @@ class LiveSource:
             while len(self._pending) > MAX_PENDING:
                 self._pending.popleft()
                 self.stats.dropped += 1
+                if not self._intrinsics_known():
+                    notes.append(f"no camera_info on {o.camera_info_topic} yet: the images wait, the oldest dropped")
         elif kind in ("pose", "tf_static"):
             msg = decode(sample.data, self.pose_type)
             notes.extend(
