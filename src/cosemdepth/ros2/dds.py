@@ -193,11 +193,8 @@ class Graph:
         self.waitset.wait(duration(seconds=max(0.0, seconds)))
 
     def interrupt(self) -> None:
-        """Wake a :meth:`wait` (from another thread or a signal handler) and every later one until :meth:`rearm`."""
+        """Wake a :meth:`wait` (from another thread or a signal handler), and every later one: the end of reading."""
         self.wake.set(True)
-
-    def rearm(self) -> None:
-        self.wake.set(False)
 
     def published_types(self, ros_name: str) -> set[str]:
         """The ROS message types that writers in the graph (other than this participant's) have announced on
@@ -299,10 +296,6 @@ class RawReader:
         for data, info in got:
             if info.valid_data:
                 yield Sample(bytes(data), int(info.source_timestamp), now, int(info.publication_handle))
-
-    def publishers(self) -> int:
-        """How many writers are matched with this reader now."""
-        return len(self.reader.get_matched_publications())
 
 
 __all__ = [

@@ -57,6 +57,8 @@ DEFAULT_POSE_TIMEOUT = 0.5
 DEFAULT_MAX_FRAME_GAP = 1.0
 #: Images queued at most (older ones are dropped as newer ones arrive).
 MAX_PENDING = 16
+#: Seconds the receiver lets samples gather after taking some (an image waits at most this long longer).
+RECEIVE_BATCH = 0.005
 #: Seconds between two log lines of one kind (the others are counted).
 LOG_EVERY = 10.0
 #: Keep-last depth of the pose readers (the receiver drains them continuously; this covers a stalled second).
@@ -299,13 +301,15 @@ class LiveSource:
         try:
             while not self.stopping.is_set():
                 self.graph.wait(0.1)
-                self._drain()
+                if self._drain():
+                    self.stopping.wait(RECEIVE_BATCH)  # let a burst of poses gather: fewer wake-ups, less GIL
         except BaseException as e:  # noqa: BLE001 - handed to the consumer, which raises it
             self._error = e
             with self._cond:
                 self._cond.notify_all()
 
-    def _drain(self) -> None:
+    def _drain(self) -> bool:
+        """Take every sample that arrived; whether there was any."""
         notes: list[str] = []
         got = False
         with self._cond:
@@ -320,6 +324,7 @@ class LiveSource:
                 self._cond.notify_all()
         for n in notes:
             self.limited(n, n)
+        return got
 
     def _take(self, kind: str, sample: Sample, notes: list[str]) -> None:
         o = self.options
