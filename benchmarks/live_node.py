@@ -122,17 +122,16 @@ class Probe:
             last = self.status[-1] if self.status else {}
         return {k: int(last.get(k, 0)) for k in ("frames_received", "frames_processed", "frames_dropped")}
 
-    def quiet(self, seconds: float = 3.0, timeout: float = 600.0) -> None:
-        """Until no depth arrived for ``seconds``."""
-        end, last_n, last_t = time.monotonic() + timeout, -1, time.monotonic()
+    def settle(self, timeout: float = 300.0) -> None:
+        """Until the node's depth for the newest image written arrived (the node always ends on the newest image),
+        or ``timeout`` seconds."""
+        end = time.monotonic() + timeout
         while time.monotonic() < end:
             with self.lock:
-                n = len(self.depth)
-            if n != last_n:
-                last_n, last_t = n, time.monotonic()
-            elif time.monotonic() - last_t > seconds:
-                return
+                if self.written and max(self.written) in self.depth:
+                    break
             time.sleep(0.1)
+        time.sleep(0.5)
 
     def clear(self) -> None:
         with self.lock:
@@ -241,12 +240,12 @@ def run_config(a, bag, size, mode, env, tmp: Path, probe: Probe, memory_minutes:
     try:
         probe.clear()
         replay(bag, max(a.rates), env, tmp / "warmup.log", "--duration", WARMUP_FRAMES / RECORDED_HZ)
-        probe.quiet()
+        probe.settle()
         for rate in a.rates:
             base = probe.counters()
             probe.clear()
             seconds, published = replay(bag, rate, env, tmp / f"replay_{rate}.log")
-            probe.quiet()
+            probe.settle()
             with probe.lock:
                 status = list(probe.status)
                 depth = dict(probe.depth)
@@ -342,6 +341,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() if a.work_dir is None else contextlib.nullcontext(a.work_dir) as tmp_:
         tmp = Path(tmp_)
         bag = tmp / "flight"
+        shutil.rmtree(bag, ignore_errors=True)
         info = write_midair_bag(a.flight, "sunny", 0, bag, frames=a.frames)
         probe = Probe()
         try:
@@ -355,7 +355,7 @@ def main(argv=None) -> int:
                         print(f"  {key}: not run ({results[key]['reason']})")
                         continue
                     work = tmp / key.replace("/", "_")
-                    work.mkdir()
+                    work.mkdir(exist_ok=True)  # a --work-dir of an earlier run: its exported graphs are reused
                     results[key] = run_config(a, bag, size, mode, env, work, probe, a.memory_minutes if first else 0)
                     first = False
         finally:
