@@ -15,7 +15,8 @@ fast path's precisions; ``onnx-int8``: ``cosemdepth export --int8`` at that size
 (``cosemdepth replay --rate rate/6.25``) and a subscriber in this process records:
 
 * latency: from the replay writing an image (its DDS source timestamp) to this subscriber taking the node's depth for
-  that image (p50 / p95 / max, ms), and the node's own figure (image written -> outputs handed to DDS, from its status);
+  that image (p50 / p95 / max, ms), the node's own figure (image written -> outputs handed to DDS, from its status)
+  and the model's streaming step within it (``model_step_ms``);
 * drops: the node's counters (its status topic) over the replay: images received, processed, dropped; images that
   never reached it (published minus received);
 * at the highest rate, ``equal_to_predict_bag``: the node's depth messages equal, byte for byte, those of
@@ -38,6 +39,7 @@ import contextlib
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -145,10 +147,27 @@ class Probe:
         self.graph.close()
 
 
+#: Every process started here (stopped at the end, whatever happened).
+CHILDREN: list[subprocess.Popen] = []
+
+
 def cosemdepth(args, env, log: Path) -> subprocess.Popen:
-    return subprocess.Popen(
+    proc = subprocess.Popen(
         [sys.executable, "-m", "cosemdepth", *map(str, args)], env=env, stdout=open(log, "w"), stderr=subprocess.STDOUT
     )
+    CHILDREN.append(proc)
+    return proc
+
+
+def stop_children() -> None:
+    for proc in CHILDREN:
+        if proc.poll() is None:
+            proc.terminate()
+    for proc in CHILDREN:
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
 
 
 def rss_mib(pid: int) -> float | None:
@@ -171,34 +190,17 @@ def replay(bag: Path, rate_hz: float, env, log: Path, *extra) -> tuple[float, in
     return time.monotonic() - t0, int(text.split(f"{IMAGE} ")[1].split()[0].strip(",;"))
 
 
-def subset_bag(bag: Path, out: Path, stamps) -> Path:
-    """``bag`` with only the images (and camera_info) of ``stamps``, every pose kept."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
-    keep = set(stamps)
-    with AnyReader([bag]) as r, Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns = {}
-        for c, t, raw in r.messages():
-            if c.topic in (IMAGE, INFO):
-                h = r.deserialize(raw, c.msgtype).header
-                if h.stamp.sec * 10**9 + h.stamp.nanosec not in keep:
-                    continue
-            if c.topic not in conns:
-                conns[c.topic] = w.add_connection(c.topic, c.msgtype, typestore=r.typestore)
-            w.write(conns[c.topic], t, raw)
-    return out
-
-
 def equal_to_predict(bag, depth: dict, model_args, tmp: Path, env) -> dict:
     """predict --bag on the frames the node processed; its depth messages against the node's, byte for byte."""
     from rosbags.highlevel import AnyReader
+
+    from cosemdepth.ros2.midair_bag import keep_images
 
     stamps = sorted(depth)
     sub, out = tmp / "subset", tmp / "predict"
     for old in (sub, out):
         shutil.rmtree(old, ignore_errors=True)
-    subset_bag(bag, sub, stamps)
+    keep_images(bag, sub, stamps, (IMAGE, INFO))
     cmd = ["predict", *model_args, "--bag", sub, "--image-topic", IMAGE, "--pose-topic", ODOM]
     cmd += ["--camera-info-topic", INFO, "--convention", "ned", "--out", out, "--video", "none", "--no-progress"]
     proc = cosemdepth(cmd, env, tmp / "predict.log")
@@ -264,6 +266,7 @@ def run_config(a, bag, size, mode, env, tmp: Path, probe: Probe, memory_minutes:
                 "processed_hz": round(delta["frames_processed"] / (published / rate), 2),
                 "latency_ms": percentiles(latency),
                 "node_latency_ms": percentiles([float(s["latency_ms"]) for s in status]),
+                "model_step_ms": percentiles([float(s["step_ms"]) for s in status if "step_ms" in s]),
             }
             if rate == max(a.rates):
                 entry["equal_to_predict_bag"] = equal_to_predict(bag, depth, model_args, tmp, env)
@@ -328,6 +331,7 @@ def main(argv=None) -> int:
     p.add_argument("--work-dir", help="keep the bags, logs and graphs here (default: a temporary folder)")
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "live_node.json"))
     a = p.parse_args(argv)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))  # the finally blocks stop the node and replay processes
 
     from cosemdepth.ros2.dds import loopback_config
     from cosemdepth.ros2.midair_bag import write_midair_bag
@@ -359,6 +363,7 @@ def main(argv=None) -> int:
                     results[key] = run_config(a, bag, size, mode, env, work, probe, a.memory_minutes if first else 0)
                     first = False
         finally:
+            stop_children()
             probe.close()
     params = {
         "model": a.model,

@@ -47,21 +47,9 @@ def flight_bag(out: Path, **kw) -> dict:
 
 def subset_bag(bag: Path, out: Path, stamps) -> Path:
     """A copy of ``bag`` with only the images (and camera_info) of ``stamps``; every pose kept."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.rosbag2 import StoragePlugin, Writer
+    from cosemdepth.ros2.midair_bag import keep_images
 
-    keep = set(int(s) for s in stamps)
-    with AnyReader([bag]) as r, Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns = {}
-        for c, t, raw in r.messages():
-            if c.topic in (IMAGE, INFO):
-                h = r.deserialize(raw, c.msgtype).header
-                if h.stamp.sec * 10**9 + h.stamp.nanosec not in keep:
-                    continue
-            if c.topic not in conns:
-                conns[c.topic] = w.add_connection(c.topic, c.msgtype, typestore=r.typestore)
-            w.write(conns[c.topic], t, raw)
-    return out
+    return keep_images(bag, out, stamps, (IMAGE, INFO))
 
 
 def bag_messages(bag: Path) -> dict[str, list[tuple[int, bytes]]]:

@@ -1,5 +1,5 @@
 """A Mid-Air-format flight (Mid-Air, SynthAir) as a ROS 2 bag: a camera for ``cosemdepth replay``, the node's tests
-and its benchmark.
+and its benchmark; and a bag's copy with only some of its images (:func:`keep_images`).
 
 The bag (MCAP) holds, for one trajectory of a dataset root:
 
@@ -146,4 +146,25 @@ def write_midair_bag(
     return {"images": len(paths), "poses": len(messages) - 2 * len(paths), "stamps": stamps}
 
 
-__all__ = ["DEFAULT_BASE_NS", "POSE_TYPES", "write_midair_bag"]
+def keep_images(bag: str | Path, out: str | Path, stamps, topics: tuple[str, ...]) -> Path:
+    """A copy of the ROS 2 bag ``bag`` at ``out`` (MCAP) in which the messages of ``topics`` (images, their
+    camera_info) are kept only at the header stamps ``stamps`` (ns); every other message is kept. What ``predict --bag``
+    reads to compare a live run that dropped frames: the same motion chain as the node's."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    keep = {int(s) for s in stamps}
+    with AnyReader([Path(bag)]) as r, Writer(Path(out), version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns: dict[str, Any] = {}
+        for c, t, raw in r.messages():
+            if c.topic in topics:
+                h = r.deserialize(raw, c.msgtype).header
+                if h.stamp.sec * 1_000_000_000 + h.stamp.nanosec not in keep:
+                    continue
+            if c.topic not in conns:
+                conns[c.topic] = w.add_connection(c.topic, c.msgtype, typestore=r.typestore)
+            w.write(conns[c.topic], t, raw)
+    return Path(out)
+
+
+__all__ = ["DEFAULT_BASE_NS", "POSE_TYPES", "keep_images", "write_midair_bag"]

@@ -9,7 +9,8 @@ name                type                                 content
 ``depth``           ``sensor_msgs/msg/Image``            ``32FC1`` metres along the optical axis, NaN where not valid
 ``depth_valid``     ``sensor_msgs/msg/Image``            ``mono8`` 255 where the depth is an estimate, 0 where not
 ``depth_status``    ``diagnostic_msgs/msg/               the bag's status values, then the node's: ``latency_ms``,
-                    DiagnosticArray``                    ``stamp_age_ms``, ``frames_received``, ``frames_processed``,
+                    DiagnosticArray``                    ``stamp_age_ms``, ``step_ms`` (the model's step),
+                                                         ``frames_received``, ``frames_processed``,
                                                          ``frames_dropped``, ``frames_without_pose``, and
                                                          ``reset_reason`` / ``depth_invalid_reason`` when there is one
 ``labels``          ``sensor_msgs/msg/Image``            ``mono8`` class index
@@ -136,7 +137,11 @@ class TopicSink:
         now = time.time_ns()
         latency = (now - int(meta["source_ns"])) / 1e6
         self.latencies.append(latency)
-        values = [("latency_ms", f"{latency:.1f}"), ("stamp_age_ms", f"{(now - stamp) / 1e6:.1f}")]
+        values = [
+            ("latency_ms", f"{latency:.1f}"),
+            ("stamp_age_ms", f"{(now - stamp) / 1e6:.1f}"),
+            ("step_ms", f"{1e3 * float(getattr(batch, 'seconds', 0.0)):.1f}"),
+        ]
         if self.stats is not None:
             values += [(k_, str(v)) for k_, v in self.stats.as_dict().items() if k_ != "resets"]
         values += [(key, str(meta[key])) for key in ("reset_reason", "depth_invalid_reason") if key in meta]
