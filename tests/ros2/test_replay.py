@@ -27,7 +27,7 @@ def run_replay(bag, listen, **kw):
         types = {IMAGE: "sensor_msgs/msg/Image", INFO: "sensor_msgs/msg/CameraInfo", ODOM: "nav_msgs/msg/Odometry"}
         readers = {t: sub.reader(t, idl_type(types[t]), "sensor", depth=1000) for t in listen}
         result = {}
-        th = threading.Thread(target=lambda: result.update(replay_bag(pub, bag, log=lambda m: None, wait=20, **kw)))
+        th = threading.Thread(target=lambda: result.update(replay_bag(bag, pub, wait=20, **kw)))
         th.start()
         end = time.monotonic() + 60
         while th.is_alive() and time.monotonic() < end:
@@ -71,10 +71,10 @@ def test_bags_replay_refuses(bag, tmp_path):
         pass
     with Graph() as g:
         with pytest.raises(DatasetError, match="a ROS 1 bag: replay publishes ROS 2 bags"):
-            replay_bag(g, ros1)
+            replay_bag(ros1, g)
         with pytest.raises(DatasetError, match="no topic /nope .*topics in the bag: /camera/camera_info"):
-            replay_bag(g, bag, topics=["/nope"])
+            replay_bag(bag, g, topics=["/nope"])
         with pytest.raises(DatasetError, match="bag not found"):
-            replay_bag(g, tmp_path / "missing")
+            replay_bag(tmp_path / "missing", g)
         with pytest.raises(ConfigError, match="--rate must be a positive number"):
-            replay_bag(g, bag, rate=0)
+            replay_bag(bag, g, rate=0)

@@ -38,7 +38,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..ros2.dds import Graph
     from ..ros2.replay import replay_bag
 
     stop = threading.Event()
@@ -47,19 +46,17 @@ def run(args: argparse.Namespace) -> int:
         for s in (signal.SIGINT, signal.SIGTERM):
             saved[s] = signal.signal(s, lambda *_: stop.set())
     try:
-        with Graph() as graph:
-            result = replay_bag(
-                graph,
-                args.bag,
-                topics=args.topics,
-                rate=args.rate,
-                start=args.start,
-                duration=args.duration,
-                loop=args.loop,
-                profile=args.qos,
-                wait=args.wait,
-                stop=stop,
-            )
+        result = replay_bag(  # joins the graph once the bag and the arguments are checked
+            args.bag,
+            topics=args.topics,
+            rate=args.rate,
+            start=args.start,
+            duration=args.duration,
+            loop=args.loop,
+            profile=args.qos,
+            wait=args.wait,
+            stop=stop,
+        )
     finally:
         for s, h in saved.items():
             signal.signal(s, h)

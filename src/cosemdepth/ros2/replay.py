@@ -12,10 +12,11 @@ match it in turn (best-effort messages sent before a subscriber matched are lost
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 from ..errors import ConfigError, DatasetError
 from ..robotics.rosbag import Bag
@@ -24,8 +25,8 @@ from .idl import idl_type
 
 
 def replay_bag(
-    graph: Graph,
     path: str | Path,
+    graph: Graph | None = None,
     *,
     topics: Sequence[str] | None = None,
     rate: float = 1.0,
@@ -35,12 +36,13 @@ def replay_bag(
     profile: str = "sensor",
     wait: float = 2.0,
     stop: threading.Event | None = None,
-    log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Publish the bag at ``path`` (see the module docstring) into ``graph``; returns ``{"messages": {topic: n},
     "seconds": wall time, "rounds": passes over the bag}``.
 
     Args:
+        graph: the participant to publish from (default: one of its own in ``ROS_DOMAIN_ID``, made once the bag and
+            the arguments are checked, left at the end).
         topics: the topics to publish (default all).
         rate: playback speed (2.0: twice as fast).
         start, duration: seconds from the bag's first message to start at, and to play (None: to the end).
@@ -70,39 +72,45 @@ def replay_bag(
         if not conns:
             raise DatasetError(f"{path}: the bag has no topics")
         store = reader.typestore
-        writers = {}
-        for c in conns:
-            if c.topic not in writers:
-                prof = "static" if c.topic == "/tf_static" else profile
-                writers[c.topic] = graph.writer(c.topic, idl_type(c.msgtype, store), prof)
-        t_first = reader.start_time
-        _wait_for_subscribers(writers, wait, stop)
-        counts = {t: 0 for t in writers}
-        rounds = 0
-        t0_wall = time.monotonic()
-        while not stop.is_set():
-            rounds += 1
-            t_base = None
-            t_start = t_first + int(start * 1e9)
-            t_stop = None if duration is None else t_start + int(duration * 1e9)
-            round_wall = time.monotonic()
-            try:
-                for conn, t, raw in reader.messages(connections=conns, start=t_start, stop=t_stop):
-                    if t_base is None:
-                        t_base = t
-                    due = round_wall + (t - t_base) / 1e9 / rate
-                    delay = due - time.monotonic()
-                    if delay > 0 and stop.wait(delay):
-                        break
-                    writers[conn.topic].write(raw)
-                    counts[conn.topic] += 1
-            except (DatasetError, ConfigError):
-                raise
-            except Exception as e:  # rosbags' own errors for a corrupt file
-                raise DatasetError(f"{path}: cannot read the bag ({str(e).splitlines()[0][:300]})") from None
-            if not loop or t_base is None:
-                break
-        seconds = time.monotonic() - t0_wall
+        with contextlib.nullcontext(graph) if graph is not None else Graph() as g:
+            return _play(path, g, reader, conns, store, rate, start, duration, loop, profile, wait, stop)
+
+
+def _play(path, graph: Graph, reader, conns, store, rate, start, duration, loop, profile, wait, stop) -> dict:
+    """Publish the chosen connections of the open ``reader`` (see :func:`replay_bag`)."""
+    writers = {}
+    for c in conns:
+        if c.topic not in writers:
+            prof = "static" if c.topic == "/tf_static" else profile
+            writers[c.topic] = graph.writer(c.topic, idl_type(c.msgtype, store), prof)
+    t_first = reader.start_time
+    _wait_for_subscribers(writers, wait, stop)
+    counts = {t: 0 for t in writers}
+    rounds = 0
+    t0_wall = time.monotonic()
+    while not stop.is_set():
+        rounds += 1
+        t_base = None
+        t_start = t_first + int(start * 1e9)
+        t_stop = None if duration is None else t_start + int(duration * 1e9)
+        round_wall = time.monotonic()
+        try:
+            for conn, t, raw in reader.messages(connections=conns, start=t_start, stop=t_stop):
+                if t_base is None:
+                    t_base = t
+                due = round_wall + (t - t_base) / 1e9 / rate
+                delay = due - time.monotonic()
+                if delay > 0 and stop.wait(delay):
+                    break
+                writers[conn.topic].write(raw)
+                counts[conn.topic] += 1
+        except (DatasetError, ConfigError):
+            raise
+        except Exception as e:  # rosbags' own errors for a corrupt file
+            raise DatasetError(f"{path}: cannot read the bag ({str(e).splitlines()[0][:300]})") from None
+        if not loop or t_base is None:
+            break
+    seconds = time.monotonic() - t0_wall
     return {"messages": counts, "seconds": seconds, "rounds": rounds}
 
 
