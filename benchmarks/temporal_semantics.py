@@ -467,7 +467,7 @@ def _label(v: str) -> str:
 def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: int) -> None:
     from PIL import Image, ImageDraw
 
-    from cosemdepth.evaluation.classes import class_info
+    from cosemdepth.measures.classes import class_info
     from cosemdepth.render.visualize import colorize_labels, rgb_to_uint8
 
     _, palette = class_info(num_classes, "synthair")

@@ -22,9 +22,11 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth",
             "cosemdepth._lazy",
             "cosemdepth.errors",
+            "cosemdepth.defaults",
             "cosemdepth.coerce",
             "cosemdepth.plugins",
             "cosemdepth.models.config",
+            "cosemdepth.models.registry",
             "cosemdepth.workers",
             "cosemdepth.devices",
             "cosemdepth.optional",
@@ -39,6 +41,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "cosemdepth.inference",
             "cosemdepth.checkpoints",
+            "cosemdepth.camera",
             "cosemdepth.data",
             "cosemdepth.flightlogs",
             "cosemdepth.synthair",
@@ -46,16 +49,13 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         ),
     ),
     (
-        "tasks",
+        "measures and render",
         (
-            "cosemdepth.tasks",
-            "cosemdepth.evaluation.metrics",
-            "cosemdepth.evaluation.classes",
-            "cosemdepth.evaluation.temporal",
-            "cosemdepth.training.losses",
+            "cosemdepth.measures",
             "cosemdepth.render",
         ),
     ),
+    ("tasks and decoders", ("cosemdepth.tasks", "cosemdepth.decoders")),
     ("streaming", ("cosemdepth.streaming",)),
     (
         "jobs",
@@ -182,7 +182,11 @@ def test_the_scanner_sees_relative_function_local_and_package_imports():
     g = graph()
     assert "cosemdepth.models.model" in g["cosemdepth.models"]  # from .model import ... in a package __init__
     assert "cosemdepth.models.config" in g["cosemdepth.models.model"]  # from .config import ...
-    assert g["cosemdepth.models.config"] == {"cosemdepth.errors": False, "cosemdepth.coerce": False}  # from ..x
+    assert g["cosemdepth.models.config"] == {  # from ..x and from .x
+        "cosemdepth.errors": False,
+        "cosemdepth.coerce": False,
+        "cosemdepth.models.registry": False,
+    }
     assert g["cosemdepth.bench.accuracy"]["cosemdepth.export.runtime"] is True  # function-local
     assert g["cosemdepth.training.config"]["cosemdepth.data.registry"] is False  # module level
     assert "cosemdepth.models.model" in g["cosemdepth.inference.fast_model"]  # inference sits above models
@@ -213,6 +217,11 @@ def test_every_module_is_in_a_layer():
     assert [m for m in module_names() if layer_of(m) is None] == []
     assert layer_of("cosemdepth.models.config") == 0 and layer_of("cosemdepth.models.model") == 2
     assert layer_of("cosemdepth") == 0 and layer_of("cosemdepth.cli.train") == len(LAYERS) - 1
+    assert layer_of("cosemdepth.models.registry") == 0  # the tables, read by the layers above it
+    assert layer_of("cosemdepth.decoders.depth.task") == layer_of("cosemdepth.tasks.base")
+    assert (
+        layer_of("cosemdepth.measures.metrics") < layer_of("cosemdepth.tasks.base") < layer_of("cosemdepth.evaluation")
+    )
 
 
 def test_no_module_imports_a_higher_layer():
@@ -297,3 +306,27 @@ def test_predict_reaches_the_model_without_the_command_line():
             todo.extend(g[m])
     assert {"cosemdepth.streaming.sources.flight", "cosemdepth.streaming.pipeline", "cosemdepth.models.model"} <= seen
     assert [m for m in seen if m == "cosemdepth.cli" or m.startswith("cosemdepth.cli.")] == []
+
+
+@pytest.mark.parametrize(
+    "importer, imported",
+    [
+        ("cosemdepth.tasks.base", "cosemdepth.training.losses"),  # a task reaching into the training job
+        ("cosemdepth.tasks.base", "cosemdepth.evaluation.metrics"),
+        ("cosemdepth.decoders.depth.task", "cosemdepth.evaluation.predict"),
+        ("cosemdepth.decoders.semantic.task", "cosemdepth.streaming"),
+        ("cosemdepth.models.model", "cosemdepth.decoders.depth.decoder"),  # the model naming a decoder
+        ("cosemdepth.checkpoints.convert", "cosemdepth.decoders.semantic.tf_names"),
+        ("cosemdepth.measures.losses", "cosemdepth.tasks.base"),
+        ("cosemdepth.render.figures", "cosemdepth.decoders.depth"),
+    ],
+)
+def test_the_package_layers_refuse_an_upward_import(importer, imported):
+    """The package's own table on one-edge graphs: a task or decoder folder importing a job, the models or the
+    conversion importing a decoder folder, a measure importing a task are each reported."""
+    g = {importer: {imported: True}, imported: {}}
+    low, high = LAYERS[layer_of(importer)][0], LAYERS[layer_of(imported)][0]
+    assert upward_imports(g) == [
+        f"{importer} ({low}) imports {imported} ({high}) inside a function (a function-local import)"
+    ]
+    assert upward_imports({imported: {importer: False}, importer: {}}) == []  # the other way is downward

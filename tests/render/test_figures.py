@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosemdepth.evaluation.classes import class_info
+from cosemdepth.measures.classes import class_info
 from cosemdepth.render.figures import (
     FlightFigure,
     FlightPictures,

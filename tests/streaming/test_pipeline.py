@@ -30,6 +30,17 @@ def toy_frames(n: int, seed: int = 0) -> list[dict]:
     ]
 
 
+@dataclass(frozen=True)
+class ToyOptions:
+    """The toy source's options, as a command would build them."""
+
+    lengths: tuple = (3, 2)
+    source = "toy"
+
+    def inputs(self) -> list:
+        return []
+
+
 class ToySource:
     """Trajectories of random frames, one lane per trajectory; its frames are named and stamped."""
 
@@ -40,8 +51,8 @@ class ToySource:
         self.closed = False
 
     @classmethod
-    def from_options(cls, options, size=None):
-        return cls(options)
+    def from_options(cls, options: ToyOptions, size=None):
+        return cls(options.lengths)
 
     def describe(self) -> dict:
         return {"name": "toy", "trajectories": len(self.trajs)}
@@ -114,7 +125,7 @@ def tables():
 
 
 def test_a_toy_source_and_sink_through_the_pipeline(model, tmp_path):
-    source = SOURCES["toy"].from_options((3, 2))
+    source = SOURCES["toy"].from_options(ToyOptions((3, 2)))
     sink = SINKS["toy"]()
     assert isinstance(source, Source) and isinstance(sink, Sink)
     summary = run_stream(source, Streamer(model, "every-frame"), [sink], lanes=2, out=tmp_path)
@@ -169,7 +180,13 @@ def test_a_toy_source_and_sink_through_predict(model, tmp_path):
     sink = SINKS["toy"]()
     out = tmp_path / "pred"
     man = predict(
-        model, SOURCES["toy"].from_options((3, 2)), out, sinks=[sink], video=None, lanes=2, policy="every-frame"
+        model,
+        SOURCES["toy"].from_options(ToyOptions((3, 2))),
+        out,
+        sinks=[sink],
+        video=None,
+        lanes=2,
+        policy="every-frame",
     )
     assert man["toy_frames"] == 5 == man["frames_written"] and sink.opened != out  # written into the staging folder
     assert json.loads((out / "predictions.json").read_text())["toy_frames"] == 5
@@ -179,3 +196,58 @@ def test_a_toy_source_and_sink_through_predict(model, tmp_path):
     # the written depth is the one the sink saw
     (batch,) = [b for b in sink.batches if 2 in b.frame.tolist()]
     np.testing.assert_array_equal(np.load(out / "t0" / "depth" / "t0_002.npy"), batch.depth[0, 0].numpy())
+
+
+def test_a_toy_source_through_the_predict_command_s_options(model, tmp_path):
+    """run_predict (what ``cosemdepth predict`` runs once its arguments are parsed) opens a source by its table
+    entry, from its options."""
+    from cosemdepth import save_model
+    from cosemdepth.jobs.model import ModelOptions
+    from cosemdepth.jobs.options import RunOptions
+    from cosemdepth.jobs.predict import PredictOptions, run_predict
+    from cosemdepth.streaming.sinks.files import FileOptions
+
+    folder = save_model(model, tmp_path / "m")
+    options = PredictOptions(
+        source=ToyOptions(),
+        model=ModelOptions(folder, reference=True, device="cpu"),
+        out=tmp_path / "pred",
+        run=RunOptions(lanes=2, policy="every-frame"),
+        files=FileOptions(video=None),
+    )
+    result = run_predict(options)
+    man = result.manifest
+    assert man["dataset"] == {"name": "toy", "trajectories": 2} and man["run"]["input_size"] == [H, W]
+    assert man["frames_written"] == 5 and [t["name"] for t in man["trajectories"]] == ["t0", "t1"]
+    assert result.lines[0] == f"wrote 5 frames of 2 trajectories to {tmp_path / 'pred'}"
+
+
+class UnusableMotion(ToySource):
+    """The toy trajectory whose frame 1 has a motion the source cannot vouch for (attitude only); its positions are
+    known to 3 m."""
+
+    min_baseline_m = 3.0
+
+    def batches(self, **kw):
+        for b in super().batches(**kw):
+            b.depth_ok = b.frame != 1
+            b.meta = [{"depth_invalid_reason": "attitude only"} if f == 1 else {} for f in b.frame.tolist()]
+            yield b
+
+
+def test_a_frame_without_a_usable_motion_has_no_depth_and_restarts_the_reference(model):
+    sink = ToySink()
+    run_stream(UnusableMotion((4,)), Streamer(model, "every-frame"), [sink])
+    assert [b.status[0] for b in sink.batches] == ["reset", "reset", "estimated", "estimated"]
+    assert [bool(b.reset[0]) for b in sink.batches] == [True, True, False, False]
+    assert not sink.batches[1].valid.any() and sink.batches[1].meta[0]["depth_invalid_reason"] == "attitude only"
+    assert float(sink.batches[2].baseline[0]) == 1.0  # estimated from frame 1
+
+
+def test_the_source_s_baseline_floor_raises_the_policy_s_minimum(model):
+    from cosemdepth.jobs.predict import make_streamer
+
+    assert make_streamer(model, "baseline", 1.0, UnusableMotion((2,))).min_baseline == 3.0
+    assert make_streamer(model, "baseline", 5.0, UnusableMotion((2,))).min_baseline == 5.0
+    assert make_streamer(model, "baseline", 1.0, ToySource((2,))).min_baseline == 1.0
+    assert make_streamer(model, "every-frame", None, UnusableMotion((2,))).min_baseline == 0.0

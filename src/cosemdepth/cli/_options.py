@@ -44,7 +44,14 @@ def model_options(args: argparse.Namespace) -> ModelOptions:
 def split_options(args: argparse.Namespace) -> DatasetOptions:
     """``--dataset``, ``--root``, ``--split-dir``, ``--split``, ``--jpeg-idct``."""
     idct = getattr(args, "jpeg_idct", None)
-    return DatasetOptions(args.dataset, args.root, args.split_dir, args.split, **({"jpeg_idct": idct} if idct else {}))
+    return DatasetOptions(
+        args.dataset,
+        args.root,
+        args.split_dir,
+        args.split,
+        **({"jpeg_idct": idct} if idct else {}),
+        calibration=getattr(args, "calibration", None),
+    )
 
 
 def source_options(args: argparse.Namespace):
@@ -65,6 +72,7 @@ def source_options(args: argparse.Namespace):
             skip_unposed=args.skip_unposed,
             ignore_distortion=args.ignore_distortion,
             jpeg_idct=args.jpeg_idct,
+            calibration=args.calibration,
         )
     if args.flight:
         if args.dataset or args.root:
@@ -81,6 +89,7 @@ def source_options(args: argparse.Namespace):
             max_pose_gap=args.max_pose_gap,
             skip_unposed=args.skip_unposed,
             jpeg_idct=args.jpeg_idct,
+            calibration=args.calibration,
         )
     return split_options(args)
 

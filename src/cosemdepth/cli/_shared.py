@@ -13,15 +13,20 @@ import torch
 from ..checkpoints.model_io import load_model
 from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from ..data.registry import DATASETS, split_datasets
+from ..defaults import DEFAULT_DEVICE
 from ..errors import ConfigError
 from ..inference.policy import BASELINE, EVERY_FRAME, POLICIES
 from ..jobs.model import PRECISION_DTYPES
+from ..jobs.options import RunOptions
 from ..models import build_model
 from ..models.config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
+from ..models.protocol import StreamingModel
 from ..workers import WORKERS_PER_CORE
 
 #: The model config's defaults (``--arch/--levels/--classes`` read them: one home for defaults).
 MODEL_DEFAULTS = ModelConfig()
+#: The streaming options' defaults (``--trajectories-per-batch``, ``--workers`` read them).
+RUN_DEFAULTS = RunOptions()
 #: ``--size H W`` when not given.
 DEFAULT_SIZE_PAIR = (MIDAIR_IMAGE_SIZE, MIDAIR_IMAGE_SIZE)
 
@@ -115,7 +120,7 @@ def load_or_build(args: argparse.Namespace, device: str = "cpu"):
     return build_model(cfg).to(device).eval()
 
 
-def model_size_pair(values: list[int] | None, model, warn: bool = True) -> tuple[int, int]:
+def model_size_pair(values: list[int] | None, model: StreamingModel, warn: bool = True) -> tuple[int, int]:
     """``--size H W`` of export / benchmark: as given, else the model's training size (its operating point), else
     :data:`DEFAULT_SIZE_PAIR`. With ``warn``, a given size far from the model's focal length (its camera's field of
     view assumed) gets a warning on stderr."""
@@ -123,8 +128,8 @@ def model_size_pair(values: list[int] | None, model, warn: bool = True) -> tuple
     if values is None:
         return tuple(op.size) if op is not None else DEFAULT_SIZE_PAIR
     h, w = parse_size_pair(values)
-    if warn and op is not None:
-        msg = op.size_warning((h, w), op.focal * w / op.size[1])
+    if warn and op is not None:  # without --size: the training size (above)
+        msg = op.size_warning((h, w), op.focal * w / op.size[1], default_size=op.size)
         if msg:
             print(msg, file=sys.stderr)
     return h, w
@@ -141,7 +146,11 @@ def parse_size_pair(values: list[int] | None, default: tuple[int, int] = DEFAULT
 
 
 def add_device_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:N or mps")
+    parser.add_argument(
+        "--device",
+        default=DEFAULT_DEVICE,
+        help=f"{DEFAULT_DEVICE} (the default: CUDA when available, else the CPU), cpu, cuda, cuda:N or mps",
+    )
     parser.add_argument(
         "--threads",
         type=positive_int,
@@ -241,17 +250,19 @@ def add_run_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--trajectories-per-batch",
         type=positive_int,
-        default=1,
+        default=RUN_DEFAULTS.lanes,
         metavar="B",
         dest="lanes",
-        help="stream B trajectories at once as one batch, with per-sample resets (default 1, as the original)",
+        help=f"stream B trajectories at once as one batch, with per-sample resets (default {RUN_DEFAULTS.lanes}, as "
+        "the original)",
     )
     parser.add_argument(
         "--workers",
         type=int,
-        default=0,
+        default=RUN_DEFAULTS.workers,
         metavar="N",
-        help=f"data-loading worker processes (default 0: in the main process; at most {WORKERS_PER_CORE} per CPU core)",
+        help=f"data-loading worker processes (default {RUN_DEFAULTS.workers}: in the main process; at most "
+        f"{WORKERS_PER_CORE} per CPU core)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_jpeg_idct_arg(parser)

@@ -14,6 +14,8 @@ into place together at the end; nothing is written if the run fails).
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 from ..inference.policy import EVERY_FRAME
 from ..jobs.evaluate import EvaluateOptions, run_evaluate
@@ -25,6 +27,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_model_args(parser)
     add_split_args(parser)
     parser.add_argument("--size", type=parse_size, default=None, metavar="S", help=size_help())
+    parser.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the lens of a Mid-Air-format split's images (e.g. a SynthAir set rendered with --distortion: "
+        "ROOT/calibration/camera_info.yaml): frames and ground truth undistorted to a pinhole (docs/data.md)",
+    )
     parser.add_argument(
         "--out",
         default=None,
@@ -43,6 +53,9 @@ def options(args: argparse.Namespace) -> EvaluateOptions:
 
 
 def run(args: argparse.Namespace) -> int:
-    for line in run_evaluate(options(args)).lines:
+    result = run_evaluate(options(args))
+    for line in result.lines:
         print(line)
+    for line in result.warnings:
+        print(line, file=sys.stderr)
     return 0

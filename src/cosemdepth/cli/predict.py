@@ -71,6 +71,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="pinhole intrinsics in pixels of the original images",
     )
     flight.add_argument(
+        "--calibration",
+        type=Path,
+        metavar="FILE",
+        help="the camera's calibration (ROS camera_info YAML, OpenCV FileStorage YAML, Kalibr camchain, COLMAP "
+        "cameras.txt; instead of --intrinsics / --hfov / --camera-info-topic): images undistorted to a pinhole at "
+        "the model's focal length (docs/data.md)",
+    )
+    flight.add_argument(
         "--hfov",
         type=float,
         metavar="DEG",
@@ -176,7 +184,10 @@ def add_robotics_args(parser: argparse.ArgumentParser) -> None:
         help="sensor_msgs/CameraInfo topic for the intrinsics (instead of --intrinsics / --hfov)",
     )
     bag.add_argument(
-        "--ignore-distortion", action="store_true", help="use camera_info's K even when it has a non-zero distortion"
+        "--ignore-distortion",
+        action="store_true",
+        help="use camera_info's K as if the images were undistorted (default: a distorting lens is undistorted on "
+        "the fly)",
     )
     bag.add_argument(
         "--out-namespace",

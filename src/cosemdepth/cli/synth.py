@@ -111,6 +111,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help=f"JPEG quality (default {d.jpeg_quality}, 4:4:4 chroma; photo-consistency suffers below about 95)",
     )
     parser.add_argument(
+        "--distortion",
+        default=d.distortion,
+        metavar="LENS",
+        help="render through a distorting lens with the same intrinsics: radtan:k1,k2,p1,p2[,k3] (OpenCV/ROS "
+        "plumb_bob) or equidistant:k1,k2,k3,k4 (fisheye); every pixel's ray exactly, ground truth in the distorted "
+        "pixels; the calibration files go to DIR/calibration/ (default: the pinhole)",
+    )
+    parser.add_argument(
         "--camera-mount",
         default=d.camera_mount,
         metavar="SPEC",
@@ -167,6 +175,7 @@ def run(args: argparse.Namespace) -> int:
         jpeg_quality=args.jpeg_quality,
         motion=args.motion,
         frame_step=args.frame_step,
+        distortion=args.distortion,
         camera_mount=args.camera_mount,
         export=() if args.export is None else parse_export(args.export),
         time_offset=args.time_offset,

@@ -33,12 +33,15 @@ import torch
 from ..data.midair.splits import GT_PER_ROW, relative_motions
 from ..errors import ConfigError
 from ..inference.fast_model import reference_model
+from ..models.model import SceneModel
 from ..models.outputs import StreamState
+from ..models.protocol import StreamingModel
 from ..synthair.climate import get_climate
 from ..synthair.render import render_frames
 from ..synthair.world import get_world
 from ..synthair.writer import SynthConfig, plan_flights
 from .onnx import state_components
+from .provenance import check_model, read_provenance
 
 
 def synthetic_sequence(batch: int, frames: int, height: int, width: int, seed: int = 0):
@@ -288,7 +291,7 @@ class OnnxComparison:
         return "\n".join(rows)
 
 
-def noise_model(model):
+def noise_model(model: SceneModel) -> SceneModel:
     """A copy of ``model`` (reference modules, float32) that computes the same step with another order of the
     floating-point operations: its weights channels-last (oneDNN then takes its NHWC convolution kernels, which block
     and sum the products differently; :func:`compare_onnx` feeds it channels-last inputs and state) and DINL's two
@@ -319,7 +322,7 @@ def run_onnx_stream(session, inputs: dict[str, np.ndarray], state: list[np.ndarr
 
 
 def compare_onnx(
-    model,
+    model: StreamingModel,
     path: str | Path,
     frames: int = CHECK_FRAMES,
     reset_at: int | None = None,
@@ -331,11 +334,13 @@ def compare_onnx(
     (:func:`flight_sequence`, or ``inputs = (rgb, rot, trans, intrinsics)``) through ONNX Runtime and, step by step on
     the same inputs and incoming state, through ``model.step`` (its modules, float32: a
     :class:`~cosemdepth.inference.FastModel`'s model) and through :func:`noise_model`; returns an
-    :class:`OnnxComparison` (see the module docstring)."""
+    :class:`OnnxComparison` (see the module docstring). A graph that was not exported from ``model`` (its recorded
+    provenance, :mod:`cosemdepth.export.provenance`) is refused with a :class:`ConfigError`."""
     try:
         import onnxruntime as ort  # deferred: an optional dependency (cosemdepth[export])
     except ImportError as e:  # pragma: no cover - optional dependency
         raise ConfigError("the ONNX check needs onnxruntime (pip install 'cosemdepth[export]')") from e
+    check_model(read_provenance(path), model, path)
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     shape = sess.get_inputs()[0].shape
     b, _, h, w = (d if isinstance(d, int) else 1 for d in shape)

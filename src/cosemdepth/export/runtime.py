@@ -9,14 +9,19 @@ state fed back as the graph's ``state_*`` inputs (zeros when ``state`` is None).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Iterator, Optional, Sequence
 
 import numpy as np
 import torch
 
 from ..errors import ConfigError
+from ..models.config import ModelConfig
+from ..models.infer import infer_sequence
+from ..models.model import SceneModel
 from ..models.outputs import StepOutput, StreamState
+from ..operating_point import OperatingPoint
 from .onnx import state_components
+from .provenance import PRECISION, check_model, read_provenance
 
 
 def _session_options(threads: Optional[int], profile_prefix: Optional[str]):
@@ -41,6 +46,13 @@ class OnnxStep:
             ``(name, options)`` pair as ``InferenceSession`` takes them.
         threads: intra-op threads (default: ONNX Runtime's choice).
         profile_prefix: write ONNX Runtime's per-node profile (JSON) with this file prefix (:meth:`end_profiling`).
+        model: the PyTorch model the graph must have been exported from (:meth:`check_model`), if given.
+        provenance: False: run the graph whatever its metadata records (timing an older export side by side,
+            ``benchmarks/infer_vs_original.py``); :attr:`provenance` and :attr:`precision` are then None.
+
+    A graph without the provenance an export records, or changed since, is refused
+    (:func:`~cosemdepth.export.provenance.read_provenance`); :attr:`provenance` holds it, :attr:`precision` is
+    ``fp32`` or ``int8``.
     """
 
     def __init__(
@@ -49,12 +61,18 @@ class OnnxStep:
         providers: Optional[Sequence] = None,
         threads: Optional[int] = None,
         profile_prefix: Optional[str] = None,
+        model=None,
+        provenance: bool = True,
     ):
         try:
             import onnxruntime as ort  # deferred: an optional dependency (cosemdepth[export])
         except ImportError:  # pragma: no cover - optional dependency
             raise ConfigError("running an ONNX graph needs onnxruntime (pip install 'cosemdepth[export]')") from None
         self.path = Path(path)
+        self.provenance = read_provenance(self.path) if provenance or model is not None else None
+        self.precision = None if self.provenance is None else self.provenance[PRECISION]
+        if model is not None:
+            self.check_model(model)
         try:
             self.session = ort.InferenceSession(
                 str(self.path),
@@ -72,6 +90,14 @@ class OnnxStep:
         self.shape = tuple(d if isinstance(d, int) else None for d in shape)  # [B, 3, H, W]; None: dynamic axis
         self._state_shapes = [tuple(i.shape) for i in ins if i.name.startswith("state_")]
         self.components = state_components(self.state_inputs)
+
+    def check_model(self, model, model_name: str = "the model") -> None:
+        """Refuse, in one line naming the file and what differs, a graph not exported from ``model`` (its
+        architecture, config and weights; :func:`~cosemdepth.export.provenance.check_model`)."""
+        if self.provenance is None:  # opened without it: a model's graph must have it all the same
+            self.provenance = read_provenance(self.path)
+            self.precision = self.provenance[PRECISION]
+        check_model(self.provenance, model, self.path, model_name)
 
     @property
     def providers(self) -> list[str]:
@@ -118,7 +144,8 @@ class OnnxStep:
         reset: Optional[torch.Tensor] = None,
         state: Optional[StreamState] = None,
     ):
-        """One frame per sample, shapes as :meth:`SceneModel.step`; returns ``(StepOutput, StreamState)``."""
+        """The streaming step of :class:`~cosemdepth.models.protocol.StreamingModel` on numpy's side of the graph
+        (``decoders`` and ``guide_depth`` are :class:`OnnxModel`'s); returns ``(StepOutput, StreamState)``."""
         b = int(rgb.shape[0])
         want = tuple(s if s is not None else d for s, d in zip(self.shape, rgb.shape))
         if tuple(rgb.shape) != want:
@@ -134,7 +161,7 @@ class OnnxStep:
         res, nxt = self.run(feeds, st)
         dev = rgb.device
         heads = {k: torch.from_numpy(v).to(dev) for k, v in res.items() if not k.startswith("next_")}
-        out = StepOutput(depth=heads.get("depth"), semantic=heads.get("semantic"), heads=heads)
+        out = StepOutput(heads=heads)
         new = (
             StreamState.unflatten([torch.from_numpy(s).to(dev) for s in nxt], self.components) if nxt else StreamState()
         )
@@ -153,29 +180,60 @@ class OnnxModel:
     :meth:`SceneModel.step`.
 
     Args:
-        model: the PyTorch model the graph was exported from (its config and operating point are read).
+        model: the PyTorch model the graph was exported from (its config and operating point are read; its modules
+            are the reference path, :attr:`model`); a graph exported from another architecture, config or weights is
+            refused (:meth:`OnnxStep.check_model`).
         step: an :class:`OnnxStep` over the graph.
+        model_name: how error messages name ``model`` (e.g. ``"--model weights/x"``).
     """
 
-    def __init__(self, model, step: OnnxStep):
+    def __init__(self, model: SceneModel, step: OnnxStep, model_name: str = "the model"):
+        step.check_model(model, model_name)
         self.model = model
         self.onnx = step
         # the state components each decoder owns (the components of a graph's state are those of the model's)
         self._owned = {name: tuple(dec.state_shapes(1, 32, 32)) for name, dec in model.decoders.items()}
 
-    def __getattr__(self, name):  # config, operating_point, parameters()...: the model's
-        return getattr(self.model, name)
+    # ------------------------------------------------------------------ what the model is
+    @property
+    def config(self) -> ModelConfig:
+        return self.model.config
 
+    @property
+    def decoders(self) -> dict:
+        return self.model.decoders
+
+    @property
+    def operating_point(self) -> Optional[OperatingPoint]:
+        return self.model.operating_point
+
+    def parameters(self) -> Iterator[torch.nn.Parameter]:
+        """The model's parameters (on the CPU, where the graph runs)."""
+        return self.model.parameters()
+
+    def num_parameters(self) -> int:
+        return self.model.num_parameters()
+
+    def state_shapes(self, batch: int, height: int, width: int) -> dict[str, list[tuple[int, ...]]]:
+        return self.model.state_shapes(batch, height, width)
+
+    # ------------------------------------------------------------------ streaming
     def step(
         self,
-        rgb,
-        rot,
-        trans,
-        intrinsics,
-        reset=None,
+        rgb: torch.Tensor,
+        rot: torch.Tensor,
+        trans: torch.Tensor,
+        intrinsics: torch.Tensor,
+        reset: Optional[torch.Tensor] = None,
         state: Optional[StreamState] = None,
         decoders: Optional[Sequence[str]] = None,
-    ):
+        guide_depth: Optional[torch.Tensor] = None,
+    ) -> tuple[StepOutput, StreamState]:
+        """The streaming step of :class:`~cosemdepth.models.protocol.StreamingModel` by the graph (which computes
+        every decoder; a call asked for a subset returns the others' state as it came in; a model that reads a
+        ground-truth depth cannot be exported, so ``guide_depth`` is refused)."""
+        if guide_depth is not None:
+            raise ValueError("argument guide_depth: an exported graph takes no ground-truth depth")
         out, new = self.onnx.step(rgb, rot, trans, intrinsics, reset, state)
         if decoders is None or state is None or not state.flatten():
             return out, new
@@ -184,6 +242,21 @@ class OnnxModel:
             k: (state.components[k] if k in keep and k in state.components else v) for k, v in new.components.items()
         }
         return out, StreamState(**comps)
+
+    @torch.no_grad()
+    def infer(
+        self,
+        frames,
+        motions,
+        intrinsics,
+        reset: Optional[torch.Tensor] = None,
+        guide_depth: Optional[torch.Tensor] = None,
+    ) -> StepOutput:
+        """A whole sequence, :meth:`StreamingModel.infer <cosemdepth.models.protocol.StreamingModel.infer>`: the
+        graph in a loop."""
+        return infer_sequence(
+            self.step, frames, motions, intrinsics, reset, guide_depth, device=torch.device("cpu"), dtype=torch.float32
+        )
 
 
 __all__ = ["OnnxModel", "OnnxStep"]

@@ -14,8 +14,7 @@ from ..inference.policy import EVERY_FRAME
 from ..output_safety.staging import OutputFiles
 from ..streaming.sources.dataset import DatasetOptions
 from .model import ModelOptions, check_run_size, load_for
-from .options import RunOptions, open_source
-from .predict import CommandResult
+from .options import CommandResult, RunOptions, open_source
 
 #: The files ``evaluate --out DIR`` writes.
 METRICS_FILES = ("metrics.json", "metrics.md")
@@ -67,6 +66,8 @@ def run_evaluate(options: EvaluateOptions) -> CommandResult:
             split=options.source.split or dataset_spec(options.source.dataset).split,
             split_dir=None if options.source.split_dir is None else str(options.source.split_dir),
         )
+        if getattr(dataset, "calibration", None):
+            result.info["dataset"]["undistortion"] = dataset.calibration
         text = result.to_markdown()
         if files is not None:
             files.add_text("metrics.json", result.to_json())
@@ -74,7 +75,8 @@ def run_evaluate(options: EvaluateOptions) -> CommandResult:
     lines = [text]
     if options.out:
         lines.append(f"wrote {Path(options.out) / 'metrics.json'} and {Path(options.out) / 'metrics.md'}")
-    return CommandResult(result.to_dict(), lines)
+    no_depth = result.depth_warning()
+    return CommandResult(result.to_dict(), lines, [f"cosemdepth evaluate: warning: {no_depth}"] if no_depth else [])
 
 
 __all__ = ["EvaluateOptions", "METRICS_FILES", "run_evaluate"]

@@ -12,10 +12,12 @@ import torch
 
 from ..checkpoints.model_io import load_model, operating_point_of
 from ..data.frames import FocalSize, as_size
+from ..defaults import DEFAULT_DEVICE
 from ..devices import resolve_device
 from ..errors import CheckpointError, ConfigError
 from ..inference.fast_model import FastModel, reference_model
 from ..models.footprint import check_size
+from ..models.protocol import StreamingModel
 from ..operating_point import OperatingPoint
 from ..output_safety.outdir import Input, model_inputs
 
@@ -23,8 +25,6 @@ from ..output_safety.outdir import Input, model_inputs
 PRECISION_DTYPES = {"fp32": "float32", "bf16": "bfloat16", "int8": "int8"}
 #: The inference backends (``--backend``): the PyTorch paths, or an exported ONNX graph run by ONNX Runtime.
 BACKENDS = ("pytorch", "onnxruntime")
-#: Where a model runs when no device is named: CUDA when available, else the CPU.
-DEFAULT_DEVICE = "auto"
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,9 @@ class ModelOptions:
             raise ConfigError(f"--threads must be a positive integer, got {self.threads!r}")
         if self.backend == "onnxruntime":
             if self.reference or self.precision != "fp32":
-                raise ConfigError("--backend onnxruntime runs the exported fp32 graph: drop --reference / --precision")
+                raise ConfigError(
+                    "--backend onnxruntime runs --onnx at the precision it was exported in: drop --reference / --precision"
+                )
             if self.onnx is None:
                 raise ConfigError(
                     "--backend onnxruntime needs --onnx FILE (a graph written by 'cosemdepth export --onnx')"
@@ -98,30 +100,27 @@ def model_operating_point(model_path) -> OperatingPoint | None:
         return None
 
 
-def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32"):
+def load(model_path, device_name: str = DEFAULT_DEVICE, fast: bool = True, precision: str = "fp32"):
     """``(model, device)``: the model at ``model_path`` on the device named ``device_name``, in eval mode: a
     :class:`~cosemdepth.inference.FastModel` in ``precision`` (``--precision``), or with ``fast`` False
-    (``--reference``) the :class:`~cosemdepth.models.SceneModel`."""
-    if precision not in PRECISION_DTYPES:
-        raise ConfigError(f"--precision must be one of {list(PRECISION_DTYPES)}, got {precision!r}")
-    if not fast and precision != "fp32":
-        raise ConfigError(f"--precision {precision} is a setting of the fast path: drop --reference (which runs fp32)")
-    device = resolve_device(device_name)
-    model = load_model(model_path, device=device, mode="reference")
-    if not fast:
-        return model, device
-    try:
-        return FastModel(model, PRECISION_DTYPES[precision]), device
-    except ValueError as e:
-        raise ConfigError(f"--precision {precision}: {e}") from None
+    (``--reference``) the :class:`~cosemdepth.models.SceneModel` (checked as :class:`ModelOptions`)."""
+    return load_for(ModelOptions(model_path, reference=not fast, precision=precision, device=device_name))
 
 
 def load_for(options: ModelOptions, frame_size: tuple[int, int] | None = None, lanes: int = 1):
-    """``(model, device)`` of ``options``: :func:`load`, or for ``backend="onnxruntime"`` the graph behind the
-    model's ``step``, checked against the input's ``frame_size`` and ``lanes`` before any frame is read."""
+    """``(model, device)`` of ``options``: the PyTorch paths (:func:`load`), or for ``backend="onnxruntime"`` the
+    graph behind the model's ``step``, checked against the input's ``frame_size`` and ``lanes`` before any frame is
+    read."""
     if options.backend == "onnxruntime":
         return _onnx_model(options, frame_size, lanes)
-    return load(options.path, options.device, fast=not options.reference, precision=options.precision)
+    device = resolve_device(options.device)
+    model = load_model(options.path, device=device, mode="reference")
+    if options.reference:
+        return model, device
+    try:
+        return FastModel(model, PRECISION_DTYPES[options.precision]), device
+    except ValueError as e:
+        raise ConfigError(f"--precision {options.precision}: {e}") from None
 
 
 def _onnx_model(options: ModelOptions, frame_size: tuple[int, int] | None, lanes: int):
@@ -134,6 +133,7 @@ def _onnx_model(options: ModelOptions, frame_size: tuple[int, int] | None, lanes
         raise ConfigError(f"--onnx {onnx}: no such file")
     model, _ = load(options.path, "cpu", fast=False)
     step = OnnxStep(onnx, threads=options.threads)
+    onnx_model = OnnxModel(model, step, model_name=f"--model {options.path}")  # refuses a graph of another model
     want = (None, 3, *frame_size) if frame_size is not None else None
     got = step.shape
     if want is not None and tuple(got[1:]) != tuple(want[1:]):
@@ -146,7 +146,7 @@ def _onnx_model(options: ModelOptions, frame_size: tuple[int, int] | None, lanes
             f"--onnx {onnx}: the graph has a fixed batch of {got[0]}; streaming needs batch 1 "
             "(and --trajectories-per-batch 1) or a graph exported with --dynamic-batch"
         )
-    return OnnxModel(model, step), torch.device("cpu")
+    return onnx_model, torch.device("cpu")
 
 
 def input_size(requested, op: OperatingPoint | None):
@@ -158,20 +158,23 @@ def input_size(requested, op: OperatingPoint | None):
     return FocalSize(op.focal)
 
 
-def warn_far_size(op: OperatingPoint | None, requested, intrinsics, what: str = "--size") -> str | None:
+def warn_far_size(
+    op: OperatingPoint | None, requested, intrinsics, what: str = "--size", default_size=None
+) -> str | None:
     """When the user's ``requested`` size puts the input's focal length (``intrinsics[0]``, at that size) more than
     :data:`~cosemdepth.operating_point.FOCAL_WARN_FACTOR` away from the model's, print one warning line on stderr
-    naming both (and return it)."""
+    naming both and ``default_size``, the size the input runs at without ``what`` (:func:`input_size`'s rule, as
+    the input's reader opens it), and return it."""
     if op is None or requested is None or intrinsics is None:
         return None
-    msg = op.size_warning(as_size(requested, what), float(intrinsics[0]), what)
+    msg = op.size_warning(as_size(requested, what), float(intrinsics[0]), what, default_size=default_size)
     if msg:
         print(msg, file=sys.stderr)
     return msg
 
 
 def check_run_size(
-    model, size: tuple[int, int] | None, device, batch: int = 1, trajectories: int | None = None
+    model: StreamingModel, size: tuple[int, int] | None, device, batch: int = 1, trajectories: int | None = None
 ) -> None:
     """The size check of a streaming run (:func:`cosemdepth.models.footprint.check_size` at the input's frame
     ``size``, ``batch`` trajectories at once: at most one lane per trajectory), before the first frame is read."""
@@ -189,7 +192,6 @@ def check_run_size(
 
 __all__ = [
     "BACKENDS",
-    "DEFAULT_DEVICE",
     "ModelOptions",
     "PRECISION_DTYPES",
     "check_run_size",

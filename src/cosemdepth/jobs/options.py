@@ -1,10 +1,12 @@
 """The options every streaming command shares (:class:`RunOptions`): the input size, the streaming policy, how many
-frames and trajectories at once, the data-loading workers, a progress bar; checked here once."""
+frames and trajectories at once, the data-loading workers, a progress bar; checked here once. Also what a command's
+library run returns (:class:`CommandResult`) and its source opened from its options (:func:`open_source`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Optional
+import sys
+from dataclasses import dataclass, field
+from typing import Any, Optional
 
 from ..data.frames import FocalSize, as_size
 from ..errors import ConfigError
@@ -59,16 +61,33 @@ class RunOptions:
         return (self.policy if self.policy is not None else (BASELINE if mb is not None else default)), mb
 
 
-def open_source(source_options, run: RunOptions, op):
+@dataclass
+class CommandResult:
+    """What a command's library run returns: its ``manifest`` (or summary), the ``lines`` it reports on stdout and
+    the ``warnings`` on stderr."""
+
+    manifest: dict[str, Any]
+    lines: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def open_source(source_options, run: RunOptions, op, *, note: bool = False):
     """The source of ``source_options`` (its table entry in :data:`cosemdepth.streaming.SOURCES`) at ``run.size``,
     or else at the model's focal length (``op``: its operating point; :func:`~cosemdepth.jobs.model.input_size`); a
-    ``--size`` far from the model's focal length gets a warning on stderr."""
+    ``--size`` far from the model's focal length gets a warning on stderr, and with ``note`` what the undistortion
+    says about the calibration it was given (e.g. scaled to the images' size) a note."""
     from ..streaming import SOURCES
     from .model import input_size, warn_far_size
 
     source = SOURCES[source_options.source].from_options(source_options, input_size(run.size, op))
-    warn_far_size(op, run.size, getattr(source, "intrinsics", None))
+    dataset = getattr(source, "dataset", None)
+    default = dataset.opened_size(input_size(None, op)) if hasattr(dataset, "opened_size") and op else None
+    warn_far_size(op, run.size, getattr(source, "intrinsics", None), default_size=default)
+    calibration_note = getattr(source, "calibration_note", None)
+    text = calibration_note() if note and callable(calibration_note) else None
+    if text:
+        print(f"cosemdepth: note: {text}", file=sys.stderr)
     return source
 
 
-__all__ = ["RunOptions", "open_source"]
+__all__ = ["CommandResult", "RunOptions", "open_source"]

@@ -17,23 +17,27 @@ from typing import Any, Optional, Sequence
 
 from tqdm.auto import tqdm
 
+from ..data.sequence import SequenceDataset
+from ..decoders.depth.task import no_depth_warning
 from ..errors import ConfigError
-from ..evaluation.classes import class_info
-from ..evaluation.evaluator import _model_config, to_json
-from ..inference.policy import Streamer, StreamPolicy, policy_info
+from ..evaluation.evaluator import to_json
+from ..inference.policy import BASELINE, Streamer, StreamPolicy, policy_info
+from ..measures.classes import class_info
 from ..models.outputs import ESTIMATED, HELD, RESET
+from ..models.protocol import StreamingModel, model_config
 from ..output_safety.atomic import atomic_write_text
 from ..output_safety.outdir import Input
 from ..output_safety.staging import StagedDir
 from ..render.visualize import DEFAULT_FPS, DEFAULT_VIDEO
 from ..streaming import pipeline
+from ..streaming.frames import Source
 from ..streaming.sinks.bag import DEFAULT_NAMESPACE, BagSink, check_namespace
 from ..streaming.sinks.files import DEFAULT_INVALID, MANIFEST, FileOptions, FilesSink
 from ..streaming.sinks.rerun import RerunSink, check_rrd_path, require_rerun
 from ..streaming.sources.dataset import DatasetSource
 from ..tasks import class_count, tasks_for
 from .model import ModelOptions, check_run_size, load_for
-from .options import RunOptions, open_source
+from .options import CommandResult, RunOptions, open_source
 
 
 @dataclass(frozen=True)
@@ -78,6 +82,19 @@ def default_policy(source_options) -> str | None:
     return getattr(source_options, "default_policy", None)
 
 
+def make_streamer(
+    model: StreamingModel, policy: StreamPolicy | str | None, min_baseline: float | None, source: Source
+) -> Streamer:
+    """The :class:`~cosemdepth.inference.policy.Streamer` of a run: ``policy`` and ``min_baseline`` as given (None:
+    the model's), raised to the source's floor ``source.min_baseline_m`` when it has one (e.g. the resolution of its
+    positions) and the policy holds frames."""
+    streamer = Streamer(model, policy, min_baseline=min_baseline)
+    floor = getattr(source, "min_baseline_m", None)
+    if floor is not None and streamer.policy.mode == BASELINE and streamer.has_depth and streamer.min_baseline < floor:
+        streamer = Streamer(model, streamer.policy, min_baseline=float(floor))
+    return streamer
+
+
 def _as_source(source):
     """A source: ``source`` itself, or a stream-mode dataset wrapped in a
     :class:`~cosemdepth.streaming.sources.dataset.DatasetSource`."""
@@ -85,17 +102,17 @@ def _as_source(source):
 
 
 def predict(
-    model,
-    source,
+    model: StreamingModel,
+    source: Source | SequenceDataset,
     out: str | Path,
     *,
     video: str | None = DEFAULT_VIDEO,
     fps: float = DEFAULT_FPS,
-    max_frames: int | None = None,
-    lanes: int = 1,
-    num_workers: int = 0,
+    max_frames: int | None = RunOptions.max_frames,
+    lanes: int = RunOptions.lanes,
+    num_workers: int = RunOptions.workers,
     overwrite: bool = False,
-    progress: bool = False,
+    progress: bool = RunOptions.progress,
     dataset_name: str | None = None,
     info: dict[str, Any] | None = None,
     depth_range: tuple[float, float] | None = None,
@@ -142,7 +159,7 @@ def predict(
         staged,
         files=files,
         run=RunOptions(max_frames=max_frames, lanes=lanes, workers=num_workers, progress=progress),
-        streamer=Streamer(model, policy, min_baseline=min_baseline),
+        streamer=make_streamer(model, policy, min_baseline, source),
         dataset_name=dataset_name,
         info=info,
         sinks=sinks,
@@ -150,8 +167,8 @@ def predict(
 
 
 def _predict(
-    model,
-    source,
+    model: StreamingModel,
+    source: Source,
     staged: StagedDir,
     *,
     files: FileOptions,
@@ -162,8 +179,13 @@ def _predict(
     sinks: Sequence,
 ) -> dict[str, Any]:
     """:func:`predict` into a checked staging folder."""
-    cfg = _model_config(model)
-    name = dataset_name or getattr(getattr(source, "dataset", None), "name", None) or ""
+    cfg = model_config(model, "predict")
+    name = (
+        dataset_name
+        or getattr(getattr(source, "dataset", None), "name", None)
+        or source.describe().get("name")
+        or getattr(source, "name", "")
+    )
     total = source.total_frames(run.max_frames) if hasattr(source, "total_frames") else None
     if total == 0:
         raise ConfigError("predict: the dataset has no frame")
@@ -225,20 +247,12 @@ _FILE_ENTRIES = (
 )
 
 
-@dataclass
-class CommandResult:
-    """What a command's library run returns: its ``manifest`` (or summary), the ``lines`` it reports on stdout and
-    the ``warnings`` on stderr."""
-
-    manifest: dict[str, Any]
-    lines: list[str] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
-
-
-def run_settings(options: PredictOptions, source) -> dict[str, Any]:
+def run_settings(options: PredictOptions, source: Source, model: StreamingModel | None = None) -> dict[str, Any]:
     """What determines predict's outputs besides the frames: ``predictions.json``'s ``run`` entry. ``input_size``
     ``[H, W]`` and ``intrinsics`` ``[fx, fy, cx, cy]`` (package convention: pixel centres at +0.5) are those the model
-    was fed; the pose settings are null for dataset splits (whose readers fix them)."""
+    was fed; the pose settings are null for dataset splits (whose readers fix them); ``precision`` is the graph's
+    own (its metadata) with ``backend="onnxruntime"``."""
+    graph = getattr(model, "onnx", None) if options.model.backend == "onnxruntime" else None
     size = source.frame_size()
     intrinsics = getattr(source, "intrinsics", None)
     own = options.source.settings() if hasattr(options.source, "settings") else {}
@@ -246,13 +260,14 @@ def run_settings(options: PredictOptions, source) -> dict[str, Any]:
         "model": str(options.model.path),
         "path": options.model.path_name,
         "onnx": None if options.model.onnx is None else str(options.model.onnx),
-        "precision": options.model.precision,
+        "precision": graph.precision if graph is not None else options.model.precision,
         "input_size": None if size is None else list(size),
         "intrinsics": None if intrinsics is None else [float(v) for v in intrinsics.tolist()],
     }
     for key in (
         "intrinsics_given",
         "hfov_deg",
+        "calibration",
         "camera_info_topic",
         "convention",
         "frame_skip",
@@ -264,6 +279,8 @@ def run_settings(options: PredictOptions, source) -> dict[str, Any]:
         "skip_unposed",
     ):
         out[key] = own.get(key)
+    calibration = getattr(options.source, "calibration", None)
+    out["calibration"] = None if calibration is None else str(calibration)
     out["jpeg_idct"] = getattr(options.source, "jpeg_idct", None)
     return out
 
@@ -279,7 +296,7 @@ def run_predict(options: PredictOptions) -> CommandResult:
     staged.check()
     if options.rerun is not None:
         check_rrd_path(options.rerun, inputs=[*inputs, Input("--out", options.out)])
-    source = open_source(options.source, options.run, options.model.operating_point())
+    source = open_source(options.source, options.run, options.model.operating_point(), note=True)
     try:
         model, device = load_for(options.model, source.frame_size(), options.run.lanes)
         check_run_size(model, source.frame_size(), device, options.run.lanes, getattr(source, "trajectories", None))
@@ -288,7 +305,7 @@ def run_predict(options: PredictOptions) -> CommandResult:
             "model": {"path": str(options.model.path)},
             "dataset": describe,
             "device": str(device),
-            "run": run_settings(options, source),
+            "run": run_settings(options, source, model),
         }
         sinks = output_sinks(options, source, model)
     except BaseException:
@@ -300,18 +317,24 @@ def run_predict(options: PredictOptions) -> CommandResult:
         staged,
         files=options.files,
         run=options.run,
-        streamer=Streamer(model, policy, min_baseline=min_baseline),
+        streamer=make_streamer(model, policy, min_baseline, source),
         dataset_name=getattr(options.source, "dataset_name", None),
         info=info,
         sinks=sinks,
     )
-    return CommandResult(manifest, *predict_report(manifest, options, source.report()))
+    return CommandResult(manifest, *predict_report(manifest, options, source_report(source)))
 
 
-def output_sinks(options: PredictOptions, source, model) -> list:
+def source_report(source: Source) -> str:
+    """What a run's summary line says about its input beyond the frames (a source's optional ``report()``)."""
+    report = getattr(source, "report", None)
+    return report() if callable(report) else ""
+
+
+def output_sinks(options: PredictOptions, source: Source, model: StreamingModel) -> list:
     """The outputs of ``predict`` besides its files: the output bag (a bag input) and the rerun recording
     (``rerun``)."""
-    cfg = _model_config(model)
+    cfg = model_config(model, "predict")
     classes = class_count(cfg)
     names, palette = class_info(classes, "flight") if classes else ((), None)
     sinks: list = []
@@ -346,11 +369,16 @@ def predict_report(manifest: dict[str, Any], options: PredictOptions, source_rep
     warnings = []
     statuses = manifest.get("frames_by_status")
     if statuses is not None:
-        lines.append(
-            depth_report(statuses, manifest["policy"], [f.get("valid_fraction", 0.0) for f in manifest["frames"]])
+        fractions = [f.get("valid_fraction", 0.0) for f in manifest["frames"]]
+        lines.append(depth_report(statuses, manifest["policy"], fractions))
+        no_depth = no_depth_warning(
+            sum(statuses.values()),
+            statuses.get(ESTIMATED, 0),
+            statuses.get(HELD, 0),
+            sum(fractions) / len(fractions) if fractions else None,
         )
-        if not statuses.get(ESTIMATED) and not statuses.get(HELD):
-            warnings.append(f"cosemdepth predict: warning: no depth was produced: {no_depth_reason(statuses)}")
+        if no_depth:
+            warnings.append(f"cosemdepth predict: warning: {no_depth}")
     return lines, warnings
 
 
@@ -371,29 +399,15 @@ def depth_report(statuses: dict, policy: dict, valid_fractions) -> str:
     return f"depth (policy {policy['mode']}): " + "; ".join(parts)
 
 
-def no_depth_reason(statuses: dict) -> str:
-    """Why no frame has depth (every frame a reset)."""
-    n = int(statuses.get(RESET, 0))
-    if n == 1:
-        return (
-            "the input has 1 frame: the first frame of a flight is a reset, and depth needs the camera to move "
-            "between frames"
-        )
-    return (
-        f"all {n} frames are resets (the first frame of each trajectory, and the frames until the camera had "
-        "moved the minimum baseline from it)"
-    )
-
-
 __all__ = [
-    "CommandResult",
     "PredictOptions",
     "default_policy",
     "depth_report",
-    "no_depth_reason",
+    "make_streamer",
     "output_sinks",
     "predict",
     "predict_report",
     "run_predict",
     "run_settings",
+    "source_report",
 ]

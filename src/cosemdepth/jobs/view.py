@@ -10,16 +10,16 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from ..evaluation.classes import class_info
-from ..evaluation.evaluator import _model_config
-from ..inference.policy import Streamer, policy_info
+from ..inference.policy import policy_info
+from ..measures.classes import class_info
+from ..models.protocol import model_config
 from ..streaming import pipeline
 from ..streaming.sinks.rerun import RerunSink, check_rrd_path, require_rerun
 from ..streaming.sinks.status import StatusSink
 from ..tasks import class_count
 from .model import ModelOptions, check_run_size, load_for
-from .options import RunOptions, open_source
-from .predict import CommandResult, default_policy, depth_report
+from .options import CommandResult, RunOptions, open_source
+from .predict import default_policy, depth_report, make_streamer, source_report
 
 
 @dataclass(frozen=True)
@@ -42,11 +42,11 @@ def run_view(options: ViewOptions) -> CommandResult:
     options.model.apply_threads()
     policy, min_baseline = options.run.stream_policy(default_policy(options.source))
     check_rrd_path(options.rrd, option="--rrd", inputs=[*options.model.inputs(), *options.source.inputs()])
-    source = open_source(options.source, options.run, options.model.operating_point())
+    source = open_source(options.source, options.run, options.model.operating_point(), note=True)
     try:
         model, device = load_for(options.model, source.frame_size(), options.run.lanes)
         check_run_size(model, source.frame_size(), device, options.run.lanes, getattr(source, "trajectories", None))
-        classes = class_count(_model_config(model))
+        classes = class_count(model_config(model, "view"))
         names, palette = class_info(classes, "flight") if classes else ((), None)
         recording = RerunSink(
             options.rrd,
@@ -58,7 +58,7 @@ def run_view(options: ViewOptions) -> CommandResult:
     except BaseException:
         source.close()
         raise
-    streamer = Streamer(model, policy, min_baseline=min_baseline)
+    streamer = make_streamer(model, policy, min_baseline, source)
     total = source.total_frames(options.run.max_frames) if hasattr(source, "total_frames") else None
     bar = tqdm(total=total, unit="frame", desc="view", disable=not options.run.progress, leave=False)
     try:
@@ -76,7 +76,7 @@ def run_view(options: ViewOptions) -> CommandResult:
     rrd = options.rrd
     lines = [
         f"wrote a rerun recording of {summary['rerun']['frames']} frames to {rrd}; open it with: rerun {rrd}"
-        + source.report()
+        + source_report(source)
     ]
     if summary["frames_by_status"]:
         lines.append(depth_report(summary["frames_by_status"], policy_info(streamer), summary["valid_fractions"]))

@@ -1,4 +1,5 @@
-"""Co-SemDepth and its single-task siblings M4Depth and M4Semantic: one encoder and one or two decoders.
+"""The model of every architecture (Co-SemDepth, its single-task siblings M4Depth and M4Semantic, Co-SemDepth-T,
+any registered one): the shared encoder and the registered decoders the architecture names.
 
 Two ways to run a model:
 
@@ -6,7 +7,8 @@ Two ways to run a model:
   per-level outputs (frame 0, or any frame flagged in ``reset``, takes the depth decoder's reset branch; with
   ``first_frame`` the stateless decoders skip the frames before it, which the training loss does not read);
 * streaming: :meth:`SceneModel.step` on one frame ``[B, 3, H, W]`` with an explicit :class:`StreamState` in and a new
-  one out, and a per-sample reset mask.
+  one out, and a per-sample reset mask (the contract of :class:`~cosemdepth.models.protocol.StreamingModel`, which
+  every streaming path implements).
 
 Both run the same per-frame decoder code, so they agree exactly, and both always run the modules. The fast inference
 path is an object of its own built from a model (:class:`cosemdepth.inference.FastModel`, what
@@ -20,6 +22,7 @@ from typing import Optional, Sequence
 import torch
 import torch.nn as nn
 
+from ..operating_point import OperatingPoint
 from ..ops.resample import resize_nn2
 from .config import ModelConfig
 from .encoder import Encoder
@@ -31,12 +34,13 @@ from .registry import DECODERS
 
 class SceneModel(nn.Module):
     """Shared encoder + the decoders of ``config.arch`` (see :mod:`cosemdepth.models.registry`); decoder ``name`` is
-    the submodule ``<name>_decoder`` (``depth_decoder``, ``semantic_decoder``; None when the architecture lacks it)."""
+    the submodule ``<name>_decoder`` (``depth_decoder``, ``semantic_decoder``; None when the architecture lacks it).
+    ``SceneModel(arch="m4depth")``: the config from keywords."""
 
     def __init__(self, config: ModelConfig | None = None, **overrides):
         super().__init__()
         if config is None:
-            config = ModelConfig(arch=self.default_arch, **overrides)
+            config = ModelConfig(**overrides)
         elif overrides:
             config = ModelConfig.from_dict({**config.to_dict(), **overrides})
         self.config = config
@@ -46,6 +50,9 @@ class SceneModel(nn.Module):
         self.set_numerics(pscv_half=config.pscv_dtype == "float16")
 
     default_arch = "cosemdepth"
+    #: The model folder's operating point (the focal length and motion it was trained with; set by ``load_model``),
+    #: None for a model built in memory.
+    operating_point: Optional[OperatingPoint] = None
 
     @property
     def decoders(self) -> dict[str, PyramidDecoder]:
@@ -136,8 +143,7 @@ class SceneModel(nn.Module):
                     ]
                     for key, v in dec.level_maps(levels).items()
                 }
-            for key, v in maps.items():
-                out.put(key, v)
+            out.levels.update(maps)
         return out
 
     # ------------------------------------------------------------------ streaming
@@ -152,32 +158,13 @@ class SceneModel(nn.Module):
         decoders: Optional[Sequence[str]] = None,
         guide_depth: Optional[torch.Tensor] = None,
     ) -> tuple[StepOutput, StreamState]:
-        """Process one frame per sample, streaming.
-
-        Args:
-            rgb: ``[B, 3, H, W]`` in [0, 1].
-            rot: ``[B, 4]`` quaternion (w, x, y, z); trans: ``[B, 3]`` metres; relative motion previous -> current in
-                camera axes, ``X_prev = R X_curr + t`` (ignored for samples that reset).
-            intrinsics: ``[B, 4]`` = (fx, fy, cx, cy) in pixels of the input size.
-            reset: ``[B]`` bool, True where a sample starts a new trajectory (None: no reset).
-            state: the state returned by the previous call, or None for a fresh start (every sample resets).
-            decoders: run only these decoders (names of :attr:`decoders`, e.g. ``("semantic",)``); the state of the
-                others passes through unchanged (default: all), and so does that of a temporal semantic decoder when
-                the depth decoder does not run (its state is of the frame the depth state holds; design 6.3).
-            guide_depth: ``[B, 1, H, W]`` the frame's ground-truth depth (metres), for a model whose semantic decoder
-                warps with it (``config.needs_depth_input``); refused otherwise.
-        Returns:
-            ``(out, new_state)``; ``out.depth [B,1,H,W]`` metres and ``out.semantic [B,N,H,W]`` probabilities at the
-            input size (nearest upsampling of the finest level), ``out.levels`` the per-level maps; ``out.valid``
-            ``[B,1,H,W]`` the depth pixels that are estimates and ``out.status`` per sample ``"reset"`` or
-            ``"estimated"`` (every frame is estimated from the previous one; the baseline-aware policy of
-            :class:`~cosemdepth.inference.Streamer` also holds frames).
-
-        Always the modules, in training and in eval mode (the fast path: :class:`cosemdepth.inference.FastModel`).
-        """
+        """The streaming step of :class:`~cosemdepth.models.protocol.StreamingModel` (its arguments and outputs), on
+        the model's modules, in training and in eval mode (the fast path: :class:`cosemdepth.inference.FastModel`).
+        Every frame is estimated from the previous one (``out.status`` is ``"reset"`` or ``"estimated"``; the
+        baseline-aware policy of :class:`~cosemdepth.inference.Streamer` also holds frames)."""
         self.check_step(rgb, rot, trans, intrinsics, reset, decoders, guide_depth)
         if decoders is not None and not decoders:  # nothing to run: the state passes through
-            return StepOutput(None, None), state if state is not None else StreamState()
+            return StepOutput(), state if state is not None else StreamState()
         size = tuple(rgb.shape[-2:])
         feats = self.encoder(rgb)
         return decode_step(
@@ -235,19 +222,8 @@ class SceneModel(nn.Module):
         reset: Optional[torch.Tensor] = None,
         guide_depth: Optional[torch.Tensor] = None,
     ) -> StepOutput:
-        """Stream a whole sequence and return the full-resolution outputs of every frame.
-
-        Args:
-            frames: ``[T, 3, H, W]`` or ``[B, T, 3, H, W]`` in [0, 1] (numpy arrays accepted).
-            motions: ``(rot [.., T, 4], trans [.., T, 3])`` or one ``[.., T, 7]`` tensor ``(qw qx qy qz tx ty tz)``;
-                the motion of frame 0 is ignored.
-            intrinsics: ``[4]`` or ``[B, 4]`` (fx, fy, cx, cy) at the frame size.
-            reset: optional ``[T]`` / ``[B, T]`` bool; frame 0 always resets.
-            guide_depth: ``[T, 1, H, W]`` / ``[B, T, 1, H, W]`` ground-truth depth (``config.needs_depth_input``).
-        Returns:
-            :class:`StepOutput` whose ``depth`` is ``[.., T, 1, H, W]`` and ``semantic`` ``[.., T, N, H, W]`` (and
-            ``heads`` every decoder's output), without per-level maps.
-        """
+        """A whole sequence streamed with :meth:`step`: :meth:`StreamingModel.infer
+        <cosemdepth.models.protocol.StreamingModel.infer>`."""
         p = next(self.parameters())
         return infer_sequence(
             self.step, frames, motions, intrinsics, reset, guide_depth, device=p.device, dtype=p.dtype
@@ -257,41 +233,13 @@ class SceneModel(nn.Module):
         return sum(p.numel() for p in self.parameters())
 
 
-class CoSemDepth(SceneModel):
-    """Joint depth + semantic model (AlaaEldin & Odone)."""
-
-    default_arch = "cosemdepth"
-
-
-class M4Depth(SceneModel):
-    """Depth-only model (Fonder et al.): encoder + depth decoder."""
-
-    default_arch = "m4depth"
-
-
-class M4Semantic(SceneModel):
-    """Semantic-only model: encoder + semantic decoder."""
-
-    default_arch = "m4semantic"
-
-
-class CoSemDepthT(SceneModel):
-    """Co-SemDepth whose semantic decoder reads the previous frame's labels, warped with its own depth (design 6.3)."""
-
-    default_arch = "cosemdepth-t"
-
-
-#: Architecture name -> model class.
-MODELS = {"cosemdepth": CoSemDepth, "m4depth": M4Depth, "m4semantic": M4Semantic, "cosemdepth-t": CoSemDepthT}
-
-
 def build_model(config: ModelConfig | None = None, **overrides) -> SceneModel:
     """Build a freshly initialised model; ``build_model(arch="m4depth", levels=6)`` or from a :class:`ModelConfig`."""
     if config is None:
         config = ModelConfig(**overrides)
     elif overrides:
         config = ModelConfig.from_dict({**config.to_dict(), **overrides})
-    return MODELS.get(config.arch, SceneModel)(config)
+    return SceneModel(config)
 
 
 def _skipped_frames_nan(x: torch.Tensor, n: int) -> torch.Tensor:
@@ -321,3 +269,29 @@ def _check_inputs(rgb, rot, trans, intrinsics, reset, sequence: bool) -> None:
         raise ValueError(
             f"argument reset must be a bool tensor of shape [{dims}], got {reset.dtype} {list(reset.shape)}"
         )
+    if not torch.jit.is_tracing():  # values: only of real inputs (an export traces placeholders)
+        _check_motion(rot, trans, reset, sequence)
+
+
+def _check_motion(rot: torch.Tensor, trans: torch.Tensor, reset: Optional[torch.Tensor], sequence: bool) -> None:
+    """The motion of every sample that does not reset (a reset ignores it; frame 0 of a sequence always resets) is
+    a rotation quaternion of finite, non-zero norm and a finite translation: else a ValueError naming the sample."""
+    used = torch.ones(rot.shape[:-1], dtype=torch.bool, device=rot.device)
+    if reset is not None:
+        used &= ~reset.to(rot.device)
+    if sequence:
+        used[:, 0] = False
+    norm2 = rot.detach().float().pow(2).sum(-1)
+    bad_rot = used & ~(torch.isfinite(norm2) & (norm2 > 0))
+    bad_trans = used & ~torch.isfinite(trans.detach().float()).all(-1)
+    if not bool((bad_rot | bad_trans).any()):
+        return
+    for name, bad, t, what in (
+        ("rot", bad_rot, rot, "not a rotation quaternion (w, x, y, z): zero or non-finite"),
+        ("trans", bad_trans, trans, "not a finite translation"),
+    ):
+        if bool(bad.any()):
+            idx = [int(i) for i in bad.nonzero()[0].tolist()]
+            where = f"sample {idx[0]}" + (f", frame {idx[1]}" if sequence else "")
+            values = [round(float(v), 6) for v in t[tuple(idx)].tolist()]
+            raise ValueError(f"argument {name}: {where} is {what}: {values}")

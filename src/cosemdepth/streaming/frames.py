@@ -41,6 +41,8 @@ class FrameBatch:
         meta: ``[B]`` per-frame entries for the sinks (predict's frame record copies them).
         pose: ``[B, 4, 4]`` camera-to-world (camera optical axes) when the source knows it, else None.
         depth_ok: ``[B]`` bool, False where the source cannot give a motion usable for depth (None: all True).
+        source_valid: ``[B, 1, H, W]`` bool, the pixels of an undistorted image that have a source pixel (a
+            calibrated lens, :class:`cosemdepth.camera.Undistorter`); no depth is valid elsewhere (None: all).
     """
 
     rgb: Tensor
@@ -58,6 +60,7 @@ class FrameBatch:
     meta: list[dict] = field(default_factory=list)
     pose: Optional[Tensor] = None
     depth_ok: Optional[Tensor] = None
+    source_valid: Optional[Tensor] = None
 
     def __post_init__(self) -> None:
         n = len(self.index)

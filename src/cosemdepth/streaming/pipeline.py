@@ -1,7 +1,9 @@
 """One streaming run: a source's frames through a :class:`~cosemdepth.inference.policy.Streamer` into sinks.
 
 :func:`run` opens the sinks, iterates ``source.batches(...)``, calls ``streamer.step`` with the lanes' state (sliced
-and reordered when a lane ends), stops on a non-finite output (naming the frame), hands each
+and reordered when a lane ends; a frame whose motion the source says is unusable for depth, ``depth_ok`` False, is
+streamed as a reset: no depth, status reset, a new reference), stops on a non-finite output (naming the frame), hands
+each
 :class:`~cosemdepth.streaming.frames.StreamBatch` to every sink, closes them and returns their merged summaries. On
 any exception every opened sink is aborted (nothing half-written) and the exception propagates.
 """
@@ -15,7 +17,9 @@ from typing import Any, Callable, Iterator, Optional, Sequence
 import torch
 
 from ..errors import ConfigError, NonFiniteOutputError
-from .frames import FrameBatch, Sink, StreamBatch, with_outputs
+from ..inference.policy import Streamer
+from ..models.protocol import StreamingModel, model_device, model_dtype
+from .frames import FrameBatch, Sink, Source, StreamBatch, with_outputs
 
 
 def _slice_state(state, rows: list[int]):
@@ -28,21 +32,6 @@ def _slice_state(state, rows: list[int]):
         return state
     idx = torch.tensor(rows, device=state.flatten()[0].device)
     return type(state)(**{k: tuple(t.index_select(0, idx) for t in v) for k, v in state.components.items()})
-
-
-def model_device(model) -> torch.device:
-    """The device of ``model``'s parameters (CPU for a model without any)."""
-    for p in model.parameters():
-        return p.device
-    return torch.device("cpu")
-
-
-def model_dtype(model) -> torch.dtype:
-    """The dtype of ``model``'s first floating-point parameter (float32 without any)."""
-    for p in model.parameters():
-        if p.is_floating_point():
-            return p.dtype
-    return torch.float32
 
 
 def _sync(device: torch.device) -> None:
@@ -69,43 +58,15 @@ def check_finite_outputs(heads: dict, frames: FrameBatch) -> None:
             )
 
 
-class GroundTruthDepthGuide:
-    """A model whose semantic decoder warps with the ground-truth depth (``semantic_time="gt"``), seen through
-    ``step`` without that argument: :func:`run` sets :attr:`depth` to each frame's ground truth before the step, so
-    that a :class:`~cosemdepth.inference.Streamer` (whose ``step`` has no such input) can drive it."""
-
-    def __init__(self, model) -> None:
-        self.model = model
-        self.depth: torch.Tensor | None = None
-
-    def step(self, *args, **kwargs):
-        return self.model.step(*args, guide_depth=self.depth, **kwargs)
-
-    def __getattr__(self, name):  # parameters(), config, decoders...: the model's
-        return getattr(self.model, name)
-
-
-def needs_depth_input(model) -> bool:
-    """Whether ``model`` (or the model a streamer drives) reads the ground-truth depth of every frame."""
-    inner = getattr(model, "model", model)
-    cfg = getattr(inner, "config", None)
-    return bool(getattr(cfg, "needs_depth_input", False))
-
-
-def _guided(streamer):
-    """``(streamer, guide)``: a streamer over a :class:`GroundTruthDepthGuide` of its model when the model reads the
-    ground-truth depth, else ``(streamer, None)``."""
-    if not needs_depth_input(streamer):
-        return streamer, None
-    from ..inference.policy import Streamer
-
-    guide = GroundTruthDepthGuide(streamer.model)
-    return Streamer(guide, streamer.policy, min_baseline=streamer.min_baseline), guide
+def needs_depth_input(model: StreamingModel) -> bool:
+    """Whether ``model`` (or the model a streamer drives) reads the ground-truth depth of every frame (its semantic
+    decoder warps with it: ``semantic_time="gt"``)."""
+    return bool(getattr(getattr(model, "config", None), "needs_depth_input", False))
 
 
 def steps(
-    source,
-    streamer,
+    source: Source,
+    streamer: Streamer,
     *,
     lanes: int = 1,
     max_frames: Optional[int] = None,
@@ -113,10 +74,9 @@ def steps(
 ) -> Iterator[StreamBatch]:
     """The streaming steps of :func:`run` as an iterator of :class:`~cosemdepth.streaming.frames.StreamBatch`
     (without sinks; the source is not closed)."""
-    model = getattr(streamer, "model", streamer)
-    device = model_device(model)
-    dtype = model_dtype(model)
-    streamer, guide = _guided(streamer)
+    device = model_device(streamer)
+    dtype = model_dtype(streamer)
+    guided = needs_depth_input(streamer)
     state = None
     prev_lanes: tuple[int, ...] = ()
     with torch.inference_mode():
@@ -130,16 +90,20 @@ def steps(
             trans = frames.trans.to(device=device, dtype=dtype)
             intr = frames.intrinsics.to(device=device, dtype=dtype)
             gt = {k: v.to(device) for k, v in frames.gt.items()}
-            if guide is not None:
+            extra = {}
+            if guided:
                 if "depth" not in gt:
                     raise ConfigError(
                         "the model's semantic decoder warps the previous labels with the ground-truth "
                         "depth (semantic_time 'gt'), and this dataset has no depth"
                     )
-                guide.depth = gt["depth"].to(dtype=dtype)
+                extra["guide_depth"] = gt["depth"].to(dtype=dtype)
             _sync(device)
             t0 = time.perf_counter()
-            out, state = streamer.step(rgb, rot, trans, intr, frames.reset.to(device), state)
+            reset = frames.reset if frames.depth_ok is None else frames.reset | ~frames.depth_ok.bool()
+            if frames.source_valid is not None:  # an undistorted image: no depth where it has no source pixel
+                extra["source_valid"] = frames.source_valid.to(device)
+            out, state = streamer.step(rgb, rot, trans, intr, reset.to(device), state, **extra)
             _sync(device)
             seconds = time.perf_counter() - t0
             heads = dict(getattr(out, "heads", None) or {})
@@ -153,12 +117,13 @@ def steps(
                 seconds=seconds,
             )
             batch.rgb, batch.rot, batch.trans, batch.intrinsics, batch.gt = rgb, rot, trans, intr, gt
+            batch.reset = reset
             yield batch
 
 
 def run(
-    source,
-    streamer,
+    source: Source,
+    streamer: Streamer,
     sinks: Sequence[Sink] = (),
     *,
     lanes: int = 1,
@@ -171,7 +136,8 @@ def run(
 
     Args:
         source: a :class:`~cosemdepth.streaming.frames.Source` (closed at the end).
-        streamer: a :class:`~cosemdepth.inference.policy.Streamer` (or anything with its ``step`` and ``model``).
+        streamer: a :class:`~cosemdepth.inference.policy.Streamer` (its ``step``, with ``guide_depth`` for a model
+            that reads the ground-truth depth, and its ``parameters()``: their device and dtype are the frames').
         sinks: :class:`~cosemdepth.streaming.frames.Sink` objects, fed in this order.
         lanes: trajectories streamed side by side (the batch size); max_frames: at most this many frames;
             num_workers: data-loading worker processes of the source.
@@ -203,10 +169,7 @@ def run(
 
 
 __all__ = [
-    "GroundTruthDepthGuide",
     "check_finite_outputs",
-    "model_device",
-    "model_dtype",
     "needs_depth_input",
     "run",
     "steps",

@@ -34,9 +34,12 @@ import torch
 from PIL import Image
 from tqdm import tqdm
 
+from ..camera.calibration import Calibration
+from ..camera.distortion import invert_profile
+from ..camera.writers import calibration_files
 from ..data.midair import format as fmt
 from ..data.midair.splits import generate_splits
-from ..errors import ConfigError
+from ..errors import ConfigError, DatasetError
 from ..geometry.mount import CameraMount, parse_mount
 from ..models.config import MIDAIR_IMAGE_SIZE
 from ..output_safety.atomic import atomic_path, atomic_write_bytes, atomic_write_text
@@ -70,6 +73,31 @@ MAX_FRAMES = 1_000_000
 MIN_SIZE = 16
 #: Camera frames per flight when neither ``frames`` nor a motion profile says otherwise.
 DEFAULT_FRAMES = 200
+#: ``--distortion`` lens models and their coefficient counts (radtan: k1, k2, p1, p2 and optionally k3..k6).
+DISTORTIONS = {"radtan": (4, 8), "equidistant": (4, 4)}
+#: Folder of the calibration files written beside a flight rendered through a lens.
+CALIBRATION_DIR = "calibration"
+
+
+def parse_distortion(spec: str) -> tuple[str, tuple[float, ...]]:
+    """``"radtan:k1,k2,p1,p2[,k3[,k4,k5,k6]]"`` or ``"equidistant:k1,k2,k3,k4"`` -> ``(model, coefficients)``; a
+    ConfigError naming ``--distortion`` otherwise."""
+    model, _, rest = str(spec).partition(":")
+    model = model.strip()
+    if model not in DISTORTIONS:
+        raise ConfigError(
+            f"--distortion {spec!r}: unknown lens model {model!r}; expected radtan:k1,k2,p1,p2[,k3] or "
+            "equidistant:k1,k2,k3,k4"
+        )
+    try:
+        coeffs = tuple(float(v) for v in rest.split(",")) if rest.strip() else ()
+    except ValueError:
+        raise ConfigError(f"--distortion {spec!r}: the coefficients must be numbers separated by commas") from None
+    lo, hi = DISTORTIONS[model]
+    if not lo <= len(coeffs) <= hi or not all(np.isfinite(coeffs)):
+        want = f"{lo}" if lo == hi else f"{lo} to {hi}"
+        raise ConfigError(f"--distortion {spec!r}: {model} takes {want} finite coefficients, got {len(coeffs)}")
+    return model, coeffs
 
 
 @dataclass(frozen=True)
@@ -91,6 +119,7 @@ class SynthConfig:
     jpeg_quality: int = 98
     motion: str | None = None
     frame_step: int = fmt.FRAME_SKIP
+    distortion: str | None = None
     camera_mount: str = "forward"
     export: tuple[str, ...] = ()
     time_offset: float = 2.0
@@ -110,6 +139,40 @@ class SynthConfig:
     @cached_property
     def motion_profile(self) -> MotionProfile | None:
         return None if self.motion is None else parse_motion(self.motion)
+
+    @cached_property
+    def lens(self) -> Calibration | None:
+        """The camera with ``distortion`` (``--distortion``): the 90-degree intrinsics at ``size`` and the lens
+        model; None for the pinhole. A ConfigError when the lens folds over the image or sees 90 degrees or more
+        off-axis at its corners (every SynthAir ray must have a z-depth)."""
+        if self.distortion is None:
+            return None
+        model, coeffs = parse_distortion(self.distortion)
+        s = self.size
+        try:
+            lens = Calibration(
+                (s, s),
+                s / 2,
+                s / 2,
+                s / 2,
+                s / 2,
+                model=model,
+                coefficients=coeffs,
+                source="--distortion",
+                layout="synthair",
+            ).check()
+        except DatasetError as e:
+            raise ConfigError(str(e)) from None
+        if model == "equidistant":
+            theta, _ = lens.limit()
+            corner = torch.tensor(lens.corner_radius(), dtype=torch.float64)
+            reach = float(invert_profile(model, corner, coeffs, theta))
+            if not reach < np.radians(89.0):
+                raise ConfigError(
+                    f"--distortion {self.distortion!r}: the image corners look {np.degrees(reach):.1f} degrees "
+                    "off-axis; SynthAir renders rays up to 89 degrees (z-depth in front of the camera)"
+                )
+        return lens
 
     @cached_property
     def mount(self) -> CameraMount:
@@ -155,6 +218,7 @@ class SynthConfig:
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError(f"--jpeg-quality must be in [1, 100], got {self.jpeg_quality!r}")
         check_workers(self.workers, minimum=1)
+        _ = self.lens  # checks --distortion
         parse_mount(self.camera_mount)  # a ConfigError naming --camera-mount
         if self.export:
             plan = self.export_plan
@@ -193,6 +257,12 @@ class SynthConfig:
             "groundtruth_rate_hz": fmt.GROUNDTRUTH_RATE,
             "depth_encoding": DEPTH_ENCODING,
         }
+        if self.lens is not None:
+            meta["camera"]["distortion"] = {
+                "model": self.lens.model,
+                "coefficients": list(self.lens.coefficients),
+                "calibration": {name: f"{CALIBRATION_DIR}/{name}" for name in calibration_files(self.lens)},
+            }
         if self.motion_profile is not None:
             meta["motion"] = self.motion_profile.metadata()
         if self.frame_step != fmt.FRAME_SKIP:
@@ -341,7 +411,7 @@ def _render_task(task: _Task) -> int:
     climate = get_climate(task.climate).with_sun_azimuth(task.sun_azimuth)
     att = np.array([task.attitudes[i] for i, _ in todo])
     pos = np.array([task.positions[i] for i, _ in todo])
-    frames = render_frames(world, climate, att, pos, cfg.size, cfg.size, supersample=cfg.supersample)
+    frames = render_frames(world, climate, att, pos, cfg.size, cfg.size, supersample=cfg.supersample, lens=cfg.lens)
     for (_, paths), frame in zip(todo, frames):
         atomic_write_bytes(paths[0], encode_jpeg(frame.rgb, cfg.jpeg_quality))
         atomic_write_bytes(paths[1], encode_png(depth_to_png_disparity(frame.depth)))
@@ -412,7 +482,14 @@ def _export(cfg: SynthConfig, world, flights: dict[str, dict[int, PlannedFlight]
                 bs = batch_size(cfg.size)
                 for c in range(0, len(q_camera), bs):
                     batch = render_frames(
-                        world, look, q_camera[c : c + bs], p_camera[c : c + bs], cfg.size, cfg.size, cfg.supersample
+                        world,
+                        look,
+                        q_camera[c : c + bs],
+                        p_camera[c : c + bs],
+                        cfg.size,
+                        cfg.size,
+                        cfg.supersample,
+                        lens=cfg.lens,
                     )
                     yield from (f.rgb for f in batch)
 
@@ -430,6 +507,9 @@ def generate(cfg: SynthConfig, progress: bool = True) -> dict:
     meta["complete"] = False
     if not resuming:
         atomic_write_text(out / METADATA, json.dumps(meta, indent=2) + "\n")
+    if cfg.lens is not None:  # the calibration of the lens, in the layouts users have, beside the flights
+        for name, text in calibration_files(cfg.lens).items():
+            atomic_write_text(out / CALIBRATION_DIR / name, text)
 
     world = get_world(cfg.seed)
     flights = plan_flights(cfg, world)

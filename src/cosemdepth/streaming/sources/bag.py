@@ -25,11 +25,12 @@ class BagOptions:
 
     Attributes:
         bag: the bag (ROS 2 folder, sqlite3 or MCAP, or ROS 1 ``.bag``); image_topic, pose_topic: its topics.
-        camera_info_topic: the intrinsics' topic, or intrinsics ``(fx, fy, cx, cy)`` / hfov (exactly one of them).
+        camera_info_topic: the camera's topic, or calibration: a calibration file, or intrinsics ``(fx, fy, cx, cy)``
+            / hfov (exactly one of them); a distorting lens is undistorted on the fly.
         convention: axes of the posed frame (None: REP 103's ``flu``); frame_skip: keep every k-th posed image;
         max_pose_gap: interpolate only between poses at most this many seconds apart (None: the default);
-        skip_unposed: leave out images without a pose; ignore_distortion: take camera_info's K even when it has a
-        distortion; jpeg_idct: JPEG decoding.
+        skip_unposed: leave out images without a pose; ignore_distortion: take the camera's K as if the images were
+        undistorted; jpeg_idct: JPEG decoding.
     """
 
     bag: Path
@@ -44,6 +45,7 @@ class BagOptions:
     skip_unposed: bool = False
     ignore_distortion: bool = False
     jpeg_idct: str = DEFAULT_JPEG_IDCT
+    calibration: Optional[Path] = None
 
     #: the source table's name of this input
     source = "bag"
@@ -54,11 +56,17 @@ class BagOptions:
         for opt in ("image_topic", "pose_topic"):
             if not getattr(self, opt):
                 raise ConfigError(f"--bag needs --{opt.replace('_', '-')} T")
-        if self.camera_info_topic is not None and (self.intrinsics is not None or self.hfov is not None):
-            raise ConfigError("give either --camera-info-topic or --intrinsics/--hfov, not both")
-        if self.camera_info_topic is None and (self.intrinsics is None) == (self.hfov is None):
+        cameras = (self.camera_info_topic, self.calibration, self.intrinsics, self.hfov)
+        if sum(x is not None for x in cameras) > 1:
+            raise ConfigError("give one of --camera-info-topic, --calibration, --intrinsics and --hfov")
+        if (
+            self.camera_info_topic is None
+            and self.calibration is None
+            and (self.intrinsics is None) == (self.hfov is None)
+        ):
             raise ConfigError(
-                "--bag needs --camera-info-topic T, or exactly one of --intrinsics FX FY CX CY and --hfov DEG"
+                "--bag needs --camera-info-topic T, or exactly one of --calibration FILE, --intrinsics FX FY CX CY "
+                "and --hfov DEG"
             )
         if self.hfov is not None and not 0 < self.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {self.hfov}")
@@ -66,13 +74,14 @@ class BagOptions:
 
     def inputs(self) -> list[Input]:
         """The paths it reads (the output policy of :mod:`cosemdepth.output_safety.outdir`)."""
-        return [Input("--bag", self.bag)]
+        return [Input(label, p) for label, p in (("--bag", self.bag), ("--calibration", self.calibration)) if p]
 
     def settings(self) -> dict[str, Any]:
         """``predictions.json``'s ``run`` entries about the input."""
         return {
             "intrinsics_given": None if self.intrinsics is None else [float(v) for v in self.intrinsics],
             "hfov_deg": self.hfov,
+            "calibration": None if self.calibration is None else str(self.calibration),
             "camera_info_topic": self.camera_info_topic,
             "convention": self.convention or DEFAULT_BAG_CONVENTION,
             "frame_skip": self.frame_skip,
@@ -108,6 +117,7 @@ class BagSource(DatasetSource):
             ignore_distortion=options.ignore_distortion,
             size=size,
             jpeg_idct=options.jpeg_idct,
+            calibration=options.calibration,
         )
         return cls(flight, info={"root": str(options.bag), "split": None})
 

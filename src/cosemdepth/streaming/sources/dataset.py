@@ -130,6 +130,8 @@ class DatasetOptions:
         dataset: a registered dataset with split files; root: its root folder.
         split_dir: the folder of its split files (default: the dataset table's); split: default the table's.
         jpeg_idct: JPEG decoding (:mod:`cosemdepth.data.decode`).
+        calibration: the lens of the split's images (a calibration file, for the readers that take one: Mid-Air,
+            SynthAir); frames and ground truth undistorted to a pinhole.
     """
 
     dataset: Optional[str]
@@ -137,6 +139,7 @@ class DatasetOptions:
     split_dir: Optional[Path] = None
     split: Optional[str] = None
     jpeg_idct: str = DEFAULT_JPEG_IDCT
+    calibration: Optional[Path] = None
 
     #: the source table's name of this input
     source = "dataset"
@@ -150,9 +153,8 @@ class DatasetOptions:
 
     def inputs(self) -> list[Input]:
         """The paths it reads (the output policy of :mod:`cosemdepth.output_safety.outdir`)."""
-        return [
-            Input(label, p) for label, p in (("--root", self.root), ("--split-dir", self.split_dir)) if p is not None
-        ]
+        given = (("--root", self.root), ("--split-dir", self.split_dir), ("--calibration", self.calibration))
+        return [Input(label, p) for label, p in given if p is not None]
 
     def check_split_dir(self) -> None:
         """A ConfigError naming ``--split-dir`` (and how to make one) when the dataset has no default split folder
@@ -192,6 +194,7 @@ class DatasetSource:
             seq_len=1,
             size=size,
             jpeg_idct=options.jpeg_idct,
+            **({} if options.calibration is None else {"calibration": options.calibration}),
         )
         return cls(dataset, info={"root": str(options.root), "split": options.split})
 
@@ -201,7 +204,13 @@ class DatasetSource:
 
     # ------------------------------------------------------------------ what it is
     def describe(self) -> dict[str, Any]:
-        return dict(self.info)
+        """The input: ``info``, and how its images were undistorted (``undistortion``) when they were."""
+        undistortion = getattr(self.dataset, "calibration", None)
+        return {**self.info, **({"undistortion": undistortion} if undistortion else {})}
+
+    def calibration_note(self) -> str | None:
+        """What the undistortion says about the calibration it was given (e.g. scaled to the images' size)."""
+        return ((getattr(self.dataset, "calibration", None) or {}).get("calibration") or {}).get("note")
 
     def frame_size(self) -> tuple[int, int] | None:
         return dataset_frame_size(self.dataset)
@@ -277,6 +286,7 @@ class DatasetSource:
                 stamp=[None if stamps_of[ti] is None else float(stamps_of[ti][row]) for ti, row in rows],
                 meta=[self.meta(ti, row) for ti, row in rows],
                 pose=None if any(p is None for p in poses) else torch.stack(poses),
+                source_valid=None if batch.get("source_valid") is None else batch["source_valid"][:, 0],
             )
 
     def close(self) -> None:

@@ -24,8 +24,8 @@ class FlightOptions:
 
     Attributes:
         images, poses: the image folder and the absolute camera poses (TUM or CSV: docs/data.md).
-        intrinsics: ``(fx, fy, cx, cy)`` in pixels of the original images, or hfov: the horizontal field of view
-            in degrees (exactly one).
+        intrinsics: ``(fx, fy, cx, cy)`` in pixels of the original images, hfov: the horizontal field of view in
+            degrees, or calibration: the camera's calibration file (images undistorted to a pinhole); exactly one.
         convention: axes of the posed frame (None: :data:`~cosemdepth.data.flight.DEFAULT_CONVENTION`).
         frame_skip: keep every k-th image; match, stamp_unit, max_pose_gap, skip_unposed: how images get poses
             (:mod:`cosemdepth.data.pose_matching`; ``max_pose_gap`` None: its default).
@@ -43,6 +43,7 @@ class FlightOptions:
     max_pose_gap: Optional[float] = None
     skip_unposed: bool = False
     jpeg_idct: str = DEFAULT_JPEG_IDCT
+    calibration: Optional[Path] = None
 
     #: the source table's name of this input
     source = "flight"
@@ -54,8 +55,10 @@ class FlightOptions:
             raise ConfigError("--flight needs --images DIR")
         if self.poses is None:
             raise ConfigError("--flight needs --poses FILE")
-        if (self.intrinsics is None) == (self.hfov is None):
-            raise ConfigError("--flight needs exactly one of --intrinsics FX FY CX CY and --hfov DEG")
+        if sum(x is not None for x in (self.intrinsics, self.hfov, self.calibration)) != 1:
+            raise ConfigError(
+                "--flight needs exactly one of --intrinsics FX FY CX CY, --hfov DEG and --calibration FILE"
+            )
         if self.hfov is not None and not 0 < self.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {self.hfov}")
         if not isinstance(self.frame_skip, int) or self.frame_skip < 1:
@@ -75,13 +78,15 @@ class FlightOptions:
 
     def inputs(self) -> list[Input]:
         """The paths it reads (the output policy of :mod:`cosemdepth.output_safety.outdir`)."""
-        return [Input(label, p) for label, p in (("--images", self.images), ("--poses", self.poses)) if p is not None]
+        given = (("--images", self.images), ("--poses", self.poses), ("--calibration", self.calibration))
+        return [Input(label, p) for label, p in given if p is not None]
 
     def settings(self) -> dict[str, Any]:
         """``predictions.json``'s ``run`` entries about the input."""
         return {
             "intrinsics_given": None if self.intrinsics is None else [float(v) for v in self.intrinsics],
             "hfov_deg": self.hfov,
+            "calibration": None if self.calibration is None else str(self.calibration),
             "convention": self.convention or DEFAULT_CONVENTION,
             "frame_skip": self.frame_skip,
             "poses": str(self.poses),
@@ -114,6 +119,7 @@ class FlightSource(DatasetSource):
             stamp_unit=options.stamp_unit,
             max_gap=DEFAULT_MAX_GAP if options.max_pose_gap is None else options.max_pose_gap,
             skip_unposed=options.skip_unposed,
+            calibration=options.calibration,
         )
         info: dict[str, Any] = {"root": str(options.images), "split": None}
         if hasattr(dataset, "pose_matching"):
