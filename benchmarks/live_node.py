@@ -1,8 +1,9 @@
 """End-to-end latency, sustained rate and dropped frames of ``cosemdepth node`` on a replayed SynthAir flight.
 
     python benchmarks/live_node.py --model weights/synthair-cosemdepth --flight DIR [--frames 200]
-        [--rates 10 20 30] [--sizes own 384] [--modes fast-fp32 fast-bf16 onnx-int8] [--threads 2]
+        [--rates 10 20 30] [--sizes own 384] [--modes fast-fp32 fast-bf16 onnx-int8] [--threads N ...]
         [--memory-minutes 10] [--out benchmarks/results/live_node.json]
+    python benchmarks/live_node.py --flight DIR --acceptance     # own size, fast fp32, 10 and 30 Hz, 2 min memory
 
 ``DIR`` is a SynthAir root (``cosemdepth synth --out DIR --trajectories 1 --frames 804 --size 384 --climates sunny``:
 200 images of 384x384 at 6.25 Hz); its first trajectory becomes a ROS 2 bag (``/camera/image_raw`` rgb8,
@@ -10,13 +11,17 @@
 to the loopback interface, no multicast, unicast discovery on 127.0.0.1, a domain of its own.
 
 For each size (``own``: the model's focal length, no ``--size``; or N) and mode (``fast-fp32``, ``fast-bf16``: the
-fast path's precisions; ``onnx-int8``: ``cosemdepth export --int8`` at that size, run by ONNX Runtime) one node runs
-(``--threads T``); a warm-up replay of the first 30 frames, then for each rate the whole flight is replayed
+fast path's precisions; ``onnx-int8``: ``cosemdepth export --int8`` at that size, run by ONNX Runtime) and thread
+count (``--threads``; default the node's own: every core, OpenMP threads that sleep while they wait) one node runs;
+a warm-up replay of the first 30 frames, then for each rate the whole flight is replayed
 (``cosemdepth replay --rate rate/6.25``) and a subscriber in this process records:
 
 * latency: from the replay writing an image (its DDS source timestamp) to this subscriber taking the node's depth for
   that image (p50 / p95 / max, ms), the node's own figure (image written -> outputs handed to DDS, from its status)
-  and the model's streaming step within it (``model_step_ms``);
+  and, from the node's status, the model's streaming step within it (``model_step_ms``), the image's wait for the
+  model (``queue_ms``), its conversion (``convert_ms``) and the rest, the node's own time (``node_overhead_ms``:
+  delivery to the node, conversion, publishing); per frame, the step's share of the end-to-end and of the node's
+  latency (``step_over_latency``, ``step_over_node_latency``: p50 and p5, one run);
 * drops: the node's counters (its status topic) over the replay: images received, processed, dropped; images that
   never reached it (published minus received);
 * at the highest rate, ``equal_to_predict_bag``: the node's depth messages equal, byte for byte, those of
@@ -29,7 +34,9 @@ fast path's precisions; ``onnx-int8``: ``cosemdepth export --int8`` at that size
 size and mode also run the flight in a loop at the highest rate for M minutes, the node's resident memory sampled
 every 5 s (``flat`` when it grows by less than ``--tolerance-mb`` after the first minute). A mode that cannot run
 here (bf16 without CPU bf16 dot products: no ``avx512_bf16`` / ``amx_bf16`` flag) is recorded as not run, with the
-reason. Writes JSON.
+reason. With 10 and 30 Hz among the rates each configuration gets ``acceptance``: no dropped frame at 10 Hz (and
+its p95 latency), the drops at 30 Hz and the depth equal to ``predict --bag``'s there, memory flat (when measured).
+Writes JSON.
 """
 
 from __future__ import annotations
@@ -71,6 +78,13 @@ def percentiles(values) -> dict:
         "max": round(float(v.max()), 1),
         "n": int(v.size),
     }
+
+
+def ratio_percentiles(values) -> dict:
+    v = np.asarray(values, dtype=np.float64)
+    if not v.size:
+        return {"p50": None, "p5": None, "n": 0}
+    return {"p50": round(float(np.percentile(v, 50)), 3), "p5": round(float(np.percentile(v, 5)), 3), "n": int(v.size)}
 
 
 class Probe:
@@ -216,8 +230,8 @@ def equal_to_predict(bag, depth: dict, model_args, tmp: Path, env) -> dict:
     return {"ok": same == len(stamps) == len(ref), "frames": len(stamps), "byte_equal": same}
 
 
-def run_config(a, bag, size, mode, env, tmp: Path, probe: Probe, memory_minutes: float) -> dict:
-    model_args = ["--model", a.model, "--threads", a.threads]
+def run_config(a, bag, size, mode, threads, env, tmp: Path, probe: Probe, memory_minutes: float) -> dict:
+    model_args = ["--model", a.model] + ([] if threads is None else ["--threads", threads])
     if size != "own":
         model_args += ["--size", size]
     if mode.startswith("fast-"):
@@ -254,7 +268,9 @@ def run_config(a, bag, size, mode, env, tmp: Path, probe: Probe, memory_minutes:
                 written = dict(probe.written)
             last = probe.counters()
             delta = {k: last[k] - base[k] for k in last}
-            latency = [(depth[s][0] - written[s]) / 1e6 for s in depth if s in written]
+            latency = {s: (depth[s][0] - written[s]) / 1e6 for s in depth if s in written}
+            by_stamp = {v["stamp"]: v for v in status}
+            step = {s: float(by_stamp[s]["step_ms"]) for s in latency if s in by_stamp}
             entry = {
                 "input_hz": rate,
                 "images_published": published,
@@ -264,9 +280,20 @@ def run_config(a, bag, size, mode, env, tmp: Path, probe: Probe, memory_minutes:
                 "images_lost_before_the_node": published - delta["frames_received"],
                 "replay_seconds": round(seconds, 2),
                 "processed_hz": round(delta["frames_processed"] / (published / rate), 2),
-                "latency_ms": percentiles(latency),
+                "latency_ms": percentiles(list(latency.values())),
                 "node_latency_ms": percentiles([float(s["latency_ms"]) for s in status]),
-                "model_step_ms": percentiles([float(s["step_ms"]) for s in status if "step_ms" in s]),
+                "model_step_ms": percentiles([float(s["step_ms"]) for s in status]),
+                "queue_ms": percentiles([float(s["queue_ms"]) for s in status]),
+                "convert_ms": percentiles([float(s["convert_ms"]) for s in status]),
+                # the node's own time per frame: image written -> outputs handed to DDS, less the step and the wait
+                "node_overhead_ms": percentiles(
+                    [float(s["latency_ms"]) - float(s["step_ms"]) - float(s["queue_ms"]) for s in status]
+                ),
+                # per frame, the model's step over the end-to-end latency (replay's write -> this subscriber's take)
+                "step_over_latency": ratio_percentiles([step[s] / latency[s] for s in step]),
+                "step_over_node_latency": ratio_percentiles(
+                    [float(s["step_ms"]) / float(s["latency_ms"]) for s in status]
+                ),
             }
             if rate == max(a.rates):
                 entry["equal_to_predict_bag"] = equal_to_predict(bag, depth, model_args, tmp, env)
@@ -315,22 +342,54 @@ def memory_run(a, bag, pid: int, env, tmp: Path, minutes: float) -> dict:
     }
 
 
+def acceptance(result: dict) -> dict:
+    """The issue's acceptance items of one configuration: no dropped frame at 10 Hz (p95 latency), drops counted at
+    30 Hz with the depth equal to predict --bag's on the processed frames, memory flat (when measured)."""
+    r10, r30 = result["rates"]["10.0"], result["rates"]["30.0"]
+    memory = result.get("memory")
+    return {
+        "no_drop_at_10hz": r10["frames_dropped"] == 0 and r10["images_lost_before_the_node"] == 0,
+        "latency_p95_ms_at_10hz": r10["latency_ms"]["p95"],
+        "dropped_at_30hz": r30["frames_dropped"],
+        "equal_to_predict_bag_at_30hz": r30["equal_to_predict_bag"]["ok"],
+        "memory_flat": None if memory is None else memory["flat"],
+    }
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--model", default=str(ROOT / "weights" / "synthair-cosemdepth"))
     p.add_argument("--flight", required=True, help="a SynthAir root (see the module docstring)")
     p.add_argument("--frames", type=int, default=200)
-    p.add_argument("--rates", nargs="+", type=float, default=[10.0, 20.0, 30.0])
-    p.add_argument("--sizes", nargs="+", default=["own", "384"])
-    p.add_argument("--modes", nargs="+", default=["fast-fp32", "fast-bf16", "onnx-int8"])
-    p.add_argument("--threads", type=int, default=2, help="the node's torch / ONNX Runtime intra-op threads")
+    p.add_argument(
+        "--acceptance",
+        action="store_true",
+        help="the acceptance subset: --sizes own --modes fast-fp32 --rates 10 30 --memory-minutes 2 (each of them "
+        "can still be given)",
+    )
+    p.add_argument("--rates", nargs="+", type=float, help="input rates, Hz (default 10 20 30)")
+    p.add_argument("--sizes", nargs="+", help="own and/or sizes in pixels (default own 384)")
+    p.add_argument("--modes", nargs="+", help="fast-fp32, fast-bf16, onnx-int8 (default all three)")
+    p.add_argument(
+        "--threads",
+        nargs="+",
+        type=int,
+        help="the node's torch / ONNX Runtime intra-op threads, one node after the other for several (default: the "
+        "node's default, torch's choice: every core); predict --bag runs with the node's",
+    )
     p.add_argument("--own-size", type=int, default=128, help="the model's own size (for the int8 export)")
-    p.add_argument("--memory-minutes", type=float, default=0.0)
+    p.add_argument("--memory-minutes", type=float, help="default 0 (2 with --acceptance)")
     p.add_argument("--tolerance-mb", type=float, default=8.0)
     p.add_argument("--domain", type=int, default=200 + os.getpid() % 30)
     p.add_argument("--work-dir", help="keep the bags, logs and graphs here (default: a temporary folder)")
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "live_node.json"))
     a = p.parse_args(argv)
+    full = not a.acceptance
+    a.rates = a.rates or ([10.0, 20.0, 30.0] if full else [10.0, 30.0])
+    a.sizes = a.sizes or (["own", "384"] if full else ["own"])
+    a.modes = a.modes or (["fast-fp32", "fast-bf16", "onnx-int8"] if full else ["fast-fp32"])
+    a.memory_minutes = a.memory_minutes if a.memory_minutes is not None else (0.0 if full else 2.0)
+    a.threads = a.threads or [None]
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))  # the finally blocks stop the node and replay processes
 
     from cosemdepth.ros2.dds import loopback_config
@@ -352,16 +411,22 @@ def main(argv=None) -> int:
             first = True
             for size in a.sizes:
                 for mode in a.modes:
-                    key = f"{size}/{mode}"
-                    if mode == "fast-bf16" and not (flags.get("avx512_bf16") or flags.get("amx_bf16")):
-                        results[key] = {"run": False, "reason": "this CPU has no bf16 dot-product instructions "
-                                        "(no avx512_bf16 or amx_bf16 flag): bf16 convolutions would be emulated"}  # fmt: skip
-                        print(f"  {key}: not run ({results[key]['reason']})")
-                        continue
-                    work = tmp / key.replace("/", "_")
-                    work.mkdir(exist_ok=True)  # a --work-dir of an earlier run: its exported graphs are reused
-                    results[key] = run_config(a, bag, size, mode, env, work, probe, a.memory_minutes if first else 0)
-                    first = False
+                    for threads in a.threads:
+                        key = f"{size}/{mode}" + (f"/threads-{threads}" if len(a.threads) > 1 else "")
+                        if key in results:  # a thread count given twice: its second run
+                            key += f"/{sum(k.startswith(key) for k in results) + 1}"
+                        if mode == "fast-bf16" and not (flags.get("avx512_bf16") or flags.get("amx_bf16")):
+                            results[key] = {"run": False, "reason": "this CPU has no bf16 dot-product instructions "
+                                            "(no avx512_bf16 or amx_bf16 flag): bf16 convolutions would be emulated"}  # fmt: skip
+                            print(f"  {key}: not run ({results[key]['reason']})")
+                            continue
+                        work = tmp / key.replace("/", "_")
+                        work.mkdir(exist_ok=True)  # a --work-dir of an earlier run: its exported graphs are reused
+                        memory = a.memory_minutes if first else 0
+                        results[key] = run_config(a, bag, size, mode, threads, env, work, probe, memory)
+                        first = False
+                        if {10.0, 30.0} <= set(a.rates):
+                            results[key]["acceptance"] = acceptance(results[key])
         finally:
             stop_children()
             probe.close()
@@ -373,7 +438,9 @@ def main(argv=None) -> int:
         "rates_hz": a.rates,
         "sizes": a.sizes,
         "modes": a.modes,
-        "node_threads": a.threads,
+        "node_threads": [t or f"the node's default ({os.cpu_count()}: torch's choice)" for t in a.threads],
+        "node_omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "PASSIVE (the node's default)"),
+        "acceptance_subset": a.acceptance,
         "node_max_frame_gap_s": MAX_FRAME_GAP,
         "memory_minutes": a.memory_minutes,
         "dds": "Cyclone DDS on loopback (lo, no multicast, unicast peer 127.0.0.1)",

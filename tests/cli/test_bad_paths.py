@@ -283,6 +283,11 @@ CASES = [
     # node, replay: refused before they join a DDS graph
     (["node", "--model", "{T}/nope", "--image-topic", "/c", "--pose-topic", "/p", "--hfov", "90"], "{T}/nope"),
     (["node", "--model", "{M}", "--image-topic", "/c", "--pose-topic", "/p", "--hfov", "190"], "--hfov"),
+    (["node", "--model", "{M}", "--image-topic", "/c", "--pose-topic", "/p", "--calibration", "{T}/nope"], "{T}/nope"),
+    (
+        ["node", "--model", "{M}", "--image-topic", "/c", "--pose-topic", "/p", "--calibration", "{T}/junk.bin"],
+        "{T}/junk.bin",
+    ),
     (["replay", "{T}/nope"], "{T}/nope"),
     (["replay", "{T}/junk.bin"], "{T}/junk.bin"),
     (["replay", "{T}/mine", "--rate", "0"], "--rate"),

@@ -18,7 +18,10 @@ def node(model, *extra):
 @pytest.mark.parametrize(
     "extra, message",
     [
-        ((), "the node needs exactly one of --camera-info-topic T, --intrinsics FX FY CX CY, --hfov DEG"),
+        (
+            (),
+            "the node needs exactly one of --camera-info-topic T, --calibration FILE, --intrinsics FX FY CX CY, --hfov DEG",
+        ),
         (("--hfov", 90, "--camera-info-topic", "/info"), "the node needs exactly one of"),
         (("--hfov", 190), "--hfov must be in (0, 180) degrees, got 190.0"),
         (("--hfov", 90, "--out-namespace", "/9x"), "--out-namespace '/9x' is not a valid ROS namespace"),

@@ -31,6 +31,7 @@ from _live import (
 from cosemdepth.cli.main import main
 
 NS = "/cosemdepth"
+T0, MS = 1_700_000_000 * 10**9, 1_000_000
 BYTE_EQUAL = ("depth", "depth_valid", "labels", "labels_color", "camera_info")
 
 
@@ -172,3 +173,102 @@ def test_report_line_and_percentiles():
     line = rep.line(final=True)
     assert line.startswith("12 frames received, 4 processed (") and "8 dropped, 1 without a pose" in line
     assert "latency p50 25 ms, p95 38 ms" in line and "resets: first frame 1, gap 2" in line
+
+
+#: A pincushion lens (plumb_bob k1 = 0.5) of 24x16 images, as ROS's camera_calibration writes it (pixel centres at
+#: integer coordinates: the principal point 11.5, 7.5 is the image centre).
+LENS_YAML = """image_width: 24
+image_height: 16
+camera_name: cam
+camera_matrix: {rows: 3, cols: 3, data: [12.0, 0.0, 11.5, 0.0, 12.0, 7.5, 0.0, 0.0, 1.0]}
+distortion_model: plumb_bob
+distortion_coefficients: {rows: 1, cols: 5, data: [0.5, 0.0, 0.0, 0.0, 0.0]}
+"""
+
+
+def off_the_sensor(h: int, w: int, f: float, k1: float) -> np.ndarray:
+    """Hand-computed ``[h, w]`` bool: the pixels of the undistorted (same-size, centred) camera whose ray lands
+    outside the distorted image (radial k1 only)."""
+    v, u = np.mgrid[0:h, 0:w] + 0.5
+    x, y = (u - w / 2) / f, (v - h / 2) / f
+    scale = 1 + k1 * (x * x + y * y)
+    ud, vd = f * x * scale + w / 2, f * y * scale + h / 2
+    return (ud < 0) | (ud > w) | (vd < 0) | (vd > h)
+
+
+def test_node_with_a_calibration_file_publishes_the_pinhole_and_no_depth_without_a_source(tmp_path):
+    """``--calibration FILE`` in the node's loop (in this process, on loopback): the images are undistorted, the
+    camera_info published is the pinhole they were undistorted to (no distortion), and the depth is NaN (validity 0)
+    wherever the undistorted image has no source pixel."""
+    import threading
+    import time
+
+    import torch
+
+    from cosemdepth.inference.policy import Streamer, StreamPolicy
+    from cosemdepth.jobs.model import ModelOptions, load_for
+    from cosemdepth.robotics.messages import header, image
+    from cosemdepth.ros2.dds import Graph
+    from cosemdepth.ros2.idl import encode, idl_type, typestore
+    from cosemdepth.ros2.midair_bag import _pose_message
+    from cosemdepth.ros2.node import run_node
+    from cosemdepth.ros2.sink import TopicSink, output_names
+    from cosemdepth.ros2.source import LiveOptions, LiveSource
+
+    torch.set_num_threads(1)
+    (tmp_path / "cam.yaml").write_text(LENS_YAML)
+    model, _ = load_for(ModelOptions(tiny_model(tmp_path / "model")))
+    ts = typestore()
+    camera = Graph()
+    images = camera.writer("/lens/image", idl_type("sensor_msgs/msg/Image"), "reliable")
+    poses = camera.writer("/lens/pose", idl_type("geometry_msgs/msg/PoseStamped"), "reliable")
+    sub = Subscriber("/lens_out")
+    graph = Graph()
+    options = LiveOptions("/lens/image", "/lens/pose", calibration=tmp_path / "cam.yaml", convention="flu")
+    source = LiveSource(graph, options, None, log=lambda m: None)
+    sink = TopicSink(graph, output_names(True, True, False, False), namespace="/lens_out", stats=source.stats)
+    done: dict = {}
+    # a random model's depths are not well conditioned: every estimate is kept here but for the lens's mask
+    policy = StreamPolicy("every-frame", max_conditioning=float("inf"), max_log_ratio=float("inf"))
+    node = threading.Thread(target=lambda: done.update(run_node(source, Streamer(model, policy), sink,
+                                                                 max_frames=3, report_every=0, log=lambda m: None)))  # fmt: skip
+    rgb = np.random.default_rng(3).integers(0, 255, (16, 24, 3)).astype(np.uint8)
+    try:
+        node.start()
+        until = time.monotonic() + 30
+        outputs = [f"rt/lens_out/{n}" for n in ("depth", "depth_valid", "camera_info")]
+        while not (images.subscribers() and poses.subscribers() and all(o in sub.endpoints for o in outputs)):
+            assert time.monotonic() < until, "discovery timed out"
+            time.sleep(0.02)
+        time.sleep(0.5)
+        for k in range(61):  # 1 m/s to the body's left (FLU y): the camera moves along its -x, parallax everywhere
+            msg = _pose_message(ts, "geometry_msgs/msg/PoseStamped", T0 + 10 * k * MS, np.array([0, 0.01 * k, 0]),
+                                np.array([1.0, 0, 0, 0]))  # fmt: skip
+            poses.write(encode(msg, ts))
+        for k in range(1, 4):
+            images.write(encode(image(ts, header(ts, T0 + 150 * k * MS, "cam"), np.roll(rgb, k, 1), "rgb8"), ts))
+            while source.stats.processed < k:
+                assert time.monotonic() < until + 60, "the node did not process the frame"
+                time.sleep(0.02)
+        node.join(30)
+        sub.wait_for(3, 10)
+    finally:
+        source.stop()
+        node.join(10)
+        sub.close()
+        camera.close()
+    assert done["frames_processed"] == 3 and not node.is_alive()
+    info = sub.decode("camera_info", sub.got["camera_info"][-1].data)
+    assert (info.height, info.width) == (16, 24) and list(info.d) == [0.0] * 5
+    assert np.allclose(info.k, [12.0, 0, 11.5, 0, 12.0, 7.5, 0, 0, 1])  # the centred pinhole, ROS pixel centres
+    off = off_the_sensor(16, 24, 12.0, 0.5)
+    assert 0 < off.sum() < off.size / 2  # the corners
+    valid_somewhere = False
+    for d, v in zip(sub.got["depth"], sub.got["depth_valid"]):
+        img, valid = sub.decode("depth", d.data), sub.decode("depth_valid", v.data)
+        depth = np.frombuffer(bytes(img.data), "<f4").reshape(16, 24)
+        mask = np.asarray(valid.data, np.uint8).reshape(16, 24)
+        assert np.isnan(depth[off]).all() and (mask[off] == 0).all()
+        assert np.array_equal(np.isnan(depth), mask == 0)
+        valid_somewhere |= bool((mask[~off] == 255).any())
+    assert len(sub.got["depth"]) == 3 and valid_somewhere

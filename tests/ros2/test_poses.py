@@ -59,21 +59,21 @@ def test_track_readiness_repeats_backward_stamps_and_bound():
     assert track.stamps == [(50 + k) * MS for k in range(6, 10)]
 
 
-def test_tf_chain_composes_static_and_interpolated_dynamic_transforms():
+def tr(parent, child, stamp, p=(0.0, 0.0, 0.0), q=(1.0, 0.0, 0.0, 0.0)):
     t = TS.types
+    return t["geometry_msgs/msg/TransformStamped"](
+        header=t["std_msgs/msg/Header"](
+            stamp=t["builtin_interfaces/msg/Time"](sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id=parent
+        ),
+        child_frame_id=child,
+        transform=t["geometry_msgs/msg/Transform"](
+            translation=t["geometry_msgs/msg/Vector3"](x=p[0], y=p[1], z=p[2]),
+            rotation=t["geometry_msgs/msg/Quaternion"](w=q[0], x=q[1], y=q[2], z=q[3]),
+        ),
+    )
 
-    def tr(parent, child, stamp, p, q):
-        return t["geometry_msgs/msg/TransformStamped"](
-            header=t["std_msgs/msg/Header"](
-                stamp=t["builtin_interfaces/msg/Time"](sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id=parent
-            ),
-            child_frame_id=child,
-            transform=t["geometry_msgs/msg/Transform"](
-                translation=t["geometry_msgs/msg/Vector3"](x=p[0], y=p[1], z=p[2]),
-                rotation=t["geometry_msgs/msg/Quaternion"](w=q[0], x=q[1], y=q[2], z=q[3]),
-            ),
-        )
 
+def test_tf_chain_composes_static_and_interpolated_dynamic_transforms():
     tf = TS.types["tf2_msgs/msg/TFMessage"]
     tree = TfTree("/odom", "camera")
     tree.add(tf(transforms=[tr("base_link", "camera", 0, (0.5, 0.0, 0.2), yaw(math.pi / 2))]), static=True)
@@ -105,7 +105,32 @@ def test_px4_odometry_nan_clock_offset_and_convention():
     assert live.px4_offset == written - 5 * 10**9 and live.latest == written
     live.add(_pose_message(TS, PX4_ODOMETRY, 5 * 10**9 + 4 * MS, p, q), 0, image_stamp=image_clock)
     assert live.latest == written + 4 * MS  # the first offset is kept
-    with pytest.raises(ConfigError, match="needs --world-frame F and --body-frame F"):
-        PoseInput("tf2_msgs/msg/TFMessage")
     with pytest.raises(ConfigError, match="not a pose type"):
         PoseInput("sensor_msgs/msg/Image")
+
+
+def test_tf_frames_are_chosen_from_the_transforms_when_not_given():
+    tf = TS.types["tf2_msgs/msg/TFMessage"]
+    # REP 105: map -> odom -> base_link, a camera fixed on base_link: base_link in map
+    tree = TfTree(None, None)
+    assert tree.frames() == "no dynamic transform on /tf yet"
+    tree.add(tf(transforms=[tr("base_link", "camera", 0, (0.5, 0, 0))]), static=True)
+    notes = tree.add(tf(transforms=[tr("odom", "base_link", 10**9, (1.0, 0, 0)), tr("map", "odom", 10**9)]))
+    assert tree.frames() == ("map", "base_link") and notes == ["/tf: the pose of base_link in map (--body-frame, "
+                                                               "--world-frame to choose)"]  # fmt: skip
+    assert tree.add(tf(transforms=[tr("odom", "base_link", 2 * 10**9), tr("map", "odom", 2 * 10**9)])) == []
+    assert [e[0] for e in tree.chain()] == ["base_link", "odom"]
+    # one moving frame of another name: that one, in the root above it
+    other = TfTree(None, None)
+    other.add(tf(transforms=[tr("world", "drone", 10**9, (0.0, 2.0, 0))]))
+    assert other.frames() == ("world", "drone") and np.allclose(other.at(10**9, MS)[0], [0, 2, 0])
+    # several moving frames and no base_link: they must be given; a given body gets its root
+    two = TfTree(None, None)
+    two.add(tf(transforms=[tr("world", "a", 10**9), tr("world", "b", 10**9)]))
+    assert "give --body-frame" in two.frames() and two.chain() is None
+    live = PoseInput("tf2_msgs/msg/TFMessage")
+    live.add(tf(transforms=[tr("world", "a", 10**9), tr("world", "b", 10**9)]), 0)
+    assert "moves several frames (a, b)" in live.unresolved() and not live.ready(10**9)
+    given = TfTree(None, "b")
+    given.add(tf(transforms=[tr("world", "a", 10**9), tr("world", "b", 10**9, (3.0, 0, 0))]))
+    assert given.frames() == ("world", "b") and np.allclose(given.at(10**9, MS)[0], [3, 0, 0])

@@ -83,6 +83,7 @@ def open_source(camera: Camera, pose_topic="/pose", **kw):
         ("nav_msgs/msg/Odometry", "/mavros/local_position/odom", {}),
         ("px4_msgs/msg/VehicleOdometry", "/fmu/out/vehicle_odometry", {}),
         ("tf2_msgs/msg/TFMessage", "/tf", {"world_frame": "odom", "body_frame": "base_link"}),
+        ("tf2_msgs/msg/TFMessage", "/tf", {}),  # the frames chosen from the transforms: base_link in odom
     ],
 )
 def test_pose_type_is_discovered_and_the_motion_is_since_the_last_frame(pose_type, pose_topic, kw):
@@ -179,7 +180,25 @@ def test_newest_first_drops_timeouts_gaps_jumps_and_restarts():
     }
 
 
-def test_camera_info_with_distortion_leaves_frames_out_until_a_usable_one():
+def lands_on_the_sensor(rgb_shape, k, model, d):
+    """Hand-computed: whether the ray of target pixel (0, 0) lands on the source image (pixel centre (0.5, 0.5),
+    package convention, the target camera equal to the source's pinhole part)."""
+    fx, fy, cx, cy = k
+    x, y = (0.5 - cx) / fx, (0.5 - cy) / fy
+    r = math.hypot(x, y)
+    if model == "plumb_bob":  # radial k1 only
+        scale = 1 + d[0] * r * r
+    else:  # equidistant: theta_d = theta (1 + k1 theta^2)
+        theta = math.atan(r)
+        scale = theta * (1 + d[0] * theta**2) / r
+    u, v = fx * x * scale + cx, fy * y * scale + cy
+    h, w = rgb_shape[:2]
+    return 0 <= u <= w and 0 <= v <= h
+
+
+@pytest.mark.parametrize("model, d", [("plumb_bob", (0.5, 0.0, 0.0, 0.0, 0.0)), ("equidistant", (2.0, 0.0, 0.0, 0.0))])
+def test_camera_info_lens_is_undistorted_as_predict_bag_does_and_an_unusable_one_leaves_frames_out(model, d):
+    from cosemdepth.camera import Undistorter, calibration_from_camera_info
     from cosemdepth.robotics.messages import camera_info
 
     cam = Camera("geometry_msgs/msg/PoseStamped")
@@ -190,23 +209,26 @@ def test_camera_info_with_distortion_leaves_frames_out_until_a_usable_one():
         graph, LiveOptions("/cam/image", "/pose", camera_info_topic="/cam/info"), None, log=notes.append
     )
     guard = threading.Timer(60, source.stop)
+    k = (10.0, 10.0, 6.0, 4.0)  # package convention: the principal point at the image centre
     try:
         assert source.start()
         until(lambda: info.subscribers() > 0 and cam.images.subscribers() > 0 and cam.poses.subscribers() > 0)
         guard.start()
         frames = source.batches()
-        for k in range(31):
-            cam.pose(T0 + 10 * k * MS, 0.01 * k)
-        bad = camera_info(TS, header(TS, T0, "cam"), (8, 12), (10.0, 10.0, 6.0, 4.0))
-        bad.d[0] = 0.1
-        info.write(encode(bad))
+        for i in range(31):
+            cam.pose(T0 + 10 * i * MS, 0.01 * i)
+        binned = camera_info(TS, header(TS, T0, "cam"), (8, 12), k)
+        binned.binning_x = 2
+        info.write(encode(binned))
         until(lambda: source.info_error is not None)
         got = []
         consumer = threading.Thread(target=lambda: got.append(next(frames)))  # the node asking for its next frame
         consumer.start()
         cam.image(T0 + 100 * MS)
         until(lambda: source.stats.rejected == 1)
-        info.write(encode(camera_info(TS, header(TS, T0, "cam"), (8, 12), (10.0, 10.0, 6.0, 4.0))))
+        lens = camera_info(TS, header(TS, T0, "cam"), (8, 12), k)
+        lens.distortion_model, lens.d = model, np.array(d)
+        info.write(encode(lens))
         until(lambda: source.info is not None)
         cam.image(T0 + 200 * MS)
         consumer.join(30)
@@ -215,8 +237,13 @@ def test_camera_info_with_distortion_leaves_frames_out_until_a_usable_one():
         guard.cancel()
         source.close()
         cam.close()
-    assert any("camera_info has a non-zero distortion" in n for n in notes)
-    assert any(n.startswith("frame left out: /cam/info at stamp") for n in notes)
-    # K written in ROS's pixel convention (camera_info takes the package's: cx - 0.5), read back in the package's
-    assert torch.allclose(f.intrinsics[0], torch.tensor([10.0, 10.0, 6.0, 4.0])) and bool(f.reset[0])
+    assert any("binning" in n for n in notes) and any(n.startswith("frame left out: /cam/info at stamp") for n in notes)
     assert f.meta[0]["reset_reason"] == "first frame"  # the frame left out was never processed
+    # predict --bag's undistortion of the same camera_info, bit for bit
+    u = Undistorter(calibration_from_camera_info(lens, "x"))
+    rgb, valid = u(cam.rgb)
+    assert torch.equal(f.rgb[0], rgb) and torch.equal(f.source_valid[0, 0], valid)
+    assert torch.allclose(f.intrinsics[0], torch.tensor(k)) and f.meta[0]["intrinsics"] == list(k)
+    # the lens pushes the corners' rays off the sensor: no source there; the centre has one
+    assert not lands_on_the_sensor(cam.rgb.shape, k, model, d)
+    assert not valid[0, 0] and not valid[-1, -1] and valid[3:5, 5:7].all()

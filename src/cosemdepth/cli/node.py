@@ -1,6 +1,7 @@
 """``cosemdepth node``: join the ROS 2 graph and publish depth, validity and labels for a live camera.
 
-    cosemdepth node --model MODEL --image-topic T --pose-topic T (--camera-info-topic T | --hfov DEG | --intrinsics ...)
+    cosemdepth node --model MODEL --image-topic T --pose-topic T
+                    (--camera-info-topic T | --calibration FILE | --hfov DEG | --intrinsics ...)
                     [--convention C] [--out-namespace NS] [--points] [--backend onnxruntime --onnx FILE]
 
 No ROS installation: the node is a Cyclone DDS participant (``pip install cosemdepth[live]``) in the domain
@@ -18,10 +19,10 @@ from pathlib import Path
 from ..data.frames import as_size
 from ..data.poses import CONVENTIONS
 from ..errors import ConfigError
-from ..evaluation.classes import class_info
 from ..inference.policy import BASELINE, Streamer, policy_info
 from ..jobs.model import input_size, load_for
 from ..jobs.options import RunOptions
+from ..measures.classes import class_info
 from ..ros2.node import REPORT_EVERY
 from ..ros2.source import DEFAULT_MAX_FRAME_GAP, DEFAULT_MAX_POSE_GAP, DEFAULT_POSE_TIMEOUT
 from ..streaming.sinks.bag import DEFAULT_NAMESPACE, check_namespace
@@ -47,9 +48,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
         required=True,
         metavar="T",
         help="geometry_msgs/PoseStamped, PoseWithCovarianceStamped, nav_msgs/Odometry, px4_msgs/VehicleOdometry, "
-        "or /tf (tf2_msgs/TFMessage, with --world-frame and --body-frame)",
+        "or /tf (tf2_msgs/TFMessage; see --world-frame, --body-frame)",
     )
     inp.add_argument("--camera-info-topic", metavar="T", help="sensor_msgs/CameraInfo topic for the intrinsics")
+    inp.add_argument(
+        "--calibration",
+        type=Path,
+        metavar="FILE",
+        help="the camera's calibration file (ROS or OpenCV YAML, Kalibr, COLMAP cameras.txt; instead of "
+        "--camera-info-topic): the images are undistorted to a pinhole, its intrinsics published on camera_info",
+    )
     inp.add_argument(
         "--intrinsics",
         type=float,
@@ -65,9 +73,20 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="axes of the posed frame (default ned for px4_msgs/VehicleOdometry, flu otherwise: REP 103 base_link "
         "with a forward-looking camera; opencv for poses of the camera's optical frame)",
     )
-    inp.add_argument("--world-frame", metavar="F", help="/tf pose topic: the fixed frame (e.g. odom or map)")
-    inp.add_argument("--body-frame", metavar="F", help="/tf pose topic: the posed frame (e.g. base_link)")
-    inp.add_argument("--ignore-distortion", action="store_true", help="use camera_info's K even with a distortion")
+    inp.add_argument(
+        "--world-frame", metavar="F", help="/tf pose topic: the fixed frame (default: the root above the body frame)"
+    )
+    inp.add_argument(
+        "--body-frame",
+        metavar="F",
+        help="/tf pose topic: the posed frame (default: base_link when /tf names it, else the one frame /tf moves)",
+    )
+    inp.add_argument(
+        "--ignore-distortion",
+        action="store_true",
+        help="use camera_info's K as if the images were undistorted (default: a distorting lens is undistorted to "
+        "a pinhole, as predict --bag does)",
+    )
     timing = parser.add_argument_group("timing")
     timing.add_argument(
         "--max-pose-gap",
@@ -182,6 +201,7 @@ def run(args: argparse.Namespace) -> int:
         image_topic=args.image_topic,
         pose_topic=args.pose_topic,
         camera_info_topic=args.camera_info_topic,
+        calibration=args.calibration,
         intrinsics=None if args.intrinsics is None else tuple(args.intrinsics),
         hfov=args.hfov,
         convention=args.convention,

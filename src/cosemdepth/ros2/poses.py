@@ -12,7 +12,9 @@ A pose topic holds one of (:data:`POSE_TOPIC_TYPES`):
   images' clock by the offset the first pose shows (the time its writer wrote it minus its stamp: the bridge's
   transport delay is not removed);
 * ``tf2_msgs/msg/TFMessage`` (``/tf``, with ``/tf_static``): the pose of ``body_frame`` in ``world_frame``, the
-  chain of transforms between them composed (each dynamic one interpolated at the stamp).
+  chain of transforms between them composed (each dynamic one interpolated at the stamp). Without ``body_frame``:
+  REP 105's ``base_link`` when the transforms name it, else the one frame a dynamic transform moves (several: the
+  frames must be given); without ``world_frame``: the root of the tree above the body (``odom`` or ``map``).
 
 Each image takes the pose at its header stamp exactly as ``predict --bag`` does
 (:func:`cosemdepth.robotics.rosbag.pose_at_images`: the pose at the same stamp, else the interpolation of the two
@@ -115,15 +117,49 @@ class PoseTrack:
         return None if posed.position is None else (posed.position, posed.quaternion)
 
 
+#: The body frame of REP 105 (chosen on ``/tf`` when no body frame is given and the transforms name it).
+BASE_LINK = "base_link"
+
+
 class TfTree:
     """The pose of ``body`` in ``world`` from ``/tf`` and ``/tf_static``: static transforms as last given, each
-    dynamic one as a :class:`PoseTrack` (``X_parent = R X_child + p``)."""
+    dynamic one as a :class:`PoseTrack` (``X_parent = R X_child + p``). ``world`` / ``body`` None: chosen from the
+    transforms (see the module docstring; :meth:`frames`)."""
 
-    def __init__(self, world: str, body: str, max_poses: int = MAX_POSES) -> None:
-        self.world, self.body = world.strip("/"), body.strip("/")
+    def __init__(self, world: str | None, body: str | None, max_poses: int = MAX_POSES) -> None:
+        self.world = None if not world else world.strip("/")
+        self.body = None if not body else body.strip("/")
         self.max_poses = max_poses
         self.static: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}
         self.dynamic: dict[str, tuple[str, PoseTrack]] = {}
+        self._said: tuple[str, str] | str | None = None
+
+    def _parent(self, frame: str) -> str | None:
+        edge = self.dynamic.get(frame) or self.static.get(frame)
+        return None if edge is None else edge[0]
+
+    def frames(self) -> tuple[str, str] | str:
+        """``(world, body)``, or why they cannot be chosen yet (a sentence)."""
+        body = self.body
+        if body is None:
+            moved = sorted(self.dynamic)
+            known = set(moved) | set(self.static)
+            if BASE_LINK in known:
+                body = BASE_LINK
+            elif len(moved) == 1:
+                body = moved[0]
+            elif not moved:
+                return "no dynamic transform on /tf yet"
+            else:
+                return f"/tf moves several frames ({', '.join(moved[:6])}): give --body-frame (and --world-frame)"
+        world = self.world
+        if world is None:
+            world, hops = body, 0
+            while (parent := self._parent(world)) is not None and hops < 64:
+                world, hops = parent, hops + 1
+            if world == body:
+                return f"no transform on /tf leads from {body} to a parent frame yet"
+        return world, body
 
     def add(self, msg: Any, static: bool = False) -> list[str]:
         notes = []
@@ -147,13 +183,22 @@ class TfTree:
             note = old[1].add(stamp, p, q)
             if note:
                 notes.append(f"transform {parent} -> {child}: {note}")
+        if self.world is None or self.body is None:  # say the frames chosen, and when they change
+            chosen = self.frames()
+            if isinstance(chosen, tuple) and chosen != self._said:
+                notes.append(f"/tf: the pose of {chosen[1]} in {chosen[0]} (--body-frame, --world-frame to choose)")
+                self._said = chosen
         return notes
 
     def chain(self) -> list[tuple[str, Any]] | None:
         """The edges from ``body`` up to ``world`` (child, (parent, PoseTrack) or (parent, p, q)), None while the
         transforms seen do not connect them."""
-        edges, frame = [], self.body
-        while frame != self.world:
+        chosen = self.frames()
+        if isinstance(chosen, str):
+            return None
+        world, frame = chosen
+        edges = []
+        while frame != world:
             edge = self.dynamic.get(frame) or self.static.get(frame)
             if edge is None or len(edges) > 64:
                 return None
@@ -197,7 +242,7 @@ class TfTree:
 
 class PoseInput:
     """The poses of one ``--pose-topic`` of type ``msgtype`` (:data:`POSE_TOPIC_TYPES`); ``world_frame`` and
-    ``body_frame`` name the transform of a ``/tf`` topic."""
+    ``body_frame`` name the transform of a ``/tf`` topic (None: chosen from the transforms, :class:`TfTree`)."""
 
     def __init__(
         self, msgtype: str, *, world_frame: str | None = None, body_frame: str | None = None, max_poses=MAX_POSES
@@ -208,10 +253,6 @@ class PoseInput:
             )
         self.msgtype = msgtype
         if msgtype == TF_MESSAGE:
-            if not world_frame or not body_frame:
-                raise ConfigError(
-                    "--pose-topic of tf2_msgs/msg/TFMessage (/tf) needs --world-frame F and --body-frame F"
-                )
             self.source: Any = TfTree(world_frame, body_frame, max_poses)
         else:
             self.source = PoseTrack(max_poses)
@@ -240,6 +281,11 @@ class PoseInput:
         note = self.source.add(stamp, p, q)
         return [note] if note else []
 
+    def unresolved(self) -> str | None:
+        """Why a ``/tf`` pose topic gives no pose yet (its frames cannot be chosen), else None."""
+        chosen = self.source.frames() if self.msgtype == TF_MESSAGE else None
+        return chosen if isinstance(chosen, str) else None
+
     def clear(self) -> None:
         """Forget the poses (a restarted pose publisher); PX4's clock offset is measured again."""
         self.source.clear()
@@ -257,6 +303,7 @@ class PoseInput:
 
 
 __all__ = [
+    "BASE_LINK",
     "MAX_POSES",
     "POSE_TOPIC_TYPES",
     "PX4_ODOMETRY",

@@ -7,15 +7,20 @@ Topics (under the namespace, default ``/cosemdepth``; each name can be remapped,
 name                type                                 content
 ==================  ===================================  =========================================================
 ``depth``           ``sensor_msgs/msg/Image``            ``32FC1`` metres along the optical axis, NaN where not valid
+                                                         (and where an undistorted image has no source pixel)
 ``depth_valid``     ``sensor_msgs/msg/Image``            ``mono8`` 255 where the depth is an estimate, 0 where not
 ``depth_status``    ``diagnostic_msgs/msg/               the bag's status values, then the node's: ``latency_ms``,
                     DiagnosticArray``                    ``stamp_age_ms``, ``step_ms`` (the model's step),
-                                                         ``frames_received``, ``frames_processed``,
+                                                         ``queue_ms`` (the image waiting for the model and its
+                                                         pose), ``convert_ms`` (decoding, resizing or
+                                                         undistorting), ``frames_received``, ``frames_processed``,
                                                          ``frames_dropped``, ``frames_without_pose``, and
                                                          ``reset_reason`` / ``depth_invalid_reason`` when there is one
 ``labels``          ``sensor_msgs/msg/Image``            ``mono8`` class index
 ``labels_color``    ``sensor_msgs/msg/Image``            ``rgb8`` the class palette
-``camera_info``     ``sensor_msgs/msg/CameraInfo``       the output size, K scaled to it (ROS pixel centres)
+``camera_info``     ``sensor_msgs/msg/CameraInfo``       the output size, K scaled to it (ROS pixel centres); a
+                                                         calibrated lens: the pinhole it is undistorted to, no
+                                                         distortion
 ``points``          ``sensor_msgs/msg/PointCloud2``      (``points=True``) the valid depth pixels back-projected:
                                                          x, y, z float32 in the image's optical frame
 ==================  ===================================  =========================================================
@@ -27,6 +32,7 @@ header stamp (meaningful when the camera stamps with this machine's clock).
 
 from __future__ import annotations
 
+import functools
 import time
 from collections import deque
 from pathlib import Path
@@ -80,11 +86,19 @@ def parse_remaps(remaps: Sequence[str]) -> dict[str, str]:
     return out
 
 
+@functools.lru_cache(maxsize=4)
+def _rays(h: int, w: int, intrinsics: tuple[float, ...]) -> np.ndarray:
+    """``[3, H, W]`` float64 pixel rays (z = 1) of a camera, computed once per camera (read-only)."""
+    rays = pixel_rays(h, w, torch.tensor([list(intrinsics)], dtype=torch.float64))[0].numpy()
+    rays.setflags(write=False)
+    return rays
+
+
 def points_of(depth: np.ndarray, valid: np.ndarray, intrinsics: Sequence[float]) -> np.ndarray:
     """``[N, 3]`` float32: the valid pixels of ``depth`` ``[H, W]`` (metres along the optical axis) back-projected
     with ``intrinsics`` (fx, fy, cx, cy; package convention), row by row."""
     h, w = depth.shape
-    rays = pixel_rays(h, w, torch.tensor([list(intrinsics)], dtype=torch.float64))[0].numpy()  # [3, H, W]
+    rays = _rays(h, w, tuple(float(v) for v in intrinsics))
     pts = rays[:, valid] * depth[valid].astype(np.float64)
     return pts.T.astype(np.float32)
 
@@ -142,6 +156,11 @@ class TopicSink:
             ("stamp_age_ms", f"{(now - stamp) / 1e6:.1f}"),
             ("step_ms", f"{1e3 * float(getattr(batch, 'seconds', 0.0)):.1f}"),
         ]
+        if "picked_ns" in meta:  # the source's timings: waiting for the model to be free, converting the image
+            values += [
+                ("queue_ms", f"{(int(meta['picked_ns']) - int(meta['received_ns'])) / 1e6:.1f}"),
+                ("convert_ms", f"{(int(meta['ready_ns']) - int(meta['picked_ns'])) / 1e6:.1f}"),
+            ]
         if self.stats is not None:
             values += [(k_, str(v)) for k_, v in self.stats.as_dict().items() if k_ != "resets"]
         values += [(key, str(meta[key])) for key in ("reset_reason", "depth_invalid_reason") if key in meta]

@@ -17,32 +17,28 @@ stamp that goes back (a clock jump) or jumps forward by more than ``max_frame_ga
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import sys
 import threading
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
 import torch
 
+from ..camera import Calibration, Undistorter, calibration_from_camera_info, load_calibration
 from ..data.decode import DEFAULT_JPEG_IDCT, check_jpeg_idct
 from ..data.flight import parse_intrinsics, scale_intrinsics
 from ..data.frames import Size, resolve_size, rgb_to_tensor
 from ..data.poses import CONVENTIONS, convention_matrix, relative_camera_motions
 from ..data.quaternion import qmatrix
+from ..data.undistorted import undistorter_for
 from ..errors import ConfigError, CosemdepthError
-from ..robotics.rosbag import (
-    CAMERA_INFO_TYPES,
-    IMAGE_TYPES,
-    CameraInfo,
-    camera_info_intrinsics,
-    format_stamp,
-    image_to_rgb,
-    stamp_ns,
-)
+from ..robotics.rosbag import CAMERA_INFO_TYPES, IMAGE_TYPES, format_stamp, image_to_rgb, stamp_ns
 from ..streaming.frames import FrameBatch
 from ..streaming.registry import register_source
 from .dds import QOS_CHOICES, Graph, Sample, ros_topic
@@ -76,14 +72,16 @@ class LiveOptions:
     Attributes:
         image_topic, pose_topic: ROS topics (the types are discovered from the graph: :data:`IMAGE_TYPES`,
             :data:`~cosemdepth.ros2.poses.POSE_TOPIC_TYPES`).
-        camera_info_topic / intrinsics (fx, fy, cx, cy; package convention, at the images' size) / hfov (degrees):
-            exactly one.
+        camera_info_topic / calibration (a calibration file: :func:`cosemdepth.camera.load_calibration`; loaded
+            and checked here) / intrinsics (fx, fy, cx, cy; package convention, at the images' size) / hfov
+            (degrees): exactly one.
         convention: axes of the posed frame (``cosemdepth.data.poses.CONVENTIONS``); None: ``ned`` for PX4's
             VehicleOdometry, ``flu`` otherwise.
         world_frame, body_frame: the transform of a ``/tf`` pose topic.
         max_pose_gap, pose_timeout, max_frame_gap: seconds (see the module docstring).
         input_qos: ``sensor`` (best effort: takes reliable and best-effort publishers) or ``reliable``.
-        ignore_distortion: accept a camera_info with distortion (K used as if undistorted).
+        ignore_distortion: use K of a distorting lens as if the images were undistorted (default: undistorted to a
+            pinhole as ``predict --bag`` does; :class:`~cosemdepth.camera.Undistorter`).
         jpeg_idct: how CompressedImage JPEGs are decoded (:mod:`cosemdepth.data.decode`).
         discovery_timeout: seconds to wait for the publishers (None: until stopped).
     """
@@ -91,6 +89,7 @@ class LiveOptions:
     image_topic: str
     pose_topic: str
     camera_info_topic: str | None = None
+    calibration: str | Path | Calibration | None = None
     intrinsics: tuple[float, float, float, float] | None = None
     hfov: float | None = None
     convention: str | None = None
@@ -109,11 +108,14 @@ class LiveOptions:
         object.__setattr__(self, "pose_topic", ros_topic(self.pose_topic, "--pose-topic"))
         if self.camera_info_topic is not None:
             object.__setattr__(self, "camera_info_topic", ros_topic(self.camera_info_topic, "--camera-info-topic"))
-        given = sum(x is not None for x in (self.camera_info_topic, self.intrinsics, self.hfov))
+        given = sum(x is not None for x in (self.camera_info_topic, self.calibration, self.intrinsics, self.hfov))
         if given != 1:
             raise ConfigError(
-                "the node needs exactly one of --camera-info-topic T, --intrinsics FX FY CX CY, --hfov DEG"
+                "the node needs exactly one of --camera-info-topic T, --calibration FILE, --intrinsics FX FY CX CY, "
+                "--hfov DEG"
             )
+        if self.calibration is not None and not isinstance(self.calibration, Calibration):
+            object.__setattr__(self, "calibration", load_calibration(self.calibration).check())
         if self.hfov is not None and not 0 < self.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {self.hfov}")
         if self.intrinsics is not None:
@@ -149,6 +151,23 @@ class LiveStats:
             "frames_rejected": self.rejected,
             "resets": dict(self.resets),
         }
+
+
+def lens_key(cal: Calibration) -> tuple:
+    """What makes two calibrations the same camera (not where they were read)."""
+    return (cal.size, cal.k, cal.model, cal.coefficients, cal.skew)
+
+
+@dataclass(frozen=True)
+class _Camera:
+    """How the images of one camera become model inputs: ``key`` (a new one starts the state afresh), the
+    ``undistorter`` of a calibrated lens (None: a pinhole, resized), the output ``size`` and ``intrinsics`` ``[4]``
+    float32 at it (package convention)."""
+
+    key: tuple
+    undistorter: Undistorter | None
+    size: Size
+    intrinsics: torch.Tensor
 
 
 @dataclass
@@ -203,9 +222,10 @@ class LiveSource:
         self.image_type: str | None = None
         self.pose_type: str | None = None
         self.poses: PoseInput | None = None
-        self.info: CameraInfo | None = None
+        self.info: Calibration | None = None
         self.info_error: str | None = None
         self.out_size: Size | None = None
+        self._camera: _Camera | None = None
         self.convention: np.ndarray | None = None
         # the motion chain: the last processed frame
         self._last: dict[str, Any] | None = None
@@ -225,6 +245,7 @@ class LiveSource:
             "pose_type": self.pose_type,
             "camera_info_topic": o.camera_info_topic,
             "convention": o.convention or (default_convention(self.pose_type) if self.pose_type else None),
+            **({"tf_frames": self.poses.source.frames()} if self.pose_type == TF_MESSAGE and self.poses else {}),
             "max_pose_gap_s": o.max_pose_gap,
             "pose_timeout_s": o.pose_timeout,
             "max_frame_gap_s": o.max_frame_gap,
@@ -362,13 +383,15 @@ class LiveSource:
             msg = decode(sample.data, CAMERA_INFO_TYPES[0])
             where = f"{o.camera_info_topic} at stamp {format_stamp(stamp_ns(msg.header))}"
             try:
-                info = camera_info_intrinsics(msg, where, o.ignore_distortion)
+                info = calibration_from_camera_info(msg, where)
             except CosemdepthError as e:  # the images are left out (said) until a usable camera_info comes
                 self.info, self.info_error = None, str(e)
                 raise
             self.info_error = None
-            if self.info is not None and info != self.info:
-                notes.append(f"{o.camera_info_topic}: new intrinsics {info.k} for {info.size[1]}x{info.size[0]}")
+            if self.info is not None and lens_key(info) != lens_key(self.info):
+                notes.append(
+                    f"{o.camera_info_topic}: new camera {info.model} {info.k} for {info.size[1]}x{info.size[0]}"
+                )
             self.info = info
 
     # ------------------------------------------------------------------ choosing the next frame
@@ -417,6 +440,7 @@ class LiveSource:
                 if picked is None:
                     return
             image, posed, dropped = picked
+            picked_ns = time.time_ns()
             try:
                 batch = self._frame(image, posed, dropped)
             except CosemdepthError as e:  # an image that cannot be decoded or fits no camera: noted and left out
@@ -424,32 +448,56 @@ class LiveSource:
                 self._last = None
                 self.limited("left out", f"frame left out: {e}")
                 continue
+            batch.meta[0]["picked_ns"], batch.meta[0]["ready_ns"] = picked_ns, time.time_ns()
             done += 1
             yield batch
 
-    def _intrinsics(self, native: Size) -> np.ndarray:
+    def _camera_for(self, native: Size) -> _Camera:
+        """The camera of images of ``native`` size, as ``predict --bag`` sets it up: a calibration file always
+        through its :class:`~cosemdepth.camera.Undistorter`; camera_info with a distortion through its own (unless
+        ``ignore_distortion``), without one its K resized; given intrinsics or hfov resized. The first camera's
+        output size is kept for later ones (the model's input size stays)."""
         o = self.options
         if self.info is None and self.info_error is not None:
             raise CosemdepthError(self.info_error)
+        cal, lens = o.calibration, o.calibration is not None
         if self.info is not None:
-            if self.info.size != tuple(native) and self.info.size != (0, 0):
+            cal = self.info
+            if cal.size == (0, 0):  # camera_info without a size: the images'
+                cal = dataclasses.replace(cal, size=tuple(native))
+            if cal.size != tuple(native):
                 raise CosemdepthError(
-                    f"{o.camera_info_topic}: camera_info is for {self.info.size[0]}x{self.info.size[1]} images but "
+                    f"{o.camera_info_topic}: camera_info is for {cal.size[0]}x{cal.size[1]} images but "
                     f"{o.image_topic} has {native[0]}x{native[1]}"
                 )
-            return np.array(self.info.k)
-        return parse_intrinsics(o.intrinsics, o.hfov, native)
+            lens = cal.has_distortion and not o.ignore_distortion
+        if cal is not None:
+            key: tuple = (tuple(native), lens, lens_key(cal))
+            k_native = np.array(cal.k)
+        else:
+            k_native = parse_intrinsics(o.intrinsics, o.hfov, native)
+            key = (tuple(native), False, tuple(float(v) for v in k_native))
+        if self._camera is not None and self._camera.key == key:
+            return self._camera
+        rule = self.size_rule if self.out_size is None else self.out_size
+        if lens:
+            u = undistorter_for(cal, native, rule, f"the images of {o.image_topic}")
+            camera = _Camera(key, u, u.size, u.intrinsics)
+        else:
+            size = resolve_size(rule, lambda: (native, float(k_native[0]))) or native
+            camera = _Camera(key, None, size, scale_intrinsics(k_native, native, size))
+        self.out_size = self.out_size or camera.size
+        self._camera = camera
+        return camera
 
     def _frame(self, image: _Image, posed: bool, dropped: int) -> FrameBatch:
         o = self.options
         where = f"{o.image_topic} at stamp {format_stamp(image.stamp)}"
         rgb = image_to_rgb(image.msgtype, image.msg, where, o.jpeg_idct)
         native = tuple(rgb.shape[:2])
-        k_native = self._intrinsics(native)
-        if self.out_size is None:
-            self.out_size = resolve_size(self.size_rule, lambda: (native, float(k_native[0]))) or native
+        camera = self._camera_for(native)
         pose = self.poses.at(image.stamp, int(round(o.max_pose_gap * 1e9))) if posed else None
-        intrinsics = scale_intrinsics(k_native, native, self.out_size)
+        intrinsics = camera.intrinsics
         meta: dict[str, Any] = {
             "stamp_ns": image.stamp,
             "frame_id": image.frame_id,
@@ -458,7 +506,7 @@ class LiveSource:
             "dropped_before": dropped,
             "intrinsics": [float(v) for v in intrinsics],  # float32's values (the batch's may be cast to the model's)
         }
-        reason = self._break(image, native, k_native)
+        reason = self._break(image, camera.key)
         if pose is None:
             last = self.poses.latest
             why = (
@@ -468,6 +516,8 @@ class LiveSource:
             )
             if last is not None:
                 why += f"; last pose {(last - image.stamp) / 1e9:+.3f} s from it"
+            if self.poses.unresolved():
+                why += f"; {self.poses.unresolved()}"
             meta["depth_invalid_reason"] = why
             self.stats.unposed += 1
             self.limited("unposed", f"image at {format_stamp(image.stamp)}: {why}: no depth (status reset)")
@@ -497,15 +547,20 @@ class LiveSource:
             "q": q_,
             "stamp": image.stamp,
             "writer": image.writer,
-            "native": native,
-            "k": tuple(k_native),
+            "camera": camera.key,
         }
         index = self.stats.processed
         self.stats.processed += 1
         row = self._row
         self._row += 1
+        source_valid = None
+        if camera.undistorter is not None:
+            rgb_t, valid = camera.undistorter(rgb)
+            source_valid = valid[None, None].clone()
+        else:
+            rgb_t = rgb_to_tensor(rgb, camera.size)
         return FrameBatch(
-            rgb=rgb_to_tensor(rgb, self.out_size)[None],
+            rgb=rgb_t[None],
             rot=torch.from_numpy(np.asarray(q, dtype=np.float32))[None],
             trans=torch.from_numpy(np.asarray(t, dtype=np.float32))[None],
             intrinsics=intrinsics[None],
@@ -519,9 +574,10 @@ class LiveSource:
             meta=[meta],
             pose=None if cam_to_world is None else cam_to_world[None],
             depth_ok=torch.tensor([pose is not None]),
+            source_valid=source_valid,
         )
 
-    def _break(self, image: _Image, native: Size, k_native: np.ndarray) -> str | None:
+    def _break(self, image: _Image, camera: tuple) -> str | None:
         """Why the state starts afresh at ``image`` (None: it goes on from the previous processed frame)."""
         last = self._last
         if last is None:
@@ -535,7 +591,7 @@ class LiveSource:
         gap = (image.stamp - last["stamp"]) / 1e9
         if gap > self.options.max_frame_gap:
             return f"gap: {gap:.3f} s since the previous frame (--max-frame-gap {self.options.max_frame_gap:g})"
-        if native != last["native"] or tuple(k_native) != last["k"]:
+        if camera != last["camera"]:
             return "new camera: image size or intrinsics changed"
         return None
 
