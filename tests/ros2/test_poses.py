@@ -105,6 +105,11 @@ def test_px4_odometry_nan_clock_offset_and_convention():
     assert live.px4_offset == written - 5 * 10**9 and live.latest == written
     live.add(_pose_message(TS, PX4_ODOMETRY, 5 * 10**9 + 4 * MS, p, q), 0, image_stamp=image_clock)
     assert live.latest == written + 4 * MS  # the first offset is kept
+    # images stamped with a clock of their own (a replayed bag, a simulator): written 3 years after their stamps
+    replayed = PoseInput(PX4_ODOMETRY)
+    years = 3 * 365 * 86400 * 10**9
+    replayed.add(msg, written + years, image_stamp=image_clock, image_source_ns=image_clock + 2 * MS + years)
+    assert replayed.latest == written - 2 * MS  # on the images' clock: the two writers' delays' difference stays in
     with pytest.raises(ConfigError, match="not a pose type"):
         PoseInput("sensor_msgs/msg/Image")
 

@@ -9,8 +9,9 @@ A pose topic holds one of (:data:`POSE_TOPIC_TYPES`):
   (w, x, y, z) of the FRD body in the NED (or FRD) world, stamped ``timestamp_sample`` (microseconds); a pose with
   a NaN is not valid and is left out. PX4 stamps are microseconds since boot unless the bridge synchronises them with
   the companion computer's clock; stamps since boot next to images stamped in seconds since 1970 are moved onto the
-  images' clock by the offset the first pose shows (the time its writer wrote it minus its stamp: the bridge's
-  transport delay is not removed);
+  images' clock by the offset the first pose shows: the time its writer wrote it minus its stamp, less the time a
+  recent image was written minus its stamp (a live camera stamps with the time it writes, give or take its delay;
+  a replayed or simulated one with its own clock), so the two transport delays' difference stays in;
 * ``tf2_msgs/msg/TFMessage`` (``/tf``, with ``/tf_static``): the pose of ``body_frame`` in ``world_frame``, the
   chain of transforms between them composed (each dynamic one interpolated at the stamp). Without ``body_frame``:
   REP 105's ``base_link`` when the transforms name it, else the one frame a dynamic transform moves (several: the
@@ -258,9 +259,18 @@ class PoseInput:
             self.source = PoseTrack(max_poses)
         self.px4_offset: int | None = None
 
-    def add(self, msg: Any, source_ns: int, *, static: bool = False, image_stamp: int | None = None) -> list[str]:
+    def add(
+        self,
+        msg: Any,
+        source_ns: int,
+        *,
+        static: bool = False,
+        image_stamp: int | None = None,
+        image_source_ns: int | None = None,
+    ) -> list[str]:
         """Take a pose message (``source_ns``: when its writer wrote it; ``image_stamp``: a recent image's stamp,
-        telling which clock the images use). Returns notes for the log."""
+        telling which clock the images use, ``image_source_ns``: when that image was written). Returns notes for the
+        log."""
         if self.msgtype == TF_MESSAGE:
             return self.source.add(msg, static)
         if self.msgtype == PX4_ODOMETRY:
@@ -269,8 +279,9 @@ class PoseInput:
                 return []
             stamp, p, q = pose
             if stamp < EPOCH_NS and image_stamp is not None and image_stamp >= EPOCH_NS:
-                if self.px4_offset is None:
-                    self.px4_offset = int(source_ns) - stamp
+                if self.px4_offset is None:  # PX4's clock -> the writers' -> the images' (their stamp - write time)
+                    lag = 0 if image_source_ns is None else int(image_source_ns) - int(image_stamp)
+                    self.px4_offset = int(source_ns) - stamp - lag
                 stamp += self.px4_offset
         else:
             stamp, p, q = pose_from_msg(self.msgtype, msg)

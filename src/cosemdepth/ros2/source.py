@@ -232,6 +232,7 @@ class LiveSource:
         self._segment = 0
         self._row = 0
         self._last_image_stamp: int | None = None
+        self._last_image_written: int | None = None
         self._owns_graph = False
         self._noted: dict[str, tuple[float | None, int]] = {}
 
@@ -357,7 +358,7 @@ class LiveSource:
                 latest = self.poses.latest
                 if latest is not None and latest > t + int(o.max_frame_gap * 1e9):
                     self.poses.clear()  # the pose track has not jumped back with the images yet: its poses are stale
-            self._last_image_stamp = t
+            self._last_image_stamp, self._last_image_written = t, sample.source_ns
             self._pending.append(
                 _Image(
                     t,
@@ -377,7 +378,13 @@ class LiveSource:
         elif kind in ("pose", "tf_static"):
             msg = decode(sample.data, self.pose_type)
             notes.extend(
-                self.poses.add(msg, sample.source_ns, static=kind == "tf_static", image_stamp=self._last_image_stamp)
+                self.poses.add(
+                    msg,
+                    sample.source_ns,
+                    static=kind == "tf_static",
+                    image_stamp=self._last_image_stamp,
+                    image_source_ns=self._last_image_written,
+                )
             )
         elif kind == "camera_info":
             msg = decode(sample.data, CAMERA_INFO_TYPES[0])
