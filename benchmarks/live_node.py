@@ -3,7 +3,8 @@
     python benchmarks/live_node.py --model weights/synthair-cosemdepth --flight DIR [--frames 200]
         [--rates 10 20 30] [--sizes own 384] [--modes fast-fp32 fast-bf16 onnx-int8] [--threads N ...]
         [--memory-minutes 10] [--out benchmarks/results/live_node.json]
-    python benchmarks/live_node.py --flight DIR --acceptance     # own size, fast fp32, 10 and 30 Hz, 2 min memory
+    python benchmarks/live_node.py --flight DIR --acceptance     # own size, fast fp32, 10 and 30 Hz, 2 min memory,
+                                                                 # the threads side by side
 
 ``DIR`` is a SynthAir root (``cosemdepth synth --out DIR --trajectories 1 --frames 804 --size 384 --climates sunny``:
 200 images of 384x384 at 6.25 Hz); its first trajectory becomes a ROS 2 bag (``/camera/image_raw`` rgb8,
@@ -36,7 +37,9 @@ every 5 s (``flat`` when it grows by less than ``--tolerance-mb`` after the firs
 here (bf16 without CPU bf16 dot products: no ``avx512_bf16`` / ``amx_bf16`` flag) is recorded as not run, with the
 reason. With 10 and 30 Hz among the rates each configuration gets ``acceptance``: no dropped frame at 10 Hz (and
 its p95 latency), the drops at 30 Hz and the depth equal to ``predict --bag``'s there, memory flat (when measured).
-Writes JSON.
+``--threads-steps N`` (30 with ``--acceptance``) first times the model's step at its own size in three processes
+taking turns, N steps each (the same load for all): 1 thread, every core with sleeping OpenMP threads (the node's
+default), every core spinning (libgomp's default): the section ``threads_side_by_side``. Writes JSON.
 """
 
 from __future__ import annotations
@@ -342,6 +345,83 @@ def memory_run(a, bag, pid: int, env, tmp: Path, minutes: float) -> dict:
     }
 
 
+#: One model-step worker of :func:`threads_side_by_side` (argv: model, threads, size; a step per line on stdin).
+STEP_WORKER = r"""
+import json, resource, sys, time
+import torch
+from cosemdepth.inference.policy import EVERY_FRAME, Streamer
+from cosemdepth.jobs.model import ModelOptions, load_for
+torch.set_num_threads(int(sys.argv[2]))
+size = int(sys.argv[3])
+model, _ = load_for(ModelOptions(sys.argv[1]))
+streamer, state, i = Streamer(model, EVERY_FRAME), None, 0
+k = torch.tensor([[size / 2.0] * 4])
+def cpu():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+print("ready", flush=True)
+for _ in sys.stdin:
+    x = torch.rand(1, 3, size, size)
+    c0, t0 = cpu(), time.perf_counter()
+    with torch.inference_mode():
+        out, state = streamer.step(x, torch.tensor([[1.0, 0, 0, 0]]), torch.tensor([[0.0, 0, 0.5]]), k,
+                                   torch.tensor([i == 0]), state)
+    print(json.dumps([time.perf_counter() - t0, cpu() - c0]), flush=True)
+    i += 1
+"""
+
+
+def threads_side_by_side(model: str, size: int, steps: int, env: dict) -> dict:
+    """The model's streaming step (fast fp32, ``size`` px, random frames) in three processes that take turns, one
+    step each, so that the machine's load is the same for all: 1 thread; every core with OpenMP threads that sleep
+    while they wait (the node's default, ``OMP_WAIT_POLICY=PASSIVE``); every core with libgomp's default spinning.
+    Wall and process CPU ms per step (p50, p90), after 3 warm-up steps each."""
+    cores = os.cpu_count() or 1
+    configs = {
+        "threads_1": (1, "PASSIVE"),
+        f"threads_{cores}_passive": (cores, "PASSIVE"),
+        f"threads_{cores}_spinning": (cores, None),
+    }
+    procs = {}
+    try:
+        for name, (threads, policy) in configs.items():
+            e = {k: v for k, v in env.items() if k not in ("OMP_WAIT_POLICY", "OMP_NUM_THREADS")}
+            if policy:
+                e["OMP_WAIT_POLICY"] = policy
+            cmd = [sys.executable, "-c", STEP_WORKER, model, str(threads), str(size)]
+            procs[name] = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=e)
+            CHILDREN.append(procs[name])
+        for p in procs.values():
+            if p.stdout.readline().strip() != "ready":
+                raise RuntimeError("a step worker did not start")
+        got: dict[str, list] = {n: [] for n in procs}
+        names = list(procs)
+        for i in range(steps + 3):
+            for n in names[i % len(names) :] + names[: i % len(names)]:  # each goes first in turn
+                procs[n].stdin.write("step\n")
+                procs[n].stdin.flush()
+                wall, cpu = json.loads(procs[n].stdout.readline())
+                if i >= 3:
+                    got[n].append((1e3 * wall, 1e3 * cpu))
+    finally:
+        for p in procs.values():
+            if p.stdin:
+                p.stdin.close()
+            p.wait(60)
+    out = {}
+    for n, v in got.items():
+        wall, cpu = np.array([w for w, _ in v]), np.array([c for _, c in v])
+        out[n] = {
+            "wall_ms_p50": round(float(np.median(wall)), 1),
+            "wall_ms_p90": round(float(np.percentile(wall, 90)), 1),
+            "cpu_ms_p50": round(float(np.median(cpu)), 1),
+        }
+    base = out["threads_1"]["wall_ms_p50"]
+    for n in out:
+        out[n]["wall_p50_over_1_thread"] = round(out[n]["wall_ms_p50"] / base, 3)
+    return {"size": size, "steps": steps, "loadavg": list(os.getloadavg()), **out}
+
+
 def acceptance(result: dict) -> dict:
     """The issue's acceptance items of one configuration: no dropped frame at 10 Hz (p95 latency), drops counted at
     30 Hz with the depth equal to predict --bag's on the processed frames, memory flat (when measured)."""
@@ -379,6 +459,12 @@ def main(argv=None) -> int:
     )
     p.add_argument("--own-size", type=int, default=128, help="the model's own size (for the int8 export)")
     p.add_argument("--memory-minutes", type=float, help="default 0 (2 with --acceptance)")
+    p.add_argument(
+        "--threads-steps",
+        type=int,
+        help="the model's step at its own size with 1 thread, every core sleeping, every core spinning, taking "
+        "turns, this many steps each (default 0; 30 with --acceptance)",
+    )
     p.add_argument("--tolerance-mb", type=float, default=8.0)
     p.add_argument("--domain", type=int, default=200 + os.getpid() % 30)
     p.add_argument("--work-dir", help="keep the bags, logs and graphs here (default: a temporary folder)")
@@ -390,6 +476,7 @@ def main(argv=None) -> int:
     a.modes = a.modes or (["fast-fp32", "fast-bf16", "onnx-int8"] if full else ["fast-fp32"])
     a.memory_minutes = a.memory_minutes if a.memory_minutes is not None else (0.0 if full else 2.0)
     a.threads = a.threads or [None]
+    a.threads_steps = a.threads_steps if a.threads_steps is not None else (0 if full else 30)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))  # the finally blocks stop the node and replay processes
 
     from cosemdepth.ros2.dds import loopback_config
@@ -406,6 +493,10 @@ def main(argv=None) -> int:
         bag = tmp / "flight"
         shutil.rmtree(bag, ignore_errors=True)
         info = write_midair_bag(a.flight, "sunny", 0, bag, frames=a.frames)
+        sections = {}
+        if a.threads_steps > 0:
+            sections["threads_side_by_side"] = threads_side_by_side(a.model, a.own_size, a.threads_steps, env)
+            print(f"  threads side by side: {json.dumps(sections['threads_side_by_side'])}", flush=True)
         probe = Probe()
         try:
             first = True
@@ -445,7 +536,7 @@ def main(argv=None) -> int:
         "memory_minutes": a.memory_minutes,
         "dds": "Cyclone DDS on loopback (lo, no multicast, unicast peer 127.0.0.1)",
     }
-    write_report(a.out, make_report("live_node", params, results))
+    write_report(a.out, make_report("live_node", params, results, **sections))
     print(f"wrote {a.out}")
     return 0
 
