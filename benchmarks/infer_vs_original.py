@@ -165,7 +165,7 @@ def time_graph(path: Path, size: int, warmup: int, frames: int, threads: int) ->
     """An exported graph run by ONNX Runtime (CPU provider), streamed like :func:`time_ours`."""
     from cosemdepth.export.runtime import OnnxStep
 
-    step = OnnxStep(path, threads=threads)
+    step = OnnxStep(path, threads=threads, provenance=False)  # an older export (before/after) is timed too
     times, state = [], None
     for i, frame in enumerate(_inputs(warmup + frames, size)):
         t0 = time.perf_counter()

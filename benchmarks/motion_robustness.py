@@ -17,7 +17,7 @@ policy of :mod:`cosemdepth.inference.policy`; per regime and policy, pooled over
 
 * ``abs_rel``, ``delta1``: the paper's metrics over every pixel with ground truth (per-frame means);
 * ``valid_abs_rel``, ``valid_delta1``, ``coverage``: over the pixels the output marks valid
-  (:class:`~cosemdepth.evaluation.metrics.ValidDepthMetrics`; coverage = valid fraction of the GT pixels of the
+  (:class:`~cosemdepth.measures.metrics.ValidDepthMetrics`; coverage = valid fraction of the GT pixels of the
   non-reset frames);
 * ``frames_by_status`` (estimated / held / reset), ``valid_nonpositive_pixels`` (valid pixels whose depth is <= 0);
 * ``too_near_pixels``: GT pixels predicted nearer than :data:`TOO_NEAR` x the ground truth, and ``too_near_removed``,
@@ -46,7 +46,7 @@ from typing import Callable
 import torch
 
 from cosemdepth.bench.harness import command_line, make_report, run_meta, write_report
-from cosemdepth.evaluation.metrics import EPS, EVAL_MAX_DEPTH, DepthMetrics, ValidDepthMetrics
+from cosemdepth.measures.metrics import EPS, EVAL_MAX_DEPTH, DepthMetrics, ValidDepthMetrics
 from cosemdepth.output_safety.atomic import atomic_write_bytes, atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -192,14 +192,14 @@ def infer_main(argv=None) -> int:
 
 #: Functions the decoders call, wrapped in a profiler range of this name (module, attribute, part).
 WRAPPED = [
-    ("cosemdepth.models.depth_decoder", "grouped_l2_normalize", "normalisation: grouped L2"),
-    ("cosemdepth.models.semantic_decoder", "grouped_l2_normalize", "normalisation: grouped L2"),
-    ("cosemdepth.models.depth_decoder", "resize_bl1", "resize"),
-    ("cosemdepth.models.semantic_decoder", "resize_nn1", "resize"),
-    ("cosemdepth.models.depth_decoder", "epipolar_geometry", "geometry (epipolar, parallax)"),
-    ("cosemdepth.models.depth_decoder", "candidate_sample_points", "geometry (epipolar, parallax)"),
-    ("cosemdepth.models.depth_decoder", "prev_depth_to_parallax", "geometry (epipolar, parallax)"),
-    ("cosemdepth.models.depth_decoder", "parallax_to_depth", "geometry (epipolar, parallax)"),
+    ("cosemdepth.decoders.depth.decoder", "grouped_l2_normalize", "normalisation: grouped L2"),
+    ("cosemdepth.decoders.semantic.decoder", "grouped_l2_normalize", "normalisation: grouped L2"),
+    ("cosemdepth.decoders.depth.decoder", "resize_bl1", "resize"),
+    ("cosemdepth.decoders.semantic.decoder", "resize_nn1", "resize"),
+    ("cosemdepth.decoders.depth.decoder", "epipolar_geometry", "geometry (epipolar, parallax)"),
+    ("cosemdepth.decoders.depth.decoder", "candidate_sample_points", "geometry (epipolar, parallax)"),
+    ("cosemdepth.decoders.depth.decoder", "prev_depth_to_parallax", "geometry (epipolar, parallax)"),
+    ("cosemdepth.decoders.depth.decoder", "parallax_to_depth", "geometry (epipolar, parallax)"),
 ]
 PART_PREFIX = "part: "
 EVAL = "autograd::engine::evaluate_function"
@@ -251,9 +251,9 @@ def marked(model):
 
         return pre, post
 
+    from cosemdepth.decoders.semantic import SemanticDecoder
     from cosemdepth.models.encoder import DINL, Encoder
     from cosemdepth.models.layers import Refiner
-    from cosemdepth.models.semantic_decoder import SemanticDecoder
 
     for m in model.modules():
         part = None

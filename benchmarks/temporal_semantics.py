@@ -459,8 +459,8 @@ def _label(v: str) -> str:
 def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: int) -> None:
     from PIL import Image, ImageDraw
 
-    from cosemdepth.evaluation.classes import class_info
     from cosemdepth.evaluation.visualize import colorize_labels, rgb_to_uint8
+    from cosemdepth.measures.classes import class_info
 
     _, palette = class_info(num_classes, "synthair")
     any_c = next(iter(collectors.values()))

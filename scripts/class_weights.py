@@ -5,7 +5,7 @@
 Opens every ``data.train`` dataset of the config as training opens it (same split, windows and size, without
 augmentation), counts the labels of the frames the loss supervises (every window's frames from the second on) and
 prints the per-class pixel shares and ``train.semantic_class_weights`` = ``(median share / share) ** power``
-(:func:`cosemdepth.training.losses.median_frequency_weights`), ready to paste into the config.
+(:func:`cosemdepth.measures.losses.median_frequency_weights`), ready to paste into the config.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ import sys
 import torch
 
 from cosemdepth.errors import ConfigError, CosemdepthError
+from cosemdepth.measures.losses import FIRST_SUPERVISED_FRAME, median_frequency_weights
 from cosemdepth.output_safety.atomic import atomic_write_text
 from cosemdepth.training.config import resolve_config
 from cosemdepth.training.data import open_source
-from cosemdepth.training.losses import FIRST_SUPERVISED_FRAME, median_frequency_weights
 
 
 def count_labels(cfg) -> torch.Tensor:

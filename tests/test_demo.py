@@ -144,6 +144,21 @@ def test_demo_end_to_end_on_a_given_dataset(model_dir, data, tmp_path, capsys):
     assert rc == 0 and not (out / "flight.mp4").exists() and leftovers(tmp_path) == []
 
 
+def test_demo_on_trajectories_of_one_frame_reports_no_depth(model_dir, tmp_path, capsys):
+    one = tiny_midair(tmp_path / "one", trajectories=(0,), frames=8)  # one row: the flight is one reset frame
+    out = tmp_path / "report"
+    argv = ["demo", "--out", str(out), "--model", str(model_dir), "--data-root", str(one), "--size", str(SIZE)]
+    assert main([*argv, "--no-progress", "--video", "none"]) == 0
+    err = capsys.readouterr().err
+    assert "cosemdepth demo: warning: no depth was produced: the input has 1 frame" in err
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["model"]["abs_rel"] is None and m["model"]["miou"] is not None
+    report = (out / "report.md").read_text()
+    assert "reset frames excluded" not in report
+    assert "every frame is a reset: counted for the labels, never for the depth" in report
+    assert "**Warning**: no depth was produced" in report
+
+
 def test_demo_generates_the_flight_with_the_synth_command(model_dir, tmp_path, monkeypatch):
     """The generation path, with ``cosemdepth synth`` replaced by the test writer (same Mid-Air format)."""
     calls = []
@@ -297,8 +312,10 @@ def test_demo_on_a_given_dataset_without_size_runs_at_the_model_s_focal_length(d
     )  # the 32x32 split at half its size
     m = demo_mod.run_demo(tmp_path / "r", model=model, data_root=data, video=None, progress=False, log=lambda *a: None)
     assert m["flight"]["size"] == [16, 16] and "--size" not in m["command"]
-    assert "warning" not in capsys.readouterr().err
+    assert "focal length" not in capsys.readouterr().err  # no size warning (this random model's depth is another)
     demo_mod.run_demo(
         tmp_path / "r2", model=model, data_root=data, size=SIZE, video=None, progress=False, log=lambda *a: None
     )
-    assert "16.0 px, but the model was trained at 8.0 px (16x16)" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "16.0 px, but the model was trained at 8.0 px (16x16)" in err
+    assert "(without --size this input runs at 16x16)" in err

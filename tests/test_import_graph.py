@@ -25,6 +25,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.coerce",
             "cosemdepth.plugins",
             "cosemdepth.models.config",
+            "cosemdepth.models.registry",
             "cosemdepth.workers",
             "cosemdepth.devices",
             "cosemdepth.optional",
@@ -36,12 +37,31 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("models", ("cosemdepth.models",)),
     (
         "engines, model folders, readers",
-        ("cosemdepth.inference", "cosemdepth.checkpoints", "cosemdepth.data", "cosemdepth.synthair"),
+        (
+            "cosemdepth.inference",
+            "cosemdepth.checkpoints",
+            "cosemdepth.camera",
+            "cosemdepth.data",
+            "cosemdepth.flightlogs",
+            "cosemdepth.synthair",
+        ),
     ),
     (
-        "tasks",
+        "measures and render",
         (
-            "cosemdepth.tasks",
+            "cosemdepth.measures",
+            "cosemdepth.render",
+            # the pictures and files of predictions, until they move to cosemdepth.render
+            "cosemdepth.evaluation.visualize",
+            "cosemdepth.evaluation.figures",
+            "cosemdepth.training.visual",
+        ),
+    ),
+    ("tasks and decoders", ("cosemdepth.tasks", "cosemdepth.decoders")),
+    ("streaming", ("cosemdepth.streaming",)),
+    (
+        "jobs",
+        (
             "cosemdepth.evaluation",
             "cosemdepth.training",
             "cosemdepth.export",
@@ -163,7 +183,11 @@ def test_the_scanner_sees_relative_function_local_and_package_imports():
     g = graph()
     assert "cosemdepth.models.model" in g["cosemdepth.models"]  # from .model import ... in a package __init__
     assert "cosemdepth.models.config" in g["cosemdepth.models.model"]  # from .config import ...
-    assert g["cosemdepth.models.config"] == {"cosemdepth.errors": False, "cosemdepth.coerce": False}  # from ..x
+    assert g["cosemdepth.models.config"] == {  # from ..x and from .x
+        "cosemdepth.errors": False,
+        "cosemdepth.coerce": False,
+        "cosemdepth.models.registry": False,
+    }
     assert g["cosemdepth.evaluation.tfref_fixture"]["cosemdepth.checkpoints.tf_checkpoint"] is True  # function-local
     assert g["cosemdepth.training.config"]["cosemdepth.data.registry"] is False  # module level
     assert "cosemdepth.models.model" in g["cosemdepth.inference.fast_model"]  # inference sits above models
@@ -193,7 +217,12 @@ def test_no_import_cycle_in_the_package():
 def test_every_module_is_in_a_layer():
     assert [m for m in module_names() if layer_of(m) is None] == []
     assert layer_of("cosemdepth.models.config") == 0 and layer_of("cosemdepth.models.model") == 2
-    assert layer_of("cosemdepth") == 0 and layer_of("cosemdepth.cli.train") == 5
+    assert layer_of("cosemdepth") == 0 and layer_of("cosemdepth.cli.train") == len(LAYERS) - 1
+    assert layer_of("cosemdepth.models.registry") == 0  # the tables, read by the layers above it
+    assert layer_of("cosemdepth.decoders.depth.task") == layer_of("cosemdepth.tasks.base")
+    assert (
+        layer_of("cosemdepth.measures.metrics") < layer_of("cosemdepth.tasks.base") < layer_of("cosemdepth.evaluation")
+    )
 
 
 def test_no_module_imports_a_higher_layer():
@@ -245,3 +274,27 @@ def test_the_layer_check_catches_an_upward_function_local_import(tmp_path):
     assert upward_imports(g, layers, "pkg")[0] == (
         "pkg.low (low) imports pkg.high (high) inside a function (a function-local import)"
     )
+
+
+@pytest.mark.parametrize(
+    "importer, imported",
+    [
+        ("cosemdepth.tasks.base", "cosemdepth.training.losses"),  # a task reaching into the training job
+        ("cosemdepth.tasks.base", "cosemdepth.evaluation.metrics"),
+        ("cosemdepth.decoders.depth.task", "cosemdepth.evaluation.predict"),
+        ("cosemdepth.decoders.semantic.task", "cosemdepth.streaming"),
+        ("cosemdepth.models.model", "cosemdepth.decoders.depth.decoder"),  # the model naming a decoder
+        ("cosemdepth.checkpoints.convert", "cosemdepth.decoders.semantic.tf_names"),
+        ("cosemdepth.measures.losses", "cosemdepth.tasks.base"),
+        ("cosemdepth.render.figures", "cosemdepth.decoders.depth"),
+    ],
+)
+def test_the_package_layers_refuse_an_upward_import(importer, imported):
+    """The package's own table on one-edge graphs: a task or decoder folder importing a job, the models or the
+    conversion importing a decoder folder, a measure importing a task are each reported."""
+    g = {importer: {imported: True}, imported: {}}
+    low, high = LAYERS[layer_of(importer)][0], LAYERS[layer_of(imported)][0]
+    assert upward_imports(g) == [
+        f"{importer} ({low}) imports {imported} ({high}) inside a function (a function-local import)"
+    ]
+    assert upward_imports({imported: {importer: False}, importer: {}}) == []  # the other way is downward

@@ -27,10 +27,11 @@ def test_input_size_and_focal_ratio():
 
 
 def test_a_size_far_from_the_model_s_focal_length_gets_one_warning_line_naming_both():
-    msg = SHIPPED.size_warning((384, 384), 192.0)
+    msg = SHIPPED.size_warning((384, 384), 192.0, default_size=(128, 128))
     assert msg is not None and "\n" not in msg
-    for part in ("--size 384x384", "192.0 px", "64.0 px (128x128)", "runs at 128x128"):
+    for part in ("--size 384x384", "192.0 px", "64.0 px (128x128)", "(without --size this input runs at 128x128)"):
         assert part in msg, part
+    assert "without" not in SHIPPED.size_warning((384, 384), 192.0)  # the caller did not say: nothing made up
     # within the factor, either way: no warning; just beyond it: a warning
     assert SHIPPED.size_warning((160, 160), 64.0 * FOCAL_WARN_FACTOR) is None
     assert SHIPPED.size_warning((103, 103), 64.0 / FOCAL_WARN_FACTOR) is None

@@ -48,9 +48,25 @@ def test_the_python_api_lines_run_as_written(monkeypatch):
     assert torch.allclose(out.semantic.sum(1), torch.ones(1, 128, 128), atol=1e-5)  # probabilities
     assert torch.equal(out.labels, out.semantic.argmax(1))
     assert seq.depth.shape == (1, 4, 1, 128, 128) and torch.isfinite(seq.depth).all()
+    assert seq.labels.shape == (1, 4, 128, 128) and torch.equal(seq.labels, seq.semantic.argmax(2))  # classes
     assert isinstance(
         ns["state"], type(ns["model"].step(ns["rgb"], ns["rot"], ns["trans"], ns["intrinsics"], ns["reset"], None)[1])
     )
+
+
+def test_what_the_readme_says_of_the_shared_tf_fixture_is_what_the_tests_do(tmp_path, monkeypatch):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("root_conftest", ROOT / "tests" / "conftest.py")
+    conftest = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(conftest)
+    monkeypatch.setenv("COSEMDEPTH_FIXTURES", str(tmp_path))  # no shared fixture there
+    monkeypatch.delenv("CI", raising=False)
+    assert conftest.tfref_params() == ["tfref-64x96"]  # its tests are not collected: nothing is skipped
+    monkeypatch.setenv("CI", "true")
+    assert conftest.tfref_params() == ["tfref-64x96", "tfref-s128"]  # CI collects them: absent, they fail
+    text = " ".join(README.read_text(encoding="utf-8").split())
+    assert "is an extra check, run only where present (required when `CI=true`)" in text and "skipped" not in text
 
 
 def test_the_data_lines_run_as_written(tmp_path, monkeypatch):

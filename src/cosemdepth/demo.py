@@ -51,13 +51,13 @@ from .data import open_dataset
 from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from .data.frames import FocalSize, midair_intrinsics
 from .errors import CheckpointError, ConfigError, DatasetError
-from .evaluation.classes import class_info
 from .evaluation.evaluator import Evaluator, to_json
 from .evaluation.figures import FlightPictures, frame_maps
-from .evaluation.metrics import EPS, EVAL_MAX_DEPTH, ConfusionMatrix, DepthMetrics
 from .evaluation.resources import machine_info, resolve_device
 from .evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 from .inference.fast_model import reference_model
+from .measures.classes import class_info
+from .measures.metrics import EPS, EVAL_MAX_DEPTH, ConfusionMatrix, DepthMetrics
 from .models.footprint import check_size
 from .operating_point import OperatingPoint
 from .output_safety.atomic import atomic_path, atomic_write_text
@@ -350,7 +350,12 @@ def report_markdown(m: dict[str, Any]) -> str:
         f"device {mach.get('device')}), torch {mach.get('torch')}, cosemdepth {m.get('cosemdepth_version')}.",
         "",
         f"Flight: {fl['description']}. {ev['protocol']['frames_streamed']} frames streamed frame by frame, "
-        f"{ev['protocol']['frames_evaluated']} evaluated (reset frames excluded, design 11.3).",
+        f"{ev['protocol']['frames_evaluated']} evaluated ("
+        + (
+            "reset frames excluded, design 11.3)."
+            if ev["protocol"].get("reset_frames_excluded", True)
+            else "every frame is a reset: counted for the labels, never for the depth)."
+        ),
         f"Model: `{det['model_path']}` ({ev['model']['arch']}, {ev['params']:,} parameters).",
         "",
         "## Results",
@@ -374,6 +379,8 @@ def report_markdown(m: dict[str, Any]) -> str:
     valid_line = _validity_line(ev)
     if valid_line:
         lines += ["", valid_line]
+    if m.get("warning"):
+        lines += ["", f"**Warning**: {m['warning']}."]
     ratios = m.get("comparison", {})
     lines += ["", "Against the baselines:", ""]
     if ratios.get("miou_ratio") is not None:
@@ -567,8 +574,10 @@ def run_demo(
         # an existing dataset without --size: at the model's focal length (its camera, its aspect ratio)
         at_model = data_root is not None and requested is None and op is not None
         dataset, split = open_flight_split(root, FocalSize(op.focal) if at_model else size, jpeg_idct=jpeg_idct)
-        if requested is not None and op is not None:
-            warning = op.size_warning((size, size), float(dataset.intrinsics[0]))
+        if requested is not None and op is not None:  # without --size: the rule above on the input's own camera
+            warning = op.size_warning(
+                (size, size), float(dataset.intrinsics[0]), default_size=dataset.opened_size(FocalSize(op.focal))
+            )
             if warning:
                 print(warning, file=sys.stderr)
 
@@ -596,6 +605,9 @@ def run_demo(
                     min_baseline=min_baseline,
                 )
                 result = evaluator.run()
+                no_depth = result.depth_warning()
+                if no_depth:
+                    print(f"cosemdepth demo: warning: {no_depth}", file=sys.stderr)
                 figure = collector.finish()
                 timings["evaluate"] = time.perf_counter() - t
                 video_path = writer.close() if writer is not None else None
@@ -656,6 +668,7 @@ def run_demo(
                     "qualitative": "qualitative.png",
                     "video": None if video_path is None else video_path.name,
                 },
+                "warning": no_depth,
                 "machine": machine_info(dev),
                 "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
                 "cosemdepth_version": __version__,

@@ -130,17 +130,23 @@ class OperatingPoint:
         r = float(focal_px) / self.focal
         return max(r, 1 / r) if r > 0 else math.inf
 
-    def size_warning(self, size: Sequence[int], focal_px: float, what: str = "--size") -> str | None:
+    def size_warning(
+        self, size: Sequence[int], focal_px: float, what: str = "--size", default_size: Sequence[int] | None = None
+    ) -> str | None:
         """A one-line warning when running at ``size`` (H, W), where the input's horizontal focal length is
-        ``focal_px``, is more than :data:`FOCAL_WARN_FACTOR` away from the model's focal length; else None."""
+        ``focal_px``, is more than :data:`FOCAL_WARN_FACTOR` away from the model's focal length; else None.
+        ``default_size``: the size the same input runs at without ``what``, as the command picks it (said when
+        given)."""
         if self.focal_ratio(focal_px) <= FOCAL_WARN_FACTOR:
             return None
         h, w = size
-        mh, mw = size_for_focal(size, focal_px, self.focal)
+        default = (
+            "" if default_size is None else f" (without {what} this input runs at {default_size[0]}x{default_size[1]})"
+        )
         return (
             f"warning: {what} {h}x{w} gives a focal length of {focal_px:.1f} px, but the model was trained at "
             f"{self.focal:.1f} px ({self.size[0]}x{self.size[1]}); parallax and apparent sizes scale with it, "
-            f"so expect worse depth (without {what} this input runs at {mh}x{mw})"
+            f"so expect worse depth{default}"
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -20,6 +20,10 @@ OPTIONAL_PACKAGES: dict[str, tuple[str, str]] = {
     "onnxruntime": ("onnxruntime", "export"),
     "rosbags": ("rosbags", "ros"),
     "rerun": ("rerun-sdk", "viz"),
+    "pyulog": ("pyulog", "flight"),
+    "pymavlink": ("pymavlink", "flight"),
+    "pymap3d": ("pymap3d", "flight"),
+    "av": ("av", "flight"),
 }
 
 

@@ -1,5 +1,6 @@
-"""Plugins: modules that register further decoders and their tasks (:func:`~cosemdepth.tasks.register_task`) so
-that the command line trains, evaluates, predicts and exports them like the built-in ones.
+"""Plugins: modules (a decoder's folder, as a package) that register further decoders with their tasks
+(:func:`~cosemdepth.tasks.register_decoder`) so that the command line trains, evaluates, predicts and exports them
+like the built-in ones.
 
 A plugin is imported by :func:`load_plugins` (the CLI calls it before reading its arguments) when it is named in the
 ``COSEMDEPTH_PLUGINS`` environment variable (module names separated by commas) or when an installed distribution

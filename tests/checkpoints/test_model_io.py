@@ -269,6 +269,11 @@ def test_load_model_errors(tmp_path):
         load_model(tmp_path / "missing")
     with pytest.raises(CheckpointError, match="neither a cosemdepth model folder.*nor a TensorFlow checkpoint"):
         load_model(tmp_path)
+    from cosemdepth.models import build_model
+
+    folder = save_model(build_model(levels=2), tmp_path / "m")
+    with pytest.raises(ValueError, match=r"^dtype must be one of \[.*'fp32', 'int8'\] .*got 'int4'$"):
+        load_model(folder, dtype="int4")  # every value it takes, int8 included
 
 
 def test_converted_checkpoint_reproduces_tensorflow_outputs(tfref_dir):

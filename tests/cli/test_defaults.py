@@ -61,7 +61,8 @@ def test_benchmark_defaults_are_the_model_config_and_the_bench_case():
 def test_synth_defaults_are_the_generator_config():
     args = parse("synth", "--out", "d")
     cfg = SynthConfig(out="d")
-    for name in ("trajectories", "frames", "size", "seed", "all_frames", "supersample", "jpeg_quality", "workers"):
+    names = ("trajectories", "frames", "size", "seed", "all_frames", "supersample", "jpeg_quality", "workers")
+    for name in (*names, "camera_mount", "time_offset", "fps"):
         assert getattr(args, name) == getattr(cfg, name), name
     assert tuple(args.climates) == cfg.climates
     assert cfg.size == DataConfig().size[0]

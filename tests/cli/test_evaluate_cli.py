@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
-from _outputs import SIZE, _one_thread, data, leftovers, model_dir, tiny_model, unwritable_folder  # noqa: E402 (some are pytest fixtures)
+from _outputs import SIZE, _one_thread, data, leftovers, model_dir, tiny_midair, tiny_model, unwritable_folder  # noqa: E402 (some are pytest fixtures)
 
 from cosemdepth.cli.main import main  # noqa: E402
 
@@ -51,6 +51,15 @@ def test_out_in_an_existing_folder_keeps_other_files(model_dir, data, tmp_path):
     ]
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["protocol"]["frames_streamed"] == 2 and m["protocol"]["frames_evaluated"] == 1
+
+
+def test_one_frame_trajectories_warn_that_there_is_no_depth(model_dir, tmp_path, capsys):
+    one = tiny_midair(tmp_path / "one", frames=8)  # every trajectory of the split one row: every frame a reset
+    assert evaluate(model_dir, one, "--out", tmp_path / "o") == 0
+    err = capsys.readouterr().err
+    assert "cosemdepth evaluate: warning: no depth was produced: all 2 frames are resets" in err
+    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert m["metrics"]["abs_rel"] is None and m["metrics"]["depth_frames"] == 0 and m["metrics"]["semantic_frames"]
 
 
 def test_output_folder_that_is_a_file(model_dir, data, tmp_path, capsys):

@@ -85,6 +85,19 @@ def test_a_size_far_from_the_model_s_focal_length_gets_a_warning(model, data, tm
     assert "warning" not in capsys.readouterr().err
 
 
+def test_the_warning_of_an_anisotropic_size_names_the_size_the_input_runs_at_without_it(model, data, tmp_path, capsys):
+    # a square input at 33x47 (f = 23.5 px): without --size it runs at the model's focal length with its own
+    # (square) aspect, 32x32, not the requested aspect scaled to that focal length (22x32)
+    evaluate(model, data, tmp_path / "aniso", "--size", "33x47")
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if "warning" in ln]
+    assert len(lines) == 1 and "--size 33x47 gives a focal length of 23.5 px" in lines[0]
+    assert lines[0].endswith("(without --size this input runs at 32x32)")
+    # export / benchmark: without --size they run at the model's training size
+    h, w = model_size_pair([33, 47], argparse.Namespace(operating_point=OP))
+    assert (h, w) == (33, 47)
+    assert capsys.readouterr().err.strip().endswith("(without --size this input runs at 32x32)")
+
+
 def test_predict_on_a_dataset_without_size_gives_the_outputs_of_the_model_s_size(model, data, tmp_path):
     outs = []
     for name, extra in (("default", []), ("at32", ["--size", "32"])):

@@ -14,7 +14,7 @@ pytest.importorskip("onnxruntime")  # an optional dependency (cosemdepth[export]
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
-from _outputs import _one_thread, model_dir  # noqa: E402, F401 (pytest fixtures)
+from _outputs import _one_thread, model_dir, tiny_model  # noqa: E402, F401 (pytest fixtures)
 from test_predict_policy_cli import flight, predict  # noqa: E402
 
 from cosemdepth.cli.main import main  # noqa: E402
@@ -73,3 +73,37 @@ def test_onnx_without_the_backend_is_refused(model_dir, graph, tmp_path, capsys)
     images, poses = flight(tmp_path / "f", [0, 0.5])
     assert predict(model_dir, images, poses, tmp_path / "out", "--onnx", graph) == 2
     assert "add --backend onnxruntime" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "source, words",
+    [
+        (("--arch", "m4depth", "--levels", "2"), "architecture m4depth in the graph, cosemdepth in the model"),
+        (("--arch", "cosemdepth", "--levels", "3"), "its config differs from the model's: levels 3 in the graph, 2"),
+        (("--model", "{other seed}"), "other weights (sha256 "),
+    ],
+)
+def test_a_graph_of_another_model_is_refused_before_any_frame(model_dir, tmp_path, capsys, source, words):
+    other = tmp_path / "other.onnx"
+    source = [str(tiny_model(tmp_path / "m1", seed=1)) if s == "{other seed}" else s for s in source]
+    assert main(["export", "--onnx", str(other), *source, "--size", "16", "16"]) == 0
+    capsys.readouterr()
+    images, poses = flight(tmp_path / "f", [0, 0.5])
+    rc = predict(model_dir, images, poses, tmp_path / "out", "--backend", "onnxruntime", "--onnx", other)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1, err
+    assert err.startswith(f"cosemdepth predict: error: {other}: not an export of --model {model_dir}: ")
+    assert words in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_int8_graph_is_recorded_as_int8(model_dir, tmp_path):
+    q = tmp_path / "q.onnx"
+    argv = ["export", "--onnx", str(q), "--model", str(model_dir), "--size", "16", "16", "--int8"]
+    assert main([*argv, "--calibration-frames", "2"]) == 0
+    images, poses = flight(tmp_path / "f", [0, 0.5, 1.0])
+    assert (
+        predict(model_dir, images, poses, tmp_path / "out", "--size", 16, "--backend", "onnxruntime", "--onnx", q) == 0
+    )
+    run = json.loads((tmp_path / "out" / "predictions.json").read_text())["run"]
+    assert (run["path"], run["onnx"], run["precision"]) == ("onnxruntime", str(q), "int8")

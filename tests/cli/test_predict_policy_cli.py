@@ -101,6 +101,13 @@ def test_a_one_frame_flight_says_it_produced_no_depth(model_dir, tmp_path, capsy
     assert man["frames_by_status"] == {"reset": 1} and man["frames"][0]["valid_fraction"] == 0.0
 
 
+def test_a_hover_under_the_every_frame_policy_warns_that_no_depth_is_valid(model_dir, tmp_path, capsys):
+    images, poses = flight(tmp_path / "f", [1.0, 1.0, 1.0])
+    assert predict(model_dir, images, poses, tmp_path / "out", "--policy", "every-frame") == 0
+    err = capsys.readouterr().err
+    assert "cosemdepth predict: warning: no valid depth: not one pixel of the 2 frames with depth is valid" in err
+
+
 def test_bad_policy_flags_fail_with_one_line_and_write_nothing(model_dir, tmp_path, capsys):
     images, poses = flight(tmp_path / "f", [0, 1])
     out = tmp_path / "out"

@@ -78,6 +78,9 @@ def test_a_focal_size_rule_gives_the_flight_that_focal_length_at_its_aspect_rati
     # with intrinsics: fx = 10 px at 30x40 -> a focal length of 5 px halves the size (rounded half up: 15x20)
     ds = open_dataset("flight", flight, seq_len=1, intrinsics=(10.0, 12.0, 20.0, 15.0), size=FocalSize(5.0))
     assert ds[0]["rgb"].shape[-2:] == (15, 20) and ds.intrinsics.tolist() == [5.0, 6.0, 10.0, 7.5]
+    # opened at another size, the reader still says the size the rule gives (its own 30x40 camera, not 33x47's)
+    ds = open_dataset("flight", flight, seq_len=1, fov=90.0, size=(33, 47))
+    assert ds.opened_size(FocalSize(30.0)) == (45, 60) and ds.opened_size(None) == (30, 40)
 
 
 @pytest.mark.parametrize(

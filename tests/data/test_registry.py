@@ -8,7 +8,7 @@ from cosemdepth.cli.main import build_parser
 from cosemdepth.data import DATASETS, open_dataset, register_dataset
 from cosemdepth.data.registry import split_datasets
 from cosemdepth.errors import ConfigError
-from cosemdepth.evaluation.classes import class_info, dataset_classes, generic_palette
+from cosemdepth.measures.classes import class_info, dataset_classes, generic_palette
 from cosemdepth.training.config import DatasetSource
 
 CLASSES = ("ground", "roof", "cloud")

@@ -50,10 +50,9 @@ class FakeModel(torch.nn.Module):
         labels = torch.stack([torch.from_numpy(np.asarray(PREDICTIONS[c][1], np.int64)) for c in codes])
         probs = torch.nn.functional.one_hot(labels, self.config.num_classes).permute(0, 3, 1, 2).float()
         code_t = torch.tensor(codes, dtype=torch.float32).view(n, 1, 1, 1)
-        new_state = StreamState((code_t,), (code_t.clone(),))
-        return StepOutput(
-            depth if self.config.has_depth else None, probs if self.config.has_semantic else None
-        ), new_state
+        new_state = StreamState(feat=(code_t,), depth=(code_t.clone(),))
+        heads = {"depth": depth, "semantic": probs}
+        return StepOutput(heads={k: v for k, v in heads.items() if k in self.config.decoders}), new_state
 
 
 def fake_dataset(

@@ -119,6 +119,24 @@ def test_every_frame_counts_when_every_frame_is_a_reset():
     assert res.confusion_matrix.tolist() == (np.array(CONFUSION) + extra).tolist()
 
 
+def test_trajectories_of_one_frame_give_labels_but_no_depth_metrics():
+    # every trajectory one frame: each a reset, so every frame counts for the labels, but the depth of a reset frame
+    # (the 1000 m placeholder) is no measurement: no depth metrics, as a longer flight cut to its first frame gives
+    res = evaluate(FakeModel(), fake_dataset({"A": [0], "B": [10]}))
+    m, proto = res.metrics, res.info["protocol"]
+    assert not proto["reset_frames_excluded"] and proto["frames_evaluated"] == 2
+    assert m["semantic_frames"] == 2 and m["depth_frames"] == 0 and proto["depth_frames_evaluated"] == 0
+    assert all(math.isnan(m[k]) for k in ("abs_rel", "rmse", "delta1"))
+    assert m["valid_frames"] == 0 and math.isnan(m["coverage"])
+    cut = evaluate(FakeModel(), fake_dataset(), max_frames=1).metrics
+    assert cut["depth_frames"] == 0 and math.isnan(cut["abs_rel"])
+    assert res.depth_warning().startswith("no depth was produced: all 2 frames are resets")
+    # the fake flight moves along the optical axis: every pixel of its 2x2 frames is at the focus of expansion
+    full = evaluate(FakeModel(), fake_dataset())
+    assert full.metrics["coverage"] == 0.0 and full.depth_warning().startswith("no valid depth: not one pixel of the 3")
+    assert "the depth metrics only on frames with depth" in res.to_markdown()
+
+
 def test_nothing_to_evaluate_and_class_mismatch_are_clear_errors():
     with pytest.raises(ConfigError, match="nothing to evaluate.*m4depth.*no depth"):
         evaluate(FakeModel(arch="m4depth"), fake_dataset(depth=False))

@@ -4,7 +4,6 @@ and its range, the class legend, upscaling, and the same frame in the picture an
 import numpy as np
 import pytest
 
-from cosemdepth.evaluation.classes import class_info
 from cosemdepth.evaluation.figures import (
     FlightFigure,
     FlightPictures,
@@ -15,6 +14,7 @@ from cosemdepth.evaluation.figures import (
     panel_scale,
 )
 from cosemdepth.evaluation.visualize import VideoWriter, colorize_depth
+from cosemdepth.measures.classes import class_info
 
 NAMES, PALETTE = class_info(7, "synthair")
 ALL = ("rgb", "depth", "gt_depth", "labels", "gt_labels")

@@ -298,10 +298,10 @@ BAD = [
         "topic /cam/image (--pose-topic) holds sensor_msgs/msg/Image",
     ),
     (
-        "distortion",
-        lambda t: make_bag(t / "in", distortion=(0.1, 0.01, 0, 0, 0)),
+        "folding distortion",
+        lambda t: make_bag(t / "in", distortion=(-0.6, 0, 0, 0, 0)),
         [],
-        "topic /cam/info at stamp 100.003000000: camera_info has a non-zero distortion",
+        "topic /cam/info at stamp 100.003000000: the radtan coefficients [-0.6, 0, 0, 0, 0, 0, 0, 0] fold the image",
     ),
     ("empty bag", _empty_bag, [], "no topic '/cam/info' (--camera-info-topic); topics in the bag: none"),
     ("corrupt bag", _corrupt_bag, [], "cannot read the bag"),

@@ -42,7 +42,8 @@ class Plane(torch.nn.Module):
         run = decoders is None or "depth" in decoders
         depth = torch.full((b, 1, H, W), 20.0) if run else None
         probs = torch.nn.functional.one_hot(torch.zeros(b, H, W, dtype=torch.long), 2).permute(0, 3, 1, 2).float()
-        return StepOutput(depth, probs), (StreamState((torch.zeros(b),), ()) if run or state is None else state)
+        heads = {"semantic": probs} if depth is None else {"depth": depth, "semantic": probs}
+        return StepOutput(heads=heads), (StreamState(feat=(torch.zeros(b),)) if run or state is None else state)
 
 
 def flight(n=len(MOTION)) -> SequenceDataset:

@@ -104,8 +104,28 @@ def test_single_task_graphs_and_bad_opset(tmp_path):
     report = compare_onnx(sem, p)  # no depth, no state: the semantic probabilities only
     assert [c.output for c in report.criteria] == ["semantic"] and report.ok, report.summary()
     with pytest.raises(ConfigError, match="opset"):
-        export_onnx(sem, tmp_path / "x.onnx", 16, 16, opset=15)
+        export_onnx(sem, tmp_path / "x.onnx", 16, 16, opset=12)
     assert not (tmp_path / "x.onnx").exists()
+
+
+def test_the_oldest_opset_exports_the_same_graph(tmp_path):
+    """Opset 13, the minimum: the temporal model streams as at the default opset (torch writes its reshapes as
+    opset-13 operators, so 12 cannot export it)."""
+    torch.manual_seed(3)
+    m = build_model(levels=2).eval()
+    rgb, rot, trans, K = synthetic_sequence(1, 3, 16, 16, seed=2)
+    outs = {}
+    for opset in (13, 17):
+        sess = ort.InferenceSession(str(export_onnx(m, tmp_path / f"o{opset}.onnx", 16, 16, opset=opset)))
+        state = [np.zeros(i.shape, np.float32) for i in sess.get_inputs() if i.name.startswith("state_")]
+        outs[opset] = []
+        for k in range(3):
+            feeds = {"rgb": rgb[:, k].numpy(), "rot": rot[:, k].numpy(), "trans": trans[:, k].numpy()}
+            feeds.update(intrinsics=K.numpy(), reset=np.array([k == 0]))
+            res, state = run_onnx_stream(sess, feeds, state)
+            outs[opset] += [res["depth"], res["semantic"]]
+    for a, b in zip(outs[13], outs[17]):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
 
 
 def test_float_reset_input_for_runtimes_without_bool(tmp_path):
@@ -137,8 +157,11 @@ def test_float_reset_input_for_runtimes_without_bool(tmp_path):
 
 def perturbed_copy(path: Path, out: Path, name: str, factor: float, index=None) -> Path:
     """A copy of the ONNX file ``path`` with initializer ``name`` multiplied by ``factor`` (only its element
-    ``index`` when given): a deliberately broken export."""
+    ``index`` when given): a deliberately broken export (stamped as the exporter stamps its graphs: what the check
+    must catch is a wrong graph, not a changed file)."""
     from onnx import numpy_helper
+
+    from cosemdepth.export.provenance import stamp
 
     proto = onnx.load(str(path))
     init = next(i for i in proto.graph.initializer if i.name == name)
@@ -149,6 +172,7 @@ def perturbed_copy(path: Path, out: Path, name: str, factor: float, index=None) 
         a[index] *= np.float32(factor)
     init.CopyFrom(numpy_helper.from_array(a, name))
     onnx.save(proto, str(out))
+    stamp(out, {})
     return out
 
 

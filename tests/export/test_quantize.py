@@ -15,6 +15,7 @@ from cosemdepth.export import export_onnx
 from cosemdepth.export.check import synthetic_sequence
 from cosemdepth.export.onnx import is_our_onnx
 from cosemdepth.export.quantize import int8_nodes, int8_weights, quantize_onnx, quantized_convolutions
+from cosemdepth.export.runtime import OnnxStep
 from cosemdepth.models import build_model
 
 SHIPPED = Path(__file__).resolve().parents[2] / "weights" / "synthair-cosemdepth"
@@ -58,6 +59,12 @@ def test_int8_graph_keeps_the_interface_and_quantises_what_the_policy_says(graph
     assert [i.name for i in a.graph.input] == [i.name for i in b.graph.input]
     assert [o.name for o in a.graph.output] == [o.name for o in b.graph.output]
     assert is_our_onnx(q)
+    # its metadata is the float32 graph's but for the precision (and the digest of what it now holds)
+    pa, pb = ({p.key: p.value for p in g.metadata_props if p.key.startswith("cosemdepth_")} for g in (a, b))
+    assert pb.pop("cosemdepth_precision") == "int8" and pa.pop("cosemdepth_precision") == "fp32"
+    assert pb.pop("cosemdepth_graph_sha256") != pa.pop("cosemdepth_graph_sha256")
+    assert pa == pb
+    assert OnnxStep(q, model=model).precision == "int8"
     assert quantized_convolutions(q) == sorted("model." + n for n in int8_weights(model))
     assert len(int8_nodes(a.graph, int8_weights(model))) == 30
     # ONNX Runtime fuses every quantised convolution into one int8 convolution

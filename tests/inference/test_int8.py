@@ -169,8 +169,12 @@ def test_int8_engine_bad_arguments():
         FastEngine(m, dtype="int8", calibration=[])
     with pytest.raises(ValueError, match="calibration_frames"):
         FastEngine(m, dtype="int8", calibration_frames=0)
-    with pytest.raises(ValueError, match="dtype must be one of"):
+    with pytest.raises(
+        ValueError, match=r"^dtype must be one of \[.*'fp32', 'int8'\] \(or the torch dtypes\), got 'int4'"
+    ):
         FastEngine(m, dtype="int4")
+    with pytest.raises(ValueError, match=r"^int8_float_dtype must be one of .*'fp32'\] .*got 'int8'"):
+        FastEngine(m, dtype="int8", int8_float_dtype="int8")
 
 
 def test_int8_through_the_fast_model():

@@ -48,8 +48,8 @@ class PlaneModel:
             self.runs += 1
             depth = torch.full((1, 1, N, N), float(d))
         probs = torch.full((1, 2, N, N), 0.5)
-        new = StreamState((torch.full((1,), float(frame)),), ()) if run or state is None else state
-        return StepOutput(depth, probs), new
+        new = StreamState(feat=(torch.full((1,), float(frame)),)) if run or state is None else state
+        return StepOutput(heads={"semantic": probs} if depth is None else {"depth": depth, "semantic": probs}), new
 
 
 def run(model, motions, policy=BASELINE, min_baseline=1.0, **kw):
@@ -232,3 +232,24 @@ def test_every_frame_never_re_anchors_and_min_overlap_is_checked():
     for bad in (-0.1, 1.5, float("nan"), "0.9"):
         with pytest.raises(ConfigError, match="min_overlap"):
             StreamPolicy(min_overlap=bad)
+
+
+def test_pixels_without_a_source_are_invalid_in_estimated_and_held_frames():
+    """An undistorted image's pixels without a source pixel (``source_valid`` False) are never valid: not where the
+    frame is estimated, not where a held frame carries the reference's depth."""
+    source = torch.ones(1, 1, N, N, dtype=torch.bool)
+    source[..., :, :5] = False
+    model = PlaneModel()
+    s = Streamer(model, StreamPolicy(mode=BASELINE, min_baseline=1.0))
+    plain = run(PlaneModel(), [fwd(0), side(2.0), yaw(5)])
+    state, outs = None, []
+    for k, (q, t) in enumerate([fwd(0), side(2.0), yaw(5)]):
+        out, state = s.step(
+            torch.full((1, 3, N, N), float(k)), q, t, K, torch.tensor([k == 0]), state, source_valid=source
+        )
+        outs.append(out)
+    assert [o.status[0] for o in outs] == ["reset", "estimated", "held"]
+    for o, p in zip(outs, plain):
+        assert not o.valid[..., :, :5].any()
+        assert torch.equal(o.valid, p.valid & source) and torch.equal(o.depth, p.depth)
+    assert outs[1].valid[..., :, 5:].any() and outs[2].valid[..., :, 5:].any()

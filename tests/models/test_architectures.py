@@ -19,7 +19,7 @@ from cosemdepth.models import build_model
 from cosemdepth.models.config import ARCHITECTURES
 from cosemdepth.models.layers import Refiner
 from cosemdepth.models.pyramid import PyramidDecoder, PyramidLevel
-from cosemdepth.models.registry import DECODERS, register_architecture, register_decoder
+from cosemdepth.models.registry import register, register_architecture, unregister
 
 B, T, H, W = 2, 3, 32, 48
 LEVELS = 3
@@ -69,10 +69,11 @@ class ToyDecoder(PyramidDecoder):
 
 @pytest.fixture(scope="module", autouse=True)
 def toy_registered():
-    register_decoder("toy", ToyDecoder)
+    register("toy", ToyDecoder)  # the module alone (no task): enough for the model checks
     register_architecture("cosemtoy", ("depth", "semantic", "toy"))
     yield
-    del ARCHITECTURES["cosemtoy"], DECODERS["toy"]
+    unregister("toy")
+    assert "cosemtoy" not in ARCHITECTURES
 
 
 #: Model-config variants that go through the same checks: name -> build_model keywords.
@@ -139,7 +140,7 @@ def test_forward_backward_reaches_every_parameter(models, arch):
     m.train()
     try:
         seq = m.forward_sequence(rgb, rot, trans, K, reset, guide_depth=guide(m, rgb))
-        maps = [seq.depth, seq.semantic, *seq.extra.values()]
+        maps = [seq.maps(dec.head) for dec in m.decoders.values()]
         loss = sum(x.float().mean() for lvls in maps for x in lvls)
         m.zero_grad()
         loss.backward()
@@ -164,7 +165,7 @@ def test_streaming_equals_sequence(models, arch):
     for k, out in enumerate(outs):
         assert set(out.levels) == set(keys) and list(out.heads) == [d.head for d in m.decoders.values()]
         for key in keys:
-            seq_maps = seq.extra[key] if key in seq.extra else getattr(seq, key)
+            seq_maps = seq.maps(key)
             for j in range(LEVELS):
                 assert torch.equal(out.levels[key][j], seq_maps[j][:, k]), (arch, key, j, k)
         for head, full in out.heads.items():

@@ -51,6 +51,10 @@ def test_infer_equals_step_by_step(model):
     assert out.depth.shape == (2, 5, 1, 32, 48) and out.semantic.shape == (2, 5, 7, 32, 48)
     torch.testing.assert_close(out.depth, d, rtol=0, atol=0)
     torch.testing.assert_close(out.semantic, s, rtol=0, atol=0)
+    # class labels of every frame of every sample: the class axis is reduced, not the time axis
+    assert out.labels.shape == (2, 5, 32, 48)
+    for k in range(5):
+        torch.testing.assert_close(out.labels[:, k], s[:, k].argmax(1), rtol=0, atol=0)
     # frame 0 is a reset: the initial depth of 1000 m everywhere (design 5.4), whatever the motion given for it
     assert torch.all(out.depth[:, 0] == 1000.0)
 
@@ -76,6 +80,25 @@ def test_infer_with_a_reset_in_the_middle(model):
     full[0, 0] = full[0, 3] = True
     d, _ = by_steps(model, rgb, q, tr, K, full)
     torch.testing.assert_close(out.depth, d[0], rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("bad", [[0.0, 0.0, 0.0, 0.0], [float("nan"), 0.0, 0.0, 1.0], [float("inf"), 0.0, 0.0, 0.0]])
+def test_a_zero_or_non_finite_quaternion_is_refused_naming_the_sample(model, bad):
+    rgb, q, tr, K = inputs(b=2, t=3)
+    rot = q[:, 1].clone()
+    rot[1] = torch.tensor(bad)
+    with pytest.raises(ValueError, match=r"^argument rot: sample 1 is not a rotation quaternion .*zero or non-finite"):
+        model.step(rgb[:, 1], rot, tr[:, 1], K, torch.tensor([False, False]))
+    model.step(rgb[:, 1], rot, tr[:, 1], K, torch.tensor([False, True]))  # a reset ignores the motion: accepted
+    seq = q.clone()
+    seq[1, 2] = torch.tensor(bad)
+    with pytest.raises(ValueError, match=r"argument rot: sample 1 is .* \(frame 2 of the sequence\)$"):
+        model.infer(rgb, (seq, tr), K)
+    seq = q.clone()
+    seq[:, 0] = torch.tensor(bad)
+    assert model.infer(rgb, (seq, tr), K).depth.shape == (2, 3, 1, 32, 48)  # frame 0's motion is ignored
+    with pytest.raises(ValueError, match="argument trans: sample 0 is not a finite translation"):
+        model.step(rgb[:, 1], q[:, 1], torch.full((2, 3), float("nan")), K, torch.tensor([False, False]))
 
 
 def test_the_five_lines_on_a_saved_model(model, tmp_path):

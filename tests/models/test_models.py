@@ -3,9 +3,9 @@ import copy
 import pytest
 import torch
 
+from cosemdepth.decoders.depth.decoder import refiner_in_channels
 from cosemdepth.models import DINL, Refiner, StreamState, build_model
 from cosemdepth.models.config import ModelConfig
-from cosemdepth.models.depth_decoder import refiner_in_channels
 
 
 @pytest.mark.parametrize(
@@ -86,7 +86,7 @@ def test_streaming_equals_sequence_forward(model):
     for k, out in enumerate(outs):
         for j in range(5):
             assert torch.equal(out.levels["depth"][j], seq.depth[j][:, k])
-            assert torch.equal(out.levels["parallax"][j], seq.parallax[j][:, k])
+            assert torch.equal(out.levels["parallax"][j], seq.maps("parallax")[j][:, k])
             assert torch.equal(out.levels["semantic"][j], seq.semantic[j][:, k])
         assert out.depth.shape == (2, 1, 48, 80) and out.semantic.shape == (2, 7, 48, 80)
 
@@ -200,7 +200,7 @@ def test_degenerate_inputs_give_no_nan(model):
     K = torch.tensor([16.0, 16, 16, 16]).expand(b, 4)
     with torch.no_grad():
         seq = model.forward_sequence(rgb, q, tr, K)
-    for lst in (seq.depth, seq.parallax, seq.depth_other, seq.semantic):
+    for lst in (seq.depth, seq.maps("parallax"), seq.maps("depth_other"), seq.semantic):
         assert all(torch.isfinite(x).all() for x in lst)
 
 
@@ -209,7 +209,9 @@ def test_training_gradients_reach_the_encoder_and_stop_at_previous_depth():
     m = build_model(levels=4)
     rgb, q, tr, K = make_inputs(b=1, t=3, h=32, w=32)
     seq = m.forward_sequence(rgb, q, tr, K)
-    loss = sum(d[:, 1:].log().abs().mean() for d in seq.depth) + sum(s[:, 1:].mean() for s in seq.semantic_logits)
+    loss = sum(d[:, 1:].log().abs().mean() for d in seq.depth) + sum(
+        s[:, 1:].mean() for s in seq.maps("semantic_logits")
+    )
     loss.backward()
     grads = [p.grad for p in m.parameters()]
     assert all(g is not None and torch.isfinite(g).all() for g in grads)

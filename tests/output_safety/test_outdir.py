@@ -21,6 +21,7 @@ from cosemdepth.output_safety.outdir import (  # noqa: E402
     check_output_file,
     file_problem,
     read_marker,
+    record_output_file,
     write_marker,
 )
 
@@ -93,10 +94,10 @@ def test_the_marker_records_size_and_sha256_of_every_file(tmp_path):
     (tmp_path / "b.txt").write_text("hello")
     write_marker(tmp_path, "predict", ["sub/a.bin", "b.txt"])
     data = json.loads((tmp_path / MARKER).read_text())
-    assert data["version"] == 2 and data["command"] == "predict"
+    assert data["version"] == 3 and data["command"] == "predict"
     assert data["files"] == {
-        "b.txt": {"size": 5, "sha256": hashlib.sha256(b"hello").hexdigest()},
-        "sub/a.bin": {"size": 2000, "sha256": hashlib.sha256(b"\x00\x01" * 1000).hexdigest()},
+        "b.txt": {"size": 5, "sha256": hashlib.sha256(b"hello").hexdigest(), "command": "predict"},
+        "sub/a.bin": {"size": 2000, "sha256": hashlib.sha256(b"\x00\x01" * 1000).hexdigest(), "command": "predict"},
     }
     assert file_problem(tmp_path, "b.txt", read_marker(tmp_path)) is None
 
@@ -184,6 +185,7 @@ def test_a_single_output_file_is_replaced_only_while_its_recorded_content_is_unc
     assert read_marker(tmp_path)["files"]["benchmark.md"] == {
         "size": report.stat().st_size,
         "sha256": hashlib.sha256(report.read_bytes()).hexdigest(),
+        "command": "benchmark",
     }
     check_output_file(report, what="--md file", recognize=looks_ours)  # ours and unchanged: may be replaced
     with open(report, "a") as f:
@@ -213,3 +215,27 @@ def test_recording_a_file_keeps_the_folders_marker_and_its_other_entries(tmp_pat
     assert marker["command"] == "predict"  # the folder stays predict's output
     assert sorted(marker["files"]) == ["m.onnx", "predictions.json"]
     assert file_problem(tmp_path, "m.onnx", marker) is None
+    # each file names the command that wrote it: a refusal names the right one
+    assert {f: e["command"] for f, e in marker["files"].items()} == {"m.onnx": "export", "predictions.json": "predict"}
+    (tmp_path / "m.onnx").write_bytes(b"graph, edited")
+    (tmp_path / "predictions.json").write_text('{"edited": true}')
+    assert file_problem(tmp_path, "m.onnx", marker).startswith("changed since cosemdepth export wrote it")
+    assert file_problem(tmp_path, "predictions.json", marker).startswith("changed since cosemdepth predict wrote it")
+    with pytest.raises(
+        ConfigError,
+        match=r"m.onnx: the --onnx file exists and cannot be replaced: changed since "
+        "cosemdepth export wrote it",
+    ):
+        check_output_file(tmp_path / "m.onnx", what="--onnx file")
+
+
+def test_a_marker_of_an_older_cosemdepth_names_the_folder_s_command_for_its_files(tmp_path):
+    (tmp_path / "a.txt").write_text("a")
+    write_marker(tmp_path, "predict", ["a.txt"])
+    data = json.loads((tmp_path / MARKER).read_text())
+    del data["files"]["a.txt"]["command"]  # as cosemdepth wrote markers before files named their command
+    (tmp_path / MARKER).write_text(json.dumps(data))
+    (tmp_path / "b.rrd").write_bytes(b"rrd")
+    record_output_file(tmp_path / "b.rrd", "view")  # the old entry keeps the folder's command
+    marker = read_marker(tmp_path)
+    assert {f: e["command"] for f, e in marker["files"].items()} == {"a.txt": "predict", "b.rrd": "view"}

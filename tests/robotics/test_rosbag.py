@@ -10,10 +10,11 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from _bags import camera_info_msg, compressed_msg, image_msg, typestore, yaw_quat
 
+from cosemdepth.camera import calibration_from_camera_info
 from cosemdepth.data.frames import rgb_to_tensor
 from cosemdepth.data.poses import interpolate_pose, slerp
 from cosemdepth.errors import DatasetError
-from cosemdepth.robotics.rosbag import camera_info_intrinsics, image_to_rgb, pose_at_images
+from cosemdepth.robotics.rosbag import image_to_rgb, pose_at_images
 
 S = 1_000_000_000
 
@@ -132,9 +133,9 @@ def test_mono_padded_rows_and_compressed():
 @pytest.mark.parametrize("ros1", [False, True])
 def test_camera_info_k_to_package_convention_and_distortion(ros1):
     ts = typestore(ros1)
-    info = camera_info_intrinsics(camera_info_msg(ts, 0, 48, 64, (50, 60, 31.5, 23.5), ros1=ros1), "x")
+    info = calibration_from_camera_info(camera_info_msg(ts, 0, 48, 64, (50, 60, 31.5, 23.5), ros1=ros1), "x")
     assert info.size == (48, 64) and info.k == (50, 60, 32, 24)  # ROS pixel centres at integers: + 0.5
+    assert info.model == "pinhole" and not info.has_distortion
     msg = camera_info_msg(ts, 0, 48, 64, (50, 60, 31.5, 23.5), d=(0.1, 0, 0, 0, 0), ros1=ros1)
-    with pytest.raises(DatasetError, match=r"WHERE: camera_info has a non-zero distortion \(plumb_bob"):
-        camera_info_intrinsics(msg, "WHERE")
-    assert camera_info_intrinsics(msg, "x", ignore_distortion=True).k == (50, 60, 32, 24)
+    info = calibration_from_camera_info(msg, "WHERE")
+    assert info.model == "radtan" and info.coefficients == (0.1, 0, 0, 0, 0, 0, 0, 0) and info.k == (50, 60, 32, 24)

@@ -103,11 +103,30 @@ def test_damaged_checkpoints_are_detected_and_skipped(tmp_path, damage):
         validate_checkpoint(newest)
     with pytest.raises(CheckpointError):
         load_checkpoint(newest)
+    before = {p.name: p.read_bytes() for p in newest.iterdir()}
     events = []
     mgr.log = lambda kind, **f: events.append((kind, f))
     assert mgr.latest_valid() == good
     assert not newest.exists()
+    # moved aside, never deleted: the damaged files as they were, out of the checkpoints' namespace
+    aside = newest.with_name("ckpt-00000004.corrupt-1")
+    assert {p.name: p.read_bytes() for p in aside.iterdir()} == before
+    assert mgr.moved_aside == mgr.set_aside() == [aside] and [s for s, _ in mgr.list()] == [2]
     assert events and events[0][0] == "checkpoint_invalid" and events[0][1]["step"] == 4
+    assert events[0][1]["moved_to"] == str(aside)
+
+
+def test_a_second_invalid_checkpoint_of_the_same_step_is_moved_aside_beside_the_first(tmp_path):
+    model, opt = _model_and_optimizer()
+    mgr = CheckpointManager(tmp_path / "ck", keep_last=5)
+    for n in (1, 2):
+        (_save(mgr, model, opt, 3) / "manifest.json").write_text("{not json")
+        assert mgr.latest_valid() is None
+    assert [p.name for p in mgr.set_aside()] == ["ckpt-00000003.corrupt-1", "ckpt-00000003.corrupt-2"]
+    _save(mgr, model, opt, 4)
+    mgr.keep_last = 1
+    mgr.prune()  # pruning keeps the newest checkpoints and never touches those moved aside
+    assert [s for s, _ in mgr.list()] == [4] and len(mgr.set_aside()) == 2
 
 
 def test_keep_last_and_temp_cleanup(tmp_path):

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from cosemdepth.data.toy import ToyDataset
-from cosemdepth.training.losses import median_frequency_weights
+from cosemdepth.measures.losses import median_frequency_weights
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "class_weights.py"
 

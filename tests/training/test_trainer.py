@@ -58,6 +58,29 @@ def test_same_seed_same_weights_and_exact_resume(tmp_path, tiny_config):
     assert next(e for e in events if e["kind"] == "resume")["step"] == 3
 
 
+def test_a_rerun_whose_checkpoints_are_all_invalid_moves_them_aside_and_says_it_starts_over(
+    tmp_path, tiny_config, capsys
+):
+    cfg = tiny_config(train__max_steps=2, train__checkpoint_every=100)
+    Trainer(cfg, tmp_path / "run", console=False).fit()
+    ckpts = sorted((tmp_path / "run" / "checkpoints").iterdir())
+    assert [p.name for p in ckpts] == ["ckpt-00000000", "ckpt-00000002"]
+    for p in ckpts:  # every checkpoint damaged
+        (p / "optimizer.pt").write_bytes(b"damaged")
+    rerun = Trainer(cfg, tmp_path / "run", console=True)
+    rerun.fit()
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "warning" in ln]
+    aside = [p.with_name(p.name + ".corrupt-1") for p in reversed(ckpts)]  # newest first, as they were checked
+    assert err == [
+        f"cosemdepth train: warning: {tmp_path / 'run'}: no valid checkpoint to resume from (its invalid checkpoints "
+        f"were moved aside: {', '.join(str(p) for p in sorted(aside))}); starting again from step 0"
+    ]
+    assert all((p / "optimizer.pt").read_bytes() == b"damaged" for p in aside)  # kept as they were
+    kinds = [e["kind"] for e in read_events(tmp_path / "run" / "events.jsonl")]
+    assert kinds.count("start") == 2 and kinds.index("start_over") < len(kinds) - kinds[::-1].index("start") - 1
+    assert rerun.state.step == 2 and validate_checkpoint(tmp_path / "run" / "checkpoints" / "ckpt-00000002")
+
+
 def test_nonfinite_steps_are_skipped_then_rolled_back(tmp_path, tiny_config):
     """Injected NaN losses at steps 2, 4 (isolated: skipped) and 6, 7, 8 (three in a row: rollback)."""
     cfg = tiny_config(
@@ -241,9 +264,9 @@ def test_bf16_autocast_keeps_the_loss_in_float32(tiny_config, bf16_cpu):
 def test_compute_loss_applies_the_configured_class_weights(tiny_config):
     """train.semantic_class_weights reaches the semantic loss: the trainer's loss is the weighted one."""
     from cosemdepth.data.toy import ToyDataset
+    from cosemdepth.measures.losses import semantic_loss
     from cosemdepth.models import build_model
     from cosemdepth.training.data import collate
-    from cosemdepth.training.losses import semantic_loss
     from cosemdepth.training.trainer import compute_loss
 
     cfg = tiny_config()

@@ -10,9 +10,10 @@ from torch.utils.data import DataLoader, DistributedSampler
 from cosemdepth.data import MixedDataset
 from cosemdepth.data.midair.format import PALETTE_7
 from cosemdepth.data.toy import ToyDataset
+from cosemdepth.decoders.depth import DEPTH
+from cosemdepth.decoders.semantic import SEMANTIC
 from cosemdepth.errors import ConfigError, DatasetError
 from cosemdepth.models.config import ModelConfig
-from cosemdepth.tasks import DEPTH, SEMANTIC
 from cosemdepth.training.config import DataConfig, DatasetSource
 from cosemdepth.training.data import (
     EpochBatchSampler,

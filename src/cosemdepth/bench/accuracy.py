@@ -2,7 +2,7 @@
 
 Each mode streams the same split frame by frame (batch 1, the test protocol: reset frames count in no metric) from
 a freshly loaded copy of the weights; mIoU and the depth metrics come from
-:class:`~cosemdepth.evaluation.metrics.EvaluationMetrics`. A mode passes when its mIoU is within
+:class:`~cosemdepth.measures.metrics.EvaluationMetrics`. A mode passes when its mIoU is within
 :data:`MIOU_TOL_POINTS` points and its AbsRel within :data:`ABSREL_TOL_REL` (relative) of the reference's.
 """
 
@@ -15,8 +15,8 @@ from typing import Iterable, Optional, Sequence
 
 import torch
 
-from ..evaluation.metrics import EvaluationMetrics
 from ..inference.fast_model import FastModel
+from ..measures.metrics import EvaluationMetrics
 
 #: mode -> (path, dtype of the :class:`~cosemdepth.inference.FastModel`); "reference" (the modules) is what the
 #: others are compared with

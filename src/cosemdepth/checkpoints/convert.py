@@ -44,6 +44,7 @@ from ..models.config import (
     ModelConfig,
 )
 from ..models.model import build_model
+from ..models.registry import architecture_of
 from ..operating_point import MotionStats, OperatingPoint
 from .tf_checkpoint import CheckpointReader
 from .tf_decoders import TF_DECODERS
@@ -224,7 +225,7 @@ def infer_config(
         if n and n != levels:
             raise CheckpointError(f"{origin}: the encoder has {levels} levels but the {part.replace('_', ' ')} has {n}")
         has[name] = bool(n)
-    found = next((a for a, d in ARCHITECTURES.items() if set(d) == {k for k, v in has.items() if v}), None)
+    found = architecture_of(k for k, v in has.items() if v)
     if found is None:
         scopes = " or ".join(sorted(f"'{t.refiner}'" for t in TF_DECODERS.values()))
         raise CheckpointError(

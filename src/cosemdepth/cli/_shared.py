@@ -130,8 +130,8 @@ def model_size_pair(values: list[int] | None, model, warn: bool = True) -> tuple
     if values is None:
         return tuple(op.size) if op is not None else DEFAULT_SIZE_PAIR
     h, w = parse_size_pair(values)
-    if warn and op is not None:
-        msg = op.size_warning((h, w), op.focal * w / op.size[1])
+    if warn and op is not None:  # without --size: the training size (above)
+        msg = op.size_warning((h, w), op.focal * w / op.size[1], default_size=op.size)
         if msg:
             print(msg, file=sys.stderr)
     return h, w
@@ -235,10 +235,12 @@ def input_size(requested, op: OperatingPoint | None):
 def warn_far_size(op: OperatingPoint | None, requested, dataset, what: str = "--size") -> str | None:
     """When the user's ``requested`` size puts the input's focal length (``dataset.intrinsics``) more than
     :data:`~cosemdepth.operating_point.FOCAL_WARN_FACTOR` away from the model's, print one warning line on stderr
-    naming both (and return it)."""
+    naming both and the size the input runs at without ``what`` (:func:`input_size`'s rule, opened as the input's
+    reader opens it), and return it."""
     if op is None or requested is None or getattr(dataset, "intrinsics", None) is None:
         return None
-    msg = op.size_warning(as_size(requested, what), float(dataset.intrinsics[0]), what)
+    default = dataset.opened_size(input_size(None, op)) if hasattr(dataset, "opened_size") else None
+    msg = op.size_warning(as_size(requested, what), float(dataset.intrinsics[0]), what, default_size=default)
     if msg:
         print(msg, file=sys.stderr)
     return msg
@@ -340,8 +342,9 @@ def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32
         raise ConfigError(f"--precision {precision}: {e}") from None
 
 
-def open_split(args: argparse.Namespace, size):
-    """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1)."""
+def open_split(args: argparse.Namespace, size, calibration=None):
+    """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1);
+    ``calibration``: a lens file for the readers that take one (Mid-Air, SynthAir)."""
     check_workers(args.workers)
     check_split_dir(args)
     return open_dataset(
@@ -352,6 +355,7 @@ def open_split(args: argparse.Namespace, size):
         seq_len=1,
         size=size,
         jpeg_idct=args.jpeg_idct,
+        **({} if calibration is None else {"calibration": calibration}),
     )
 
 

@@ -142,7 +142,7 @@ def _run_onnxruntime(args, models, weights, case, idle, record) -> None:
                 c = case(arch, batch, "fp32", "onnxruntime")
                 c.device = "cpu"
                 graph = export_onnx(model, Path(tmp) / f"{arch}-b{batch}.onnx", c.height, c.width, batch=batch)
-                step = OnnxStep(graph, threads=args.threads)
+                step = OnnxStep(graph, threads=args.threads, model=model)
                 busy = idle()
                 load = _loadavg()
                 wall, cpu, others = time_stream([step.step], c, make_frames(c))

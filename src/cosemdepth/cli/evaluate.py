@@ -46,6 +46,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_split_args(parser)
     parser.add_argument("--size", type=parse_size, default=None, metavar="S", help=size_help())
     parser.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the lens of a Mid-Air-format split's images (e.g. a SynthAir set rendered with --distortion: "
+        "ROOT/calibration/camera_info.yaml): frames and ground truth undistorted to a pinhole (docs/data.md)",
+    )
+    parser.add_argument(
         "--out",
         default=None,
         metavar="DIR",
@@ -63,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
         *model_inputs(args.model),
         Input("--root", args.root),
         Input("--split-dir", args.split_dir) if args.split_dir is not None else None,
+        Input("--calibration", args.calibration) if args.calibration is not None else None,
     ]
     files_ctx = (
         OutputFiles(args.out, "--out folder", command="evaluate", names=("metrics.json", "metrics.md"), inputs=inputs)
@@ -71,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     )
     with files_ctx as files:
         op = model_operating_point(args.model)
-        dataset = open_split(args, input_size(args.size, op))
+        dataset = open_split(args, input_size(args.size, op), calibration=args.calibration)
         warn_far_size(op, args.size, dataset)
         model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
         check_run_size(model, dataset, device, args.lanes)
@@ -92,8 +101,13 @@ def run(args: argparse.Namespace) -> int:
             split=args.split or dataset_spec(args.dataset).split,
             split_dir=None if args.split_dir is None else str(args.split_dir),
         )
+        if getattr(dataset, "calibration", None):
+            result.info["dataset"]["undistortion"] = dataset.calibration
         text = result.to_markdown()
         print(text)
+        no_depth = result.depth_warning()
+        if no_depth:
+            print(f"cosemdepth evaluate: warning: {no_depth}", file=sys.stderr)
         if files is not None:
             files.add_text("metrics.json", result.to_json())
             files.add_text("metrics.md", text)

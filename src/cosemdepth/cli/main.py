@@ -87,8 +87,10 @@ def main(argv: list[str] | None = None) -> int:
         load_plugins()  # further decoders register their tasks and architectures before the arguments are read
         # only the command being run gets its arguments (without one, `cosemdepth --help` lists the commands)
         parser = build_parser(only=command or "")
-        args = parser.parse_args(argv)
+        args, unknown = parser.parse_known_args(argv)
         command = args.command
+        if unknown:  # said by the command's own parser, as its other argument errors are
+            _subparser(parser, command).error(f"unrecognized arguments: {' '.join(unknown)}")
         module = importlib.import_module(COMMANDS[command][0])
         flag_rules.check(args.command, args)  # a flag given that does not apply to the chosen input: exit 2
         return int(module.run(args) or 0)
@@ -103,9 +105,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
+def _subparser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+
+
 def outputs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[str]:
     """The command's output arguments as given (``--out runs/a``), for messages."""
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[args.command]
+    sub = _subparser(parser, args.command)
     out = []
     for action in sub._actions:
         value = getattr(args, action.dest, None)

@@ -24,6 +24,7 @@ from ..data.flight import DEFAULT_CONVENTION
 from ..data.pose_matching import DEFAULT_MAX_GAP, MATCHES
 from ..data.poses import CONVENTIONS
 from ..data.stamps import UNITS, parse_stamp_unit
+from ..decoders.depth.task import no_depth_warning
 from ..errors import ConfigError
 from ..evaluation.predict import DEFAULT_INVALID, INVALID_MODES, predict
 from ..evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
@@ -83,6 +84,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         nargs=4,
         metavar=("FX", "FY", "CX", "CY"),
         help="pinhole intrinsics in pixels of the original images",
+    )
+    flight.add_argument(
+        "--calibration",
+        type=Path,
+        metavar="FILE",
+        help="the camera's calibration (ROS camera_info YAML, OpenCV FileStorage YAML, Kalibr camchain, COLMAP "
+        "cameras.txt; instead of --intrinsics / --hfov / --camera-info-topic): images undistorted to a pinhole at "
+        "the model's focal length (docs/data.md)",
     )
     flight.add_argument(
         "--hfov",
@@ -181,7 +190,9 @@ def _validate(args: argparse.Namespace) -> None:
     check_args(args)
     if args.backend == "onnxruntime":
         if args.reference or args.precision != "fp32":
-            raise ConfigError("--backend onnxruntime runs the exported fp32 graph: drop --reference / --precision")
+            raise ConfigError(
+                "--backend onnxruntime runs --onnx at the precision it was exported in: drop --reference / --precision"
+            )
         if args.onnx is None:
             raise ConfigError("--backend onnxruntime needs --onnx FILE (a graph written by 'cosemdepth export --onnx')")
         if args.device not in ("auto", "cpu"):
@@ -197,8 +208,10 @@ def _validate(args: argparse.Namespace) -> None:
             raise ConfigError("--flight needs --images DIR")
         if args.poses is None:
             raise ConfigError("--flight needs --poses FILE")
-        if (args.intrinsics is None) == (args.hfov is None):
-            raise ConfigError("--flight needs exactly one of --intrinsics FX FY CX CY and --hfov DEG")
+        if sum(x is not None for x in (args.intrinsics, args.hfov, getattr(args, "calibration", None))) != 1:
+            raise ConfigError(
+                "--flight needs exactly one of --intrinsics FX FY CX CY, --hfov DEG and --calibration FILE"
+            )
         if args.hfov is not None and not 0 < args.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {args.hfov}")
         parse_stamp_unit(args.stamp_unit)
@@ -237,6 +250,7 @@ def _open(args: argparse.Namespace):
             stamp_unit=args.stamp_unit,
             max_gap=DEFAULT_MAX_GAP if args.max_pose_gap is None else args.max_pose_gap,
             skip_unposed=args.skip_unposed,
+            calibration=args.calibration,
         )
     else:
         check_split_dir(args)
@@ -248,8 +262,12 @@ def _open(args: argparse.Namespace):
             seq_len=1,
             size=size,
             jpeg_idct=args.jpeg_idct,
+            **({"calibration": args.calibration} if args.calibration is not None else {}),
         )
     warn_far_size(op, args.size, dataset)
+    note = ((getattr(dataset, "calibration", None) or {}).get("calibration") or {}).get("note")
+    if note:
+        print(f"cosemdepth: note: {note}", file=sys.stderr)
     return dataset
 
 
@@ -265,6 +283,7 @@ def command_inputs(args: argparse.Namespace) -> list:
                 ("--images", args.images),
                 ("--poses", args.poses),
                 ("--bag", args.bag),
+                ("--calibration", args.calibration),
             )
             if p is not None
         ),
@@ -277,10 +296,12 @@ def flight_report(dataset) -> str:
     return f"; flight: {matching['describe']}" if matching else ""
 
 
-def run_settings(args: argparse.Namespace, dataset) -> dict:
+def run_settings(args: argparse.Namespace, dataset, model=None) -> dict:
     """What determines predict's outputs besides the frames: ``predictions.json``'s ``run`` entry. ``input_size``
     ``[H, W]`` and ``intrinsics`` ``[fx, fy, cx, cy]`` (package convention: pixel centres at +0.5) are those the model
-    was fed; the pose settings are null for dataset splits (whose readers fix them)."""
+    was fed; the pose settings are null for dataset splits (whose readers fix them); ``precision`` is the graph's
+    own (its metadata) with ``--backend onnxruntime``."""
+    graph = getattr(model, "onnx", None) if getattr(args, "backend", "pytorch") == "onnxruntime" else None
     own = bool(args.flight or args.bag)
     convention = args.convention or (DEFAULT_BAG_CONVENTION if args.bag else DEFAULT_CONVENTION)
     size = frame_size(dataset)
@@ -292,11 +313,12 @@ def run_settings(args: argparse.Namespace, dataset) -> dict:
         if args.reference
         else "fast",
         "onnx": str(args.onnx) if getattr(args, "onnx", None) is not None else None,
-        "precision": args.precision,
+        "precision": graph.precision if graph is not None else args.precision,
         "input_size": None if size is None else list(size),
         "intrinsics": [float(v) for v in dataset.intrinsics.tolist()],
         "intrinsics_given": None if args.intrinsics is None else [float(v) for v in args.intrinsics],
         "hfov_deg": args.hfov,
+        "calibration": None if args.calibration is None else str(args.calibration),
         "camera_info_topic": args.camera_info_topic,
         "convention": convention if own else None,
         "frame_skip": args.frame_skip if own else None,
@@ -329,9 +351,10 @@ def run(args: argparse.Namespace) -> int:
             "root": str(args.bag if args.bag else args.images if args.flight else args.root),
             "split": None if args.flight else args.split,
             **({"pose_matching": dataset.pose_matching} if hasattr(dataset, "pose_matching") else {}),
+            **({"undistortion": dataset.calibration} if getattr(dataset, "calibration", None) else {}),
         },
         "device": str(device),
-        "run": run_settings(args, dataset),
+        "run": run_settings(args, dataset, model),
     }
     manifest = predict(
         model,
@@ -370,11 +393,15 @@ def run(args: argparse.Namespace) -> int:
                 [f.get("valid_fraction", 0.0) for f in manifest["frames"]],
             )
         )
-        if not manifest["frames_by_status"].get(ESTIMATED) and not manifest["frames_by_status"].get(HELD):
-            print(
-                f"cosemdepth predict: warning: no depth was produced: {no_depth_reason(manifest['frames_by_status'])}",
-                file=sys.stderr,
-            )
+        counts, fractions = manifest["frames_by_status"], [f.get("valid_fraction", 0.0) for f in manifest["frames"]]
+        no_depth = no_depth_warning(
+            sum(counts.values()),
+            counts.get(ESTIMATED, 0),
+            counts.get(HELD, 0),
+            sum(fractions) / len(fractions) if fractions else None,
+        )
+        if no_depth:
+            print(f"cosemdepth predict: warning: {no_depth}", file=sys.stderr)
     return 0
 
 
@@ -391,6 +418,7 @@ def _onnx_model(args: argparse.Namespace, dataset):
         raise ConfigError(f"--onnx {args.onnx}: no such file")
     model, device = load(args.model, "cpu", fast=False)
     step = OnnxStep(args.onnx, threads=args.threads)
+    onnx_model = OnnxModel(model, step, model_name=f"--model {args.model}")  # refuses a graph of another model
     want = (None, 3, *frame_size(dataset)) if frame_size(dataset) is not None else None
     got = step.shape
     if want is not None and tuple(got[1:]) != tuple(want[1:]):
@@ -403,7 +431,7 @@ def _onnx_model(args: argparse.Namespace, dataset):
             f"--onnx {args.onnx}: the graph has a fixed batch of {got[0]}; streaming needs batch 1 "
             "(and --trajectories-per-batch 1) or a graph exported with --dynamic-batch"
         )
-    return OnnxModel(model, step), torch.device("cpu")
+    return onnx_model, torch.device("cpu")
 
 
 def input_policy(args: argparse.Namespace) -> tuple[str | None, float | None]:
@@ -427,17 +455,3 @@ def depth_report(statuses: dict, policy: dict, valid_fractions) -> str:
     if fractions:
         parts.append(f"{100.0 * sum(fractions) / len(fractions):.1f} % of the pixels valid")
     return f"depth (policy {policy['mode']}): " + "; ".join(parts)
-
-
-def no_depth_reason(statuses: dict) -> str:
-    """Why no frame has depth (every frame a reset)."""
-    n = int(statuses.get(RESET, 0))
-    if n == 1:
-        return (
-            "the input has 1 frame: the first frame of a flight is a reset, and depth needs the camera to move "
-            "between frames"
-        )
-    return (
-        f"all {n} frames are resets (the first frame of each trajectory, and the frames until the camera had "
-        "moved the minimum baseline from it)"
-    )

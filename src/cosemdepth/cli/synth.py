@@ -10,6 +10,8 @@ import argparse
 import json
 from pathlib import Path
 
+from ..errors import ConfigError
+from ..synthair.export import parse_export
 from ..synthair.motion import DEFAULT_YAW, GRAMMAR
 from ..synthair.writer import SUPERSAMPLES, SynthConfig, generate
 
@@ -108,11 +110,59 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=d.jpeg_quality,
         help=f"JPEG quality (default {d.jpeg_quality}, 4:4:4 chroma; photo-consistency suffers below about 95)",
     )
+    parser.add_argument(
+        "--distortion",
+        default=d.distortion,
+        metavar="LENS",
+        help="render through a distorting lens with the same intrinsics: radtan:k1,k2,p1,p2[,k3] (OpenCV/ROS "
+        "plumb_bob) or equidistant:k1,k2,k3,k4 (fisheye); every pixel's ray exactly, ground truth in the distorted "
+        "pixels; the calibration files go to DIR/calibration/ (default: the pinhole)",
+    )
+    parser.add_argument(
+        "--camera-mount",
+        default=d.camera_mount,
+        metavar="SPEC",
+        help="the camera's mount on the flying body: forward, down, R,P,Y (degrees of the camera's FRD frame "
+        "relative to the body's, e.g. 0,-30,0 pitched down 30), or a Kalibr camchain YAML (cam0.T_cam_imu), with an "
+        f"optional lever arm @X,Y,Z (metres, body FRD); the frames are rendered from it (default {d.camera_mount}; "
+        "see docs/own-flight.md)",
+    )
+    parser.add_argument(
+        "--export",
+        default=None,
+        metavar="FORMATS",
+        help="also write each flight as a drone team has it, comma-separated: mp4 (H.264 video), ulog (PX4), "
+        "dataflash (ArduPilot .bin), tlog (MAVLink), srt (DJI subtitles), with exact ground truth (truth.csv); "
+        "see docs/synthair.md",
+    )
+    parser.add_argument(
+        "--time-offset",
+        type=float,
+        default=d.time_offset,
+        action=_Given,
+        metavar="S",
+        help=f"with --export: the video starts S seconds into the flight and its logs (default {d.time_offset:g})",
+    )
+    parser.add_argument(
+        "--fps",
+        default=d.fps,
+        action=_Given,
+        metavar="F",
+        help=f"with --export: the video's frame rate, e.g. 25, 29.97 or 30000/1001 (default {d.fps})",
+    )
     parser.add_argument("--workers", type=int, default=d.workers, help=f"render processes (default {d.workers})")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.export is None:
+        given = [
+            flag
+            for flag, dest in (("--time-offset", "time_offset"), ("--fps", "fps"))
+            if getattr(args, f"{dest}_given", False)
+        ]
+        if given:
+            raise ConfigError(f"{given[0]} applies only with --export")
     cfg = SynthConfig(
         out=args.out,
         trajectories=args.trajectories,
@@ -125,6 +175,11 @@ def run(args: argparse.Namespace) -> int:
         jpeg_quality=args.jpeg_quality,
         motion=args.motion,
         frame_step=args.frame_step,
+        distortion=args.distortion,
+        camera_mount=args.camera_mount,
+        export=() if args.export is None else parse_export(args.export),
+        time_offset=args.time_offset,
+        fps=args.fps,
         workers=args.workers,
     )
     summary = generate(cfg, progress=not args.no_progress)

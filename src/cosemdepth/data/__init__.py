@@ -44,14 +44,16 @@ def open_dataset(
         augment: ``False`` (default), ``True`` (the paper's augmentation, design 9.3), a preset name
             (``"train"``, ``"finetune"``, ``"geometric"``) or an :class:`AugmentConfig`.
         **kwargs: reader options: ``mode`` (``"train"``/``"windowed"``/``"stream"``), ``db_seq_len``, ``seed``,
-            ``labels`` and ``modalities`` (Mid-Air/SynthAir), and the flight options of
+            ``labels`` and ``modalities`` (Mid-Air/SynthAir), ``calibration`` (flights, Mid-Air, SynthAir: a lens
+            to undistort, :mod:`cosemdepth.camera`), and the flight options of
             :func:`cosemdepth.data.flight.open_flight` (``poses``, ``intrinsics``, ``fov``, ``convention``,
             ``match``, ``frame_skip``...).
 
     Returns:
         a :class:`SequenceDataset`; ``dataset[i]`` is a dict with ``rgb`` [T,3,H,W], ``depth`` [T,1,H,W] (when
         known), ``semantic`` [T,H,W] int64 (when known), ``rot`` [T,4], ``trans`` [T,3], ``intrinsics`` [4],
-        ``reset`` [T] bool, plus ``frame``, ``id``, ``trajectory`` (and ``timestamp`` for flights).
+        ``reset`` [T] bool, plus ``frame``, ``id``, ``trajectory`` (and ``timestamp`` for flights, ``source_valid``
+        [T,1,H,W] bool for undistorted cameras).
     """
     spec = dataset_spec(name)
     if split_dir is None and spec.split_dir is not None:

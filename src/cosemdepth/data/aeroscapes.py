@@ -132,4 +132,5 @@ def open_aeroscapes(
         augment=resolve_augment(augment),
         seed=seed,
         name=name,
+        size_at=lambda rule: resolve_size(rule, native) or native()[0],
     )

@@ -13,6 +13,7 @@ from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from ..camera import UndistortedFrames
 from ..errors import ConfigError, DatasetError
 from .augment import resolve_augment
 from .decode import image_size
@@ -20,6 +21,7 @@ from .files import dataset_root, is_dir
 from .frames import FocalSize, Size, as_size, midair_intrinsics, resolve_size
 from .midair.splits import read_csv
 from .sequence import FrameLoader, SequenceDataset, Trajectory, default_mode
+from .undistorted import undistorter_for
 
 
 def find_split_csvs(split_dir: str | Path, split: str) -> tuple[Path, list[Path]]:
@@ -125,6 +127,7 @@ def open_csv_split(
     modalities: Iterable[str] | None = None,
     seed: int = 0,
     name: str = "",
+    calibration=None,
 ) -> SequenceDataset:
     """Open a split of a dataset described by split CSVs (the common part of the Mid-Air/SynthAir and TopAir readers).
 
@@ -139,6 +142,9 @@ def open_csv_split(
     Args:
         columns: modality -> CSV column, for ``"rgb"``, ``"depth"`` and ``"semantic"``.
         mode: window mode; default :func:`cosemdepth.data.sequence.default_mode` of ``split`` and ``seq_len``.
+        calibration: the lens the images were taken through (a calibration file or a
+            :class:`~cosemdepth.camera.Calibration`): frames are undistorted (:mod:`cosemdepth.data.undistorted`),
+            the intrinsics are the undistorted camera's, items carry ``source_valid``; None: the 90-degree pinhole.
         Other arguments as :func:`cosemdepth.data.midair.dataset.open_midair`.
     """
     root = dataset_root(root)
@@ -167,16 +173,27 @@ def open_csv_split(
         shape = image_size(trajectories[0].frame(0).rgb)
         return shape, float(midair_intrinsics(shape)[0])
 
-    out_size = resolve_size(size, native)
-    intrinsics_size = out_size if out_size is not None else image_size(trajectories[0].frame(0).rgb)
-    return SequenceDataset(
+    undistorter = None
+    if calibration is not None:
+        if augment:
+            raise ConfigError("a calibrated (undistorted) dataset cannot be augmented")
+        undistorter = undistorter_for(calibration, image_size(trajectories[0].frame(0).rgb), size)
+        loader, intrinsics = UndistortedFrames(make_loader(None), undistorter), undistorter.intrinsics
+    else:
+        out_size = resolve_size(size, native)
+        intrinsics_size = out_size if out_size is not None else image_size(trajectories[0].frame(0).rgb)
+        loader, intrinsics = make_loader(out_size), midair_intrinsics(intrinsics_size)
+    dataset = SequenceDataset(
         trajectories,
-        make_loader(out_size),
-        midair_intrinsics(intrinsics_size),
+        loader,
+        intrinsics,
         seq_len=seq_len,
         mode=mode or default_mode(split, seq_len),
         db_seq_len=db_seq_len,
         augment=resolve_augment(augment),
         seed=seed,
         name=name,
+        size_at=lambda rule: resolve_size(rule, native) or native()[0],
     )
+    dataset.calibration = None if undistorter is None else undistorter.info()
+    return dataset

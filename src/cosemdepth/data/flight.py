@@ -21,6 +21,14 @@ motion; every other frame carries the motion from the previous kept frame, ``X_p
 (x right, y down, z forward). Intrinsics are rescaled to the output size (``fx, cx`` by ``W_out/W``, ``fy, cy`` by
 ``H_out/H``).
 
+A calibrated lens (``calibration``: a calibration file, :func:`cosemdepth.camera.load_calibration`, or a
+:class:`~cosemdepth.camera.Calibration`) replaces ``intrinsics`` / ``fov``: the images are undistorted to a centred
+pinhole at the output size (:class:`~cosemdepth.camera.Undistorter`), the dataset's intrinsics are that pinhole's,
+items carry ``source_valid`` (the pixels with a source) and the ground truth is remapped with the images (depth
+nearest, 0 where no source; labels nearest). A calibration for another image size of the same aspect ratio is
+scaled (said in ``dataset.calibration["calibration"]["note"]``). ``dataset.calibration`` is
+:meth:`Undistorter.info <cosemdepth.camera.Undistorter.info>` (None without a calibration).
+
 Optional ground truth: ``depth_dir`` with one file per image of the same stem, ``.npy`` (float metres, finite and
 >= 0, 0 where unknown; see :func:`read_depth_npy`) or a 16-bit
 ``.png`` times ``depth_scale`` metres (default 0.001); ``semantic_dir`` with class-ID PNGs (checked against
@@ -38,6 +46,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from ..camera import Calibration, UndistortedFrames
 from ..errors import ConfigError, DatasetError
 from ..models.config import ModelConfig
 from .augment import resolve_augment
@@ -55,6 +64,7 @@ from .frames import Size, depth_to_tensor, labels_to_tensor, resolve_size, rgb_t
 from .pose_matching import DEFAULT_MAX_GAP, match_images
 from .poses import read_poses, relative_camera_motions
 from .sequence import FrameRecord, SequenceDataset, Trajectory
+from .undistorted import undistorter_for
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png")
 DEFAULT_POSE_FILES = ("poses.txt", "poses.tum", "poses.csv", "groundtruth.txt")
@@ -217,12 +227,19 @@ def open_flight(
     seed: int = 0,
     name: str = "flight",
     jpeg_idct: str = DEFAULT_JPEG_IDCT,
+    calibration: str | Path | Calibration | None = None,
 ) -> SequenceDataset:
     """Open your own flight (see the module docstring). ``split_dir`` and ``split`` are ignored (one flight is
     one trajectory); ``size`` defaults to the native image size (a
     :class:`~cosemdepth.data.frames.FocalSize` is applied to the native size and ``fx`` of the intrinsics). ``jpeg_idct``: JPEG decoding, ``"fast"`` (default,
-    as the models were trained: the original's ``tf.io.decode_jpeg``) or ``"accurate"``."""
+    as the models were trained: the original's ``tf.io.decode_jpeg``) or ``"accurate"``. ``calibration``: a lens
+    to undistort (module docstring), instead of ``intrinsics`` / ``fov``."""
     check_jpeg_idct(jpeg_idct)
+    if calibration is not None:
+        if intrinsics is not None or fov is not None:
+            raise ConfigError("give a flight's calibration or its intrinsics / fov, not both")
+        if augment:
+            raise ConfigError("a calibrated (undistorted) flight cannot be augmented")
     root = Path(root)
     images = list_images(root)
     if poses is None:
@@ -270,18 +287,32 @@ def open_flight(
             )
         )
     native = image_size(images[0])
-    k_native = parse_intrinsics(intrinsics, fov, native, intrinsics_convention)
-    out_size = resolve_size(size, lambda: (native, float(k_native[0]))) or native
+    undistorter = None
+    if calibration is not None:
+        undistorter = undistorter_for(calibration, native, size, "the flight's images")
+        loader = UndistortedFrames(FlightFrameLoader(None, native, depth_scale, num_classes, jpeg_idct), undistorter)
+        intr = undistorter.intrinsics
+    else:
+        k_native = parse_intrinsics(intrinsics, fov, native, intrinsics_convention)
+        out_size = resolve_size(size, lambda: (native, float(k_native[0]))) or native
+        loader = FlightFrameLoader(out_size, native, depth_scale, num_classes, jpeg_idct)
+        intr = scale_intrinsics(k_native, native, out_size)
     dataset = SequenceDataset(
         [Trajectory.from_records(root.name, frames)],
-        FlightFrameLoader(out_size, native, depth_scale, num_classes, jpeg_idct),
-        scale_intrinsics(k_native, native, out_size),
+        loader,
+        intr,
         seq_len=seq_len,
         mode=mode,
         db_seq_len=db_seq_len,
         augment=resolve_augment(augment),
         seed=seed,
         name=name,
+        size_at=lambda rule: (
+            undistorter_for(calibration, native, rule, "the flight's images").size
+            if calibration is not None
+            else resolve_size(rule, lambda: (native, float(k_native[0]))) or native
+        ),
     )
     dataset.pose_matching = {**matched.summary(), "describe": matched.describe()}
+    dataset.calibration = None if undistorter is None else undistorter.info()
     return dataset

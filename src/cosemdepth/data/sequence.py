@@ -17,6 +17,8 @@ key             shape / type        meaning
 ``id``          [T] int64           the row's id column (CSV ``id``; row index for flights/Aeroscapes)
 ``trajectory``  str                 trajectory name (e.g. the CSV path relative to the split folder)
 ``timestamp``   [T] f64             only for datasets with timestamps (your own flights)
+``source_valid`` [T, 1, H, W] bool  only for undistorted cameras: the pixels with a source pixel
+                                    (:class:`cosemdepth.camera.Undistorter`); the depth elsewhere is not an estimate
 ==============  ==================  ==============================================================================
 
 Window modes:
@@ -40,7 +42,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -184,6 +186,8 @@ class SequenceDataset(Dataset):
         augment: per-sequence augmentation (``None``: none).
         seed: base seed of the per-item random draws.
         name: dataset name (stored in ``self.name``).
+        size_at: ``size -> (H, W)``, the size the reader opens these images at for a ``size`` argument (an
+            ``(H, W)``, a :class:`~cosemdepth.data.frames.FocalSize` rule, None) (:meth:`opened_size`).
     """
 
     def __init__(
@@ -197,6 +201,7 @@ class SequenceDataset(Dataset):
         augment: AugmentConfig | None = None,
         seed: int = 0,
         name: str = "",
+        size_at: Callable[[Any], tuple[int, int]] | None = None,
     ) -> None:
         if mode not in MODES:
             raise ConfigError(f"window mode must be one of {MODES}, got {mode!r}")
@@ -215,6 +220,7 @@ class SequenceDataset(Dataset):
         self.seed = int(seed)
         self.epoch = 0
         self.name = name
+        self._size_at = size_at
         chunk = self.db_seq_len
         #: (trajectory index, first row) of every window/chunk
         self.windows: list[tuple[int, int]] = [
@@ -226,6 +232,12 @@ class SequenceDataset(Dataset):
                 f"{name or 'dataset'}: no window of {chunk} rows fits in any trajectory (the longest has {longest} "
                 "rows); lower seq_len/db_seq_len"
             )
+
+    def opened_size(self, size) -> tuple[int, int] | None:
+        """``(H, W)`` the reader of these images opens them at for the ``size`` argument (an ``(H, W)``, a
+        :class:`~cosemdepth.data.frames.FocalSize` rule, None: its default), computed as the reader does; None when
+        the reader does not say. E.g. the size a run without ``--size`` has."""
+        return None if self._size_at is None else tuple(self._size_at(size))
 
     def set_epoch(self, epoch: int) -> None:
         """Select the random draws of ``epoch`` (train windows and augmentation)."""
@@ -281,7 +293,7 @@ class SequenceDataset(Dataset):
         records = [traj.frame(r) for r in rows]
         frames = [self.load_frame(rec) for rec in records]
         sample: dict = {"rgb": torch.stack([f["rgb"] for f in frames])}
-        for key in ("depth", "semantic"):
+        for key in ("depth", "semantic", "source_valid"):
             present = [key in f for f in frames]
             if all(present):
                 sample[key] = torch.stack([f[key] for f in frames])

@@ -1,5 +1,5 @@
-"""Evaluation: depth and segmentation metrics, best-checkpoint rules, results tables
-(:mod:`cosemdepth.evaluation.metrics`).
+"""Evaluation: the test protocol (:mod:`~cosemdepth.evaluation.evaluator`), ``predict``, the fidelity check against
+the TF reference; the metrics it reports are in :mod:`cosemdepth.measures`.
 
 Attributes are imported lazily (importing the package loads none of its modules)."""
 
@@ -10,10 +10,10 @@ from .._lazy import lazy_getattr as _lazy_getattr
 _LAZY = {
     "evaluate": ".evaluator",
     "compare_with_reference": ".fidelity",
-    "class_info": ".classes",
+    "class_info": "cosemdepth.measures.classes",
     "open_fixture": ".tfref_fixture",
-    "DepthMetrics": ".metrics",
-    "ValidDepthMetrics": ".metrics",
+    "DepthMetrics": "cosemdepth.measures.metrics",
+    "ValidDepthMetrics": "cosemdepth.measures.metrics",
     "colorize_labels": ".visualize",
 }
 

@@ -9,7 +9,10 @@ and the dataset has depth, segmentation when the model predicts classes and the 
 M4Semantic, Aeroscapes), and so on for any further registered decoder.
 
 Datasets of independent images (Aeroscapes: every image is its own reset) would have no frame left under the reset
-rule; there every frame counts (the semantic decoder does not use time). ``exclude_resets`` overrides this.
+rule; there every frame counts for the labels (the semantic decoder does not use time). ``exclude_resets`` overrides
+this. The depth of a reset frame is never a measurement (a placeholder: depth needs the camera's motion), so the depth
+metrics leave every frame without depth out, whatever ``exclude_resets`` says: with none left they are absent (NaN),
+and :meth:`EvaluationResult.depth_warning` says why.
 
 Speed: ``ms_per_frame`` is the mean wall time of ``model.step`` per frame (synchronised on CUDA) over the steps after
 ``warmup`` steps, without data loading; with several trajectories per batch it is the step time divided by the batch.
@@ -38,10 +41,12 @@ import torch
 from tqdm.auto import tqdm
 
 from .. import __version__
+from ..decoders.depth.task import no_depth_warning
 from ..errors import ConfigError
 from ..inference.policy import EVERY_FRAME, Streamer, policy_info
+from ..measures.metrics import ALL_DEPTH_METRICS, format_markdown_table
+from ..models.outputs import ESTIMATED, HELD
 from ..tasks import TASKS, TEST, MetricContext, tasks_for
-from .metrics import ALL_DEPTH_METRICS, format_markdown_table
 from .resources import PeakMemory, machine_info
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
 
@@ -106,7 +111,7 @@ class EvaluationResult:
             ``rmse_log_fixed``, ``delta1..3`` as fractions, ``depth_frames``) and/or ``miou`` (fraction), ``iou``
             (per-class list, NaN for a class absent from GT and prediction), ``semantic_frames``; with labels and
             depth in the dataset, the labels' temporal consistency (``flicker`` ... ``flicker_pairs``,
-            :mod:`cosemdepth.evaluation.temporal`).
+            :mod:`cosemdepth.measures.temporal`).
         confusion_matrix: ``[N, N]`` int64 counts (rows ground truth, columns prediction) or None.
         class_names: names of the N classes (or empty).
         params: parameter count; ms_per_frame: see the module docstring; peak_memory_mb and memory_method.
@@ -123,7 +128,7 @@ class EvaluationResult:
     info: dict[str, Any] = field(default_factory=dict)
 
     def table_row(self) -> dict[str, Any]:
-        """The flat dict :func:`~cosemdepth.evaluation.metrics.format_markdown_table` takes."""
+        """The flat dict :func:`~cosemdepth.measures.metrics.format_markdown_table` takes."""
         return {**self.metrics, "params": self.params, "ms_per_frame": self.ms_per_frame}
 
     def to_dict(self) -> dict[str, Any]:
@@ -158,6 +163,20 @@ class EvaluationResult:
             f"{_fmt(100 * m['valid_delta1'], '.1f')} %; evaluated frames: "
             + ", ".join(f"{v} {k}" for k, v in counts.items())
             + " (docs/motion.md)"
+        )
+
+    def depth_warning(self) -> str | None:
+        """Why the run gave no usable depth (every frame a reset, or not one valid pixel), as the commands warn it
+        (:func:`~cosemdepth.decoders.depth.task.no_depth_warning`); None when it gave some, or the model has no depth."""
+        proto = self.info.get("protocol", {})
+        counts = proto.get("frames_by_status")
+        if not counts:
+            return None
+        return no_depth_warning(
+            int(proto.get("frames_streamed") or 0),
+            int(counts.get(ESTIMATED, 0)),
+            int(counts.get(HELD, 0)),
+            self.metrics.get("coverage"),
         )
 
     def flicker_line(self) -> str | None:
@@ -214,7 +233,8 @@ class EvaluationResult:
             + (
                 "reset frames excluded from all metrics (design 11.3)"
                 if proto.get("reset_frames_excluded")
-                else "every frame counted (a dataset of independent images)"
+                else "every frame counted for the labels (a dataset of independent images); the depth metrics "
+                "only on frames with depth"
             ),
             f"- speed: {_fmt(self.ms_per_frame, '.1f')} ms/frame (model step only, {speed.get('timed_frames')} "
             f"frames after {speed.get('warmup_steps')} warm-up steps) on {mach.get('device')}: {mach.get('cpu')}"
@@ -397,7 +417,8 @@ def evaluate(model, dataset, **options: Any) -> EvaluationResult:
         lanes: trajectories streamed at once as one batch, with per-sample resets (1 = the original's batch 1).
         max_frames: evaluate only the first N rows of the split (in order).
         num_workers: DataLoader workers reading frames.
-        exclude_resets: leave reset frames out of the metrics (default: yes, unless every frame is a reset).
+        exclude_resets: leave reset frames out of the metrics (default: yes, unless every frame is a reset); the
+            depth metrics leave them out in any case (a reset frame has no depth).
         policy: the streaming policy (:class:`~cosemdepth.inference.StreamPolicy` or ``"every-frame"`` (default,
             the paper's protocol) / ``"baseline"``); min_baseline: its minimum baseline (metres; default: the
             model's); the paper's metrics use every pixel with ground truth, the

@@ -105,13 +105,7 @@ def compare_with_reference(model, fixture: str | Path) -> dict[str, Any]:
         inp["intrinsics"],
         torch.stack(inp["reset"], 1),
     )
-    seq_maps = {
-        "depth": seq.depth,
-        "parallax": seq.parallax,
-        "depth_other": seq.depth_other,
-        "semantic": seq.semantic,
-        "semantic_other": seq.semantic_other,
-    }
+    seq_maps = {k: seq.levels.get(k, []) for k in ("depth", "parallax", "depth_other", "semantic", "semantic_other")}
     for t in range(n):
         report["training"].append(level_report(lambda k, j: seq_maps[k][j][:, t] if seq_maps[k] else None, "train", t))
         feats = {}

@@ -41,14 +41,14 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from ..decoders.depth.task import valid_mask
 from ..errors import ConfigError
 from ..inference.policy import Streamer, StreamPolicy, policy_info
+from ..measures.classes import class_info
 from ..output_safety.atomic import atomic_write_text
 from ..output_safety.outdir import Input
 from ..output_safety.staging import StagedDir
 from ..tasks import TASKS, DecoderTask, TaskWriter, WriteOptions, class_count, tasks_for
-from ..tasks.depth import valid_mask
-from .classes import class_info
 from .evaluator import _model_config, to_json
 from .figures import FlightPictures, frame_maps
 from .streaming import StreamBatch, make_schedule, stream, trajectory_rows

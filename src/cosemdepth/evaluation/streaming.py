@@ -282,7 +282,10 @@ def stream(
                 guide.depth = batch["depth"][:, 0].to(device=device, dtype=dtype)
             _sync(device)
             t0 = time.perf_counter()
-            out, state = streamer.step(rgb, rot, trans, intr, reset_dev, state)
+            source_valid = batch.get("source_valid")
+            if source_valid is not None:
+                source_valid = source_valid[:, 0].to(device)
+            out, state = streamer.step(rgb, rot, trans, intr, reset_dev, state, source_valid=source_valid)
             _sync(device)
             seconds = time.perf_counter() - t0
             check_finite_outputs(out, dataset, list(step.indices), list(batch["trajectory"]), batch["frame"][:, 0])

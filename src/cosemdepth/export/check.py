@@ -39,6 +39,7 @@ from ..synthair.render import render_frames
 from ..synthair.world import get_world
 from ..synthair.writer import SynthConfig, plan_flights
 from .onnx import state_components
+from .provenance import check_model, read_provenance
 
 
 def synthetic_sequence(batch: int, frames: int, height: int, width: int, seed: int = 0):
@@ -331,11 +332,13 @@ def compare_onnx(
     (:func:`flight_sequence`, or ``inputs = (rgb, rot, trans, intrinsics)``) through ONNX Runtime and, step by step on
     the same inputs and incoming state, through ``model.step`` (its modules, float32: a
     :class:`~cosemdepth.inference.FastModel`'s model) and through :func:`noise_model`; returns an
-    :class:`OnnxComparison` (see the module docstring)."""
+    :class:`OnnxComparison` (see the module docstring). A graph that was not exported from ``model`` (its recorded
+    provenance, :mod:`cosemdepth.export.provenance`) is refused with a :class:`ConfigError`."""
     try:
         import onnxruntime as ort  # deferred: an optional dependency (cosemdepth[export])
     except ImportError as e:  # pragma: no cover - optional dependency
         raise ConfigError("the ONNX check needs onnxruntime (pip install 'cosemdepth[export]')") from e
+    check_model(read_provenance(path), model, path)
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     shape = sess.get_inputs()[0].shape
     b, _, h, w = (d if isinstance(d, int) else 1 for d in shape)

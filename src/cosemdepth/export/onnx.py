@@ -24,16 +24,19 @@ from pathlib import Path
 import torch
 import torch.nn as nn
 
-from .. import __version__
 from ..errors import ConfigError
 from ..inference.fast_model import reference_model
 from ..models.config import MIDAIR_IMAGE_SIZE
 from ..models.outputs import StreamState
 from ..output_safety.atomic import atomic_path
+from .provenance import ONNX_MARK, provenance, stamp
 
-#: ONNX opset (``--opset``): GridSample needs at least ``MIN_OPSET``.
+#: ONNX opset (``--opset``). ``MIN_OPSET``: torch's exporter writes the model's reshapes (``unflatten``) from opset
+#: 13 on, and an int8 graph's per-channel QuantizeLinear/DequantizeLinear (an ``axis``) are opset 13 too.
 DEFAULT_OPSET = 17
-MIN_OPSET = 16
+MIN_OPSET = 13
+#: why ``MIN_OPSET`` (the ``--opset`` error says it)
+MIN_OPSET_REASON = "the graph's reshapes and the int8 graph's per-channel quantisation are opset-13 operators"
 
 
 def max_opset() -> int:
@@ -122,11 +125,11 @@ def export_onnx(
         path: output ``.onnx`` file.
         height, width: input resolution (fixed in the graph; the state shapes depend on it).
         batch: batch size of the example (fixed unless ``dynamic_batch``).
-        opset: ONNX opset, at least :data:`MIN_OPSET` (GridSample).
+        opset: ONNX opset, at least :data:`MIN_OPSET`.
         dynamic_batch: mark the batch axis dynamic.
         reset_float: take ``reset`` as float32 (1 = reset) instead of bool, for runtimes without bool inputs.
     Returns:
-        the path written.
+        the path written; its metadata records what it was made from (:mod:`cosemdepth.export.provenance`).
     """
     model = reference_model(model)
     cfg = getattr(model, "config", None)
@@ -140,8 +143,8 @@ def export_onnx(
     top = max_opset()
     if not MIN_OPSET <= opset <= top:
         raise ConfigError(
-            f"--opset must be in [{MIN_OPSET}, {top}] (GridSample needs {MIN_OPSET}; {top} is the newest "
-            f"this torch {torch.__version__} exports), got {opset}"
+            f"--opset must be in [{MIN_OPSET}, {top}] ({MIN_OPSET_REASON}; {top} is the newest this torch "
+            f"{torch.__version__} exports), got {opset}"
         )
     if height < 1 or width < 1 or batch < 1:
         raise ConfigError(f"--size and --batch must be positive, got size {height}x{width}, batch {batch}")
@@ -151,6 +154,7 @@ def export_onnx(
         args = step.example_inputs(batch, height, width)
         in_names, out_names = step.names()
         dynamic_axes = {n: {0: "batch"} for n in in_names + out_names} if dynamic_batch else None
+        record = provenance(model, height, width, batch, dynamic_batch, opset)
         with atomic_path(path) as tmp, torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore")  # tracer warnings about Python shape arithmetic (constant here)
             torch.onnx.export(
@@ -164,25 +168,12 @@ def export_onnx(
                 dynamo=False,
                 do_constant_folding=True,
             )
-            mark_onnx(tmp)
+            stamp(tmp, record)
     return path
 
 
-#: metadata key that marks an ONNX file written by ``cosemdepth export`` (the output policy replaces only those)
-ONNX_MARK = "cosemdepth_export"
-
-
-def mark_onnx(path: str | Path) -> None:
-    """Record in the ONNX file's metadata that cosemdepth wrote it."""
-    import onnx  # deferred: heavy, and only present with torch.onnx's export requirements
-
-    m = onnx.load(str(path), load_external_data=False)
-    onnx.helper.set_model_props(m, {**{p.key: p.value for p in m.metadata_props}, ONNX_MARK: __version__})
-    onnx.save(m, str(path))
-
-
 def is_our_onnx(path: str | Path) -> bool:
-    """True if ``path`` is an ONNX file that ``cosemdepth export`` wrote (see :func:`mark_onnx`)."""
+    """True if ``path`` is an ONNX file that ``cosemdepth export`` wrote (its metadata has :data:`~cosemdepth.export.provenance.ONNX_MARK`)."""
     try:
         import onnx  # deferred: heavy; without it no file can be ours
 

@@ -29,7 +29,7 @@ from ..errors import ConfigError
 from ..inference.engine import FLOAT32_FROM_LEVEL, INT8_KEEP_FLOAT
 from ..inference.fast_model import reference_model
 from ..output_safety.atomic import atomic_path
-from .onnx import mark_onnx
+from .provenance import PRECISION, stamp
 from .runtime import OnnxStep
 
 #: calibration frames ``export --int8`` streams by default
@@ -110,8 +110,9 @@ def _reader(feeds: Sequence[dict]):
 def quantize_onnx(
     model, src: str | Path, dst: str | Path, frames: Iterable[tuple], threads: Optional[int] = None
 ) -> Path:
-    """Write ``dst``: the float32 graph ``src`` (exported from ``model`` by :func:`export_onnx`) with the int8 policy's
-    convolutions quantised, calibrated on ``frames`` (see :func:`calibration_feeds`). Written atomically.
+    """Write ``dst``: the float32 graph ``src`` (exported from ``model`` by :func:`export_onnx`; refused otherwise)
+    with the int8 policy's convolutions quantised, calibrated on ``frames`` (see :func:`calibration_feeds`). Written
+    atomically; its metadata is ``src``'s with precision ``int8``.
 
     Returns:
         ``dst``.
@@ -120,18 +121,21 @@ def quantize_onnx(
     from onnxruntime.quantization import quantize_static
 
     src, dst = Path(src), Path(dst)
+    step = OnnxStep(src, threads=threads, model=model)
+    if step.precision != "fp32":
+        raise ConfigError(f"{src}: the graph is already {step.precision}; quantise the fp32 export")
     graph = onnx.load(str(src), load_external_data=False).graph
     nodes = int8_nodes(graph, int8_weights(model))
     if not nodes:
         raise ConfigError(f"{src}: the model has no convolution the int8 policy quantises (M4Depth keeps float)")
-    feeds = calibration_feeds(OnnxStep(src, threads=threads), frames)
+    feeds = calibration_feeds(step, frames)
     root = logging.getLogger()  # the quantiser logs advice (pre-processing) on the root logger: not for our users
     level = root.level
     root.setLevel(max(level, logging.ERROR))
     try:
         with atomic_path(dst) as tmp:
             _quantize(quantize_static, src, tmp, feeds, nodes)
-            mark_onnx(tmp)
+            stamp(tmp, {**step.provenance, PRECISION: "int8"})
     finally:
         root.setLevel(level)
     return dst

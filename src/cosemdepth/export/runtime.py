@@ -17,6 +17,7 @@ import torch
 from ..errors import ConfigError
 from ..models.outputs import StepOutput, StreamState
 from .onnx import state_components
+from .provenance import PRECISION, check_model, read_provenance
 
 
 def _session_options(threads: Optional[int], profile_prefix: Optional[str]):
@@ -41,6 +42,13 @@ class OnnxStep:
             ``(name, options)`` pair as ``InferenceSession`` takes them.
         threads: intra-op threads (default: ONNX Runtime's choice).
         profile_prefix: write ONNX Runtime's per-node profile (JSON) with this file prefix (:meth:`end_profiling`).
+        model: the PyTorch model the graph must have been exported from (:meth:`check_model`), if given.
+        provenance: False: run the graph whatever its metadata records (timing an older export side by side,
+            ``benchmarks/infer_vs_original.py``); :attr:`provenance` and :attr:`precision` are then None.
+
+    A graph without the provenance an export records, or changed since, is refused
+    (:func:`~cosemdepth.export.provenance.read_provenance`); :attr:`provenance` holds it, :attr:`precision` is
+    ``fp32`` or ``int8``.
     """
 
     def __init__(
@@ -49,12 +57,18 @@ class OnnxStep:
         providers: Optional[Sequence] = None,
         threads: Optional[int] = None,
         profile_prefix: Optional[str] = None,
+        model=None,
+        provenance: bool = True,
     ):
         try:
             import onnxruntime as ort  # deferred: an optional dependency (cosemdepth[export])
         except ImportError:  # pragma: no cover - optional dependency
             raise ConfigError("running an ONNX graph needs onnxruntime (pip install 'cosemdepth[export]')") from None
         self.path = Path(path)
+        self.provenance = read_provenance(self.path) if provenance or model is not None else None
+        self.precision = None if self.provenance is None else self.provenance[PRECISION]
+        if model is not None:
+            self.check_model(model)
         try:
             self.session = ort.InferenceSession(
                 str(self.path),
@@ -72,6 +86,14 @@ class OnnxStep:
         self.shape = tuple(d if isinstance(d, int) else None for d in shape)  # [B, 3, H, W]; None: dynamic axis
         self._state_shapes = [tuple(i.shape) for i in ins if i.name.startswith("state_")]
         self.components = state_components(self.state_inputs)
+
+    def check_model(self, model, model_name: str = "the model") -> None:
+        """Refuse, in one line naming the file and what differs, a graph not exported from ``model`` (its
+        architecture, config and weights; :func:`~cosemdepth.export.provenance.check_model`)."""
+        if self.provenance is None:  # opened without it: a model's graph must have it all the same
+            self.provenance = read_provenance(self.path)
+            self.precision = self.provenance[PRECISION]
+        check_model(self.provenance, model, self.path, model_name)
 
     @property
     def providers(self) -> list[str]:
@@ -134,7 +156,7 @@ class OnnxStep:
         res, nxt = self.run(feeds, st)
         dev = rgb.device
         heads = {k: torch.from_numpy(v).to(dev) for k, v in res.items() if not k.startswith("next_")}
-        out = StepOutput(depth=heads.get("depth"), semantic=heads.get("semantic"), heads=heads)
+        out = StepOutput(heads=heads)
         new = (
             StreamState.unflatten([torch.from_numpy(s).to(dev) for s in nxt], self.components) if nxt else StreamState()
         )
@@ -153,11 +175,14 @@ class OnnxModel:
     :meth:`SceneModel.step`.
 
     Args:
-        model: the PyTorch model the graph was exported from (its config and operating point are read).
+        model: the PyTorch model the graph was exported from (its config and operating point are read); a graph
+            exported from another architecture, config or weights is refused (:meth:`OnnxStep.check_model`).
         step: an :class:`OnnxStep` over the graph.
+        model_name: how error messages name ``model`` (e.g. ``"--model weights/x"``).
     """
 
-    def __init__(self, model, step: OnnxStep):
+    def __init__(self, model, step: OnnxStep, model_name: str = "the model"):
+        step.check_model(model, model_name)
         self.model = model
         self.onnx = step
         # the state components each decoder owns (the components of a graph's state are those of the model's)

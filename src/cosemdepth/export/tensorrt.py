@@ -111,7 +111,7 @@ class TrtStep:
             raise RuntimeError("TensorRT execution failed")
         heads = {k: v.float().clone() for k, v in self.outputs.items() if not k.startswith("next_")}
         nxt = [self.outputs["next_" + n].float().clone() for n in self.state_inputs]
-        out = StepOutput(depth=heads.get("depth"), semantic=heads.get("semantic"), heads=heads)
+        out = StepOutput(heads=heads)
         return out, (StreamState.unflatten(nxt, self.components) if nxt else StreamState())
 
 

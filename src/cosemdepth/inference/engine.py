@@ -29,7 +29,6 @@ import torch
 import torch.nn.functional as F
 
 from ..devices import bf16_convolutions, no_bf16_reason, onednn_enabled
-from ..models.depth_decoder import DepthLevel
 from ..models.outputs import StepOutput, StreamState
 from ..models.pyramid import LevelOps, PyramidLevel, decode_step
 from ..ops.concat import write_blocks
@@ -74,14 +73,17 @@ def is_int8(dtype) -> bool:
     return dtype is torch.int8 or (isinstance(dtype, str) and dtype.lower() in INT8_NAMES)
 
 
-def parse_dtype(dtype: torch.dtype | str) -> torch.dtype:
-    """``torch.float32`` / ``"fp32"`` / ``"bf16"`` / ``"float16"`` ... -> a torch dtype of the fast path."""
+def parse_dtype(dtype: torch.dtype | str, name: str = "dtype", int8: bool = False) -> torch.dtype:
+    """``torch.float32`` / ``"fp32"`` / ``"bf16"`` / ``"float16"`` ... -> a torch dtype of the fast path; else a
+    ValueError naming the argument ``name`` and every value it takes (``int8``: "int8" too, handled by the
+    caller)."""
     if isinstance(dtype, torch.dtype):
         if dtype in _DTYPES.values():
             return dtype
     elif isinstance(dtype, str) and dtype.lower() in _DTYPES:
         return _DTYPES[dtype.lower()]
-    raise ValueError(f"dtype must be one of {sorted(_DTYPES)} (or the torch dtypes), got {dtype!r}")
+    names = sorted([*_DTYPES, *(INT8_NAMES[:1] if int8 else ())])
+    raise ValueError(f"{name} must be one of {names} (or the torch dtypes), got {dtype!r}")
 
 
 def upsample_nearest(x: torch.Tensor, size: tuple[int, int], half_pixel: bool) -> torch.Tensor:
@@ -117,17 +119,16 @@ def _nearest_nn1(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 
 def _fast_ops(level: PyramidLevel, refiner: _Refiner) -> LevelOps:
     """The fast operations of one level: packed refiner, channels-last concatenation, nearest resize by pixel
-    replication, the channel-loop SNCV; for a depth level NCHW features (one layout change here instead of one per
-    cost volume and per frame) and ``hypot`` (the PSCV is the reference's own function)."""
+    replication, the channel-loop SNCV, and the level's own choices (:attr:`PyramidLevel.fast_ops`: a depth level's
+    NCHW features, one layout change here instead of one per cost volume and per frame, and ``hypot``; the PSCV is
+    the reference's own function)."""
     ops = LevelOps(
         concat=functools.partial(write_blocks, dtype=refiner.dtype, memory_format=_CL),
         refiner=refiner,
         nearest=_nearest_nn1,
         sncv=spatial_cost_volume_fast,
     )
-    if not isinstance(level, DepthLevel):
-        return ops
-    return dataclasses.replace(ops, layout=torch.Tensor.contiguous, hypot=True)
+    return dataclasses.replace(ops, **level.fast_ops) if level.fast_ops else ops
 
 
 class FastEngine:
@@ -174,9 +175,9 @@ class FastEngine:
         self.int8_keep_float = dict(INT8_KEEP_FLOAT if int8_keep_float is None else int8_keep_float)
         if int8_float_dtype is None:
             int8_float_dtype = torch.bfloat16 if native_bf16() else torch.float32
-        self.int8_float_dtype = parse_dtype(int8_float_dtype)
+        self.int8_float_dtype = parse_dtype(int8_float_dtype, "int8_float_dtype")
         self.int8 = is_int8(dtype)
-        dtype = torch.float32 if self.int8 else parse_dtype(dtype)
+        dtype = torch.float32 if self.int8 else parse_dtype(dtype, int8=True)
         p = next(model.parameters())
         self.device = torch.device(device) if device is not None else p.device
         if torch.bfloat16 in (dtype, self.int8_float_dtype if self.int8 else dtype) and not bf16_convolutions(

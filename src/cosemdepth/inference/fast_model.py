@@ -116,7 +116,7 @@ class FastModel:
         same input checks, outputs and state; states of the two paths are interchangeable)."""
         self.model.check_step(rgb, rot, trans, intrinsics, reset, decoders, guide_depth)
         if decoders is not None and not decoders:  # nothing to run: the state passes through
-            return StepOutput(None, None), state if state is not None else StreamState()
+            return StepOutput(), state if state is not None else StreamState()
         return self.engine.step(rgb, rot, trans, intrinsics, reset, state, decoders=decoders, guide_depth=guide_depth)
 
     @torch.no_grad()

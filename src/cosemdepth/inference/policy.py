@@ -192,10 +192,14 @@ class Streamer:
         intrinsics: torch.Tensor,
         reset: Optional[torch.Tensor] = None,
         state: Optional[StreamerState] = None,
+        *,
+        source_valid: Optional[torch.Tensor] = None,
     ) -> tuple[StepOutput, StreamerState]:
         """One frame per sample (see :meth:`SceneModel.step <cosemdepth.models.SceneModel.step>`); ``state`` None
         starts every sample afresh. Returns ``(out, new_state)`` with ``out.valid``, ``out.status`` and
-        ``out.baseline``."""
+        ``out.baseline``. ``source_valid``: ``[B, 1, H, W]`` (or ``[B, H, W]``) bool, the pixels of an undistorted
+        image that have a source pixel (:class:`cosemdepth.camera.Undistorter`); the others are never valid,
+        whatever the policy (an estimate or a carried depth there describes edge-replicated or black pixels)."""
         b = rgb.shape[0]
         dev = rgb.device
         rot, trans, intrinsics = (x.to(dev, torch.float32) for x in (rot, trans, intrinsics))
@@ -267,11 +271,12 @@ class Streamer:
         hold = ~(reset | estimate)
         depth = _where(hold, carried, new_depth)
         valid = _where(hold, carried_valid, new_valid)
+        if source_valid is not None:
+            valid = valid & source_valid.to(device=valid.device, dtype=torch.bool).reshape(valid.shape)
         status = [
             RESET if r else ESTIMATED if e else HELD if h else RESET
             for r, e, h in zip(reset.tolist(), estimate.tolist(), has_depth.tolist())
         ]
-        out.depth = depth
         out.heads = {**out.heads, "depth": depth}
         out.valid, out.status, out.baseline = valid, status, _where(reset, torch.zeros_like(base), base)
         # the new reference: this frame where it was estimated, reset or re-anchored (with its held depth)

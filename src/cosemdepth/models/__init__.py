@@ -1,36 +1,26 @@
-"""The Co-SemDepth model family: a shared encoder and registered decoders (see :mod:`.registry`)."""
+"""The Co-SemDepth model family: a shared encoder and registered decoders (see :mod:`.registry`; the built-in
+decoders are the folders of :mod:`cosemdepth.decoders`, found through the registry, never imported from here)."""
 
-from .depth_decoder import DepthDecoder, DepthLevel
 from .encoder import DINL, Encoder
 from .layers import Refiner
-from .model import MODELS, CoSemDepth, CoSemDepthT, M4Depth, M4Semantic, SceneModel, build_model
+from .model import SceneModel, build_model
 from .outputs import SequenceOutput, StepOutput, StreamState
 from .pyramid import LevelOps, PyramidDecoder, PyramidLevel
-from .registry import DECODERS, register_architecture, register_decoder
-from .semantic_decoder import SemanticDecoder, SemanticLevel
+from .registry import ARCHITECTURES, DECODERS, register_architecture
 
 __all__ = [
+    "ARCHITECTURES",
     "DECODERS",
     "DINL",
-    "MODELS",
-    "CoSemDepth",
-    "CoSemDepthT",
-    "DepthDecoder",
-    "DepthLevel",
     "Encoder",
     "LevelOps",
-    "M4Depth",
-    "M4Semantic",
     "PyramidDecoder",
     "PyramidLevel",
     "Refiner",
     "SceneModel",
-    "SemanticDecoder",
-    "SemanticLevel",
     "SequenceOutput",
     "StepOutput",
     "StreamState",
     "build_model",
     "register_architecture",
-    "register_decoder",
 ]

@@ -1,9 +1,10 @@
-"""The model config: the architecture's choices (:class:`ModelConfig`, ``ARCHITECTURES``) and the paper's image size.
+"""The model config: the architecture's choices (:class:`ModelConfig`) and the paper's image size.
 
-The lowest layer of the configuration: it imports nothing but :mod:`cosemdepth.errors` and :mod:`cosemdepth.coerce`,
-so every layer that reads a model config (the models, ``data``, ``checkpoints``, the CLI) may import it. A model
-folder's ``config.json`` is read with :meth:`ModelConfig.from_dict` (the typed coercer); the run config
-(:mod:`cosemdepth.training.config`) holds one as its ``model`` section.
+The lowest layer of the configuration: it imports nothing but :mod:`cosemdepth.errors`, :mod:`cosemdepth.coerce`
+and the decoder registry (:mod:`cosemdepth.models.registry`, where the architectures are), so every layer that reads
+a model config (the models, ``data``, ``checkpoints``, the CLI) may import it. A model folder's ``config.json`` is
+read with :meth:`ModelConfig.from_dict` (the typed coercer); the run config (:mod:`cosemdepth.training.config`)
+holds one as its ``model`` section.
 """
 
 from __future__ import annotations
@@ -15,15 +16,7 @@ from typing import Any, Literal, Mapping, Optional
 
 from ..coerce import from_mapping
 from ..errors import ConfigError
-
-#: Architecture -> the decoders it puts on the shared encoder (names of :data:`cosemdepth.models.registry.DECODERS`;
-#: ``cosemdepth.models.registry.register_architecture`` adds entries).
-ARCHITECTURES: dict[str, tuple[str, ...]] = {
-    "cosemdepth": ("depth", "semantic"),
-    "m4depth": ("depth",),
-    "m4semantic": ("semantic",),
-    "cosemdepth-t": ("depth", "semantic"),
-}
+from .registry import ARCHITECTURE_FIELDS, ARCHITECTURES, architecture_of
 
 #: ``ModelConfig.semantic_time``: the semantic decoder's temporal input ``S^{t-1}`` (design 6.3): none (the released
 #: code), the previous frame's labels warped with the ground-truth depth (the paper's ablation; training and
@@ -31,8 +24,6 @@ ARCHITECTURES: dict[str, tuple[str, ...]] = {
 SemanticTime = Literal["off", "gt", "own"]
 SEMANTIC_TIMES = typing.get_args(SemanticTime)
 SEMANTIC_TIME_OFF, SEMANTIC_TIME_GT, SEMANTIC_TIME_OWN = SEMANTIC_TIMES
-#: Architectures whose ``semantic_time`` is fixed (the default of every other one is "off").
-ARCH_SEMANTIC_TIME = {"cosemdepth-t": SEMANTIC_TIME_OWN}
 
 #: Encoder output channels per absolute level (design 4.1); a model with L levels uses the first L entries.
 ENCODER_CHANNELS = (16, 32, 64, 96, 128, 192)
@@ -75,7 +66,7 @@ class ModelConfig:
     #: Semantic decoder: the previous frame's class probabilities at each level, warped into the current frame, in
     #: the refiner input: "off", "gt" (warped with the ground-truth depth: the paper's "+S^{t-1}"; the depth is an
     #: input of every forward pass) or "own" (with the model's own depth: Co-SemDepth-T). None: the architecture's
-    #: (``ARCH_SEMANTIC_TIME``, else "off").
+    #: (``ARCHITECTURE_FIELDS``, else "off").
     semantic_time: Optional[SemanticTime] = None
     #: Semantic decoder with a ``semantic_time``: the weight ``a`` in [0, 1) of the warped previous output in the
     #: output, ``P_t = (1 - a) softmax(logits_t) + a W(P_{t-1})`` on the finest level's pixels whose warp is valid
@@ -86,17 +77,21 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if self.arch not in ARCHITECTURES:
             raise ConfigError(f"model arch must be one of {tuple(ARCHITECTURES)}, got {self.arch!r}")
-        fixed = ARCH_SEMANTIC_TIME.get(self.arch)
+        for name, value in ARCHITECTURE_FIELDS.get(self.arch, {}).items():
+            got = getattr(self, name)
+            if got is None:
+                object.__setattr__(self, name, value)
+            elif got != value:
+                other = architecture_of(ARCHITECTURES[self.arch])
+                raise ConfigError(
+                    f"model arch {self.arch!r} has {name} {value!r}, got {got!r}"
+                    + (f"; use arch {other!r} for another {name}" if other not in (None, self.arch) else "")
+                )
         if self.semantic_time is None:
-            object.__setattr__(self, "semantic_time", fixed or SEMANTIC_TIME_OFF)
+            object.__setattr__(self, "semantic_time", SEMANTIC_TIME_OFF)
         if self.semantic_time not in SEMANTIC_TIMES:
             raise ConfigError(
                 f"model semantic_time must be one of {', '.join(map(repr, SEMANTIC_TIMES))}, got {self.semantic_time!r}"
-            )
-        if fixed is not None and self.semantic_time != fixed:
-            raise ConfigError(
-                f"model arch {self.arch!r} has semantic_time {fixed!r}, got {self.semantic_time!r}; "
-                f"use arch 'cosemdepth' for another semantic_time"
             )
         decoders = ARCHITECTURES[self.arch]
         if "semantic" not in decoders and (self.semantic_sncv or self.semantic_time != SEMANTIC_TIME_OFF):
@@ -160,7 +155,6 @@ class ModelConfig:
 
 
 __all__ = [
-    "ARCH_SEMANTIC_TIME",
     "ARCHITECTURES",
     "SEMANTIC_TIMES",
     "SEMANTIC_TIME_GT",

@@ -42,12 +42,21 @@ def infer_sequence(
         gd = gd.unsqueeze(0)
     state, heads = None, []
     for k in range(t):
-        out, state = step(
-            frames[:, k], rot[:, k], trans[:, k], intr, rs[:, k], state, guide_depth=None if gd is None else gd[:, k]
-        )
+        try:
+            out, state = step(
+                frames[:, k],
+                rot[:, k],
+                trans[:, k],
+                intr,
+                rs[:, k],
+                state,
+                guide_depth=None if gd is None else gd[:, k],
+            )
+        except ValueError as e:  # the step's one-line input errors, said of this frame of the sequence
+            raise ValueError(f"{e} (frame {k} of the sequence)") from None
         heads.append(out.heads)
     full = {h: torch.stack([o[h] for o in heads], 1)[0 if single else slice(None)] for h in heads[0]}
-    return StepOutput(full.get("depth"), full.get("semantic"), heads=full)
+    return StepOutput(heads=full)
 
 
 def _motions(

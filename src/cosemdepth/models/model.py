@@ -1,4 +1,5 @@
-"""Co-SemDepth and its single-task siblings M4Depth and M4Semantic: one encoder and one or two decoders.
+"""The model of every architecture (Co-SemDepth, its single-task siblings M4Depth and M4Semantic, Co-SemDepth-T,
+any registered one): the shared encoder and the registered decoders the architecture names.
 
 Two ways to run a model:
 
@@ -31,12 +32,13 @@ from .registry import DECODERS
 
 class SceneModel(nn.Module):
     """Shared encoder + the decoders of ``config.arch`` (see :mod:`cosemdepth.models.registry`); decoder ``name`` is
-    the submodule ``<name>_decoder`` (``depth_decoder``, ``semantic_decoder``; None when the architecture lacks it)."""
+    the submodule ``<name>_decoder`` (``depth_decoder``, ``semantic_decoder``; None when the architecture lacks it).
+    ``SceneModel(arch="m4depth")``: the config from keywords."""
 
     def __init__(self, config: ModelConfig | None = None, **overrides):
         super().__init__()
         if config is None:
-            config = ModelConfig(arch=self.default_arch, **overrides)
+            config = ModelConfig(**overrides)
         elif overrides:
             config = ModelConfig.from_dict({**config.to_dict(), **overrides})
         self.config = config
@@ -44,8 +46,6 @@ class SceneModel(nn.Module):
         for name in DECODERS:
             setattr(self, f"{name}_decoder", DECODERS[name](config) if name in config.decoders else None)
         self.set_numerics(pscv_half=config.pscv_dtype == "float16")
-
-    default_arch = "cosemdepth"
 
     @property
     def decoders(self) -> dict[str, PyramidDecoder]:
@@ -136,8 +136,7 @@ class SceneModel(nn.Module):
                     ]
                     for key, v in dec.level_maps(levels).items()
                 }
-            for key, v in maps.items():
-                out.put(key, v)
+            out.levels.update(maps)
         return out
 
     # ------------------------------------------------------------------ streaming
@@ -177,7 +176,7 @@ class SceneModel(nn.Module):
         """
         self.check_step(rgb, rot, trans, intrinsics, reset, decoders, guide_depth)
         if decoders is not None and not decoders:  # nothing to run: the state passes through
-            return StepOutput(None, None), state if state is not None else StreamState()
+            return StepOutput(), state if state is not None else StreamState()
         size = tuple(rgb.shape[-2:])
         feats = self.encoder(rgb)
         return decode_step(
@@ -257,41 +256,13 @@ class SceneModel(nn.Module):
         return sum(p.numel() for p in self.parameters())
 
 
-class CoSemDepth(SceneModel):
-    """Joint depth + semantic model (AlaaEldin & Odone)."""
-
-    default_arch = "cosemdepth"
-
-
-class M4Depth(SceneModel):
-    """Depth-only model (Fonder et al.): encoder + depth decoder."""
-
-    default_arch = "m4depth"
-
-
-class M4Semantic(SceneModel):
-    """Semantic-only model: encoder + semantic decoder."""
-
-    default_arch = "m4semantic"
-
-
-class CoSemDepthT(SceneModel):
-    """Co-SemDepth whose semantic decoder reads the previous frame's labels, warped with its own depth (design 6.3)."""
-
-    default_arch = "cosemdepth-t"
-
-
-#: Architecture name -> model class.
-MODELS = {"cosemdepth": CoSemDepth, "m4depth": M4Depth, "m4semantic": M4Semantic, "cosemdepth-t": CoSemDepthT}
-
-
 def build_model(config: ModelConfig | None = None, **overrides) -> SceneModel:
     """Build a freshly initialised model; ``build_model(arch="m4depth", levels=6)`` or from a :class:`ModelConfig`."""
     if config is None:
         config = ModelConfig(**overrides)
     elif overrides:
         config = ModelConfig.from_dict({**config.to_dict(), **overrides})
-    return MODELS.get(config.arch, SceneModel)(config)
+    return SceneModel(config)
 
 
 def _skipped_frames_nan(x: torch.Tensor, n: int) -> torch.Tensor:
@@ -321,3 +292,29 @@ def _check_inputs(rgb, rot, trans, intrinsics, reset, sequence: bool) -> None:
         raise ValueError(
             f"argument reset must be a bool tensor of shape [{dims}], got {reset.dtype} {list(reset.shape)}"
         )
+    if not torch.jit.is_tracing():  # values: only of real inputs (an export traces placeholders)
+        _check_motion(rot, trans, reset, sequence)
+
+
+def _check_motion(rot: torch.Tensor, trans: torch.Tensor, reset: Optional[torch.Tensor], sequence: bool) -> None:
+    """The motion of every sample that does not reset (a reset ignores it; frame 0 of a sequence always resets) is
+    a rotation quaternion of finite, non-zero norm and a finite translation: else a ValueError naming the sample."""
+    used = torch.ones(rot.shape[:-1], dtype=torch.bool, device=rot.device)
+    if reset is not None:
+        used &= ~reset.to(rot.device)
+    if sequence:
+        used[:, 0] = False
+    norm2 = rot.detach().float().pow(2).sum(-1)
+    bad_rot = used & ~(torch.isfinite(norm2) & (norm2 > 0))
+    bad_trans = used & ~torch.isfinite(trans.detach().float()).all(-1)
+    if not bool((bad_rot | bad_trans).any()):
+        return
+    for name, bad, t, what in (
+        ("rot", bad_rot, rot, "not a rotation quaternion (w, x, y, z): zero or non-finite"),
+        ("trans", bad_trans, trans, "not a finite translation"),
+    ):
+        if bool(bad.any()):
+            idx = [int(i) for i in bad.nonzero()[0].tolist()]
+            where = f"sample {idx[0]}" + (f", frame {idx[1]}" if sequence else "")
+            values = [round(float(v), 6) for v in t[tuple(idx)].tolist()]
+            raise ValueError(f"argument {name}: {where} is {what}: {values}")

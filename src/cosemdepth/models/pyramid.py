@@ -73,6 +73,9 @@ class PyramidLevel(nn.Module):
     level: int
     groups: int = 1  # channel groups of the feature normalisation
     normalize: bool = False
+    #: :class:`LevelOps` fields the fast inference engine sets for this level besides its packed operations (e.g.
+    #: ``layout``: the features as its cost volumes read them; ``hypot``)
+    fast_ops: Mapping[str, Any] = {}
 
     def prepare(self, feat: Tensor, guard: bool) -> Tensor:
         return grouped_l2_normalize(feat, self.groups, guard=guard) if self.normalize else feat
@@ -311,7 +314,7 @@ def decode_step(
         ran.append(dec)
         ran_names.append(name)
     heads = {dec.head: upsample(levels[dec.head][0]) for dec in ran}
-    out = StepOutput(heads.get("depth"), heads.get("semantic"), levels, heads)
+    out = StepOutput(heads=heads, levels=levels)
     is_static = static if static is not None else any(dec.static for dec in ran)
     if out.depth is not None and not is_static:  # graph capture and export: the host calls depth_status itself
         resets = state is None or not state.flatten()

@@ -55,8 +55,8 @@ from .replaceable import check_replaceable, probe_folder
 
 MARKER = ".cosemdepth-output.json"
 MARKER_FORMAT = "cosemdepth-output"
-#: 1: a list of names; 2: every file with its size and SHA-256.
-MARKER_VERSION = 2
+#: 1: a list of names; 2: every file with its size and SHA-256; 3: and the command that wrote it.
+MARKER_VERSION = 3
 
 #: The hidden work folders of a replacement inside the output folder (:class:`cosemdepth.output_safety.staging.StagedDir`):
 #: the new output being written (holding :data:`LOCK_NAME`, locked while its run lives), the previous output while
@@ -192,7 +192,9 @@ def probe_writable(folder: Path, message: str) -> None:
 
 def read_marker(folder: str | os.PathLike) -> dict | None:
     """The marker of ``folder``, or None if there is none or it is damaged: ``{"command": str, "files": {relative
-    path: {"size": int, "sha256": str}}, ...}``; files of a version-1 marker (names only) have ``None`` for both."""
+    path: {"size": int, "sha256": str, "command": str}}, ...}``; ``command`` is the command whose output the folder
+    is, each file's ``command`` the one that wrote that file (absent from older markers: :func:`file_command`);
+    files of a version-1 marker (names only) have ``None`` for size and checksum."""
     p = Path(folder) / MARKER
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
@@ -238,20 +240,23 @@ def _subfolders(folder: Path, skip: Sequence[str] = ()) -> Iterator[Path]:
             yield Path(dirpath) / d
 
 
-def write_marker(folder: str | os.PathLike, command: str, files: Iterable[str], merge: bool = True) -> Path:
-    """Write ``folder/.cosemdepth-output.json`` naming ``command`` and the ``files`` it wrote (relative paths; each
-    recorded with its size and SHA-256, read from disk); with ``merge``, the other files of an existing marker are
-    kept in the list."""
+def write_marker(
+    folder: str | os.PathLike, command: str, files: Iterable[str], merge: bool = True, writer: str | None = None
+) -> Path:
+    """Write ``folder/.cosemdepth-output.json`` naming ``command`` (whose output the folder is) and the ``files``
+    written (relative paths; each recorded with its size, SHA-256, read from disk, and the command that wrote it:
+    ``writer``, default ``command``); with ``merge``, the other files of an existing marker are kept in the list,
+    each with its own command."""
     folder = Path(folder)
     old = read_marker(folder) if merge else None
-    entries = dict(old["files"]) if old is not None else {}
+    entries = {f: {"command": file_command(old, f), **e} for f, e in old["files"].items()} if old is not None else {}
     for rel in files:
         p = folder / rel
         if p.is_symlink() or not p.is_file():
             entries.pop(rel, None)  # only regular files are ever ours
             continue
         size, digest = file_digest(p)
-        entries[rel] = {"size": size, "sha256": digest}
+        entries[rel] = {"size": size, "sha256": digest, "command": writer or command}
     # no date: the same command writes the same bytes (a generated dataset is reproducible to the byte)
     data = {
         "format": MARKER_FORMAT,
@@ -263,6 +268,14 @@ def write_marker(folder: str | os.PathLike, command: str, files: Iterable[str], 
     path = folder / MARKER
     atomic_write_text(path, json.dumps(data, indent=1) + "\n")
     return path
+
+
+def file_command(marker: dict, rel: str) -> str:
+    """The command that wrote the file ``rel`` of ``marker``: its entry's, else (a marker of an older cosemdepth)
+    the folder's."""
+    entry = marker["files"].get(rel) or {}
+    own = entry.get("command")
+    return own if isinstance(own, str) else marker["command"]
 
 
 def file_problem(folder: Path, rel: str, marker: dict | None) -> str | None:
@@ -284,8 +297,8 @@ def file_problem(folder: Path, rel: str, marker: dict | None) -> str | None:
         return f"cannot be read to check that cosemdepth wrote it ({_why(e)})"
     if size != entry.get("size") or digest != entry["sha256"]:
         return (
-            f"changed since cosemdepth {marker['command']} wrote it (not the SHA-256 that {MARKER} records), so "
-            "it is yours"
+            f"changed since cosemdepth {file_command(marker, rel)} wrote it (not the SHA-256 that {MARKER} records), "
+            "so it is yours"
         )
     return None
 
@@ -509,12 +522,13 @@ def check_output_file(
 def record_output_file(path: str | os.PathLike, command: str) -> Path:
     """Record the single output file ``path`` that ``command`` has just put in place (``export --onnx``,
     ``benchmark --json/--md``, ``view --rrd``...) with its size and SHA-256 in its folder's marker, so that
-    :func:`check_output_file` replaces it later only while its content is unchanged. An existing marker keeps its
-    command (the folder's other outputs stay those of their command); the marker of a symlink's target's folder is
-    the one written."""
+    :func:`check_output_file` replaces it later only while its content is unchanged. The file's entry names
+    ``command``; an existing marker keeps the folder's command (the folder's other outputs stay those of their
+    command); the marker of a symlink's target's folder is the one written."""
     target = real(path)
     old = read_marker(target.parent)
-    return write_marker(target.parent, old["command"] if old is not None else command, [target.name], merge=True)
+    folder_command = old["command"] if old is not None else command
+    return write_marker(target.parent, folder_command, [target.name], merge=True, writer=command)
 
 
 __all__ = [
@@ -530,6 +544,7 @@ __all__ = [
     "check_not_under_file",
     "check_output_dir",
     "check_output_file",
+    "file_command",
     "file_problem",
     "is_locked",
     "list_files",

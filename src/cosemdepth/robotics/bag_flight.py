@@ -24,20 +24,20 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..camera import Calibration, Undistorter, calibration_from_camera_info
 from ..data.decode import DEFAULT_JPEG_IDCT, check_jpeg_idct
 from ..data.flight import parse_intrinsics, scale_intrinsics
 from ..data.frames import Size, resolve_size, rgb_to_tensor
 from ..data.poses import convention_matrix, relative_camera_motions
 from ..data.quaternion import qmatrix
 from ..data.sequence import SequenceDataset, Trajectory
+from ..data.undistorted import undistorter_for
 from ..errors import ConfigError, DatasetError
 from .rosbag import (
     CAMERA_INFO_TYPES,
     IMAGE_TYPES,
     POSE_TYPES,
     Bag,
-    CameraInfo,
-    camera_info_intrinsics,
     check_quaternion,
     format_stamp,
     image_to_rgb,
@@ -145,13 +145,13 @@ def index_bag(
     )
 
 
-def read_camera_info(path: str | Path, topic: str, ignore_distortion: bool = False) -> CameraInfo:
-    """The intrinsics of the first message on ``topic``."""
+def read_camera_info(path: str | Path, topic: str) -> Calibration:
+    """The camera of the first message on ``topic`` (:func:`cosemdepth.camera.calibration_from_camera_info`:
+    ``plumb_bob``, ``rational_polynomial`` or ``equidistant`` distortion)."""
     with Bag(path) as bag:
         for _, msg in bag.messages(bag.connections(topic, CAMERA_INFO_TYPES, "--camera-info-topic")):
-            return camera_info_intrinsics(
-                msg, f"{path}: topic {topic} at stamp {format_stamp(stamp_ns(msg.header))}", ignore_distortion
-            )
+            where = f"{path}: topic {topic} at stamp {format_stamp(stamp_ns(msg.header))}"
+            return calibration_from_camera_info(msg, where)
     raise DatasetError(f"{path}: topic {topic} (--camera-info-topic) holds no messages")
 
 
@@ -160,9 +160,18 @@ class BagFrameLoader:
     requested in order when streaming; a request for an earlier image reopens the bag). Picklable (the open bag is
     not pickled)."""
 
-    def __init__(self, path: Path, topic: str, size: Size, native: Size, jpeg_idct: str = DEFAULT_JPEG_IDCT) -> None:
+    def __init__(
+        self,
+        path: Path,
+        topic: str,
+        size: Size,
+        native: Size,
+        jpeg_idct: str = DEFAULT_JPEG_IDCT,
+        undistorter: Undistorter | None = None,
+    ) -> None:
         self.path, self.topic, self.size, self.native = Path(path), topic, size, native
         self.jpeg_idct = check_jpeg_idct(jpeg_idct)
+        self.undistorter = undistorter
         self._bag: Bag | None = None
         self._messages = None
         self._next = 0
@@ -201,6 +210,9 @@ class BagFrameLoader:
                 f"{where}: image is {rgb.shape[0]}x{rgb.shape[1]} but the first image is "
                 f"{self.native[0]}x{self.native[1]}; all images of a flight must have one size"
             )
+        if self.undistorter is not None:
+            image, valid = self.undistorter(rgb)
+            return {"rgb": image, "source_valid": valid[None].clone()}
         return {"rgb": rgb_to_tensor(rgb, self.size)}
 
 
@@ -208,7 +220,8 @@ class BagFrameLoader:
 class BagFlight:
     """An opened bag flight: the ``dataset`` (one trajectory, stream mode) and what the bag writer and the rerun
     log need per row: ``index`` (see :class:`BagIndex`), ``convention`` matrix ``M`` (``X_camera = M X_local``),
-    ``intrinsics`` at the output size, output ``size``."""
+    ``intrinsics`` at the output size, output ``size``; ``calibration``: the undistortion applied
+    (:meth:`Undistorter.info <cosemdepth.camera.Undistorter.info>`), None for a pinhole."""
 
     path: Path
     image_topic: str
@@ -218,6 +231,7 @@ class BagFlight:
     intrinsics: torch.Tensor
     size: Size
     loader: BagFrameLoader = field(repr=False)
+    calibration: dict | None = None
 
     def row(self, dataset_index: int) -> int:
         return self.dataset.windows[dataset_index][1]
@@ -253,32 +267,54 @@ def open_bag_flight(
     ignore_distortion: bool = False,
     size: int | tuple[int, int] | None = None,
     jpeg_idct: str = DEFAULT_JPEG_IDCT,
+    calibration: str | Path | Calibration | None = None,
 ) -> BagFlight:
-    """Open a bag flight (see the module docstring). Intrinsics: the first ``camera_info_topic`` message (K, with
-    ROS's pixel-centre convention converted: ``cx + 0.5``, ``cy + 0.5``), else ``intrinsics`` (fx, fy, cx, cy in the
-    package's convention, as ``--flight``) or ``fov``. ``size``: the output size (default the images'; a
+    """Open a bag flight (see the module docstring). Camera: the first ``camera_info_topic`` message (K, with
+    ROS's pixel-centre convention converted: ``cx + 0.5``, ``cy + 0.5``, and its distortion), or ``calibration`` (a
+    calibration file or a :class:`~cosemdepth.camera.Calibration`), else ``intrinsics`` (fx, fy, cx, cy in the
+    package's convention, as ``--flight``) or ``fov``. A distorting lens is undistorted on the fly to a centred
+    pinhole (:class:`~cosemdepth.camera.Undistorter`; frames carry ``source_valid``) unless ``ignore_distortion``
+    (K used as if the images were undistorted). ``size``: the output size (default the images'; a
     :class:`~cosemdepth.data.frames.FocalSize` is applied to the native size and ``fx``). ``frame_skip = k`` keeps
     every k-th posed image. ``jpeg_idct``: how compressed JPEG images are
     decoded (as the dataset readers: :mod:`cosemdepth.data.decode`)."""
     path = Path(path)
     if not isinstance(frame_skip, int) or frame_skip < 1:
         raise ConfigError(f"--frame-skip must be a positive integer, got {frame_skip!r}")
-    given = sum(x is not None for x in (camera_info_topic, intrinsics, fov))
+    given = sum(x is not None for x in (camera_info_topic, calibration, intrinsics, fov))
     if given != 1:
-        raise ConfigError("--bag needs exactly one of --camera-info-topic T, --intrinsics FX FY CX CY and --hfov DEG")
+        raise ConfigError(
+            "--bag needs exactly one of --camera-info-topic T, --calibration FILE, --intrinsics FX FY CX CY and "
+            "--hfov DEG"
+        )
     m = convention_matrix(convention)
-    info = read_camera_info(path, camera_info_topic, ignore_distortion) if camera_info_topic else None
+    info = read_camera_info(path, camera_info_topic) if camera_info_topic else None
     idx = index_bag(path, image_topic, pose_topic, max_pose_gap=max_pose_gap, skip_unposed=skip_unposed)
     native = idx.native
+    undistorter = None
     if info is not None:
-        if info.size != native and info.size != (0, 0):
+        if info.size == (0, 0):  # camera_info without a size: the images'
+            info = Calibration(
+                native,
+                *info.k,
+                model=info.model,
+                coefficients=info.coefficients,
+                skew=info.skew,
+                source=info.source,
+                layout=info.layout,
+            )
+        if info.size != native:
             raise DatasetError(
                 f"{path}: topic {camera_info_topic}: camera_info is for {info.size[0]}x{info.size[1]} "
                 f"images but {image_topic} has {native[0]}x{native[1]}"
             )
         k_native = np.array(info.k)
-    else:
+        if info.has_distortion and not ignore_distortion:
+            calibration = info
+    elif calibration is None:
         k_native = parse_intrinsics(intrinsics, fov, native)
+    if calibration is not None:
+        undistorter = undistorter_for(calibration, native, size, f"the images of {image_topic}")
     keep = np.arange(0, len(idx.indices), frame_skip)
     idx = BagIndex(
         idx.indices[keep],
@@ -291,7 +327,10 @@ def open_bag_flight(
         idx.total,
     )
     q_rel, t_rel = relative_camera_motions(idx.quaternions, idx.positions, m)
-    out_size = resolve_size(size, lambda: (native, float(k_native[0]))) or native
+    if undistorter is not None:
+        out_size = undistorter.size
+    else:
+        out_size = resolve_size(size, lambda: (native, float(k_native[0]))) or native
     name = image_topic.strip("/").replace("/", "_") or "images"
     traj = Trajectory(
         name if name != "bag" else "bag_images",  # predict's output bag is OUT/bag/: the frames go beside it
@@ -301,10 +340,18 @@ def open_bag_flight(
         idx.indices,
         timestamps=idx.stamps / 1e9,
     )
-    loader = BagFrameLoader(path, image_topic, out_size, native, jpeg_idct)
-    intr = scale_intrinsics(k_native, native, out_size)
-    dataset = SequenceDataset([traj], loader, intr, seq_len=1, mode="stream", name="flight")
-    return BagFlight(path, image_topic, dataset, idx, m, intr, out_size, loader)
+    loader = BagFrameLoader(path, image_topic, out_size, native, jpeg_idct, undistorter)
+    intr = undistorter.intrinsics if undistorter is not None else scale_intrinsics(k_native, native, out_size)
+
+    def size_at(rule) -> Size:  # the size these images open at for a size or size rule, as above
+        if calibration is not None:
+            return undistorter_for(calibration, native, rule, f"the images of {image_topic}").size
+        return resolve_size(rule, lambda: (native, float(k_native[0]))) or native
+
+    dataset = SequenceDataset([traj], loader, intr, seq_len=1, mode="stream", name="flight", size_at=size_at)
+    info = None if undistorter is None else undistorter.info()
+    dataset.calibration = info
+    return BagFlight(path, image_topic, dataset, idx, m, intr, out_size, loader, info)
 
 
 __all__ = ["BagFlight", "BagFrameLoader", "BagIndex", "frame_label", "index_bag", "open_bag_flight", "read_camera_info"]

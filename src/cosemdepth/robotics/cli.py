@@ -7,8 +7,8 @@ import argparse
 from pathlib import Path
 
 from ..errors import ConfigError
-from ..evaluation.classes import class_info
 from ..evaluation.evaluator import _model_config
+from ..measures.classes import class_info
 from ..tasks import class_count
 from .bag_flight import DEFAULT_BAG_CONVENTION, DEFAULT_MAX_POSE_GAP, open_bag_flight
 from .bag_writer import DEFAULT_NAMESPACE, BagWriter, check_namespace
@@ -32,7 +32,10 @@ def add_robotics_args(parser: argparse.ArgumentParser) -> None:
         help="sensor_msgs/CameraInfo topic for the intrinsics (instead of --intrinsics / --hfov)",
     )
     bag.add_argument(
-        "--ignore-distortion", action="store_true", help="use camera_info's K even when it has a non-zero distortion"
+        "--ignore-distortion",
+        action="store_true",
+        help="use camera_info's K as if the images were undistorted (default: a distorting lens is undistorted on "
+        "the fly)",
     )
     bag.add_argument(
         "--out-namespace",
@@ -57,11 +60,13 @@ def check_args(args: argparse.Namespace) -> None:
         for opt in ("image_topic", "pose_topic"):
             if not getattr(args, opt):
                 raise ConfigError(f"--bag needs --{opt.replace('_', '-')} T")
-        if args.camera_info_topic is not None and (args.intrinsics is not None or args.hfov is not None):
-            raise ConfigError("give either --camera-info-topic or --intrinsics/--hfov, not both")
-        if args.camera_info_topic is None and (args.intrinsics is None) == (args.hfov is None):
+        calibration = getattr(args, "calibration", None)
+        if sum(x is not None for x in (args.camera_info_topic, calibration, args.intrinsics, args.hfov)) > 1:
+            raise ConfigError("give one of --camera-info-topic, --calibration, --intrinsics and --hfov")
+        if args.camera_info_topic is None and calibration is None and (args.intrinsics is None) == (args.hfov is None):
             raise ConfigError(
-                "--bag needs --camera-info-topic T, or exactly one of --intrinsics FX FY CX CY and --hfov DEG"
+                "--bag needs --camera-info-topic T, or exactly one of --calibration FILE, --intrinsics FX FY CX CY "
+                "and --hfov DEG"
             )
         if args.hfov is not None and not 0 < args.hfov < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {args.hfov}")
@@ -88,6 +93,7 @@ def open_bag(args: argparse.Namespace, size=None):
         skip_unposed=args.skip_unposed,
         max_pose_gap=DEFAULT_MAX_POSE_GAP if args.max_pose_gap is None else args.max_pose_gap,
         ignore_distortion=args.ignore_distortion,
+        calibration=getattr(args, "calibration", None),
         size=size,
         jpeg_idct=args.jpeg_idct,
     )

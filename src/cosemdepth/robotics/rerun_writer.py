@@ -39,7 +39,7 @@ import numpy as np
 
 from ..data.quaternion import qmatrix
 from ..errors import ConfigError
-from ..evaluation.metrics import depth_metrics
+from ..measures.metrics import depth_metrics
 from ..optional import require
 from ..output_safety.atomic import _default_mode
 from ..output_safety.outdir import check_output_file, record_output_file

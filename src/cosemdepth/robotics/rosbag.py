@@ -171,33 +171,6 @@ def pose_from_msg(msgtype: str, msg: Any) -> tuple[int, np.ndarray, np.ndarray]:
     return stamp_ns(msg.header), p, q
 
 
-@dataclass(frozen=True)
-class CameraInfo:
-    """Intrinsics of a ``sensor_msgs/CameraInfo``: image ``size`` (H, W) and ``k = (fx, fy, cx, cy)`` in the
-    package's pixel convention (ROS/OpenCV's ``cx, cy`` + 0.5: design 2.1)."""
-
-    size: tuple[int, int]
-    k: tuple[float, float, float, float]
-
-
-def camera_info_intrinsics(msg: Any, where: str, ignore_distortion: bool = False) -> CameraInfo:
-    """The intrinsics of a CameraInfo message; a non-zero distortion is a DatasetError unless
-    ``ignore_distortion`` (the model assumes an undistorted pinhole)."""
-    k = np.asarray(getattr(msg, "k", None) if hasattr(msg, "k") else msg.K, dtype=np.float64).reshape(-1)
-    d = np.asarray(getattr(msg, "d", None) if hasattr(msg, "d") else msg.D, dtype=np.float64).reshape(-1)
-    if k.size != 9 or not np.isfinite(k).all() or k[0] <= 0 or k[4] <= 0:
-        raise DatasetError(f"{where}: camera_info K is not a valid camera matrix (fx, fy must be > 0): {k.tolist()}")
-    if d.size and np.any(d != 0) and not ignore_distortion:
-        raise DatasetError(
-            f"{where}: camera_info has a non-zero distortion ({msg.distortion_model or 'model unnamed'}: "
-            f"{[round(float(v), 6) for v in d]}); the model needs rectified images: use the image_rect topic, "
-            "or pass --ignore-distortion to use K as if the images were undistorted"
-        )
-    return CameraInfo(
-        (int(msg.height), int(msg.width)), (float(k[0]), float(k[4]), float(k[2]) + 0.5, float(k[5]) + 0.5)
-    )
-
-
 # --------------------------------------------------------------------------------------- image <-> pose pairing
 
 
@@ -286,12 +259,10 @@ def check_quaternion(q: np.ndarray, where: str, tol: float = 1e-2) -> np.ndarray
 __all__ = [
     "Bag",
     "CAMERA_INFO_TYPES",
-    "CameraInfo",
     "IMAGE_ENCODINGS",
     "IMAGE_TYPES",
     "POSE_TYPES",
     "PosedImage",
-    "camera_info_intrinsics",
     "check_quaternion",
     "format_stamp",
     "image_to_rgb",

@@ -6,7 +6,7 @@
 - :mod:`.render` renders colour, z-depth and Mid-Air labels for poses (:mod:`.raymarch`, :mod:`.shading`,
   :mod:`.climate`);
 - :mod:`.writer` writes the Mid-Air tree, ``sensor_records.hdf5``, the split CSVs and ``synthair.json``
-  (``cosemdepth synth``).
+  (``cosemdepth synth``); :mod:`.export` the flights' video and flight-controller logs (``--export``).
 
 Attributes are imported lazily (``cosemdepth synth --help`` does not load torch).
 """

@@ -133,7 +133,7 @@ def surface_height(world: World, xy: torch.Tensor, lod: Lod | None = None) -> to
     return (terrain + torch.maximum(tree, boulder)).clamp_(min=world.water_level)
 
 
-def beam_start(world: World, origins: torch.Tensor, d: torch.Tensor, block: int = 8):
+def beam_start(world: World, origins: torch.Tensor, d: torch.Tensor, block: int = 8, exact_cone: bool = False):
     """Conservative start distances for blocks of rays (cone tracing through the dilated max pyramid).
 
     The rays of a ``block x block`` pixel block have unit directions within ``kappa`` of the block's axis ``a``
@@ -146,6 +146,8 @@ def beam_start(world: World, origins: torch.Tensor, d: torch.Tensor, block: int 
     Args:
         origins: ``[B, 3]`` ray origin (x, y, up) of each image, x and y wrapped.
         d: ``[B, H, W, 3]`` unit ray directions of the images.
+        exact_cone: measure ``kappa`` over every ray of a block instead of its 4 corners (a pinhole block's rays
+            are farthest from the axis at its corners; a distorting lens's need not be).
     Returns:
         ``(t_start [B, H, W], level_start [B, H, W] float)``.
     """
@@ -156,7 +158,11 @@ def beam_start(world: World, origins: torch.Tensor, d: torch.Tensor, block: int 
     corners = pad.reshape(3, nbatch, hb, block, wb, block)[:, :, :, [0, -1]][:, :, :, :, :, [0, -1]]
     axis = corners.sum(dim=(3, 5))
     axis = axis / axis.norm(dim=0, keepdim=True)  # [3, B, hb, wb]
-    chord = (corners - axis[:, :, :, None, :, None]).norm(dim=0).amax(dim=(2, 4))  # [B, hb, wb]
+    if exact_cone:
+        rays = pad.reshape(3, nbatch, hb, block, wb, block)
+        chord = (rays - axis[:, :, :, None, :, None]).norm(dim=0).amax(dim=(2, 4))  # [B, hb, wb]
+    else:
+        chord = (corners - axis[:, :, :, None, :, None]).norm(dim=0).amax(dim=(2, 4))  # [B, hb, wb]
     kappa = (chord * 1.05 + 1e-4).reshape(-1)
     a = axis.reshape(3, -1)
     nb = a.shape[1]

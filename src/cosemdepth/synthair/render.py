@@ -2,6 +2,11 @@
 
 Camera model (design 2.1, 10.3): a pinhole with a 90 degree horizontal FOV, ``f_x = W / 2``, ``f_y = H / 2``,
 ``c = (W / 2, H / 2)``; pixel ``(i, j)`` looks along camera ray ``((j + 0.5 - c_x) / f_x, (i + 0.5 - c_y) / f_y, 1)``.
+With a ``lens`` (a :class:`~cosemdepth.camera.Calibration` of these intrinsics and a distortion model), pixel
+``(i, j)`` looks along the ray the lens maps to its centre: its distorted normalised coordinates undistorted
+exactly (:func:`cosemdepth.camera.distortion.undistort_points`, float64), so colour, depth and labels are those of
+the distorted image's own pixels, not a warped pinhole render. The level of detail and the texture footprint stay
+those of the focal length (``1 / f_x`` per pixel), as for the pinhole.
 The camera is fixed to the body: camera ``x`` = body ``y`` (right), camera ``y`` = body ``z`` (down), camera
 ``z`` = body ``x`` (forward). Poses are Mid-Air's: attitude quaternion ``(w, x, y, z)`` body -> world and position,
 world NED.
@@ -10,10 +15,13 @@ world NED.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import torch
 
+from ..camera.calibration import Calibration
+from ..camera.distortion import undistort_points
 from ..data.quaternion import qmatrix
 from .climate import Climate
 from .raymarch import T_MAX, beam_start, intersect_buildings, march_heightfield
@@ -37,21 +45,40 @@ class Frame:
     labels: np.ndarray  # [H, W] uint8 Mid-Air label IDs
 
 
-def camera_rays(rotation: np.ndarray, height: int, width: int, supersample: int = 1):
+@lru_cache(maxsize=8)
+def lens_grid(lens: Calibration, height: int, width: int, supersample: int = 1) -> torch.Tensor:
+    """``[h, w, 2]`` float64 undistorted normalised coordinates ``(x, y)`` of every (sub)pixel centre of a
+    ``lens`` (``h = height * supersample``), computed once per lens and size."""
+    s = supersample
+    u = (torch.arange(width * s, dtype=torch.float64) + 0.5) / s
+    v = (torch.arange(height * s, dtype=torch.float64) + 0.5) / s
+    uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), -1)
+    xy = undistort_points(lens.model, lens.normalise(uv), lens.coefficients, lens.limit()[0])
+    if not bool(torch.isfinite(xy).all()):
+        raise ValueError("the lens has pixels without a ray in front of the camera")
+    return xy
+
+
+def camera_rays(rotation: np.ndarray, height: int, width: int, supersample: int = 1, lens: Calibration | None = None):
     """World ray directions of every (sub)pixel.
 
     Args:
         rotation: ``[3, 3]`` body -> world (NED) rotation matrix.
+        lens: a distorting lens (see the module docstring); None: the 90-degree pinhole.
     Returns:
         ``(d [h, w, 3] float32 unit directions in (x north, y east, up), inv_norm [h, w] float32)`` where
         ``h = height * supersample`` and ``z-depth = distance * inv_norm``.
     """
     s = supersample
-    fx, fy = width / 2.0, height / 2.0
-    cols = (torch.arange(width * s, dtype=torch.float64) + 0.5) / s - width / 2.0
-    rows = (torch.arange(height * s, dtype=torch.float64) + 0.5) / s - height / 2.0
-    right = (cols / fx).view(1, -1).expand(height * s, -1)
-    down = (rows / fy).view(-1, 1).expand(-1, width * s)
+    if lens is not None:
+        grid = lens_grid(lens, height, width, s)
+        right, down = grid[..., 0], grid[..., 1]
+    else:
+        fx, fy = width / 2.0, height / 2.0
+        cols = (torch.arange(width * s, dtype=torch.float64) + 0.5) / s - width / 2.0
+        rows = (torch.arange(height * s, dtype=torch.float64) + 0.5) / s - height / 2.0
+        right = (cols / fx).view(1, -1).expand(height * s, -1)
+        down = (rows / fy).view(-1, 1).expand(-1, width * s)
     fwd = torch.ones_like(right)
     r = torch.as_tensor(rotation, dtype=torch.float64)
     # body (forward, right, down) -> NED, elementwise (no matmul: bitwise reproducible for any thread count)
@@ -62,8 +89,13 @@ def camera_rays(rotation: np.ndarray, height: int, width: int, supersample: int 
     return d.float(), (1.0 / norm).float()
 
 
-def _building_rects(world: World, origin: np.ndarray, rotation: np.ndarray, height: int, width: int):
-    """Buildings that may be visible, the periodic shift of their nearest copy and their pixel rectangle."""
+def _building_rects(
+    world: World, origin: np.ndarray, rotation: np.ndarray, height: int, width: int, grid: torch.Tensor | None = None
+):
+    """Buildings that may be visible, the periodic shift of their nearest copy and their pixel rectangle. ``grid``:
+    the undistorted normalised coordinates ``[height, width, 2]`` of a lens's pixels (None: the pinhole); the
+    rectangle is then the pixels whose rays fall in the building's box of normalised coordinates (a pinhole
+    projection's box, exact for any lens)."""
     b = world.buildings
     if len(b) == 0:
         return []
@@ -86,6 +118,15 @@ def _building_rects(world: World, origin: np.ndarray, rotation: np.ndarray, heig
         corners = ((b.corners[i] - shift[i] - origin) * to_ned) @ r_ned
         if (corners[:, 0] <= 0.05).any():
             rect = (0, height, 0, width)
+        elif grid is not None:
+            x, y = corners[:, 1] / corners[:, 0], corners[:, 2] / corners[:, 0]
+            mx, my = 1.0 / fx, 1.0 / fy  # a pixel's margin, as the pinhole's
+            inside = (grid[..., 0] >= x.min() - mx) & (grid[..., 0] <= x.max() + mx)
+            inside &= (grid[..., 1] >= y.min() - my) & (grid[..., 1] <= y.max() + my)
+            rows, cols = inside.any(1).nonzero(), inside.any(0).nonzero()
+            if rows.numel() == 0:
+                continue
+            rect = (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1)
         else:
             u = corners[:, 1] / corners[:, 0] * fx + fx
             w = corners[:, 2] / corners[:, 0] * fy + fy
@@ -116,14 +157,15 @@ def render_frame(
     height: int,
     width: int,
     supersample: int = 1,
+    lens: Calibration | None = None,
 ) -> Frame:
     """Render the view of a camera with Mid-Air pose ``attitude`` (w, x, y, z; body -> NED) and ``position`` (NED).
 
     With ``supersample = s`` (odd), colour is the mean of ``s x s`` sub-pixel rays, while depth and labels come from
-    the pixel-centre ray.
+    the pixel-centre ray. ``lens``: a distorting lens of size ``(height, width)`` (module docstring).
     """
     return render_frames(
-        world, climate, np.asarray(attitude)[None], np.asarray(position)[None], height, width, supersample
+        world, climate, np.asarray(attitude)[None], np.asarray(position)[None], height, width, supersample, lens
     )[0]
 
 
@@ -135,11 +177,14 @@ def render_frames(
     height: int,
     width: int,
     supersample: int = 1,
+    lens: Calibration | None = None,
 ) -> list[Frame]:
     """Render several views at once (``attitudes [B, 4]``, ``positions [B, 3]``); the same result as rendering
     them one by one with :func:`render_frame`, with less overhead for small images."""
     if supersample < 1 or supersample % 2 == 0:
         raise ValueError(f"supersample must be an odd positive integer, got {supersample}")
+    if lens is not None and tuple(lens.size) != (height, width):
+        raise ValueError(f"the lens is for {lens.size} images, not {(height, width)}")
     attitudes = np.asarray(attitudes, dtype=np.float64).reshape(-1, 4)
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     nb = len(attitudes)
@@ -152,9 +197,10 @@ def render_frames(
     for att, pos in zip(attitudes, positions):
         rotation = qmatrix(att)
         origin = np.array([pos[0] % PERIOD, pos[1] % PERIOD, -pos[2]])
-        d, inv_norm = camera_rays(rotation, height, width, s)
+        d, inv_norm = camera_rays(rotation, height, width, s, lens)
         o32 = torch.tensor(origin, dtype=torch.float32)
-        rects = _building_rects(world, origin, rotation, hs, ws)
+        grid = None if lens is None else lens_grid(lens, height, width, s)
+        rects = _building_rects(world, origin, rotation, hs, ws, grid)
         t_b, b_idx, b_plane = intersect_buildings(world, o32, d, rects)
         dirs.append(d)
         inv_norms.append(inv_norm)
@@ -172,7 +218,7 @@ def render_frames(
     flat_d = d.reshape(-1, 3)
     ray_org = org.repeat_interleave(hs * ws, dim=0)  # [R, 3]
     t_lim = torch.clamp(t_b, max=T_MAX)
-    t0, l0 = beam_start(world, org, d)
+    t0, l0 = beam_start(world, org, d, exact_cone=lens is not None)
     t_h = march_heightfield(world, ray_org, flat_d, t_lim, t0.reshape(-1), l0.reshape(-1), lod_angle)
     hit_h = torch.isfinite(t_h)
     hit_b = (~hit_h) & torch.isfinite(t_b)

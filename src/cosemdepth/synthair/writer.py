@@ -8,13 +8,15 @@ Layout under the output folder ``DIR``::
     DIR/SynthAir/<climate>/stereo_disparity/trajectory_XXXX/NNNNNN.PNG    float16 bits of 512/z-depth (any S)
     DIR/SynthAir/<climate>/segmentation/trajectory_XXXX/NNNNNN.PNG        8-bit Mid-Air label IDs
     DIR/splits/{train,val,test}_data/SynthAir/<climate>/traj_XXXX.csv      from generate_splits(DIR, DIR/splits)
+    DIR/SynthAir/<climate>/flight_export/trajectory_XXXX/...               with ``export``: video and logs (.export)
 
 Trajectory numbers are ``climate_number * 1000 + i`` with Mid-Air's climate numbers (sunny 0, sunset 1, foggy 2,
 cloudy 3). By default only the frames that the split CSVs use are rendered (K, 2K, ..., R K with R CSV rows and
 the frame step K, 4 by default as in Mid-Air); ``all_frames`` renders every 25 Hz frame. A motion profile
-(``motion``, :mod:`.motion`) warps the timeline of every flight. Every file is written atomically; an interrupted
-run can be resumed by running the same command again (frames already on disk are kept, and they are identical to
-what would be written).
+(``motion``, :mod:`.motion`) warps the timeline of every flight. A camera mount (``camera_mount``) puts the camera on
+the flying body: the tree (frames, ground truth, CSVs) is then the mounted camera's, and the exports hold the body's
+logs. Every file is written atomically; an interrupted run can be resumed by running the same command again (frames
+already on disk are kept, and they are identical to what would be written).
 """
 
 from __future__ import annotations
@@ -32,14 +34,19 @@ import torch
 from PIL import Image
 from tqdm import tqdm
 
+from ..camera.calibration import Calibration
+from ..camera.distortion import invert_profile
+from ..camera.writers import calibration_files
 from ..data.midair import format as fmt
 from ..data.midair.splits import generate_splits
-from ..errors import ConfigError
+from ..errors import ConfigError, DatasetError
+from ..geometry.mount import CameraMount, parse_mount
 from ..models.config import MIDAIR_IMAGE_SIZE
 from ..output_safety.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ..output_safety.outdir import check_output_dir
 from ..workers import check_workers
 from .climate import CLIMATES, get_climate
+from .export import EXPORT_DIR, ExportPlan, camera_flight, export_trajectory, parse_export, parse_fps
 from .motion import SAMPLES_PER_FRAME, MotionProfile, parse_motion, timeline, warp_flight
 from .render import render_frames
 from .trajectory import MODES, Flight, make_flight
@@ -66,6 +73,31 @@ MAX_FRAMES = 1_000_000
 MIN_SIZE = 16
 #: Camera frames per flight when neither ``frames`` nor a motion profile says otherwise.
 DEFAULT_FRAMES = 200
+#: ``--distortion`` lens models and their coefficient counts (radtan: k1, k2, p1, p2 and optionally k3..k6).
+DISTORTIONS = {"radtan": (4, 8), "equidistant": (4, 4)}
+#: Folder of the calibration files written beside a flight rendered through a lens.
+CALIBRATION_DIR = "calibration"
+
+
+def parse_distortion(spec: str) -> tuple[str, tuple[float, ...]]:
+    """``"radtan:k1,k2,p1,p2[,k3[,k4,k5,k6]]"`` or ``"equidistant:k1,k2,k3,k4"`` -> ``(model, coefficients)``; a
+    ConfigError naming ``--distortion`` otherwise."""
+    model, _, rest = str(spec).partition(":")
+    model = model.strip()
+    if model not in DISTORTIONS:
+        raise ConfigError(
+            f"--distortion {spec!r}: unknown lens model {model!r}; expected radtan:k1,k2,p1,p2[,k3] or "
+            "equidistant:k1,k2,k3,k4"
+        )
+    try:
+        coeffs = tuple(float(v) for v in rest.split(",")) if rest.strip() else ()
+    except ValueError:
+        raise ConfigError(f"--distortion {spec!r}: the coefficients must be numbers separated by commas") from None
+    lo, hi = DISTORTIONS[model]
+    if not lo <= len(coeffs) <= hi or not all(np.isfinite(coeffs)):
+        want = f"{lo}" if lo == hi else f"{lo} to {hi}"
+        raise ConfigError(f"--distortion {spec!r}: {model} takes {want} finite coefficients, got {len(coeffs)}")
+    return model, coeffs
 
 
 @dataclass(frozen=True)
@@ -87,6 +119,11 @@ class SynthConfig:
     jpeg_quality: int = 98
     motion: str | None = None
     frame_step: int = fmt.FRAME_SKIP
+    distortion: str | None = None
+    camera_mount: str = "forward"
+    export: tuple[str, ...] = ()
+    time_offset: float = 2.0
+    fps: str = "25"
     workers: int = field(default=1, compare=False)
 
     def __post_init__(self) -> None:
@@ -102,6 +139,52 @@ class SynthConfig:
     @cached_property
     def motion_profile(self) -> MotionProfile | None:
         return None if self.motion is None else parse_motion(self.motion)
+
+    @cached_property
+    def lens(self) -> Calibration | None:
+        """The camera with ``distortion`` (``--distortion``): the 90-degree intrinsics at ``size`` and the lens
+        model; None for the pinhole. A ConfigError when the lens folds over the image or sees 90 degrees or more
+        off-axis at its corners (every SynthAir ray must have a z-depth)."""
+        if self.distortion is None:
+            return None
+        model, coeffs = parse_distortion(self.distortion)
+        s = self.size
+        try:
+            lens = Calibration(
+                (s, s),
+                s / 2,
+                s / 2,
+                s / 2,
+                s / 2,
+                model=model,
+                coefficients=coeffs,
+                source="--distortion",
+                layout="synthair",
+            ).check()
+        except DatasetError as e:
+            raise ConfigError(str(e)) from None
+        if model == "equidistant":
+            theta, _ = lens.limit()
+            corner = torch.tensor(lens.corner_radius(), dtype=torch.float64)
+            reach = float(invert_profile(model, corner, coeffs, theta))
+            if not reach < np.radians(89.0):
+                raise ConfigError(
+                    f"--distortion {self.distortion!r}: the image corners look {np.degrees(reach):.1f} degrees "
+                    "off-axis; SynthAir renders rays up to 89 degrees (z-depth in front of the camera)"
+                )
+        return lens
+
+    @cached_property
+    def mount(self) -> CameraMount:
+        """The camera mount (``camera_mount``, :func:`cosemdepth.geometry.mount.parse_mount`)."""
+        return parse_mount(self.camera_mount)
+
+    @cached_property
+    def export_plan(self) -> ExportPlan | None:
+        """What ``export`` writes per trajectory (None: no export)."""
+        if not self.export:
+            return None
+        return ExportPlan(parse_export(self.export), parse_fps(self.fps), float(self.time_offset), self.mount)
 
     def validate(self) -> None:
         if not isinstance(self.size, int) or not MIN_SIZE <= self.size <= MAX_SIZE:
@@ -135,11 +218,20 @@ class SynthConfig:
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError(f"--jpeg-quality must be in [1, 100], got {self.jpeg_quality!r}")
         check_workers(self.workers, minimum=1)
+        _ = self.lens  # checks --distortion
+        parse_mount(self.camera_mount)  # a ConfigError naming --camera-mount
+        if self.export:
+            plan = self.export_plan
+            if not (isinstance(self.time_offset, (int, float)) and 0 <= self.time_offset < 1e6):
+                raise ConfigError(f"--time-offset must be a non-negative number of seconds, got {self.time_offset!r}")
+            if "mp4" in plan.formats and self.size % 2:
+                raise ConfigError(f"--export mp4 needs an even --size (H.264 in 4:2:0), got {self.size}")
+            plan.frame_times((self.frames * SAMPLES_PER_FRAME - 1) / fmt.GROUNDTRUTH_RATE)
 
     def metadata(self) -> dict:
-        """Everything that determines the output bytes (what ``synthair.json`` records). ``motion`` and
-        ``frame_step`` appear only when they differ from the defaults (the normal flight, step 4), so that the
-        default output stays what it was."""
+        """Everything that determines the output bytes (what ``synthair.json`` records). ``motion``,
+        ``frame_step``, ``camera_mount`` and ``export`` appear only when they differ from the defaults (the normal
+        flight, step 4, the forward camera, no export), so that the default output stays what it was."""
         meta = {
             "generator": "cosemdepth synth",
             "version": VERSION,
@@ -165,15 +257,32 @@ class SynthConfig:
             "groundtruth_rate_hz": fmt.GROUNDTRUTH_RATE,
             "depth_encoding": DEPTH_ENCODING,
         }
+        if self.lens is not None:
+            meta["camera"]["distortion"] = {
+                "model": self.lens.model,
+                "coefficients": list(self.lens.coefficients),
+                "calibration": {name: f"{CALIBRATION_DIR}/{name}" for name in calibration_files(self.lens)},
+            }
         if self.motion_profile is not None:
             meta["motion"] = self.motion_profile.metadata()
         if self.frame_step != fmt.FRAME_SKIP:
             meta["frame_step"] = self.frame_step
+        if not self.mount.is_identity:
+            meta["camera_mount"] = self.mount.metadata()
+        if self.export_plan is not None:
+            plan = self.export_plan
+            meta["export"] = {
+                "formats": list(plan.formats),
+                "fps": str(plan.fps),
+                "time_offset_s": plan.time_offset,
+                "camera_mount": self.mount.metadata(),
+                "folder": EXPORT_DIR,
+            }
         return meta
 
 
 #: Keys of ``synthair.json`` that are absent at their defaults (compared when resuming all the same).
-OPTIONAL_METADATA = ("motion", "frame_step")
+OPTIONAL_METADATA = ("motion", "frame_step", "camera_mount", "export")
 
 
 def trajectory_number(climate: str, i: int) -> int:
@@ -302,7 +411,7 @@ def _render_task(task: _Task) -> int:
     climate = get_climate(task.climate).with_sun_azimuth(task.sun_azimuth)
     att = np.array([task.attitudes[i] for i, _ in todo])
     pos = np.array([task.positions[i] for i, _ in todo])
-    frames = render_frames(world, climate, att, pos, cfg.size, cfg.size, supersample=cfg.supersample)
+    frames = render_frames(world, climate, att, pos, cfg.size, cfg.size, supersample=cfg.supersample, lens=cfg.lens)
     for (_, paths), frame in zip(todo, frames):
         atomic_write_bytes(paths[0], encode_jpeg(frame.rgb, cfg.jpeg_quality))
         atomic_write_bytes(paths[1], encode_png(depth_to_png_disparity(frame.depth)))
@@ -362,6 +471,32 @@ def plan_flights(cfg: SynthConfig, world) -> dict[str, dict[int, PlannedFlight]]
     return out
 
 
+def _export(cfg: SynthConfig, world, flights: dict[str, dict[int, PlannedFlight]], frames: list[int]) -> None:
+    """The video and logs of every flight (:mod:`.export`): the body's flight, the camera mounted on it."""
+    torch.set_num_threads(1)
+    for climate, fl in flights.items():
+        for number, planned in sorted(fl.items()):
+            look = get_climate(climate).with_sun_azimuth(planned.sun_azimuth)
+
+            def render_rgb(q_camera, p_camera, look=look):
+                bs = batch_size(cfg.size)
+                for c in range(0, len(q_camera), bs):
+                    batch = render_frames(
+                        world,
+                        look,
+                        q_camera[c : c + bs],
+                        p_camera[c : c + bs],
+                        cfg.size,
+                        cfg.size,
+                        cfg.supersample,
+                        lens=cfg.lens,
+                    )
+                    yield from (f.rgb for f in batch)
+
+            folder = Path(cfg.out) / ENVIRONMENT / climate / EXPORT_DIR / fmt.trajectory_dir(number)
+            export_trajectory(folder, planned.flight, cfg.export_plan, cfg.seed, number, render_rgb, frames)
+
+
 def generate(cfg: SynthConfig, progress: bool = True) -> dict:
     """Generate the dataset described by ``cfg``; returns a summary (counts and paths)."""
     cfg.validate()
@@ -372,12 +507,19 @@ def generate(cfg: SynthConfig, progress: bool = True) -> dict:
     meta["complete"] = False
     if not resuming:
         atomic_write_text(out / METADATA, json.dumps(meta, indent=2) + "\n")
+    if cfg.lens is not None:  # the calibration of the lens, in the layouts users have, beside the flights
+        for name, text in calibration_files(cfg.lens).items():
+            atomic_write_text(out / CALIBRATION_DIR / name, text)
 
     world = get_world(cfg.seed)
     flights = plan_flights(cfg, world)
     frames = rendered_frames(cfg)
     tasks = []
-    for climate, fl in flights.items():
+    cameras = {
+        c: {n: PlannedFlight(camera_flight(p.flight, cfg.mount), p.sun_azimuth) for n, p in fl.items()}
+        for c, fl in flights.items()
+    }
+    for climate, fl in cameras.items():
         _write_sensor_records(out / ENVIRONMENT / climate / fmt.SENSOR_RECORDS, fl, frames)
         bs = batch_size(cfg.size)
         for number, planned in sorted(fl.items()):
@@ -412,6 +554,8 @@ def generate(cfg: SynthConfig, progress: bool = True) -> dict:
             for task in tasks:
                 written += _render_task(task)
                 bar.update(len(task.frames))
+        if cfg.export_plan is not None:
+            _export(cfg, world, flights, frames)
     finally:
         bar.close()
         _WORKER_STATE.clear()

@@ -1,10 +1,9 @@
 """Decoder tasks: what each registered decoder learns, how it is measured, written and drawn
-(:class:`~cosemdepth.tasks.base.DecoderTask`), for the depth and semantic decoders and any decoder registered with
-:func:`register_task` (see docs/architecture.md, "A new decoder")."""
+(:class:`~cosemdepth.tasks.base.DecoderTask`), and the one registration of a decoder (:func:`register_decoder`).
+The built-in decoders (depth, semantic) are folders of :mod:`cosemdepth.decoders`; see docs/architecture.md,
+"A new decoder"."""
 
 from . import base
 from .base import *  # noqa: F403 (the names of base.__all__)
-from .depth import DEPTH
-from .semantic import SEMANTIC
 
-__all__ = [*base.__all__, "DEPTH", "SEMANTIC"]
+__all__ = list(base.__all__)

@@ -1,10 +1,11 @@
 """The declaration of a decoder's task: what it is trained on, how it is measured, how its outputs are written and
-drawn (:class:`DecoderTask`), and the table of them (:data:`TASKS`, :func:`register_task`, :func:`tasks_for`). The
-official TF checkpoints' names of a decoder sit below, with the conversion (:mod:`cosemdepth.checkpoints.tf_decoders`).
+drawn (:class:`DecoderTask`), and the one registration of a decoder (:func:`register_decoder`: its module, task,
+architectures and TF checkpoint names), the table of the tasks (:data:`TASKS`) and :func:`tasks_for`.
 
 The loops of the package (the trainer's loss, validation, the evaluator, ``predict``) run over the tasks
 of a model's decoders and name none of them, so a decoder registered with its task is trained, evaluated and written
 like the built-in ones. A task is keyed by its decoder's registered name (:data:`cosemdepth.models.registry.DECODERS`).
+The built-in decoders are folders of :mod:`cosemdepth.decoders`, a layer above this one.
 """
 
 from __future__ import annotations
@@ -16,10 +17,12 @@ from typing import Any, Callable, Mapping, Optional, Sequence
 import numpy as np
 import torch
 
+from ..checkpoints.tf_decoders import TfDecoder
 from ..errors import ConfigError
-from ..models.config import ARCHITECTURES, ModelConfig
+from ..models import registry
+from ..models.config import ModelConfig
 from ..models.pyramid import PyramidDecoder
-from ..models.registry import register_architecture, register_decoder
+from ..models.registry import architecture_of
 
 Tensor = torch.Tensor
 
@@ -106,7 +109,7 @@ class TaskWriter:
 
 class DecoderTask:
     """What a decoder learns and how it is measured, written and drawn. Subclass it, set the class attributes and
-    override the methods the decoder needs; :func:`register_task` makes the decoder and its task known.
+    override the methods the decoder needs; :func:`register_decoder` makes the decoder and its task known.
 
     Class attributes:
         name: the decoder's registered name (its weights are ``<name>_decoder.*``).
@@ -194,19 +197,26 @@ class DecoderTask:
         return {}
 
 
-#: Decoder name -> its task, in registration order.
-TASKS: dict[str, DecoderTask] = {}
+#: Decoder name -> its task, in registration order (the registry's view, :data:`cosemdepth.models.registry.TASKS`).
+TASKS = registry.TASKS
 
 
-def register_task(task: DecoderTask, architectures: Mapping[str, Sequence[str]] | None = None) -> DecoderTask:
-    """Register ``task`` and its decoder (:func:`~cosemdepth.models.registry.register_decoder`, as ``task.name``),
-    then each of ``architectures`` (name -> decoders, in order); returns ``task``."""
+def register_decoder(
+    task: DecoderTask,
+    architectures: Mapping[str, Any] | None = None,
+    tf: Optional[TfDecoder] = None,
+) -> DecoderTask:
+    """The one registration of a decoder: its module (``task.decoder``, as ``task.name``), its task, the
+    ``architectures`` that use it (name -> decoder names in order, or ``(decoder names, {config field: value})`` for
+    an architecture that fixes config fields; an architecture is registered with the last of its decoders) and its
+    names in the official TF checkpoints (``tf``; None: they do not hold it). Returns ``task``."""
     if not isinstance(task, DecoderTask) or not task.name or not task.gt_key:
-        raise TypeError(f"register_task needs a DecoderTask with a name and a gt_key, got {task!r}")
-    register_decoder(task.name, task.decoder)
-    TASKS[task.name] = task
-    for arch, decoders in (architectures or {}).items():
-        register_architecture(arch, tuple(decoders))
+        raise TypeError(f"register_decoder needs a DecoderTask with a name and a gt_key, got {task!r}")
+    if not (isinstance(task.decoder, type) and issubclass(task.decoder, PyramidDecoder)):
+        raise TypeError(f"decoder {task.name!r} must be a PyramidDecoder subclass, got {task.decoder!r}")
+    if tf is not None and not isinstance(tf, TfDecoder):
+        raise TypeError(f"decoder {task.name!r}: tf must be a TfDecoder, got {tf!r}")
+    registry.register(task.name, task.decoder, task=task, tf=tf, architectures=architectures)
     return task
 
 
@@ -216,7 +226,7 @@ def task(name: str) -> DecoderTask:
     if found is None:
         raise ConfigError(
             f"the {name!r} decoder has no task (loss, metrics, outputs): register it with "
-            f"cosemdepth.tasks.register_task; decoders with one: {sorted(TASKS)}"
+            f"cosemdepth.tasks.register_decoder; decoders with one: {sorted(TASKS)}"
         )
     return found
 
@@ -240,12 +250,6 @@ def float32_levels(levels: Sequence[Tensor]) -> list[Tensor]:
     return [p if p.dtype == torch.float32 else p.float() for p in levels]
 
 
-def architecture_of(decoders: Sequence[str]) -> Optional[str]:
-    """The first architecture made of exactly ``decoders`` (in any order), or None."""
-    want = set(decoders)
-    return next((a for a, d in ARCHITECTURES.items() if set(d) == want), None)
-
-
 __all__ = [
     "DecoderTask",
     "Frames",
@@ -259,7 +263,7 @@ __all__ = [
     "architecture_of",
     "class_count",
     "float32_levels",
-    "register_task",
+    "register_decoder",
     "task",
     "tasks_for",
 ]

@@ -1,6 +1,5 @@
-"""Training: losses, the training loop and its parts.
+"""Training: the training loop and its parts (the losses of design 8 are in :mod:`cosemdepth.measures.losses`).
 
-* :mod:`~cosemdepth.training.losses`: the losses of design 8;
 * :mod:`~cosemdepth.training.trainer`: :class:`Trainer` (the loop, resume, non-finite guard, validation, best model);
 * :mod:`~cosemdepth.training.config`: the run config (the ``data``, ``train`` and ``debug`` sections around the
   model config, their defaults), its YAML files and ``KEY=VALUE`` overrides (:func:`resolve_config`);

@@ -14,7 +14,9 @@ then the folder is renamed to its final name (an atomic rename on POSIX file sys
 fsynced. A crash (even SIGKILL) at any moment leaves either a temporary folder (removed at the next start) or a
 complete checkpoint. A checkpoint is *valid* when its manifest parses and every listed file exists with the listed
 size and checksum, so a truncated or damaged checkpoint is detected even if it got its final name by other means
-(a partial copy, a disk error).
+(a partial copy, a disk error). An invalid checkpoint is never deleted: it is renamed aside to
+``ckpt-<step>.corrupt-<n>`` (out of the ``ckpt-*`` namespace, so never resumed from nor pruned) for the user to look
+at or remove.
 
 The environment variable ``COSEMDEPTH_DEBUG_CHECKPOINT_DELAY`` (seconds) makes the writer sleep after each file;
 tests use it to kill a run while a checkpoint is being written.
@@ -53,6 +55,7 @@ REQUIRED_FILES = (WEIGHTS_FILE, CONFIG_FILE, OPTIMIZER_FILE, RNG_FILE, STATE_FIL
 DELAY_ENV = "COSEMDEPTH_DEBUG_CHECKPOINT_DELAY"
 
 _NAME = re.compile(r"^ckpt-(\d{8,})$")
+_ASIDE = re.compile(r"^ckpt-(\d{8,})\.corrupt-\d+$")
 
 
 def checkpoint_name(step: int) -> str:
@@ -193,6 +196,8 @@ class CheckpointManager:
         self.folder = Path(folder)
         self.keep_last = int(keep_last)
         self.log = log or (lambda kind, **fields: None)
+        #: the invalid checkpoints :meth:`latest_valid` moved aside (their new paths), in the order it found them
+        self.moved_aside: list[Path] = []
 
     def list(self) -> list[tuple[int, Path]]:
         """``(step, path)`` of the folders named like checkpoints, oldest first (valid or not)."""
@@ -205,6 +210,12 @@ class CheckpointManager:
                 out.append((int(m.group(1)), p))
         return sorted(out)
 
+    def set_aside(self) -> list[Path]:
+        """The invalid checkpoints moved aside so far (``ckpt-*.corrupt-*``, by this manager or an earlier run)."""
+        if not self.folder.is_dir():
+            return []
+        return sorted(p for p in self.folder.iterdir() if _ASIDE.match(p.name))
+
     def cleanup(self) -> None:
         """Remove temporary folders left by an interrupted write."""
         if not self.folder.is_dir():
@@ -214,18 +225,37 @@ class CheckpointManager:
                 shutil.rmtree(p, ignore_errors=True)
                 self.log("checkpoint_temp_removed", path=str(p))
 
-    def latest_valid(self, remove_invalid: bool = True) -> Path | None:
-        """The newest checkpoint that validates; newer invalid ones are logged (and removed)."""
+    def latest_valid(self, move_invalid: bool = True) -> Path | None:
+        """The newest checkpoint that validates; newer invalid ones are logged and (``move_invalid``) renamed aside
+        to ``<name>.corrupt-<n>`` (:attr:`moved_aside`), never deleted."""
         for step, path in reversed(self.list()):
             try:
                 validate_checkpoint(path)
             except CheckpointError as e:
-                self.log("checkpoint_invalid", path=str(path), step=step, error=str(e), removed=remove_invalid)
-                if remove_invalid:
-                    self._remove(path)
+                aside = self._move_aside(path) if move_invalid else None
+                self.log(
+                    "checkpoint_invalid",
+                    path=str(path),
+                    step=step,
+                    error=str(e),
+                    moved_to=None if aside is None else str(aside),
+                )
                 continue
             return path
         return None
+
+    def _move_aside(self, path: Path) -> Path:
+        """Rename the checkpoint ``path`` to the first free ``<name>.corrupt-<n>`` beside it (n = 1, 2, ...)."""
+        n = 1
+        while True:
+            aside = path.with_name(f"{path.name}.corrupt-{n}")
+            if not aside.exists() and not aside.is_symlink():
+                break
+            n += 1
+        os.rename(path, aside)
+        _fsync_dir(self.folder)
+        self.moved_aside.append(aside)
+        return aside
 
     def save(
         self,

@@ -33,7 +33,7 @@ from ..coerce import from_mapping
 from ..data.augment import resolve_augment
 from ..data.registry import DATASETS
 from ..errors import ConfigError
-from ..evaluation.metrics import selection_rule
+from ..measures.metrics import selection_rule
 from ..models.config import MIDAIR_IMAGE_SIZE, ModelConfig
 from ..workers import check_workers
 

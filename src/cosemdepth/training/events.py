@@ -3,7 +3,8 @@
 Every line has ``time`` (Unix seconds), ``kind`` and the event's own fields. Kinds written by the trainer:
 ``start``, ``resume``, ``config_changed``, ``train`` (losses every ``log_every`` steps), ``nonfinite_step``,
 ``rollback``, ``checkpoint``, ``checkpoint_deferred``, ``checkpoint_invalid``, ``checkpoint_removed``,
-``checkpoint_temp_removed``, ``validation``, ``best``, ``epoch_end``, ``done``, ``error``.
+``checkpoint_temp_removed``, ``start_over`` (a run folder without a valid checkpoint to resume from), ``validation``,
+``best``, ``epoch_end``, ``done``, ``error``.
 
 Lines are appended with a single ``write`` on a file opened in append mode, so a crash can at worst leave one
 incomplete last line; :func:`read_events` skips it.

@@ -11,7 +11,7 @@ layer's input; training then moves them away from zero (their gradient is the up
 :func:`read_transfer_source` applies the rule to a model folder and a run's model config, after checking that the
 two configs differ only in ways whose new input channels come last (:func:`check_transferable`): the architecture
 and the semantic decoder's switches (``semantic_sncv``, ``semantic_time``; their blocks are appended in that order,
-:func:`cosemdepth.models.semantic_decoder.semantic_refiner_inputs`).
+:func:`cosemdepth.decoders.semantic.decoder.semantic_refiner_inputs`).
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ import torch
 
 from ..checkpoints.convert import expected_param_shapes
 from ..checkpoints.model_io import read_weights
+from ..decoders.semantic.decoder import semantic_refiner_inputs
 from ..errors import CheckpointError
 from ..models.config import ModelConfig
-from ..models.semantic_decoder import semantic_refiner_inputs
 
 #: ModelConfig fields a transfer may change: they add decoders or append input channels to existing layers
 #: (``pscv_dtype`` changes no parameter).

@@ -48,7 +48,8 @@ from tqdm import tqdm
 from ..checkpoints.model_io import read_weights
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device, retain_freed_host_memory
 from ..errors import CheckpointError, ConfigError, CosemdepthError, DatasetError
-from ..evaluation.metrics import selection_rule
+from ..measures.losses import FIRST_SUPERVISED_FRAME, LossTerms, weighted_total
+from ..measures.metrics import selection_rule
 from ..models import build_model
 from ..models.config import ModelConfig
 from ..models.footprint import check_size
@@ -73,7 +74,6 @@ from .data import (
 )
 from .events import CONSOLE_KINDS, EventLog
 from .init import read_transfer_source, transfer_state_dict
-from .losses import FIRST_SUPERVISED_FRAME, LossTerms, weighted_total
 from .optim import make_optimizer
 from .rundir import (
     BEST_METRICS_NAME,
@@ -382,7 +382,10 @@ class Trainer:
         def find_checkpoint() -> str | None:
             self.ckpts.cleanup()
             recover_best(self.run_dir)
-            return self._latest_valid_path()
+            found = self._latest_valid_path()
+            if found is None and self.resuming:  # a rerun that cannot resume: said before it starts over
+                self._warn_start_over()
+            return found
 
         path = D.on_main(find_checkpoint, dist)
         if path is not None:
@@ -432,6 +435,23 @@ class Trainer:
             self._save_checkpoint()
         if main:
             self.board = _make_board(self.run_dir / TENSORBOARD_NAME, self.state.step if path else None)
+
+    def _warn_start_over(self) -> None:
+        """One line on stderr (and a ``start_over`` event): this run folder has no valid checkpoint to resume from,
+        naming the invalid ones moved aside, so the run starts again from step 0."""
+        aside = self.ckpts.set_aside()
+        why = (
+            f"its invalid checkpoints were moved aside: {', '.join(str(p) for p in aside)}"
+            if aside
+            else f"{self.ckpts.folder} holds none"
+        )
+        self.events("start_over", moved_aside=[str(p) for p in aside])
+        if self.console:
+            tqdm.write(
+                f"cosemdepth train: warning: {self.run_dir}: no valid checkpoint to resume from ({why}); starting "
+                "again from step 0",
+                file=sys.stderr,
+            )
 
     def _latest_valid_path(self) -> str | None:
         p = self.ckpts.latest_valid()

@@ -21,13 +21,14 @@ Decoding of one row (design 10.2, 10.6):
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 import torch
 
-from ...errors import ConfigError
+from ...errors import ConfigError, DatasetError
 from ...models.config import MIDAIR_IMAGE_SIZE
 from ..csvsplits import open_csv_split
 from ..decode import DEFAULT_JPEG_IDCT, check_jpeg_idct, check_nonnegative, read_label_ids, read_rgb, read_uint16_png
@@ -125,6 +126,7 @@ def open_midair(
     name: str = "midair",
     jpeg_idct: str = DEFAULT_JPEG_IDCT,
     reduced_decode: bool = False,
+    calibration=None,
 ) -> SequenceDataset:
     """Open a split of a Mid-Air-format dataset (Mid-Air itself or SynthAir).
 
@@ -149,8 +151,21 @@ def open_midair(
         reduced_decode: decode each JPEG at the smallest DCT scale ``M/8`` at least the output size, then BL2 the
             rest (faster, a low-pass picture; not the original's pixels). Off by default (the exact path); training
             turns it on for its training datasets with ``data.train_decode: reduced``.
+        calibration: the lens of the images (a calibration file or a :class:`~cosemdepth.camera.Calibration`):
+            frames are undistorted to a centred pinhole (:func:`cosemdepth.data.csvsplits.open_csv_split`). A
+            SynthAir set rendered through a lens (``cosemdepth synth --distortion``) needs one (its own files are in
+            ``ROOT/calibration/``), or ``calibration=False`` to read its images as if they were a pinhole's.
     """
     check_jpeg_idct(jpeg_idct)
+    if calibration is None:
+        lens = rendered_lens(root)
+        if lens is not None:
+            raise DatasetError(
+                f"{root}: this SynthAir set was rendered through a {lens} lens; pass its calibration "
+                f"(--calibration {Path(root) / 'calibration' / 'camera_info.yaml'}) to undistort it"
+            )
+    elif calibration is False:
+        calibration = None
     return open_csv_split(
         root,
         split_dir,
@@ -167,4 +182,16 @@ def open_midair(
         modalities=modalities,
         seed=seed,
         name=name,
+        calibration=calibration,
     )
+
+
+def rendered_lens(root: str | Path) -> str | None:
+    """The lens model a SynthAir set at ``root`` was rendered through (its ``synthair.json``), None for a pinhole
+    set or anything else."""
+    meta = Path(root) / "synthair.json"
+    try:
+        lens = json.loads(meta.read_text()).get("camera", {}).get("distortion")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return str(lens.get("model")) if isinstance(lens, dict) else None

@@ -76,6 +76,8 @@ def relative_motions(
     b = a + stride
     inv_a = qconj(attitude[a])
     q_body = qmul(inv_a, attitude[b])
+    # an unchanged attitude is exactly no rotation (the product's rounding depends on the CPU's vector width)
+    q_body[(attitude[a] == attitude[b]).all(axis=1)] = (1.0, 0.0, 0.0, 0.0)
     t_body = qrotate(inv_a, position[b] - position[a])
     q_cam = q_body[:, [0, 2, 3, 1]]
     t_cam = t_body[:, [1, 2, 0]]

@@ -1,6 +1,6 @@
-"""A decoder defined outside the package (``edge_task.py`` beside this file, loaded as a plugin through
-``COSEMDEPTH_PLUGINS``) is trained, evaluated and predicted by the command line with no change to the package: its
-loss, metric, ground truth, training picture and output files come from its task."""
+"""A decoder defined outside the package (the folder ``edge_decoder/`` beside this file, loaded as a plugin through
+``COSEMDEPTH_PLUGINS``) is trained, evaluated, predicted and exported by the command line with no change to the
+package: its loss, metric, ground truth, training picture and output files come from its task."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ HERE = Path(__file__).resolve().parent
 SRC = HERE.parents[1] / "src"
 sys.path.insert(0, str(HERE))
 
-import edge_task  # noqa: E402  (registers the edge decoder in this process too, for the expectations)
+import edge_decoder  # noqa: E402  (registers the edge decoder in this process too, for the expectations)
 
 from cosemdepth.data import open_dataset  # noqa: E402
 from cosemdepth.plugins import PLUGINS_ENV  # noqa: E402
@@ -31,7 +31,7 @@ SIZE = 32
 def _env() -> dict:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(SRC), str(HERE)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
-    env[PLUGINS_ENV] = "edge_task"
+    env[PLUGINS_ENV] = "edge_decoder"
     env["OMP_NUM_THREADS"] = env["MKL_NUM_THREADS"] = "1"
     return env
 
@@ -67,7 +67,7 @@ def flight(tmp_path_factory) -> Path:
 def trained(tmp_path_factory) -> Path:
     run = tmp_path_factory.mktemp("train") / "run"
     sets = {
-        "model.arch": edge_task.ARCH,
+        "model.arch": edge_decoder.ARCH,
         "model.levels": 3,
         "data.train.0.name": "toy",
         "data.train.0.options": '{"length": 4}',
@@ -97,7 +97,7 @@ def test_training_runs_the_edge_loss_and_validates_the_edge_metric(trained):
     assert validation and 0.0 <= validation[-1]["edge_mae"] < 1.0
     assert "abs_rel" in validation[-1]  # the depth decoder is still measured beside it
     config = json.loads((trained / "best" / "config.json").read_text())
-    assert json.dumps(config).count(edge_task.ARCH) >= 1
+    assert json.dumps(config).count(edge_decoder.ARCH) >= 1
 
 
 def test_evaluate_and_predict_write_the_edge_metric_and_files(trained, flight, tmp_path):
@@ -116,7 +116,7 @@ def test_evaluate_and_predict_write_the_edge_metric_and_files(trained, flight, t
     done = _cli("evaluate", "--model", str(trained / "best"), *data, "--out", str(tmp_path / "eval"))
     assert done.returncode == 0, done.stderr
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
-    assert metrics["model"]["arch"] == edge_task.ARCH
+    assert metrics["model"]["arch"] == edge_decoder.ARCH
 
     done = _cli("predict", "--model", str(trained / "best"), *data, "--out", str(tmp_path / "pred"), "--video", "none")
     assert done.returncode == 0, done.stderr
@@ -135,7 +135,7 @@ def test_evaluate_and_predict_write_the_edge_metric_and_files(trained, flight, t
         assert png.shape == (SIZE, SIZE)
         if f["reset"]:
             continue
-        gt = edge_task.edge_strength(torch.as_tensor(dataset[i]["depth"]))[0, 0].double().numpy()
+        gt = edge_decoder.edge_strength(torch.as_tensor(dataset[i]["depth"]))[0, 0].double().numpy()
         errors.append(np.abs(png - gt).mean())
     assert metrics["metrics"]["edge_frames"] == len(errors) > 0
     assert abs(metrics["metrics"]["edge_mae"] - float(np.mean(errors))) <= 0.5 / 255 + 1e-6

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from cosemdepth.training.losses import (
+from cosemdepth.measures.losses import (
     LossTerms,
     depth_level_weights,
     depth_loss,

@@ -7,20 +7,19 @@ from dataclasses import dataclass
 
 import torch
 
-from ..geometry.camera import level_intrinsics
-from ..geometry.parallax import (
+from ...geometry.camera import level_intrinsics
+from ...geometry.parallax import (
     PARALLAX_EPS,
     candidate_sample_points,
     epipolar_geometry,
     parallax_to_depth,
     prev_depth_to_parallax,
 )
-from ..geometry.rotation import quaternion_to_matrix
-from ..ops.resample import resize_bl1
-from .config import ModelConfig
-from .layers import Refiner
-from .outputs import DepthLevelOutput
-from .pyramid import LevelOps, PyramidDecoder, PyramidLevel
+from ...geometry.rotation import quaternion_to_matrix
+from ...models.config import ModelConfig
+from ...models.layers import Refiner
+from ...models.pyramid import LevelOps, PyramidDecoder, PyramidLevel
+from ...ops.resample import resize_bl1
 
 #: Parallax hypotheses rho_in + k, k = -SEARCH..SEARCH (design 5.5.2).
 SEARCH_RANGE = 4
@@ -42,6 +41,15 @@ def refiner_in_channels(level: int, cfg: ModelConfig) -> int:
     return n_cand * k + 1 + 4 * cfg.level_memory + n_sncv * k * cfg.sncv + 1 * cfg.time_recurrence
 
 
+@dataclass
+class DepthLevelOutput:
+    """One depth-decoder level for one frame: ``parallax``, ``depth`` ``[B,1,h,w]``, ``other`` ``[B,4,h,w]``."""
+
+    parallax: torch.Tensor
+    depth: torch.Tensor
+    other: torch.Tensor
+
+
 @dataclass(frozen=True)
 class DepthFrame:
     """Per-frame context of the depth levels: rotation matrix, translation, intrinsics and numerics switches."""
@@ -55,6 +63,10 @@ class DepthFrame:
 
 class DepthLevel(PyramidLevel):
     """One level l (absolute, 1 = finest) of the depth decoder."""
+
+    #: the fast path keeps the features NCHW, as both cost volumes read them, and takes the epipolar distances with
+    #: ``hypot``
+    fast_ops = {"layout": torch.Tensor.contiguous, "hypot": True}
 
     def __init__(self, level: int, channels: int, cfg: ModelConfig):
         super().__init__()

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from cosemdepth.errors import ConfigError, DatasetError
-from cosemdepth.evaluation.metrics import (
+from cosemdepth.measures.metrics import (
     DEPTH_METRICS,
     ConfusionMatrix,
     DepthMetrics,

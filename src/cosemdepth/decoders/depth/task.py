@@ -1,6 +1,6 @@
 """The depth decoder's task: the multi-level log-depth L1 loss (design 8.1), the depth metrics (design 11.1; with the
-streaming policy's validity and frame statuses in the test protocol), its ``predict`` files and pictures, and its
-refiners in the official checkpoints (``disp_refiner``)."""
+streaming policy's validity and frame statuses in the test protocol), its ``predict`` files and its training
+pictures."""
 
 from __future__ import annotations
 
@@ -10,14 +10,12 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from ..evaluation.metrics import DepthMetrics, ValidDepthMetrics
-from ..evaluation.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png
-from ..models.config import ModelConfig
-from ..models.depth_decoder import DepthDecoder
-from ..models.outputs import ESTIMATED, RESET, STATUSES
-from ..training.losses import depth_loss
-from ..training.visual import depth_to_rgb
-from .base import (
+from ...evaluation.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png
+from ...measures.losses import depth_loss
+from ...measures.metrics import DepthMetrics, ValidDepthMetrics
+from ...models.config import ModelConfig
+from ...models.outputs import ESTIMATED, RESET, STATUSES
+from ...tasks.base import (
     TEST,
     DecoderTask,
     Frames,
@@ -26,8 +24,9 @@ from .base import (
     TaskWriter,
     WriteOptions,
     float32_levels,
-    register_task,
 )
+from ...training.visual import depth_to_rgb
+from .decoder import DepthDecoder
 
 
 def valid_mask(depth: np.ndarray, valid: np.ndarray | None, reset: bool) -> np.ndarray:
@@ -39,15 +38,40 @@ def valid_mask(depth: np.ndarray, valid: np.ndarray | None, reset: bool) -> np.n
     return ok & (not reset)
 
 
+def no_depth_warning(frames: int, estimated: int, held: int, valid_fraction: float | None) -> str | None:
+    """Why a run of ``frames`` frames, ``estimated`` and ``held`` of them with depth and ``valid_fraction`` of their
+    pixels valid (None: not known), gave no usable depth; None when it gave some. The warning every command that
+    streams depth prints (``cosemdepth CMD: warning: ...``)."""
+    if frames <= 0:
+        return None
+    if not estimated and not held:
+        if frames == 1:
+            return (
+                "no depth was produced: the input has 1 frame: the first frame of a flight is a reset, and depth "
+                "needs the camera to move between frames"
+            )
+        return (
+            f"no depth was produced: all {frames} frames are resets (the first frame of each trajectory, and the "
+            "frames until the camera had moved the minimum baseline from it)"
+        )
+    if valid_fraction is not None and valid_fraction <= 0.0:
+        n = estimated + held
+        return (
+            f"no valid depth: not one pixel of the {n} frame{'s' * (n != 1)} with depth is valid: the camera barely "
+            "moved between frames (a hover or a yaw in place gives no parallax; docs/motion.md)"
+        )
+    return None
+
+
 class DepthTaskMetrics(TaskMetrics):
-    """The depth metrics of design 11.1 (:class:`~cosemdepth.evaluation.metrics.DepthMetrics`); in the test protocol
-    also those of the valid pixels (:class:`~cosemdepth.evaluation.metrics.ValidDepthMetrics`) and the frames by
+    """The depth metrics of design 11.1 (:class:`~cosemdepth.measures.metrics.DepthMetrics`); in the test protocol
+    also those of the valid pixels (:class:`~cosemdepth.measures.metrics.ValidDepthMetrics`) and the frames by
     status. A frame without depth (status ``reset``: the first of a trajectory, or one held before any estimate) is
-    left out of the depth metrics as the paper's protocol leaves out resets; its labels still count."""
+    never in the depth metrics, whatever ``exclude_resets`` says: its depth is a placeholder, not a measurement
+    (``exclude_resets=False``, a dataset of independent images, counts its labels)."""
 
     def __init__(self, context: MetricContext) -> None:
         self.test = context.protocol == TEST
-        self.exclude_resets = context.exclude_resets
         self.depth = DepthMetrics()
         self.valid = ValidDepthMetrics() if self.test else None
         self.statuses = {s: 0 for s in STATUSES}
@@ -61,9 +85,9 @@ class DepthTaskMetrics(TaskMetrics):
         no_depth = (
             torch.tensor([st == RESET for st in frames.status], dtype=torch.bool, device=include.device)
             if frames.status
-            else torch.zeros_like(include)
+            else frames.reset.to(device=include.device, dtype=torch.bool)
         )
-        depth_include = include & ~no_depth if self.exclude_resets else include
+        depth_include = include & ~no_depth
         self.frames += int(depth_include.sum())
         self.depth.update(gt, pred, depth_include)
         if frames.valid is not None:
@@ -116,6 +140,9 @@ class DepthWriter(TaskWriter):
 
 
 class DepthTask(DecoderTask):
+    """The depth decoder's task: ground truth ``"depth"`` (metres), the multi-level log-depth loss, the depth
+    metrics, the ``depth`` / ``depth_valid`` / ``depth_png`` files of ``predict`` and the depth pictures."""
+
     name = "depth"
     decoder = DepthDecoder
     gt_key = "depth"
@@ -167,7 +194,4 @@ class DepthTask(DecoderTask):
         }
 
 
-#: the depth decoder's task, registered under the decoder name "depth"
-DEPTH = register_task(DepthTask())
-
-__all__ = ["DEPTH", "DepthTask", "DepthTaskMetrics", "DepthWriter", "valid_mask"]
+__all__ = ["DepthTask", "DepthTaskMetrics", "DepthWriter", "no_depth_warning", "valid_mask"]

@@ -4,16 +4,16 @@ frames the streaming policy holds, and the config switches."""
 import pytest
 import torch
 
-from cosemdepth.errors import ConfigError
-from cosemdepth.export.check import synthetic_sequence
-from cosemdepth.models import build_model
-from cosemdepth.models.config import ModelConfig
-from cosemdepth.models.semantic_decoder import (
+from cosemdepth.decoders.semantic.decoder import (
     SemanticFrame,
     SemanticLevel,
     fuse_previous,
     semantic_refiner_in_channels,
 )
+from cosemdepth.errors import ConfigError
+from cosemdepth.export.check import synthetic_sequence
+from cosemdepth.models import build_model
+from cosemdepth.models.config import ModelConfig
 
 N = 7
 

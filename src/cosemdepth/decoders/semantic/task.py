@@ -1,7 +1,6 @@
 """The semantic decoder's task: the multi-level sparse categorical cross-entropy (design 8.2, weighted by
 ``train.semantic_weight``), the global confusion matrix and mIoU (design 11.2; with the labels' temporal consistency in
-the test protocol when the dataset has depth), its ``predict`` files, and its refiners in the official checkpoints
-(``semantic_refiner``)."""
+the test protocol when the dataset has depth), its ``predict`` files and its training pictures."""
 
 from __future__ import annotations
 
@@ -11,16 +10,14 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from ..errors import ConfigError
-from ..evaluation.classes import class_info, dataset_classes
-from ..evaluation.metrics import ConfusionMatrix
-from ..evaluation.temporal import TemporalConsistency
-from ..evaluation.visualize import colorize_labels, save_png
-from ..models.config import ModelConfig
-from ..models.semantic_decoder import SemanticDecoder
-from ..training.losses import semantic_loss
-from ..training.visual import labels_to_rgb
-from .base import (
+from ...errors import ConfigError
+from ...evaluation.visualize import colorize_labels, save_png
+from ...measures.classes import class_info, dataset_classes
+from ...measures.losses import semantic_loss
+from ...measures.metrics import ConfusionMatrix
+from ...measures.temporal import TemporalConsistency
+from ...models.config import ModelConfig
+from ...tasks.base import (
     TEST,
     DecoderTask,
     Frames,
@@ -29,8 +26,9 @@ from .base import (
     TaskWriter,
     WriteOptions,
     float32_levels,
-    register_task,
 )
+from ...training.visual import labels_to_rgb
+from .decoder import SemanticDecoder
 
 
 def _labels(scores: torch.Tensor, like: torch.Tensor, num_classes: int) -> torch.Tensor:
@@ -45,7 +43,7 @@ def _labels(scores: torch.Tensor, like: torch.Tensor, num_classes: int) -> torch
 
 class SemanticTaskMetrics(TaskMetrics):
     """mIoU and the per-class IoU from one global confusion matrix (design 11.2); in the test protocol also the
-    labels' temporal consistency (:class:`~cosemdepth.evaluation.temporal.TemporalConsistency`) when the dataset has
+    labels' temporal consistency (:class:`~cosemdepth.measures.temporal.TemporalConsistency`) when the dataset has
     the depth to follow the pixels with, and the confusion matrix and class names for the report."""
 
     def __init__(self, context: MetricContext) -> None:
@@ -102,6 +100,10 @@ class LabelsWriter(TaskWriter):
 
 
 class SemanticTask(DecoderTask):
+    """The semantic decoder's task: ground truth ``"semantic"`` (class indices), the cross-entropy weighted by
+    ``train.semantic_weight``, mIoU (and the labels' temporal consistency), the ``labels`` / ``labels_color`` files of
+    ``predict`` and the label pictures."""
+
     name = "semantic"
     decoder = SemanticDecoder
     gt_key = "semantic"
@@ -155,7 +157,4 @@ class SemanticTask(DecoderTask):
         }
 
 
-#: the semantic decoder's task, registered under the decoder name "semantic"
-SEMANTIC = register_task(SemanticTask())
-
-__all__ = ["LabelsWriter", "SEMANTIC", "SemanticTask", "SemanticTaskMetrics"]
+__all__ = ["LabelsWriter", "SemanticTask", "SemanticTaskMetrics"]

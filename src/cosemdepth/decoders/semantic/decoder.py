@@ -14,15 +14,14 @@ from typing import Optional, Sequence
 
 import torch
 
-from ..geometry.camera import level_intrinsics
-from ..geometry.correspondence import previous_points
-from ..geometry.parallax import epipolar_geometry
-from ..geometry.rotation import quaternion_to_matrix
-from ..geometry.warp import sample_bilinear
-from .config import SEMANTIC_TIME_GT, SEMANTIC_TIME_OFF, SEMANTIC_TIME_OWN, ModelConfig
-from .layers import Refiner
-from .outputs import SemanticLevelOutput
-from .pyramid import GT_DEPTH, LevelOps, PyramidDecoder, PyramidLevel
+from ...geometry.camera import level_intrinsics
+from ...geometry.correspondence import previous_points
+from ...geometry.parallax import epipolar_geometry
+from ...geometry.rotation import quaternion_to_matrix
+from ...geometry.warp import sample_bilinear
+from ...models.config import SEMANTIC_TIME_GT, SEMANTIC_TIME_OFF, SEMANTIC_TIME_OWN, ModelConfig
+from ...models.layers import Refiner
+from ...models.pyramid import GT_DEPTH, LevelOps, PyramidDecoder, PyramidLevel
 
 #: Search range of the semantic decoder's spatial cost volume (7x7 window, as the depth decoder's; one group).
 SEMANTIC_SNCV_RADIUS = 3
@@ -51,6 +50,15 @@ def semantic_refiner_in_channels(level: int, channels: int, cfg: ModelConfig) ->
     """``N + 4 + C_l`` plus 49 with ``semantic_sncv`` plus ``N + 1`` (warped probabilities, validity) with a
     ``semantic_time`` (design 6.3, :func:`semantic_refiner_inputs`); ``level`` is unused (one group at every level)."""
     return sum(c for _, c in semantic_refiner_inputs(channels, cfg))
+
+
+@dataclass
+class SemanticLevelOutput:
+    """One semantic-decoder level for one frame: ``probs``/``logits`` ``[B,N,h,w]``, ``other`` ``[B,4,h,w]``."""
+
+    probs: torch.Tensor
+    logits: torch.Tensor
+    other: torch.Tensor
 
 
 @dataclass(frozen=True)

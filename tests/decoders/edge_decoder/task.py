@@ -1,13 +1,8 @@
-"""A third decoder defined outside the package, as a plugin (``COSEMDEPTH_PLUGINS=edge_task``): a stateless
-pyramid that predicts the edge strength of the scene, ``e = g / (1 + g)`` with ``g`` the magnitude of the
-log-depth gradient (forward differences, zero on the last row / column), so its ground truth comes from the depth
-every dataset with depth has. Its task declares an L1 loss on every level, a mean-absolute-error metric, a grey
-training picture and an 8-bit PNG per predicted frame. It registers the architecture ``depth-edge``
-(depth + edge)."""
+"""The edge decoder's task: its ground truth derived from the depth (:func:`edge_strength`), an L1 loss on every
+level, a mean-absolute-error metric, a grey training picture and an 8-bit PNG per predicted frame."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
@@ -16,12 +11,10 @@ import torch
 import torch.nn.functional as F
 
 from cosemdepth.evaluation.visualize import save_png
-from cosemdepth.models.layers import Refiner
-from cosemdepth.models.pyramid import PyramidDecoder, PyramidLevel
-from cosemdepth.tasks import DecoderTask, Frames, MetricContext, TaskMetrics, TaskWriter, WriteOptions, register_task
-from cosemdepth.training.losses import FIRST_SUPERVISED_FRAME
+from cosemdepth.measures.losses import FIRST_SUPERVISED_FRAME
+from cosemdepth.tasks import DecoderTask, Frames, MetricContext, TaskMetrics, TaskWriter, WriteOptions
 
-ARCH = "depth-edge"
+from .decoder import EdgeDecoder
 
 
 def edge_strength(depth: torch.Tensor) -> torch.Tensor:
@@ -31,33 +24,6 @@ def edge_strength(depth: torch.Tensor) -> torch.Tensor:
     gy = F.pad(logd[..., 1:, :] - logd[..., :-1, :], (0, 0, 0, 1))
     g = torch.sqrt(gx * gx + gy * gy)
     return g / (1 + g)
-
-
-@dataclass
-class EdgeLevelOutput:
-    edge: torch.Tensor
-
-
-class EdgeLevel(PyramidLevel):
-    """The refiner sees the level's features and the coarser level's edge map."""
-
-    def __init__(self, level, channels, cfg):
-        super().__init__()
-        self.level = level
-        self.refiner = Refiner(channels + 1, 1)
-
-    def coarse_inputs(self, coarse, f_hat, ops):
-        b, _, h, w = f_hat.shape
-        return EdgeLevelOutput(f_hat.new_zeros((b, 1, h, w)) if coarse is None else ops.nearest(coarse.edge, (h, w)))
-
-    def refine(self, f_hat, inputs, frame, prev, ops):
-        return EdgeLevelOutput(torch.sigmoid((ops.refiner or self.refiner)(ops.concat([f_hat, inputs.edge]))))
-
-
-class EdgeDecoder(PyramidDecoder):
-    level_class = EdgeLevel
-    maps = {"edge": "edge"}
-    head = "edge"
 
 
 class EdgeMetrics(TaskMetrics):
@@ -129,6 +95,3 @@ class EdgeTask(DecoderTask):
 
     def encodings(self, options: WriteOptions) -> dict[str, Any]:
         return {"edge": "edge/*.png: uint8 = round(255 * edge strength), edge strength = g / (1 + g), g = |grad log d|"}
-
-
-EDGE = register_task(EdgeTask(), {ARCH: ("depth", "edge")})
