@@ -13,15 +13,18 @@ probabilities and encoder features) to FILE; ``--update`` writes it to the track
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 from pathlib import Path
 
 from cosemdepth.bench.harness import make_report, write_report
 from cosemdepth.checkpoints.model_io import load_model
 from cosemdepth.evaluation.fidelity import compare_with_reference
-from cosemdepth.evaluation.tfref_fixture import open_fixture
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))  # the test fixtures' builder (tests/tfref_fixture.py)
+from tfref_fixture import open_fixture  # noqa: E402
+
 TRACKED = ROOT / "benchmarks" / "results" / "fidelity.json"
 SHARED_FIXTURE = ROOT.parent / "shared" / "fixtures" / "tfref-s128"
 IN_REPO_FIXTURE = ROOT / "tests" / "fixtures" / "tfref-64x96"

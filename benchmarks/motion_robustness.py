@@ -159,6 +159,28 @@ class Tally:
         }
 
 
+class TallySink:
+    """A sink of the evaluation feeding a flight's tallies with the frames the protocol counts (``include``) that have
+    depth (a frame of status reset is in no depth figure)."""
+
+    def __init__(self, tallies, include):
+        self.tallies, self.include = tallies, include
+
+    def open(self, folder) -> None:
+        pass
+
+    def __call__(self, batch) -> None:
+        include = self.include(batch)
+        include = include & torch.tensor([st != "reset" for st in batch.status], device=include.device)
+        self.tallies.update(batch.frame, batch.gt_depth, batch.depth, batch.valid, batch.status, include)
+
+    def close(self) -> dict:
+        return {}
+
+    def abort(self) -> None:
+        pass
+
+
 class FlightTallies:
     """Routes the frames of one flight to the tallies of its regime: ``all`` and, for segment regimes, the segment
     kind and ``fly``."""
@@ -569,7 +591,7 @@ def main(argv=None) -> int:
 
     from cosemdepth.checkpoints.model_io import load_model
     from cosemdepth.data import open_dataset
-    from cosemdepth.evaluation.evaluator import evaluate
+    from cosemdepth.evaluation.evaluator import Evaluator
     from cosemdepth.inference.policy import Streamer, policy_info
 
     todo = flights(a)
@@ -594,12 +616,10 @@ def main(argv=None) -> int:
         for name, policy in policies.items():
             ft = FlightTallies(tallies, regime, name, kind)
 
-            def cb(batch, include, ft=ft):  # frames without depth (status reset) are in no depth figure
-                include = include & torch.tensor([st != "reset" for st in batch.status], device=include.device)
-                ft.update(batch.frame, batch.gt_depth, batch.depth, batch.valid, batch.status, include)
-
             t0 = time.perf_counter()
-            r = evaluate(model, ds, policy=policy, callbacks=[cb])
+            ev = Evaluator(model, ds, policy=policy)
+            ev.sinks.append(TallySink(ft, ev.include))
+            r = ev.run()
             sec = time.perf_counter() - t0
             wall += sec
             m = r.metrics

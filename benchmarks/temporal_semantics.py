@@ -235,7 +235,7 @@ def derive_run(source: Path, run: Path, changes: dict) -> None:
     save_model(model, run / "best", source={"type": "derived", "from": str(source / "best"), "changes": changes})
 
 
-def evaluate_run(model_dir: Path, tests: dict, callbacks_for=None) -> dict:
+def evaluate_run(model_dir: Path, tests: dict, sinks_for=None) -> dict:
     from cosemdepth.checkpoints.model_io import load_model
     from cosemdepth.data import open_dataset
     from cosemdepth.evaluation.evaluator import evaluate
@@ -244,8 +244,7 @@ def evaluate_run(model_dir: Path, tests: dict, callbacks_for=None) -> dict:
     per_flight = {}
     for w, (root, sp) in tests.items():
         ds = open_dataset("synthair", root, split_dir=sp, split="test", seq_len=1, size=SIZE)
-        cbs = callbacks_for(w) if callbacks_for else []
-        res = evaluate(model, ds, warmup=2, callbacks=cbs)
+        res = evaluate(model, ds, warmup=2, sinks=sinks_for(w) if sinks_for else [])
         m = res.metrics
         per_flight[w] = {
             k: _num(m.get(k))
@@ -438,13 +437,22 @@ def plot(report: dict, path: Path) -> None:
 
 
 class StripCollector:
-    """An evaluate callback keeping the RGB, ground-truth and predicted labels of frames ``first..first+n-1``."""
+    """A sink of the evaluation keeping the RGB, ground-truth and predicted labels of frames ``first..first+n-1``."""
 
     def __init__(self, first: int, n: int):
         self.first, self.n = first, n
         self.rgb, self.gt, self.pred = {}, {}, {}
 
-    def __call__(self, batch, include) -> None:
+    def open(self, folder) -> None:
+        pass
+
+    def close(self) -> dict:
+        return {}
+
+    def abort(self) -> None:
+        pass
+
+    def __call__(self, batch) -> None:
         for b, fr in enumerate(batch.frame.tolist()):
             if self.first <= fr < self.first + self.n:
                 self.rgb[fr] = batch.rgb[b].float().cpu().numpy()
@@ -459,8 +467,8 @@ def _label(v: str) -> str:
 def write_strip(collectors: dict[str, StripCollector], path: Path, num_classes: int) -> None:
     from PIL import Image, ImageDraw
 
-    from cosemdepth.evaluation.visualize import colorize_labels, rgb_to_uint8
     from cosemdepth.measures.classes import class_info
+    from cosemdepth.render.visualize import colorize_labels, rgb_to_uint8
 
     _, palette = class_info(num_classes, "synthair")
     any_c = next(iter(collectors.values()))

@@ -77,7 +77,7 @@ def depth_entry(model, root: Path, *, calibration=None, canvas: str = "same", fi
         info = und.info()
     callbacks, centre = [], None
     if canvas == "full":  # the same canvas's view inside the full one: separates the periphery from the rest
-        from cosemdepth.evaluation.metrics import DepthMetrics
+        from cosemdepth.measures.metrics import DepthMetrics
 
         centre = DepthMetrics()
         (h, w), (ch, cw) = ds.load_frame.size, (128, 128)

@@ -13,4 +13,4 @@ if [ -z "$py" ]; then
 fi
 export PYTHONPATH="$root/src${PYTHONPATH:+:$PYTHONPATH}"
 cd "$root"
-exec "$py" -m cosemdepth.bench.gpu_check "$@"
+exec "$py" -m cosemdepth.cli.gpu_check "$@"

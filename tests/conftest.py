@@ -53,7 +53,7 @@ def tfref_dir(request, tmp_path_factory) -> Path:
     """A folder with a TensorFlow reference fixture: ``ckpt/`` (the checkpoint the authors' code wrote),
     ``reference.npz``, ``weights.json``, ``meta.json``. Every test that takes it runs on each fixture of
     :func:`tfref_params`."""
-    from cosemdepth.evaluation.tfref_fixture import open_fixture
+    from tfref_fixture import open_fixture
 
     if request.param == IN_REPO_TFREF.name:
         return open_fixture(IN_REPO_TFREF, tmp_path_factory.mktemp("tfref"))

@@ -15,7 +15,7 @@ from _outputs import _one_thread, leftovers, model_dir, tiny_midair  # noqa: E40
 from cosemdepth import demo as demo_mod  # noqa: E402
 from cosemdepth.cli.main import main  # noqa: E402
 from cosemdepth.data import open_dataset  # noqa: E402
-from cosemdepth.errors import CheckpointError, ConfigError  # noqa: E402
+from cosemdepth.errors import CheckpointError, ConfigError, DatasetError  # noqa: E402
 
 SIZE = 32
 
@@ -160,17 +160,18 @@ def test_demo_on_trajectories_of_one_frame_reports_no_depth(model_dir, tmp_path,
 
 
 def test_demo_generates_the_flight_with_the_synth_command(model_dir, tmp_path, monkeypatch):
-    """The generation path, with ``cosemdepth synth`` replaced by the test writer (same Mid-Air format)."""
+    """The generation path, with the generator of ``cosemdepth synth`` replaced by the test writer (same Mid-Air
+    format): the demo calls it as a library, with the config the command would build."""
+    from cosemdepth.synthair.writer import SynthConfig
+
     calls = []
 
-    def fake_main(argv):
-        calls.append(argv)
-        out = Path(argv[argv.index("--out") + 1])
-        frames = int(argv[argv.index("--frames") + 1])
-        tiny_midair(out, trajectories=(0,), frames=frames, size=int(argv[argv.index("--size") + 1]))
-        return 0
+    def fake_generate(config, progress=True):
+        calls.append((config, progress))
+        tiny_midair(Path(config.out), trajectories=(0,), frames=config.frames, size=config.size)
+        return {}
 
-    monkeypatch.setattr("cosemdepth.cli.main.main", fake_main)
+    monkeypatch.setattr(demo_mod, "synth_generate", fake_generate)
     monkeypatch.setattr(demo_mod, "synth_available", lambda: True)
     m = demo_mod.run_demo(
         tmp_path / "r",
@@ -183,30 +184,18 @@ def test_demo_generates_the_flight_with_the_synth_command(model_dir, tmp_path, m
         progress=False,
         log=lambda *a: None,
     )
-    assert calls == [
-        [
-            "synth",
-            "--out",
-            calls[0][2],
-            "--trajectories",
-            "1",
-            "--frames",
-            "24",
-            "--size",
-            "32",
-            "--seed",
-            "7",
-            "--climates",
-            "foggy",
-            "--supersample",
-            "3",
-            "--no-progress",
-        ]
-    ]
-    assert not Path(calls[0][2]).exists()  # the temporary flight is deleted
+    ((config, progress),) = calls
+    out = config.out
+    # what `cosemdepth synth --trajectories 1 --frames 24 --size 32 --seed 7 --climates foggy --supersample 3
+    # --no-progress` builds
+    assert (
+        config == SynthConfig(out=out, trajectories=1, frames=24, size=32, seed=7, climates=("foggy",), supersample=3)
+        and progress is False
+    )
+    assert not Path(out).exists()  # the temporary flight is deleted
     # ... so metrics.json does not name it as the flight's root (a folder that may no longer exist)
     assert m["flight"]["root"] is None and m["flight"]["kept"] is False
-    assert calls[0][2] not in (tmp_path / "r" / "metrics.json").read_text()
+    assert str(out) not in (tmp_path / "r" / "metrics.json").read_text()
     check_schema(m)
     assert m["details"]["evaluation"]["protocol"]["frames_streamed"] == 5
     assert json.loads((tmp_path / "r" / "metrics.json").read_text())["model"] == pytest.approx(m["model"])
@@ -217,8 +206,12 @@ def test_synth_failure_and_missing_synth(model_dir, tmp_path, monkeypatch):
     with pytest.raises(ConfigError, match="--data-root"):
         demo_mod.run_demo(tmp_path / "r", model=model_dir, size=SIZE, frames=3, log=lambda *a: None)
     monkeypatch.setattr(demo_mod, "synth_available", lambda: True)
-    monkeypatch.setattr("cosemdepth.cli.main.main", lambda argv: 2)
-    with pytest.raises(Exception, match="failed"):
+
+    def failing(config, progress=True):
+        raise DatasetError(f"{config.out}: the renderer failed")
+
+    monkeypatch.setattr(demo_mod, "synth_generate", failing)
+    with pytest.raises(DatasetError, match="the renderer failed"):
         demo_mod.run_demo(tmp_path / "r", model=model_dir, size=SIZE, frames=3, log=lambda *a: None)
     assert list(tmp_path.iterdir()) == []
 

@@ -69,9 +69,9 @@ def no_bf16(monkeypatch):
 
 def test_without_bf16_convolutions_training_and_the_fast_path_refuse_bf16_in_one_line(no_bf16, tmp_path, capsys):
     from cosemdepth.checkpoints.model_io import save_model
-    from cosemdepth.cli._shared import load
     from cosemdepth.cli.main import main
     from cosemdepth.inference.engine import FastEngine
+    from cosemdepth.jobs.model import load
     from cosemdepth.models import build_model
 
     out = tmp_path / "run"

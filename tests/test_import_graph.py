@@ -22,6 +22,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth",
             "cosemdepth._lazy",
             "cosemdepth.errors",
+            "cosemdepth.defaults",
             "cosemdepth.coerce",
             "cosemdepth.plugins",
             "cosemdepth.models.config",
@@ -44,6 +45,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.data",
             "cosemdepth.flightlogs",
             "cosemdepth.synthair",
+            "cosemdepth.robotics",
         ),
     ),
     (
@@ -51,10 +53,6 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "cosemdepth.measures",
             "cosemdepth.render",
-            # the pictures and files of predictions, until they move to cosemdepth.render
-            "cosemdepth.evaluation.visualize",
-            "cosemdepth.evaluation.figures",
-            "cosemdepth.training.visual",
         ),
     ),
     ("tasks and decoders", ("cosemdepth.tasks", "cosemdepth.decoders")),
@@ -66,7 +64,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.training",
             "cosemdepth.export",
             "cosemdepth.bench",
-            "cosemdepth.robotics",
+            "cosemdepth.jobs",
         ),
     ),
     ("front ends", ("cosemdepth.cli", "cosemdepth.demo", "cosemdepth.__main__")),
@@ -188,7 +186,7 @@ def test_the_scanner_sees_relative_function_local_and_package_imports():
         "cosemdepth.coerce": False,
         "cosemdepth.models.registry": False,
     }
-    assert g["cosemdepth.evaluation.tfref_fixture"]["cosemdepth.checkpoints.tf_checkpoint"] is True  # function-local
+    assert g["cosemdepth.bench.accuracy"]["cosemdepth.export.runtime"] is True  # function-local
     assert g["cosemdepth.training.config"]["cosemdepth.data.registry"] is False  # module level
     assert "cosemdepth.models.model" in g["cosemdepth.inference.fast_model"]  # inference sits above models
     assert not any(
@@ -274,6 +272,39 @@ def test_the_layer_check_catches_an_upward_function_local_import(tmp_path):
     assert upward_imports(g, layers, "pkg")[0] == (
         "pkg.low (low) imports pkg.high (high) inside a function (a function-local import)"
     )
+
+
+def argparse_users(src: Path = SRC, package: str = PACKAGE) -> list[str]:
+    """The modules of ``package`` that import :mod:`argparse` anywhere in their body."""
+    out = []
+    for module, path in module_names(src, package).items():
+        for node, _ in _imports(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+            if any(n == "argparse" or n.startswith("argparse.") for n in names):
+                out.append(module)
+                break
+    return sorted(out)
+
+
+def test_only_the_command_line_parses_arguments():
+    """argparse lives in ``cli/``: below it, a command's options are frozen values built there, never a namespace."""
+    users = argparse_users()
+    assert "cosemdepth.cli.predict" in users  # the scanner sees it
+    assert [m for m in users if not m.startswith("cosemdepth.cli.")] == []
+
+
+def test_predict_reaches_the_model_without_the_command_line():
+    """Below the argument parsing, predict (every source, flights included) never returns into ``cli/``: the modules
+    its library run imports, transitively, hold no ``cosemdepth.cli`` module."""
+    g = graph()
+    seen, todo = set(), ["cosemdepth.jobs.predict"]
+    while todo:
+        m = todo.pop()
+        if m not in seen:
+            seen.add(m)
+            todo.extend(g[m])
+    assert {"cosemdepth.streaming.sources.flight", "cosemdepth.streaming.pipeline", "cosemdepth.models.model"} <= seen
+    assert [m for m in seen if m == "cosemdepth.cli" or m.startswith("cosemdepth.cli.")] == []
 
 
 @pytest.mark.parametrize(

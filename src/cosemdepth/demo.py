@@ -4,17 +4,18 @@ Steps:
 
 1. load the model (default: the shipped weights ``weights/synthair-cosemdepth/``, trained with ``cosemdepth train``
    on SynthAir; a clear error if they are missing);
-2. build a held-out SynthAir flight with ``cosemdepth synth`` (one trajectory of ``frames`` evaluated frames at
+2. build a held-out SynthAir flight with the generator of ``cosemdepth synth`` (one trajectory of ``frames`` evaluated frames at
    ``size``, with a world seed the training data did not use) - or use an existing Mid-Air-format dataset
    (``data_root``);
-3. evaluate the model with the test protocol (design 11.3: streamed frame by frame, the reset frame excluded);
+3. evaluate the model with the test protocol (design 11.3: streamed frame by frame, the reset frame excluded): the
+   evaluator's source and Streamer, with the demo's collector (:class:`DemoCollector`) as a further sink;
 4. evaluate two trivial baselines on the same frames: *constant depth* (the median of all evaluated ground-truth
    depths, clipped to [0, 80] m as the metrics clip them, predicted everywhere) and *majority class* (the most
    frequent ground-truth class, predicted everywhere);
 5. write the report folder: ``metrics.json`` (schema below), ``report.md``, ``iou.png`` (per-class IoU chart),
    ``qualitative.png`` (RGB | predicted depth | ground-truth depth | predicted labels | ground-truth labels for a few
    frames, with a depth colour bar and a class legend) and ``flight.mp4`` (the same panels, captions, colour bar and
-   legend for every frame; ``flight.gif`` without ffmpeg). Both are drawn by :mod:`cosemdepth.evaluation.figures`
+   legend for every frame; ``flight.gif`` without ffmpeg). Both are drawn by :mod:`cosemdepth.render.figures`
    with one depth range for the whole flight (``metrics.json``'s ``pictures``).
 
 ``metrics.json``::
@@ -31,7 +32,6 @@ from __future__ import annotations
 import contextlib
 import datetime as _dt
 import importlib.util
-import io
 import math
 import os
 import sys
@@ -39,22 +39,20 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
 
 from . import __version__
 from .checkpoints.model_io import load_model, read_config_file
-from .cli import main as cli
 from .data import open_dataset
 from .data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from .data.frames import FocalSize, midair_intrinsics
+from .defaults import DEFAULT_DEVICE
 from .errors import CheckpointError, ConfigError, DatasetError
 from .evaluation.evaluator import Evaluator, to_json
-from .evaluation.figures import FlightPictures, frame_maps
 from .evaluation.resources import machine_info, resolve_device
-from .evaluation.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 from .inference.fast_model import reference_model
 from .measures.classes import class_info
 from .measures.metrics import EPS, EVAL_MAX_DEPTH, ConfusionMatrix, DepthMetrics
@@ -63,8 +61,11 @@ from .operating_point import OperatingPoint
 from .output_safety.atomic import atomic_path, atomic_write_text
 from .output_safety.outdir import Input, check_not_input, model_inputs
 from .output_safety.staging import StagedDir
+from .render.figures import FlightPictures, frame_maps
+from .render.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
 from .synthair.climate import CLIMATES
-from .synthair.writer import MAX_FRAMES
+from .synthair.writer import MAX_FRAMES, SynthConfig
+from .synthair.writer import generate as synth_generate
 from .tasks import class_count
 
 #: Where the shipped weights live, relative to the repository root (or the current folder).
@@ -123,7 +124,7 @@ def _hw(size) -> str:
 
 
 def synth_available() -> bool:
-    return importlib.util.find_spec("cosemdepth.cli.synth") is not None
+    return importlib.util.find_spec("cosemdepth.synthair.writer") is not None
 
 
 def synth_frames(frames: int) -> int:
@@ -143,37 +144,25 @@ def generate_flight(
     seed: int,
     climate: str,
     supersample: int = DEFAULT_SUPERSAMPLE,
-    quiet: bool = True,
+    progress: bool = False,
 ) -> Path:
-    """Render one SynthAir trajectory of ``frames`` CSV rows with ``cosemdepth synth``; returns the dataset root."""
+    """Render one SynthAir trajectory of ``frames`` CSV rows with the generator of ``cosemdepth synth``; returns the
+    dataset root."""
     if not synth_available():
         raise ConfigError(
             "this installation has no `cosemdepth synth` command to build the SynthAir flight; pass "
             "--data-root ROOT to evaluate on an existing Mid-Air-format dataset (splits in ROOT/splits)"
         )
-    argv = [
-        "synth",
-        "--out",
-        str(data_dir),
-        "--trajectories",
-        "1",
-        "--frames",
-        str(synth_frames(frames)),
-        "--size",
-        str(size),
-        "--seed",
-        str(seed),
-        "--climates",
-        climate,
-        "--supersample",
-        str(supersample),
-        "--no-progress",
-    ]
-    sink = io.StringIO()
-    with contextlib.redirect_stdout(sink) if quiet else contextlib.nullcontext():
-        rc = cli.main(argv)
-    if rc != 0:
-        raise DatasetError(f"`cosemdepth {' '.join(argv)}` failed (exit status {rc}); see the message above")
+    config = SynthConfig(
+        out=Path(data_dir),
+        trajectories=1,
+        frames=synth_frames(frames),
+        size=size,
+        seed=seed,
+        climates=(climate,),
+        supersample=supersample,
+    )
+    synth_generate(config, progress=progress)
     return data_dir
 
 
@@ -198,8 +187,9 @@ def open_flight_split(
 
 @dataclass
 class DemoCollector:
-    """Stream callback: keeps the evaluated ground truth (for the baselines), a few frames for the qualitative
-    strip, and writes the side-by-side video."""
+    """A sink of the evaluation: keeps the evaluated ground truth (for the baselines; ``include``: the frames the
+    protocol counts, :meth:`~cosemdepth.evaluation.evaluator.Evaluator.include`, default all), a few frames for the
+    qualitative strip, and writes the side-by-side video."""
 
     total_frames: int
     num_classes: int | None
@@ -211,6 +201,7 @@ class DemoCollector:
     class_names: tuple[str, ...] = ()
     picks: list[Any] = field(default_factory=list)
     seen: int = 0
+    include: Callable[[Any], torch.Tensor] | None = None
 
     def __post_init__(self) -> None:
         n = self.total_frames
@@ -227,7 +218,17 @@ class DemoCollector:
     def _labels_ok(self, gt: np.ndarray) -> bool:
         return self.palette is not None and gt.size > 0 and 0 <= int(gt.min()) and int(gt.max()) < len(self.palette)
 
-    def __call__(self, batch, include: torch.Tensor) -> None:
+    def open(self, folder) -> None:
+        pass
+
+    def close(self) -> dict:
+        return {}
+
+    def abort(self) -> None:
+        pass
+
+    def __call__(self, batch) -> None:
+        include = self.include(batch) if self.include is not None else torch.ones_like(batch.reset)
         for b in range(len(batch)):
             pos = self.seen
             self.seen += 1
@@ -317,7 +318,7 @@ def plot_iou(path: Path, class_names, model_iou, baseline_iou, model_miou, basel
 
 
 def plot_qualitative(path: Path, figure, picks) -> None:
-    """The strip: one row per picked frame (:class:`~cosemdepth.evaluation.figures.FrameMaps`), drawn by the flight's
+    """The strip: one row per picked frame (:class:`~cosemdepth.render.figures.FrameMaps`), drawn by the flight's
     ``figure`` (the captions, panel order, colour bar and legend of the video), written atomically."""
     save_png(path, figure.rows(picks))
 
@@ -471,7 +472,7 @@ def run_demo(
     supersample: int = DEFAULT_SUPERSAMPLE,
     data_root: str | os.PathLike | None = None,
     data_dir: str | os.PathLike | None = None,
-    device: str = "cpu",
+    device: str = DEFAULT_DEVICE,
     video: str | None = DEFAULT_VIDEO,
     overwrite: bool = False,
     progress: bool = True,
@@ -586,24 +587,25 @@ def run_demo(
             names, palette = class_info(classes, "synthair") if classes else ((), None)
             writer = VideoWriter(tmp / "flight", fps=DEFAULT_FPS, fmt=video) if video else None
             try:
-                collector = DemoCollector(
-                    total_frames=dataset.num_frames if hasattr(dataset, "num_frames") else len(dataset),
-                    num_classes=classes,
-                    palette=palette,
-                    video=writer,
-                    class_names=tuple(names),
-                )
                 t = time.perf_counter()
                 log(f"evaluating on {len(dataset)} frames ({split} split of {root}) ...")
                 evaluator = Evaluator(
                     net,
                     dataset,
                     progress=progress,
-                    callbacks=[collector],
                     dataset_name="synthair",
                     policy=policy,
                     min_baseline=min_baseline,
                 )
+                collector = DemoCollector(
+                    total_frames=dataset.num_frames if hasattr(dataset, "num_frames") else len(dataset),
+                    num_classes=classes,
+                    palette=palette,
+                    video=writer,
+                    class_names=tuple(names),
+                    include=evaluator.include,
+                )
+                evaluator.sinks.append(collector)
                 result = evaluator.run()
                 no_depth = result.depth_warning()
                 if no_depth:

@@ -12,6 +12,7 @@ import pytest
 
 from cosemdepth.bench import gpu_check
 from cosemdepth.bench.gpu_check import STAGES, TOLERANCES, compare_outputs, within
+from cosemdepth.cli import gpu_check as gpu_check_cli
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -95,7 +96,7 @@ def test_dry_run_of_the_script_plans_every_stage(tmp_path):
 
 def test_a_spent_budget_runs_nothing_and_says_so(tmp_path, capsys):
     out = tmp_path / "check.json"
-    assert gpu_check.main(["--dry-run", "--budget", "0", "--out", str(out)]) == 0
+    assert gpu_check_cli.main(["--dry-run", "--budget", "0", "--out", str(out)]) == 0
     report = json.loads(out.read_text())
     assert {s["status"] for s in report["stages"]} == {"not_run"}
     assert all("budget" in s["reason"] for s in report["stages"])
@@ -104,8 +105,8 @@ def test_a_spent_budget_runs_nothing_and_says_so(tmp_path, capsys):
 
 def test_bad_arguments_stop_in_one_line(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
-        gpu_check.main(["--dry-run", "--out", str(tmp_path / "missing" / "x.json")])
+        gpu_check_cli.main(["--dry-run", "--out", str(tmp_path / "missing" / "x.json")])
     assert e.value.code == 2 and "does not exist" in capsys.readouterr().err
     with pytest.raises(SystemExit) as e:
-        gpu_check.main(["--dry-run", "--iters", "0"])
+        gpu_check_cli.main(["--dry-run", "--iters", "0"])
     assert e.value.code == 2 and "--iters must be positive" in capsys.readouterr().err

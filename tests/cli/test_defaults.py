@@ -13,10 +13,13 @@ from cosemdepth.cli.main import COMMANDS, build_parser
 from cosemdepth.data.flight import open_flight
 from cosemdepth.data.registry import DATASETS, split_datasets
 from cosemdepth.demo import run_demo
-from cosemdepth.evaluation.predict import predict
 from cosemdepth.export.onnx import export_onnx
+from cosemdepth.jobs.model import ModelOptions
+from cosemdepth.jobs.options import RunOptions
+from cosemdepth.jobs.predict import predict
 from cosemdepth.models.config import ModelConfig
 from cosemdepth.robotics.bag_flight import open_bag_flight
+from cosemdepth.streaming.sinks.files import FileOptions
 from cosemdepth.synthair.writer import SynthConfig
 from cosemdepth.training.config import DataConfig, RunConfig, resolve_config
 
@@ -72,6 +75,15 @@ def test_predict_defaults_are_the_functions_it_calls():
     args = parse("predict", "--model", "m", "--out", "o")
     fn = defaults_of(predict)
     assert (args.video, args.fps, args.lanes, args.workers) == (fn["video"], fn["fps"], fn["lanes"], fn["num_workers"])
+    # ... which are those of the options the command builds
+    run, files = RunOptions(), FileOptions()
+    assert (args.video, args.fps, args.invalid) == (files.video, files.fps, files.invalid)
+    assert (args.lanes, args.workers, args.max_frames) == (run.lanes, run.workers, run.max_frames)
+    assert (
+        parse("predict", "--model", "m", "--out", "o").device
+        == ModelOptions("m").device
+        == defaults_of(run_demo)["device"]
+    )
     bag = defaults_of(open_bag_flight)
     assert (args.jpeg_idct, args.frame_skip) == (bag["jpeg_idct"], bag["frame_skip"])
     flight = defaults_of(open_flight)

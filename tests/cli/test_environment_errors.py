@@ -12,7 +12,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from _outputs import SIZE, _one_thread, data, leftovers, model_dir, unwritable_folder  # noqa: E402 (some are pytest fixtures)
 
-import cosemdepth.cli.predict as predict_cli  # noqa: E402
+import cosemdepth.jobs.predict as predict_job  # noqa: E402
 from cosemdepth.cli.main import main  # noqa: E402
 
 SRC = Path(__file__).resolve().parents[2] / "src"
@@ -180,7 +180,7 @@ def test_out_in_a_read_only_folder_is_refused_before_the_model_runs(tmp_path, da
     def no_model(*a, **k):
         raise AssertionError("the model was loaded")
 
-    monkeypatch.setattr(predict_cli, "load", no_model)
+    monkeypatch.setattr(predict_job, "load_for", no_model)
     with unwritable_folder(parent):
         assert main(["predict", "--model", str(model_dir), *_split(data), "--out", str(out)]) == 2
         err = capsys.readouterr().err

@@ -17,8 +17,16 @@ from _outputs import _one_thread, tiny_midair  # noqa: E402, F401 (pytest fixtur
 from cosemdepth import build_model, save_model  # noqa: E402
 from cosemdepth.cli._shared import model_size_pair  # noqa: E402
 from cosemdepth.cli.main import build_parser, main  # noqa: E402
-from cosemdepth.cli.predict import _open  # noqa: E402
+from cosemdepth.cli.predict import options  # noqa: E402
+from cosemdepth.jobs.options import open_source  # noqa: E402
 from cosemdepth.operating_point import OperatingPoint  # noqa: E402
+
+
+def _open(args):
+    """The dataset predict reads for these arguments (at the model's focal length unless --size)."""
+    o = options(args)
+    return open_source(o.source, o.run, o.model.operating_point()).dataset
+
 
 #: A model trained at 32x32 with a 90-degree camera: 16 px of focal length.
 OP = OperatingPoint((32, 32), (16.0, 16.0), None, "test")

@@ -2,10 +2,10 @@ import pytest
 import torch
 
 from cosemdepth.checkpoints.model_io import save_model
-from cosemdepth.cli._shared import load
 from cosemdepth.cli.main import main
 from cosemdepth.errors import ConfigError
 from cosemdepth.inference import FastModel
+from cosemdepth.jobs.model import load
 from cosemdepth.models import SceneModel, build_model
 
 

@@ -9,7 +9,7 @@ import torch
 from _fakes import FakeModel, fake_dataset
 
 from cosemdepth.errors import ConfigError
-from cosemdepth.evaluation.evaluator import evaluate, to_json
+from cosemdepth.evaluation.evaluator import Evaluator, evaluate, to_json
 
 # Hand computation (reset frames A0 and B0 excluded; GT [[10, 20], [40, 0]], the 0 pixel invalid):
 #   A1 pred [[10, 20], [40, 5]]: every valid error 0      -> AbsRel 0,   RMSE 0,                    d1 1
@@ -164,10 +164,30 @@ def test_result_json_and_markdown():
     assert json.loads(to_json({"x": float("nan"), "y": [1.0, float("inf")]})) == {"x": None, "y": [1.0, None]}
 
 
-def test_callbacks_see_every_step_with_the_include_mask():
-    seen = []
-    evaluate(FakeModel(), fake_dataset(), callbacks=[lambda b, inc: seen.append((b.trajectory, inc.tolist()))])
-    assert seen == [(["A"], [False]), (["A"], [True]), (["A"], [True]), (["B"], [False]), (["B"], [True])]
+def test_further_sinks_see_every_step_and_the_protocol_says_which_frames_count():
+    class Seen:
+        def __init__(self, include):
+            self.include, self.seen, self.closed = include, [], False
+
+        def open(self, folder):
+            assert folder is None  # the evaluation writes no folder
+
+        def __call__(self, batch):
+            self.seen.append((batch.trajectory, self.include(batch).tolist()))
+
+        def close(self):
+            self.closed = True
+            return {}
+
+        def abort(self):
+            raise AssertionError("nothing failed")
+
+    ev = Evaluator(FakeModel(), fake_dataset())
+    sink = Seen(ev.include)
+    ev.sinks.append(sink)
+    ev.run()
+    assert sink.seen == [(["A"], [False]), (["A"], [True]), (["A"], [True]), (["B"], [False]), (["B"], [True])]
+    assert sink.closed
 
 
 def test_peak_memory_is_measured():

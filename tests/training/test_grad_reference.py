@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from tfref_fixture import seeded_weight
 
 from cosemdepth.checkpoints.convert import convert_tensors
 from cosemdepth.checkpoints.model_io import load_model, save_model
 from cosemdepth.evaluation.fidelity import inputs_from_reference
-from cosemdepth.evaluation.tfref_fixture import seeded_weight
 from cosemdepth.models import SceneModel, build_model
 from cosemdepth.training.trainer import compute_loss, forward_batch, prepare_for_training
 

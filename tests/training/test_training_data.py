@@ -14,6 +14,7 @@ from cosemdepth.decoders.depth import DEPTH
 from cosemdepth.decoders.semantic import SEMANTIC
 from cosemdepth.errors import ConfigError, DatasetError
 from cosemdepth.models.config import ModelConfig
+from cosemdepth.render.examples import depth_to_rgb, example_strip, labels_to_rgb
 from cosemdepth.training.config import DataConfig, DatasetSource
 from cosemdepth.training.data import (
     EpochBatchSampler,
@@ -27,7 +28,6 @@ from cosemdepth.training.data import (
     steps_per_epoch,
     total_steps,
 )
-from cosemdepth.training.visual import depth_to_rgb, example_strip, labels_to_rgb
 
 
 def test_sampler_matches_distributed_sampler_and_resumes_mid_epoch():

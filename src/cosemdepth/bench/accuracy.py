@@ -17,6 +17,7 @@ import torch
 
 from ..inference.fast_model import FastModel
 from ..measures.metrics import EvaluationMetrics
+from ..models.protocol import StreamingModel
 
 #: mode -> (path, dtype of the :class:`~cosemdepth.inference.FastModel`); "reference" (the modules) is what the
 #: others are compared with
@@ -43,7 +44,7 @@ CALIBRATION_FRAMES = 16
 SHOWN = ("miou", "abs_rel", "rmse", "delta1", "seconds")
 
 
-def stream_metrics(model, dataset, device: torch.device, max_frames: Optional[int] = None) -> dict:
+def stream_metrics(model: StreamingModel, dataset, device: torch.device, max_frames: Optional[int] = None) -> dict:
     """The metrics of ``model`` streamed over ``dataset`` (batch 1, frames in order; reset frames left out), with
     ``frames`` (streamed) and ``seconds`` (wall time)."""
     cfg = model.config
@@ -134,7 +135,7 @@ def compare_modes(
     return {"metrics": results, "verdicts": verdicts}
 
 
-def onnx_model(model, dataset, work: Path, calibration: Optional[list] = None):
+def onnx_model(model: StreamingModel, dataset, work: Path, calibration: Optional[list] = None):
     """``model`` exported as by ``cosemdepth export --onnx`` at the size of ``dataset``'s frames (batch 1) into
     ``work``, int8 as by ``--int8`` when ``calibration`` steps are given, run by ONNX Runtime's CPU provider behind
     the model's ``step`` (:class:`~cosemdepth.export.runtime.OnnxModel`)."""

@@ -23,6 +23,7 @@ from ..inference.fast_model import FastModel
 from ..inference.graphs import make_streamer
 from ..models import build_model
 from ..models.config import MIDAIR_IMAGE_SIZE, ModelConfig
+from ..models.model import SceneModel
 from .memory import PeakMemory, exact_rss
 from .noise import compare_times, spread
 
@@ -126,7 +127,7 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def build(case: BenchCase, model=None):
+def build(case: BenchCase, model: Optional[SceneModel] = None):
     """What ``case`` streams, on its device: the :class:`~cosemdepth.models.SceneModel` (path ``reference``), its
     :class:`~cosemdepth.inference.FastModel` (``fast``) or a static-buffer streamer (``graph``); ``model``: use
     these weights."""
@@ -156,7 +157,7 @@ def build(case: BenchCase, model=None):
 class _GraphStepper:
     """``step`` over a :class:`StaticStreamer` (a CUDA graph on GPU; the same static program eagerly on CPU)."""
 
-    def __init__(self, model, case: BenchCase):
+    def __init__(self, model: SceneModel, case: BenchCase):
         self.model = model
         self.streamer = make_streamer(
             model, case.batch, case.height, case.width, dtype=PRECISIONS[case.precision], device=case.device
@@ -226,7 +227,7 @@ def _memory_pass(case: BenchCase, make_steps, frames) -> PeakMemory:
     return pm
 
 
-def run_case(case: BenchCase, model=None) -> BenchResult:
+def run_case(case: BenchCase, model: Optional[SceneModel] = None) -> BenchResult:
     """Build, warm up and time one case; then a separate pass measures the peak memory of building and streaming."""
     frames = make_frames(case)
     load = _loadavg()

@@ -1,4 +1,6 @@
-"""Arguments and helpers shared by the commands that run a model (evaluate, predict, demo, benchmark, export)."""
+"""Arguments shared by the commands that run a model (evaluate, predict, view, demo, benchmark, export): how they are
+declared and parsed. What the values mean and how they are checked belongs to the options they become
+(:mod:`cosemdepth.jobs`, :mod:`cosemdepth.cli._options`)."""
 
 from __future__ import annotations
 
@@ -8,23 +10,23 @@ from pathlib import Path
 
 import torch
 
-from ..checkpoints.model_io import load_model, operating_point_of
-from ..data import open_dataset
-from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS, image_size
-from ..data.frames import FocalSize, as_size
+from ..checkpoints.model_io import load_model
+from ..data.decode import DEFAULT_JPEG_IDCT, JPEG_IDCTS
 from ..data.registry import DATASETS, split_datasets
-from ..devices import resolve_device
-from ..errors import CheckpointError, ConfigError
-from ..inference.fast_model import FastModel, reference_model
+from ..defaults import DEFAULT_DEVICE
+from ..errors import ConfigError
 from ..inference.policy import BASELINE, EVERY_FRAME, POLICIES
+from ..jobs.model import PRECISION_DTYPES
+from ..jobs.options import RunOptions
 from ..models import build_model
 from ..models.config import ARCHITECTURES, MIDAIR_IMAGE_SIZE, ModelConfig
-from ..models.footprint import check_size
-from ..operating_point import OperatingPoint
-from ..workers import WORKERS_PER_CORE, check_workers
+from ..models.protocol import StreamingModel
+from ..workers import WORKERS_PER_CORE
 
 #: The model config's defaults (``--arch/--levels/--classes`` read them: one home for defaults).
 MODEL_DEFAULTS = ModelConfig()
+#: The streaming options' defaults (``--trajectories-per-batch``, ``--workers`` read them).
+RUN_DEFAULTS = RunOptions()
 #: ``--size H W`` when not given.
 DEFAULT_SIZE_PAIR = (MIDAIR_IMAGE_SIZE, MIDAIR_IMAGE_SIZE)
 
@@ -77,10 +79,6 @@ def add_reference_arg(parser: argparse.ArgumentParser) -> None:
     )
 
 
-#: ``--precision`` -> ``FastModel(model, dtype)``
-PRECISION_DTYPES = {"fp32": "float32", "bf16": "bfloat16", "int8": "int8"}
-
-
 def add_precision_arg(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--precision",
@@ -122,7 +120,7 @@ def load_or_build(args: argparse.Namespace, device: str = "cpu"):
     return build_model(cfg).to(device).eval()
 
 
-def model_size_pair(values: list[int] | None, model, warn: bool = True) -> tuple[int, int]:
+def model_size_pair(values: list[int] | None, model: StreamingModel, warn: bool = True) -> tuple[int, int]:
     """``--size H W`` of export / benchmark: as given, else the model's training size (its operating point), else
     :data:`DEFAULT_SIZE_PAIR`. With ``warn``, a given size far from the model's focal length (its camera's field of
     view assumed) gets a warning on stderr."""
@@ -148,7 +146,11 @@ def parse_size_pair(values: list[int] | None, default: tuple[int, int] = DEFAULT
 
 
 def add_device_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:N or mps")
+    parser.add_argument(
+        "--device",
+        default=DEFAULT_DEVICE,
+        help=f"{DEFAULT_DEVICE} (the default: CUDA when available, else the CPU), cpu, cuda, cuda:N or mps",
+    )
     parser.add_argument(
         "--threads",
         type=positive_int,
@@ -214,38 +216,6 @@ def size_help(what: str = "network input size, S or HxW") -> str:
     )
 
 
-def model_operating_point(model_path) -> OperatingPoint | None:
-    """The operating point of ``--model`` (read from its config.json, without the weights), or None: the model has
-    none, or its folder is unreadable (loading it reports that)."""
-    try:
-        return operating_point_of(model_path)
-    except (CheckpointError, OSError):
-        return None
-
-
-def input_size(requested, op: OperatingPoint | None):
-    """The size to open an input at: ``requested`` (``--size``) when given; else, for a model with an operating
-    point, the size rule of its focal length (:class:`~cosemdepth.data.frames.FocalSize`: every reader applies it
-    to its camera, keeping the input's aspect ratio); else None (the reader's default)."""
-    if requested is not None or op is None:
-        return requested
-    return FocalSize(op.focal)
-
-
-def warn_far_size(op: OperatingPoint | None, requested, dataset, what: str = "--size") -> str | None:
-    """When the user's ``requested`` size puts the input's focal length (``dataset.intrinsics``) more than
-    :data:`~cosemdepth.operating_point.FOCAL_WARN_FACTOR` away from the model's, print one warning line on stderr
-    naming both and the size the input runs at without ``what`` (:func:`input_size`'s rule, opened as the input's
-    reader opens it), and return it."""
-    if op is None or requested is None or getattr(dataset, "intrinsics", None) is None:
-        return None
-    default = dataset.opened_size(input_size(None, op)) if hasattr(dataset, "opened_size") else None
-    msg = op.size_warning(as_size(requested, what), float(dataset.intrinsics[0]), what, default_size=default)
-    if msg:
-        print(msg, file=sys.stderr)
-    return msg
-
-
 def add_policy_args(parser: argparse.ArgumentParser, default: str) -> None:
     """``--policy`` and ``--min-baseline`` (:mod:`cosemdepth.inference.policy`); ``default`` describes the default in
     the help (the flag's value stays None: :func:`stream_policy` resolves it per input)."""
@@ -269,23 +239,6 @@ def add_policy_args(parser: argparse.ArgumentParser, default: str) -> None:
     )
 
 
-def stream_policy(args: argparse.Namespace, default: str | None) -> tuple[str | None, float | None]:
-    """``(policy, min_baseline)`` for :class:`~cosemdepth.inference.policy.Streamer` from ``--policy`` /
-    ``--min-baseline``; ``default`` when ``--policy`` is not given (None: baseline when the model records its training
-    motion, else every-frame). A ConfigError for a negative or non-finite ``--min-baseline``, or one given with
-    ``--policy every-frame``."""
-    mb = args.min_baseline
-    if mb is not None and not 0 <= mb < float("inf"):
-        raise ConfigError(f"--min-baseline must be a number of metres >= 0, got {mb}")
-    policy = args.policy if args.policy is not None else (BASELINE if mb is not None else default)
-    if mb is not None and policy == EVERY_FRAME:
-        raise ConfigError(
-            f"--min-baseline applies to --policy {BASELINE}, not {EVERY_FRAME} (which estimates every "
-            "frame from the previous one)"
-        )
-    return policy, mb
-
-
 def add_run_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-frames",
@@ -297,17 +250,19 @@ def add_run_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--trajectories-per-batch",
         type=positive_int,
-        default=1,
+        default=RUN_DEFAULTS.lanes,
         metavar="B",
         dest="lanes",
-        help="stream B trajectories at once as one batch, with per-sample resets (default 1, as the original)",
+        help=f"stream B trajectories at once as one batch, with per-sample resets (default {RUN_DEFAULTS.lanes}, as "
+        "the original)",
     )
     parser.add_argument(
         "--workers",
         type=int,
-        default=0,
+        default=RUN_DEFAULTS.workers,
         metavar="N",
-        help=f"data-loading worker processes (default 0: in the main process; at most {WORKERS_PER_CORE} per CPU core)",
+        help=f"data-loading worker processes (default {RUN_DEFAULTS.workers}: in the main process; at most "
+        f"{WORKERS_PER_CORE} per CPU core)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_jpeg_idct_arg(parser)
@@ -324,78 +279,6 @@ def add_jpeg_idct_arg(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def load(model_path, device_name: str, fast: bool = True, precision: str = "fp32"):
-    """``(model, device)``: the model at ``model_path`` on the device named ``device_name``, in eval mode: a
-    :class:`~cosemdepth.inference.FastModel` in ``precision`` (``--precision``), or with ``fast`` False
-    (``--reference``) the :class:`~cosemdepth.models.SceneModel`."""
-    if precision not in PRECISION_DTYPES:
-        raise ConfigError(f"--precision must be one of {list(PRECISION_DTYPES)}, got {precision!r}")
-    if not fast and precision != "fp32":
-        raise ConfigError(f"--precision {precision} is a setting of the fast path: drop --reference (which runs fp32)")
-    device = resolve_device(device_name)
-    model = load_model(model_path, device=device, mode="reference")
-    if not fast:
-        return model, device
-    try:
-        return FastModel(model, PRECISION_DTYPES[precision]), device
-    except ValueError as e:
-        raise ConfigError(f"--precision {precision}: {e}") from None
-
-
-def open_split(args: argparse.Namespace, size, calibration=None):
-    """Open ``args.dataset`` / ``args.root`` / ``args.split_dir`` / ``args.split`` for streaming (seq_len 1);
-    ``calibration``: a lens file for the readers that take one (Mid-Air, SynthAir)."""
-    check_workers(args.workers)
-    check_split_dir(args)
-    return open_dataset(
-        args.dataset,
-        args.root,
-        split_dir=args.split_dir,
-        split=args.split,
-        seq_len=1,
-        size=size,
-        jpeg_idct=args.jpeg_idct,
-        **({} if calibration is None else {"calibration": calibration}),
-    )
-
-
-def check_split_dir(args: argparse.Namespace) -> None:
-    """A ConfigError naming ``--split-dir`` (and how to make one) when ``args.dataset`` has no default split folder
-    and none is given."""
-    spec = DATASETS.get(args.dataset)
-    if args.split_dir is None and spec is not None and spec.needs_split_dir and spec.split_dir is None:
-        raise ConfigError(
-            f"--dataset {args.dataset} needs --split-dir D, the folder of its split files "
-            f"(<split>_data/**/*.csv); write them with: cosemdepth splits {args.dataset} ROOT D"
-        )
-
-
-def frame_size(dataset) -> tuple[int, int] | None:
-    """``(H, W)`` of the frames ``dataset`` feeds the model: its loader's output size, else (native size) the first
-    image's, from its header; None if neither is known."""
-    size = as_size(getattr(dataset.load_frame, "size", None))
-    if size is None and dataset.trajectories and len(dataset.trajectories[0]):
-        rgb = getattr(dataset.trajectories[0].frame(0), "rgb", None)
-        if isinstance(rgb, (str, Path)):
-            size = image_size(rgb)
-    return size
-
-
-def check_run_size(model, dataset, device, batch: int = 1) -> None:
-    """The size check of the commands that stream a dataset (:func:`cosemdepth.models.footprint.check_size` at the
-    dataset's frame size, ``batch`` trajectories at once), before the first frame is read."""
-    size = frame_size(dataset)
-    batch = max(min(batch, len(dataset.trajectories)), 1)  # a batch holds at most one lane per trajectory
-    if size is not None:
-        check_size(
-            reference_model(model),
-            *size,
-            device=device,
-            batch=batch,
-            what="--size" if batch == 1 else "--size/--trajectories-per-batch",
-        )
-
-
 __all__ = [
     "add_device_args",
     "add_model_args",
@@ -407,18 +290,9 @@ __all__ = [
     "add_run_args",
     "add_split_args",
     "apply_threads",
-    "check_run_size",
-    "check_split_dir",
-    "frame_size",
-    "input_size",
-    "load",
     "load_or_build",
-    "model_operating_point",
     "model_size_pair",
-    "open_split",
     "parse_size",
     "parse_size_pair",
     "positive_int",
-    "stream_policy",
-    "warn_far_size",
 ]

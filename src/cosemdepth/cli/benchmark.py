@@ -29,6 +29,7 @@ from ..bench.runner import (
     run_separate,
     wait_for_idle,
 )
+from ..defaults import DEFAULT_DEVICE
 from ..devices import bf16_convolutions, no_bf16_reason, resolve_device
 from ..errors import ConfigError
 from ..models import build_model
@@ -75,7 +76,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "as by 'cosemdepth export --onnx' at --size and each --batch, run by ONNX Runtime's CPU "
         "provider with the state fed back (fp32; --threads intra-op threads)",
     )
-    parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (default auto: CUDA when present)")
+    parser.add_argument(
+        "--device",
+        default=DEFAULT_DEVICE,
+        help=f"cpu, cuda, cuda:N or auto (default {DEFAULT_DEVICE}: CUDA when present)",
+    )
     parser.add_argument("--no-reference", action="store_true", help="skip the reference-path (fp32, batch 1) rows")
     parser.add_argument("--no-joint", action="store_true", help="skip the joint-vs-separate comparison")
     parser.add_argument("--no-graph", action="store_true", help="on CUDA, skip the CUDA-graph rows")

@@ -20,8 +20,9 @@ from ..demo import (
     run_demo,
 )
 from ..errors import ConfigError
-from ..evaluation.visualize import DEFAULT_VIDEO, VIDEO_FORMATS
 from ..inference.policy import BASELINE, EVERY_FRAME
+from ..jobs.options import RunOptions
+from ..render.visualize import DEFAULT_VIDEO, VIDEO_FORMATS
 from ..synthair.writer import SUPERSAMPLES
 from ._shared import (
     add_device_args,
@@ -30,7 +31,6 @@ from ._shared import (
     add_reference_arg,
     apply_threads,
     positive_int,
-    stream_policy,
 )
 
 
@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
     apply_threads(args)
     if args.data_root is not None and args.data_dir is not None:
         raise ConfigError("give at most one of --data-root (use an existing dataset) and --data-dir (generate here)")
-    policy, min_baseline = stream_policy(args, None)
+    policy, min_baseline = RunOptions(policy=args.policy, min_baseline=args.min_baseline).stream_policy(None)
     run_demo(
         args.out,
         model=args.model,

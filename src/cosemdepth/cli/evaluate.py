@@ -14,31 +14,13 @@ into place together at the end; nothing is written if the run fails).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
 from pathlib import Path
 
-from ..data.registry import dataset_spec
-from ..evaluation.evaluator import evaluate
 from ..inference.policy import EVERY_FRAME
-from ..output_safety.outdir import Input, model_inputs
-from ..output_safety.staging import OutputFiles
-from ._shared import (
-    add_model_args,
-    add_policy_args,
-    add_run_args,
-    add_split_args,
-    apply_threads,
-    check_run_size,
-    input_size,
-    load,
-    model_operating_point,
-    open_split,
-    parse_size,
-    size_help,
-    stream_policy,
-    warn_far_size,
-)
+from ..jobs.evaluate import EvaluateOptions, run_evaluate
+from ._options import model_options, run_options, split_options
+from ._shared import add_model_args, add_policy_args, add_run_args, add_split_args, parse_size, size_help
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -64,53 +46,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_run_args(parser)
 
 
+def options(args: argparse.Namespace) -> EvaluateOptions:
+    """The :class:`~cosemdepth.jobs.evaluate.EvaluateOptions` of the parsed arguments."""
+    run = run_options(args)
+    return EvaluateOptions(source=split_options(args), model=model_options(args), run=run, out=args.out)
+
+
 def run(args: argparse.Namespace) -> int:
-    apply_threads(args)
-    policy, min_baseline = stream_policy(args, EVERY_FRAME)
-    inputs = [
-        *model_inputs(args.model),
-        Input("--root", args.root),
-        Input("--split-dir", args.split_dir) if args.split_dir is not None else None,
-        Input("--calibration", args.calibration) if args.calibration is not None else None,
-    ]
-    files_ctx = (
-        OutputFiles(args.out, "--out folder", command="evaluate", names=("metrics.json", "metrics.md"), inputs=inputs)
-        if args.out
-        else contextlib.nullcontext()
-    )
-    with files_ctx as files:
-        op = model_operating_point(args.model)
-        dataset = open_split(args, input_size(args.size, op), calibration=args.calibration)
-        warn_far_size(op, args.size, dataset)
-        model, device = load(args.model, args.device, fast=not args.reference, precision=args.precision)
-        check_run_size(model, dataset, device, args.lanes)
-        result = evaluate(
-            model,
-            dataset,
-            lanes=args.lanes,
-            max_frames=args.max_frames,
-            num_workers=args.workers,
-            progress=not args.no_progress and sys.stderr.isatty(),
-            dataset_name=args.dataset,
-            policy=policy,
-            min_baseline=min_baseline,
-        )
-        result.info["model"].update(path=str(args.model), name=Path(str(args.model)).name)
-        result.info["dataset"].update(
-            root=str(args.root),
-            split=args.split or dataset_spec(args.dataset).split,
-            split_dir=None if args.split_dir is None else str(args.split_dir),
-        )
-        if getattr(dataset, "calibration", None):
-            result.info["dataset"]["undistortion"] = dataset.calibration
-        text = result.to_markdown()
-        print(text)
-        no_depth = result.depth_warning()
-        if no_depth:
-            print(f"cosemdepth evaluate: warning: {no_depth}", file=sys.stderr)
-        if files is not None:
-            files.add_text("metrics.json", result.to_json())
-            files.add_text("metrics.md", text)
-    if args.out:
-        print(f"wrote {Path(args.out) / 'metrics.json'} and {Path(args.out) / 'metrics.md'}")
+    result = run_evaluate(options(args))
+    for line in result.lines:
+        print(line)
+    for line in result.warnings:
+        print(line, file=sys.stderr)
     return 0

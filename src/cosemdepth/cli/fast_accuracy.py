@@ -36,15 +36,14 @@ from ..checkpoints.model_io import load_model
 from ..data import open_dataset
 from ..data.registry import dataset_spec
 from ..devices import resolve_device
+from ..jobs.model import input_size, model_operating_point
 from ..optional import require
 from ..output_safety.outdir import Input, check_output_file, model_inputs, record_output_file
+from ._options import split_options
 from ._shared import (
     add_device_args,
     add_split_args,
     apply_threads,
-    check_split_dir,
-    input_size,
-    model_operating_point,
     parse_size,
     positive_int,
     size_help,
@@ -125,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         Input("--calibration-root", args.calibration_root) if args.calibration_root is not None else None,
     ]
     check_output_file(args.out, what="--out file", inputs=inputs, recognize=_is_ours)
-    check_split_dir(args)
+    split_options(args).check_split_dir()
     if any(MODES[m][0] == "onnx" for m in args.modes):
         require("onnx", "fast-accuracy --modes onnx-*")
         require("onnxruntime", "fast-accuracy --modes onnx-*")

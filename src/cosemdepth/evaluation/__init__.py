@@ -1,4 +1,4 @@
-"""Evaluation: the test protocol (:mod:`~cosemdepth.evaluation.evaluator`), ``predict``, the fidelity check against
+"""Evaluation: the test protocol (:mod:`~cosemdepth.evaluation.evaluator`), the fidelity check against
 the TF reference; the metrics it reports are in :mod:`cosemdepth.measures`.
 
 Attributes are imported lazily (importing the package loads none of its modules)."""
@@ -11,10 +11,8 @@ _LAZY = {
     "evaluate": ".evaluator",
     "compare_with_reference": ".fidelity",
     "class_info": "cosemdepth.measures.classes",
-    "open_fixture": ".tfref_fixture",
     "DepthMetrics": "cosemdepth.measures.metrics",
     "ValidDepthMetrics": "cosemdepth.measures.metrics",
-    "colorize_labels": ".visualize",
 }
 
 __getattr__ = _lazy_getattr(__name__, _LAZY)

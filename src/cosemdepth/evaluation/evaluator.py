@@ -35,7 +35,7 @@ import math
 import re
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable
+from typing import Any, Iterable
 
 import torch
 from tqdm.auto import tqdm
@@ -46,12 +46,13 @@ from ..errors import ConfigError
 from ..inference.policy import EVERY_FRAME, Streamer, policy_info
 from ..measures.metrics import ALL_DEPTH_METRICS, format_markdown_table
 from ..models.outputs import ESTIMATED, HELD
+from ..models.protocol import StreamingModel, model_config
+from ..streaming import pipeline
+from ..streaming.frames import Sink, StreamBatch
+from ..streaming.sinks.metrics import MetricsSink
+from ..streaming.sources.dataset import DatasetSource, make_schedule, trajectory_rows
 from ..tasks import TASKS, TEST, MetricContext, tasks_for
 from .resources import PeakMemory, machine_info
-from .streaming import StreamBatch, make_schedule, stream, trajectory_rows
-
-#: Callback run after every streaming step: ``(batch, include [B] bool) -> None``.
-FrameCallback = Callable[[StreamBatch, torch.Tensor], None]
 
 
 def dataset_ground_truth(dataset) -> set[str]:
@@ -71,15 +72,6 @@ def dataset_modalities(dataset) -> tuple[bool, bool]:
     """``(has_depth, has_labels)`` of a sequence dataset (from its trajectories, else from its first item)."""
     found = dataset_ground_truth(dataset)
     return "depth" in found, "semantic" in found
-
-
-def _model_config(model):
-    cfg = getattr(model, "config", None)
-    if cfg is None or not hasattr(cfg, "decoders"):
-        raise ConfigError(
-            f"evaluate needs a cosemdepth model with a ModelConfig in .config, got {type(model).__name__}"
-        )
-    return cfg
 
 
 def _finite_or_none(x: Any) -> Any:
@@ -262,7 +254,7 @@ class Evaluator:
 
     def __init__(
         self,
-        model,
+        model: StreamingModel,
         dataset,
         *,
         lanes: int = 1,
@@ -271,7 +263,7 @@ class Evaluator:
         exclude_resets: bool | None = None,
         warmup: int = 2,
         progress: bool = False,
-        callbacks: Iterable[FrameCallback] = (),
+        sinks: Iterable[Sink] = (),
         dataset_name: str | None = None,
         policy=EVERY_FRAME,
         min_baseline: float | None = None,
@@ -280,13 +272,13 @@ class Evaluator:
         self.policy = policy
         self.min_baseline = min_baseline
         self.dataset = dataset
-        self.cfg = _model_config(model)
+        self.cfg = model_config(model, "evaluate")
         self.lanes = lanes
         self.max_frames = max_frames
         self.num_workers = num_workers
         self.warmup = max(int(warmup), 0)
         self.progress = progress
-        self.callbacks = list(callbacks)
+        self.sinks = list(sinks)
         self.dataset_name = dataset_name or getattr(dataset, "name", None) or ""
         self.groups = trajectory_rows(dataset, max_frames)
         self.schedule = make_schedule(self.groups, lanes)
@@ -315,36 +307,37 @@ class Evaluator:
     def num_frames(self) -> int:
         return sum(len(s.indices) for s in self.schedule)
 
+    def include(self, batch: StreamBatch) -> torch.Tensor:
+        """``[B]`` bool: the frames of ``batch`` the metrics count (the test protocol leaves the frames that start a
+        trajectory out, unless every frame is a reset: :attr:`exclude_resets`)."""
+        return ~batch.reset if self.exclude_resets else torch.ones_like(batch.reset)
+
     def run(self) -> EvaluationResult:
         context = MetricContext(TEST, self.cfg, self.dataset_name, frozenset(self.ground_truth), self.exclude_resets)
         metrics = {t.name: t.metrics(context) for t in self.tasks}
         streamer = Streamer(self.model, self.policy, min_baseline=self.min_baseline)
         device = next((p.device for p in self.model.parameters()), torch.device("cpu"))
-        timed_seconds = 0.0
-        timed_frames = 0
-        frames = evaluated = resets = 0
         start = time.perf_counter()
         bar = tqdm(total=self.num_frames, unit="frame", desc="evaluate", disable=not self.progress, leave=False)
+
+        def step_done(batch: StreamBatch, ms: float | None) -> None:
+            bar.update(len(batch))
+            if ms is not None:
+                bar.set_postfix(ms_per_frame=f"{ms:.1f}", refresh=False)
+
+        counts = MetricsSink(metrics, self.include, warmup=self.warmup, steps=len(self.schedule), progress=step_done)
         with PeakMemory(device) as mem:
-            for k, batch in enumerate(
-                stream(streamer, self.dataset, schedule=self.schedule, num_workers=self.num_workers)
-            ):
-                include = ~batch.reset if self.exclude_resets else torch.ones_like(batch.reset)
-                for m in metrics.values():
-                    m.update(batch, include)
-                for cb in self.callbacks:
-                    cb(batch, include)
-                n = len(batch)
-                frames += n
-                evaluated += int(include.sum())
-                resets += int(batch.reset.sum())
-                if k >= self.warmup or len(self.schedule) <= self.warmup:
-                    timed_seconds += batch.seconds
-                    timed_frames += n
-                bar.update(n)
-                if timed_frames:
-                    bar.set_postfix(ms_per_frame=f"{1000 * timed_seconds / timed_frames:.1f}", refresh=False)
+            pipeline.run(
+                DatasetSource(self.dataset),
+                streamer,
+                [counts, *self.sinks],
+                lanes=self.lanes,
+                max_frames=self.max_frames,
+                num_workers=self.num_workers,
+            )
         bar.close()
+        timed_seconds, timed_frames = counts.timed_seconds, counts.timed_frames
+        frames, evaluated, resets = counts.frames, counts.evaluated, counts.resets
         wall = time.perf_counter() - start
         values: dict[str, Any] = {}
         for m in metrics.values():
@@ -406,7 +399,7 @@ def _dataset_size(ds) -> list[int] | None:
     return [int(s) for s in size] if isinstance(size, (tuple, list)) else [int(size), int(size)]
 
 
-def evaluate(model, dataset, **options: Any) -> EvaluationResult:
+def evaluate(model: StreamingModel, dataset, **options: Any) -> EvaluationResult:
     """Evaluate ``model`` on ``dataset`` with the test protocol (see the module docstring).
 
     The keyword-only options are those of :class:`Evaluator` (one signature, shown as this function's).
@@ -425,7 +418,8 @@ def evaluate(model, dataset, **options: Any) -> EvaluationResult:
             ``valid_*`` metrics and ``coverage`` the pixels the prediction marks valid.
         warmup: streaming steps left out of the timing.
         progress: show a progress bar (tqdm, on stderr).
-        callbacks: ``f(batch, include)`` run after every streaming step (e.g. writers, baselines).
+        sinks: further :class:`~cosemdepth.streaming.frames.Sink` objects fed every streaming step after the
+            metrics (writers, baselines; :meth:`Evaluator.include` says which frames the metrics count).
         dataset_name: dataset name for class names/palette and class-count checks (default ``dataset.name``).
     Returns:
         :class:`EvaluationResult`.

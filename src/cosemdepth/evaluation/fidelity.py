@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from ..inference.fast_model import reference_model
+from ..models.protocol import StreamingModel
 
 #: our level-map name -> fixture suffix
 LEVEL_KEYS = {
@@ -60,7 +61,7 @@ def inputs_from_reference(ref: Any) -> dict[str, torch.Tensor]:
 
 
 @torch.no_grad()
-def compare_with_reference(model, fixture: str | Path) -> dict[str, Any]:
+def compare_with_reference(model: StreamingModel, fixture: str | Path) -> dict[str, Any]:
     """Run ``model`` on a fixture's inputs (streaming, training mode, encoder) and compare every output; a
     :class:`~cosemdepth.inference.FastModel` streams on the fast path, its model's modules run the training mode.
 

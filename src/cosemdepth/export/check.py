@@ -33,7 +33,9 @@ import torch
 from ..data.midair.splits import GT_PER_ROW, relative_motions
 from ..errors import ConfigError
 from ..inference.fast_model import reference_model
+from ..models.model import SceneModel
 from ..models.outputs import StreamState
+from ..models.protocol import StreamingModel
 from ..synthair.climate import get_climate
 from ..synthair.render import render_frames
 from ..synthair.world import get_world
@@ -289,7 +291,7 @@ class OnnxComparison:
         return "\n".join(rows)
 
 
-def noise_model(model):
+def noise_model(model: SceneModel) -> SceneModel:
     """A copy of ``model`` (reference modules, float32) that computes the same step with another order of the
     floating-point operations: its weights channels-last (oneDNN then takes its NHWC convolution kernels, which block
     and sum the products differently; :func:`compare_onnx` feeds it channels-last inputs and state) and DINL's two
@@ -320,7 +322,7 @@ def run_onnx_stream(session, inputs: dict[str, np.ndarray], state: list[np.ndarr
 
 
 def compare_onnx(
-    model,
+    model: StreamingModel,
     path: str | Path,
     frames: int = CHECK_FRAMES,
     reset_at: int | None = None,

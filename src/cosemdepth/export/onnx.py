@@ -27,7 +27,9 @@ import torch.nn as nn
 from ..errors import ConfigError
 from ..inference.fast_model import reference_model
 from ..models.config import MIDAIR_IMAGE_SIZE
+from ..models.model import SceneModel
 from ..models.outputs import StreamState
+from ..models.protocol import StreamingModel
 from ..output_safety.atomic import atomic_path
 from .provenance import ONNX_MARK, provenance, stamp
 
@@ -61,7 +63,7 @@ def state_components(names) -> tuple[str, ...]:
     return tuple(comps)
 
 
-def state_shapes(model, batch: int, height: int, width: int) -> list[tuple[int, ...]]:
+def state_shapes(model: StreamingModel, batch: int, height: int, width: int) -> list[tuple[int, ...]]:
     """Shapes of the flattened state for a ``batch x 3 x height x width`` input (empty for M4Semantic)."""
     return [s for comp in model.state_shapes(batch, height, width).values() for s in comp]
 
@@ -70,7 +72,7 @@ class StreamingStep(nn.Module):
     """``forward(rgb, rot, trans, intrinsics, reset, *state) -> (depth?, semantic?, *next_state)``, a pure function of
     its inputs: :meth:`SceneModel.step` with the state flattened, in static mode."""
 
-    def __init__(self, model, reset_float: bool = False):
+    def __init__(self, model: SceneModel, reset_float: bool = False):
         super().__init__()
         self.model = model
         self.reset_float = reset_float
@@ -108,7 +110,7 @@ class StreamingStep(nn.Module):
 
 
 def export_onnx(
-    model,
+    model: StreamingModel,
     path: str | Path,
     height: int = MIDAIR_IMAGE_SIZE,
     width: int = MIDAIR_IMAGE_SIZE,
@@ -184,7 +186,7 @@ def is_our_onnx(path: str | Path) -> bool:
 
 
 @contextlib.contextmanager
-def _frozen_for_export(model):
+def _frozen_for_export(model: SceneModel):
     """Eval mode, static numerics, float32 on CPU; everything restored on exit."""
     p = next(model.parameters())
     device, dtype, training = p.device, p.dtype, model.training

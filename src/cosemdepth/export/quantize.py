@@ -28,6 +28,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..inference.engine import FLOAT32_FROM_LEVEL, INT8_KEEP_FLOAT
 from ..inference.fast_model import reference_model
+from ..models.protocol import StreamingModel
 from ..output_safety.atomic import atomic_path
 from .provenance import PRECISION, stamp
 from .runtime import OnnxStep
@@ -41,7 +42,7 @@ _REFINER_WEIGHT = re.compile(
 
 
 def int8_weights(
-    model,
+    model: StreamingModel,
     keep_float: Optional[dict[str, tuple[int, ...]]] = None,
     float32_from_level: Optional[dict[str, int]] = None,
 ) -> set[str]:
@@ -108,7 +109,7 @@ def _reader(feeds: Sequence[dict]):
 
 
 def quantize_onnx(
-    model, src: str | Path, dst: str | Path, frames: Iterable[tuple], threads: Optional[int] = None
+    model: StreamingModel, src: str | Path, dst: str | Path, frames: Iterable[tuple], threads: Optional[int] = None
 ) -> Path:
     """Write ``dst``: the float32 graph ``src`` (exported from ``model`` by :func:`export_onnx`; refused otherwise)
     with the int8 policy's convolutions quantised, calibrated on ``frames`` (see :func:`calibration_feeds`). Written

@@ -9,13 +9,18 @@ state fed back as the graph's ``state_*`` inputs (zeros when ``state`` is None).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Iterator, Optional, Sequence
 
 import numpy as np
 import torch
 
 from ..errors import ConfigError
+from ..models.config import ModelConfig
+from ..models.infer import infer_sequence
+from ..models.model import SceneModel
 from ..models.outputs import StepOutput, StreamState
+from ..models.protocol import StreamingModel
+from ..operating_point import OperatingPoint
 from .onnx import state_components
 from .provenance import PRECISION, check_model, read_provenance
 
@@ -57,7 +62,7 @@ class OnnxStep:
         providers: Optional[Sequence] = None,
         threads: Optional[int] = None,
         profile_prefix: Optional[str] = None,
-        model=None,
+        model: Optional[StreamingModel] = None,
         provenance: bool = True,
     ):
         try:
@@ -87,7 +92,7 @@ class OnnxStep:
         self._state_shapes = [tuple(i.shape) for i in ins if i.name.startswith("state_")]
         self.components = state_components(self.state_inputs)
 
-    def check_model(self, model, model_name: str = "the model") -> None:
+    def check_model(self, model: StreamingModel, model_name: str = "the model") -> None:
         """Refuse, in one line naming the file and what differs, a graph not exported from ``model`` (its
         architecture, config and weights; :func:`~cosemdepth.export.provenance.check_model`)."""
         if self.provenance is None:  # opened without it: a model's graph must have it all the same
@@ -140,7 +145,8 @@ class OnnxStep:
         reset: Optional[torch.Tensor] = None,
         state: Optional[StreamState] = None,
     ):
-        """One frame per sample, shapes as :meth:`SceneModel.step`; returns ``(StepOutput, StreamState)``."""
+        """The streaming step of :class:`~cosemdepth.models.protocol.StreamingModel` on numpy's side of the graph
+        (``decoders`` and ``guide_depth`` are :class:`OnnxModel`'s); returns ``(StepOutput, StreamState)``."""
         b = int(rgb.shape[0])
         want = tuple(s if s is not None else d for s, d in zip(self.shape, rgb.shape))
         if tuple(rgb.shape) != want:
@@ -175,32 +181,60 @@ class OnnxModel:
     :meth:`SceneModel.step`.
 
     Args:
-        model: the PyTorch model the graph was exported from (its config and operating point are read); a graph
-            exported from another architecture, config or weights is refused (:meth:`OnnxStep.check_model`).
+        model: the PyTorch model the graph was exported from (its config and operating point are read; its modules
+            are the reference path, :attr:`model`); a graph exported from another architecture, config or weights is
+            refused (:meth:`OnnxStep.check_model`).
         step: an :class:`OnnxStep` over the graph.
         model_name: how error messages name ``model`` (e.g. ``"--model weights/x"``).
     """
 
-    def __init__(self, model, step: OnnxStep, model_name: str = "the model"):
+    def __init__(self, model: SceneModel, step: OnnxStep, model_name: str = "the model"):
         step.check_model(model, model_name)
         self.model = model
         self.onnx = step
         # the state components each decoder owns (the components of a graph's state are those of the model's)
         self._owned = {name: tuple(dec.state_shapes(1, 32, 32)) for name, dec in model.decoders.items()}
 
-    def __getattr__(self, name):  # config, operating_point, parameters()...: the model's
-        return getattr(self.model, name)
+    # ------------------------------------------------------------------ what the model is
+    @property
+    def config(self) -> ModelConfig:
+        return self.model.config
 
+    @property
+    def decoders(self) -> dict:
+        return self.model.decoders
+
+    @property
+    def operating_point(self) -> Optional[OperatingPoint]:
+        return self.model.operating_point
+
+    def parameters(self) -> Iterator[torch.nn.Parameter]:
+        """The model's parameters (on the CPU, where the graph runs)."""
+        return self.model.parameters()
+
+    def num_parameters(self) -> int:
+        return self.model.num_parameters()
+
+    def state_shapes(self, batch: int, height: int, width: int) -> dict[str, list[tuple[int, ...]]]:
+        return self.model.state_shapes(batch, height, width)
+
+    # ------------------------------------------------------------------ streaming
     def step(
         self,
-        rgb,
-        rot,
-        trans,
-        intrinsics,
-        reset=None,
+        rgb: torch.Tensor,
+        rot: torch.Tensor,
+        trans: torch.Tensor,
+        intrinsics: torch.Tensor,
+        reset: Optional[torch.Tensor] = None,
         state: Optional[StreamState] = None,
         decoders: Optional[Sequence[str]] = None,
-    ):
+        guide_depth: Optional[torch.Tensor] = None,
+    ) -> tuple[StepOutput, StreamState]:
+        """The streaming step of :class:`~cosemdepth.models.protocol.StreamingModel` by the graph (which computes
+        every decoder; a call asked for a subset returns the others' state as it came in; a model that reads a
+        ground-truth depth cannot be exported, so ``guide_depth`` is refused)."""
+        if guide_depth is not None:
+            raise ValueError("argument guide_depth: an exported graph takes no ground-truth depth")
         out, new = self.onnx.step(rgb, rot, trans, intrinsics, reset, state)
         if decoders is None or state is None or not state.flatten():
             return out, new
@@ -209,6 +243,21 @@ class OnnxModel:
             k: (state.components[k] if k in keep and k in state.components else v) for k, v in new.components.items()
         }
         return out, StreamState(**comps)
+
+    @torch.no_grad()
+    def infer(
+        self,
+        frames,
+        motions,
+        intrinsics,
+        reset: Optional[torch.Tensor] = None,
+        guide_depth: Optional[torch.Tensor] = None,
+    ) -> StepOutput:
+        """A whole sequence, :meth:`StreamingModel.infer <cosemdepth.models.protocol.StreamingModel.infer>`: the
+        graph in a loop."""
+        return infer_sequence(
+            self.step, frames, motions, intrinsics, reset, guide_depth, device=torch.device("cpu"), dtype=torch.float32
+        )
 
 
 __all__ = ["OnnxModel", "OnnxStep"]

@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Optional
+from typing import Optional, Sequence
 
 import torch
 import torch.nn.functional as F
 
 from ..devices import bf16_convolutions, no_bf16_reason, onednn_enabled
+from ..models.model import SceneModel
 from ..models.outputs import StepOutput, StreamState
 from ..models.pyramid import LevelOps, PyramidLevel, decode_step
 from ..ops.concat import write_blocks
@@ -161,7 +162,7 @@ class FastEngine:
 
     def __init__(
         self,
-        model,
+        model: SceneModel,
         dtype: torch.dtype | str = torch.float32,
         device: torch.device | str | None = None,
         static: bool = False,
@@ -296,10 +297,11 @@ class FastEngine:
         intrinsics: torch.Tensor,
         reset: Optional[torch.Tensor] = None,
         state: Optional[StreamState] = None,
-        decoders=None,
+        decoders: Optional[Sequence[str]] = None,
         guide_depth: Optional[torch.Tensor] = None,
     ) -> tuple[StepOutput, StreamState]:
-        """Same contract as :meth:`SceneModel.step` (inputs are moved to the engine's device)."""
+        """The streaming step of :class:`~cosemdepth.models.protocol.StreamingModel` (inputs are moved to the
+        engine's device; no input checks: :class:`~cosemdepth.inference.FastModel` makes them)."""
         dev = self.device
         rot, trans, intrinsics = (t.to(dev, torch.float32) for t in (rot, trans, intrinsics))
         if reset is not None:

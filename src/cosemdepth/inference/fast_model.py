@@ -19,6 +19,7 @@ import torch
 from ..models.infer import infer_sequence
 from ..models.model import SceneModel
 from ..models.outputs import StepOutput, StreamState
+from ..models.protocol import StreamingModel
 from .engine import FastEngine
 
 
@@ -112,17 +113,24 @@ class FastModel:
         decoders: Optional[Sequence[str]] = None,
         guide_depth: Optional[torch.Tensor] = None,
     ) -> tuple[StepOutput, StreamState]:
-        """One frame per sample: the contract of :meth:`SceneModel.step <cosemdepth.models.SceneModel.step>` (the
-        same input checks, outputs and state; states of the two paths are interchangeable)."""
+        """The streaming step of :class:`~cosemdepth.models.protocol.StreamingModel` (the model's input checks,
+        outputs and state; states of the two paths are interchangeable)."""
         self.model.check_step(rgb, rot, trans, intrinsics, reset, decoders, guide_depth)
         if decoders is not None and not decoders:  # nothing to run: the state passes through
             return StepOutput(), state if state is not None else StreamState()
         return self.engine.step(rgb, rot, trans, intrinsics, reset, state, decoders=decoders, guide_depth=guide_depth)
 
     @torch.no_grad()
-    def infer(self, frames, motions, intrinsics, reset=None, guide_depth=None) -> StepOutput:
-        """A whole sequence, as :meth:`SceneModel.infer <cosemdepth.models.SceneModel.infer>`: :meth:`step` in a
-        loop."""
+    def infer(
+        self,
+        frames,
+        motions,
+        intrinsics,
+        reset: Optional[torch.Tensor] = None,
+        guide_depth: Optional[torch.Tensor] = None,
+    ) -> StepOutput:
+        """A whole sequence, :meth:`StreamingModel.infer <cosemdepth.models.protocol.StreamingModel.infer>`: :meth:`step`
+        in a loop."""
         return infer_sequence(
             self.step, frames, motions, intrinsics, reset, guide_depth, device=self.device, dtype=torch.float32
         )
@@ -131,10 +139,13 @@ class FastModel:
         return f"FastModel({self.config.arch}, dtype={self.dtype}, device={self.device})"
 
 
-def reference_model(model) -> SceneModel:
-    """The :class:`~cosemdepth.models.SceneModel` whose modules ``model`` runs: a :class:`FastModel`'s model, or
-    ``model`` itself."""
-    return model.model if isinstance(model, FastModel) else model
+def reference_model(model: StreamingModel) -> SceneModel:
+    """The :class:`~cosemdepth.models.SceneModel` whose modules ``model`` runs: ``model`` itself, or the ``model`` of
+    a wrapper (a :class:`FastModel`, an ONNX Runtime model, a :class:`~cosemdepth.inference.Streamer`), through
+    every layer; a stand-in without either is returned as it is."""
+    while not isinstance(model, SceneModel) and getattr(model, "model", None) is not None:
+        model = model.model
+    return model
 
 
 __all__ = ["FastModel", "reference_model", "weights_version"]

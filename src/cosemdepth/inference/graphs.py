@@ -15,6 +15,7 @@ from typing import Optional
 
 import torch
 
+from ..models.model import SceneModel
 from ..models.outputs import StepOutput, StreamState
 from .engine import FastEngine
 
@@ -31,7 +32,9 @@ class StaticStreamer:
     buffers start as zeros). Outputs are views of static buffers, overwritten by the next call: clone them to keep.
     """
 
-    def __init__(self, engine, batch: int, height: int, width: int, use_graph: Optional[bool] = None, warmup: int = 3):
+    def __init__(
+        self, engine: FastEngine, batch: int, height: int, width: int, use_graph: Optional[bool] = None, warmup: int = 3
+    ):
         if not engine.static:
             raise ValueError("StaticStreamer needs an engine built with static=True")
         dev = engine.device
@@ -88,7 +91,9 @@ class StaticStreamer:
         intrinsics: torch.Tensor,
         reset: Optional[torch.Tensor] = None,
     ) -> StepOutput:
-        """One frame per sample (shapes as :meth:`SceneModel.step`, batch and size as given at construction)."""
+        """One frame per sample: the streaming step of :class:`~cosemdepth.models.protocol.StreamingModel` without
+        ``state`` (it lives in the static buffers; :meth:`current_state`), ``decoders`` or ``guide_depth``; batch and
+        size as given at construction. Returns the outputs only."""
         if tuple(rgb.shape) != self.shape:
             raise ValueError(
                 f"argument rgb must have shape {list(self.shape)} (fixed at construction), got {list(rgb.shape)}"
@@ -113,7 +118,9 @@ class StaticStreamer:
         return StreamState(**{k: tuple(t.clone() for t in v) for k, v in self.state.components.items()})
 
 
-def make_streamer(model, batch: int, height: int, width: int, dtype=torch.float32, device=None, **kw) -> StaticStreamer:
+def make_streamer(
+    model: SceneModel, batch: int, height: int, width: int, dtype=torch.float32, device=None, **kw
+) -> StaticStreamer:
     """A :class:`StaticStreamer` over a static :class:`FastEngine` of ``model`` (CUDA graph on GPU)."""
     engine = FastEngine(model, dtype=dtype, device=device, static=True)
     return StaticStreamer(engine, batch, height, width, **kw)

@@ -32,16 +32,21 @@ output carries ``valid`` (the depth pixels that are estimates), ``status`` and `
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Optional, Sequence
+from typing import Iterator, Optional, Sequence
 
 import torch
 
+from ..defaults import DEPTH_CAP_M, MIN_DEPTH_M
 from ..errors import ConfigError
 from ..geometry.motion import baseline, compose_motion, identity_motion
 from ..geometry.overlap import view_overlap
 from ..geometry.reproject import carry_depth
 from ..geometry.validity import MAX_CONDITIONING, depth_validity
+from ..models.config import ModelConfig
+from ..models.infer import infer_sequence
 from ..models.outputs import ESTIMATED, HELD, RESET, StepOutput, StreamState
+from ..models.protocol import StreamingModel, model_device
+from ..operating_point import OperatingPoint
 
 #: The two streaming policies: ``baseline`` estimates against a reference frame at least ``min_baseline`` away,
 #: ``every-frame`` estimates every frame from the previous one (the paper's protocol).
@@ -61,7 +66,7 @@ MAX_LOG_RATIO = 0.7
 MIN_OVERLAP = 0.9
 #: Depths compared by the consistency check are clipped to this range (metres): beyond FAR_DEPTH both are "far"
 #: (the evaluation's cap, design 10.1).
-MIN_DEPTH, FAR_DEPTH = 1e-3, 80.0
+MIN_DEPTH, FAR_DEPTH = MIN_DEPTH_M, DEPTH_CAP_M
 
 
 @dataclass(frozen=True)
@@ -101,7 +106,7 @@ class StreamPolicy:
             raise ConfigError(f"min_overlap must be a fraction in [0, 1], got {self.min_overlap!r}")
 
 
-def default_min_baseline(model) -> float | None:
+def default_min_baseline(model: StreamingModel) -> float | None:
     """The ``min_baseline`` (metres) of ``model``: 0.75 x the 5th percentile of its training steps' translations, from its
     ``operating_point``; None when the model folder does not record them."""
     op = getattr(model, "operating_point", None)
@@ -147,18 +152,23 @@ def _where(mask: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor
 
 
 class Streamer:
-    """Stream frames through ``model`` under a :class:`StreamPolicy`; ``step`` has the contract of
-    :meth:`SceneModel.step <cosemdepth.models.SceneModel.step>` with a :class:`StreamerState`.
+    """Stream frames through ``model`` under a :class:`StreamPolicy`; ``step`` is the streaming step of
+    :class:`~cosemdepth.models.protocol.StreamingModel` with a :class:`StreamerState` (the policy chooses the decoders
+    each frame runs, so it takes no ``decoders``). It describes itself as its model does (:attr:`config`,
+    :attr:`operating_point`, :meth:`parameters`; :attr:`decoders` their names).
 
     Args:
-        model: a :class:`~cosemdepth.models.SceneModel` (any inference path), or anything with its ``step``.
+        model: a :class:`~cosemdepth.models.protocol.StreamingModel` (any inference path), or a stand-in with its
+            ``step`` and ``config``.
         policy: a :class:`StreamPolicy`, or a mode name (``"baseline"``, ``"every-frame"``); None: ``baseline``
             when the model records the motion it was trained with (or ``min_baseline`` is given), else
             ``every-frame`` (whose validity mask still marks the frames without parallax).
         min_baseline: overrides the policy's ``min_baseline`` (metres).
     """
 
-    def __init__(self, model, policy: StreamPolicy | str | None = BASELINE, *, min_baseline: float | None = None):
+    def __init__(
+        self, model: StreamingModel, policy: StreamPolicy | str | None = BASELINE, *, min_baseline: float | None = None
+    ):
         if policy is None:
             policy = BASELINE if min_baseline is not None or default_min_baseline(model) is not None else EVERY_FRAME
         if isinstance(policy, str):
@@ -181,9 +191,20 @@ class Streamer:
                 )
         self.min_baseline = mb
 
-    def __getattr__(self, name):  # parameters(), config...: the model's
-        return getattr(self.model, name)
+    # ------------------------------------------------------------------ what the model is
+    @property
+    def config(self) -> ModelConfig:
+        return self.model.config
 
+    @property
+    def operating_point(self) -> Optional[OperatingPoint]:
+        return getattr(self.model, "operating_point", None)
+
+    def parameters(self) -> Iterator[torch.nn.Parameter]:
+        """The model's parameters."""
+        return self.model.parameters()
+
+    # ------------------------------------------------------------------ streaming
     def step(
         self,
         rgb: torch.Tensor,
@@ -192,14 +213,17 @@ class Streamer:
         intrinsics: torch.Tensor,
         reset: Optional[torch.Tensor] = None,
         state: Optional[StreamerState] = None,
+        guide_depth: Optional[torch.Tensor] = None,
         *,
         source_valid: Optional[torch.Tensor] = None,
     ) -> tuple[StepOutput, StreamerState]:
-        """One frame per sample (see :meth:`SceneModel.step <cosemdepth.models.SceneModel.step>`); ``state`` None
-        starts every sample afresh. Returns ``(out, new_state)`` with ``out.valid``, ``out.status`` and
-        ``out.baseline``. ``source_valid``: ``[B, 1, H, W]`` (or ``[B, H, W]``) bool, the pixels of an undistorted
-        image that have a source pixel (:class:`cosemdepth.camera.Undistorter`); the others are never valid,
-        whatever the policy (an estimate or a carried depth there describes edge-replicated or black pixels)."""
+        """The streaming step (:class:`~cosemdepth.models.protocol.StreamingModel`) under the policy; ``state`` None
+        starts every sample afresh; ``guide_depth`` is handed to the model's step. Returns ``(out, new_state)`` with
+        ``out.valid``, ``out.status`` and ``out.baseline``. ``source_valid``: ``[B, 1, H, W]`` (or ``[B, H, W]``)
+        bool, the pixels of an undistorted image that have a source pixel (:class:`cosemdepth.camera.Undistorter`);
+        the others are never valid, whatever the policy (an estimate or a carried depth there describes
+        edge-replicated or black pixels)."""
+        guide = {} if guide_depth is None else {"guide_depth": guide_depth}
         b = rgb.shape[0]
         dev = rgb.device
         rot, trans, intrinsics = (x.to(dev, torch.float32) for x in (rot, trans, intrinsics))
@@ -213,7 +237,7 @@ class Streamer:
             )
         net_prev = None if fresh else state.net
         if not self.has_depth:  # M4Semantic: no depth, no policy
-            out, net = self.model.step(rgb, rot, trans, intrinsics, reset, net_prev)
+            out, net = self.model.step(rgb, rot, trans, intrinsics, reset, net_prev, **guide)
             one, zero = identity_motion(b, dev)
             return out, StreamerState(net, one, zero, None, None, torch.zeros(b, dtype=torch.bool, device=dev))
 
@@ -240,9 +264,9 @@ class Streamer:
         run_depth = restart | estimate
         decoders = None if bool(run_depth.any()) else tuple(n for n in self.decoders if n != "depth")
         if decoders is None:  # a model's plain step (any backend, or a stand-in with only step())
-            out, net = self.model.step(rgb, q, t, intrinsics, restart, net_prev)
+            out, net = self.model.step(rgb, q, t, intrinsics, restart, net_prev, **guide)
         else:
-            out, net = self.model.step(rgb, q, t, intrinsics, restart, net_prev, decoders=decoders)
+            out, net = self.model.step(rgb, q, t, intrinsics, restart, net_prev, decoders=decoders, **guide)
         if fresh:
             ref_depth, ref_valid = out.depth, torch.zeros_like(out.depth, dtype=torch.bool)
             has_depth = torch.zeros(b, dtype=torch.bool, device=dev)
@@ -289,6 +313,21 @@ class Streamer:
             has_depth=torch.where(reset, torch.zeros_like(has_depth), has_depth | estimate),
         )
         return out, new_state
+
+    @torch.no_grad()
+    def infer(
+        self,
+        frames,
+        motions,
+        intrinsics,
+        reset: Optional[torch.Tensor] = None,
+        guide_depth: Optional[torch.Tensor] = None,
+    ) -> StepOutput:
+        """A whole sequence, :meth:`StreamingModel.infer <cosemdepth.models.protocol.StreamingModel.infer>`:
+        :meth:`step` in a loop (``out.heads`` as the policy gives them)."""
+        return infer_sequence(
+            self.step, frames, motions, intrinsics, reset, guide_depth, device=model_device(self), dtype=torch.float32
+        )
 
 
 def policy_info(streamer: Streamer) -> dict:

@@ -34,11 +34,12 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import torch
 
+from ..defaults import DEPTH_CAP_M, MIN_DEPTH_M
 from ..errors import ConfigError, DatasetError
 
 #: Evaluation clipping (design 10.7): GT to [0, EVAL_MAX_DEPTH], prediction to [EVAL_MIN_PRED, EVAL_MAX_DEPTH].
-EVAL_MAX_DEPTH = 80.0
-EVAL_MIN_PRED = 1e-3
+EVAL_MAX_DEPTH = DEPTH_CAP_M
+EVAL_MIN_PRED = MIN_DEPTH_M
 #: The epsilon of the original metrics (validity threshold and the ``+ 1e-6`` in divisions and logs).
 EPS = 1e-6
 

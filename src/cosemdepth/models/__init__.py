@@ -5,6 +5,7 @@ from .encoder import DINL, Encoder
 from .layers import Refiner
 from .model import SceneModel, build_model
 from .outputs import SequenceOutput, StepOutput, StreamState
+from .protocol import StreamingModel
 from .pyramid import LevelOps, PyramidDecoder, PyramidLevel
 from .registry import ARCHITECTURES, DECODERS, register_architecture
 
@@ -21,6 +22,7 @@ __all__ = [
     "SequenceOutput",
     "StepOutput",
     "StreamState",
+    "StreamingModel",
     "build_model",
     "register_architecture",
 ]

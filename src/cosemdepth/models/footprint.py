@@ -23,6 +23,7 @@ import torch.nn as nn
 
 from ..devices import available_memory
 from ..errors import ConfigError
+from .model import SceneModel
 
 #: Largest network input, in pixels (8192 x 8192), whatever the memory: the readers decode at most this many
 #: pixels per image (``cosemdepth.data.decode.MAX_PIXELS``), and the model's coarsest grid is already 256x256 there.
@@ -42,7 +43,7 @@ def _convs(module: nn.Module) -> list[nn.Conv2d]:
     return [m for m in module.modules() if isinstance(m, nn.Conv2d)]
 
 
-def encoder_values(model, height: int, width: int) -> int:
+def encoder_values(model: SceneModel, height: int, width: int) -> int:
     """Values of every map the encoder of ``model`` produces for one ``height x width`` image."""
     enc = model.encoder
     total = 0
@@ -68,7 +69,7 @@ def _head_values(decoder, height: int, width: int) -> int:
     return (finest[-1].out_channels if finest else 1) * height * width
 
 
-def step_bytes(model, height: int, width: int, batch: int = 1) -> int:
+def step_bytes(model: SceneModel, height: int, width: int, batch: int = 1) -> int:
     """Estimated peak memory in bytes of streaming ``model`` (a :class:`~cosemdepth.models.model.SceneModel`, may be
     on the meta device) at ``batch x 3 x height x width``: the weights, the input and heads, the encoder's maps and
     the maps of its widest decoder (see the module docstring)."""
@@ -83,7 +84,7 @@ def step_bytes(model, height: int, width: int, batch: int = 1) -> int:
     return VALUE_BYTES * (weights + batch * per_image)
 
 
-def training_step_bytes(model, height: int, width: int, batch: int, frames: int) -> int:
+def training_step_bytes(model: SceneModel, height: int, width: int, batch: int, frames: int) -> int:
     """Estimated peak memory in bytes of one training step of ``model`` on ``batch`` windows of ``frames`` frames of
     ``height x width``: the weights with their gradients and Adam moments, and every map of every frame (all decoders
     at once: the backward pass needs them)."""
@@ -119,7 +120,7 @@ def _largest_square(need, available: int) -> int:
 
 
 def check_size(
-    model,
+    model: SceneModel,
     height: int,
     width: int,
     *,

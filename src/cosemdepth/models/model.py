@@ -7,7 +7,8 @@ Two ways to run a model:
   per-level outputs (frame 0, or any frame flagged in ``reset``, takes the depth decoder's reset branch; with
   ``first_frame`` the stateless decoders skip the frames before it, which the training loss does not read);
 * streaming: :meth:`SceneModel.step` on one frame ``[B, 3, H, W]`` with an explicit :class:`StreamState` in and a new
-  one out, and a per-sample reset mask.
+  one out, and a per-sample reset mask (the contract of :class:`~cosemdepth.models.protocol.StreamingModel`, which
+  every streaming path implements).
 
 Both run the same per-frame decoder code, so they agree exactly, and both always run the modules. The fast inference
 path is an object of its own built from a model (:class:`cosemdepth.inference.FastModel`, what
@@ -21,6 +22,7 @@ from typing import Optional, Sequence
 import torch
 import torch.nn as nn
 
+from ..operating_point import OperatingPoint
 from ..ops.resample import resize_nn2
 from .config import ModelConfig
 from .encoder import Encoder
@@ -46,6 +48,11 @@ class SceneModel(nn.Module):
         for name in DECODERS:
             setattr(self, f"{name}_decoder", DECODERS[name](config) if name in config.decoders else None)
         self.set_numerics(pscv_half=config.pscv_dtype == "float16")
+
+    default_arch = "cosemdepth"
+    #: The model folder's operating point (the focal length and motion it was trained with; set by ``load_model``),
+    #: None for a model built in memory.
+    operating_point: Optional[OperatingPoint] = None
 
     @property
     def decoders(self) -> dict[str, PyramidDecoder]:
@@ -151,29 +158,10 @@ class SceneModel(nn.Module):
         decoders: Optional[Sequence[str]] = None,
         guide_depth: Optional[torch.Tensor] = None,
     ) -> tuple[StepOutput, StreamState]:
-        """Process one frame per sample, streaming.
-
-        Args:
-            rgb: ``[B, 3, H, W]`` in [0, 1].
-            rot: ``[B, 4]`` quaternion (w, x, y, z); trans: ``[B, 3]`` metres; relative motion previous -> current in
-                camera axes, ``X_prev = R X_curr + t`` (ignored for samples that reset).
-            intrinsics: ``[B, 4]`` = (fx, fy, cx, cy) in pixels of the input size.
-            reset: ``[B]`` bool, True where a sample starts a new trajectory (None: no reset).
-            state: the state returned by the previous call, or None for a fresh start (every sample resets).
-            decoders: run only these decoders (names of :attr:`decoders`, e.g. ``("semantic",)``); the state of the
-                others passes through unchanged (default: all), and so does that of a temporal semantic decoder when
-                the depth decoder does not run (its state is of the frame the depth state holds; design 6.3).
-            guide_depth: ``[B, 1, H, W]`` the frame's ground-truth depth (metres), for a model whose semantic decoder
-                warps with it (``config.needs_depth_input``); refused otherwise.
-        Returns:
-            ``(out, new_state)``; ``out.depth [B,1,H,W]`` metres and ``out.semantic [B,N,H,W]`` probabilities at the
-            input size (nearest upsampling of the finest level), ``out.levels`` the per-level maps; ``out.valid``
-            ``[B,1,H,W]`` the depth pixels that are estimates and ``out.status`` per sample ``"reset"`` or
-            ``"estimated"`` (every frame is estimated from the previous one; the baseline-aware policy of
-            :class:`~cosemdepth.inference.Streamer` also holds frames).
-
-        Always the modules, in training and in eval mode (the fast path: :class:`cosemdepth.inference.FastModel`).
-        """
+        """The streaming step of :class:`~cosemdepth.models.protocol.StreamingModel` (its arguments and outputs), on
+        the model's modules, in training and in eval mode (the fast path: :class:`cosemdepth.inference.FastModel`).
+        Every frame is estimated from the previous one (``out.status`` is ``"reset"`` or ``"estimated"``; the
+        baseline-aware policy of :class:`~cosemdepth.inference.Streamer` also holds frames)."""
         self.check_step(rgb, rot, trans, intrinsics, reset, decoders, guide_depth)
         if decoders is not None and not decoders:  # nothing to run: the state passes through
             return StepOutput(), state if state is not None else StreamState()
@@ -234,19 +222,8 @@ class SceneModel(nn.Module):
         reset: Optional[torch.Tensor] = None,
         guide_depth: Optional[torch.Tensor] = None,
     ) -> StepOutput:
-        """Stream a whole sequence and return the full-resolution outputs of every frame.
-
-        Args:
-            frames: ``[T, 3, H, W]`` or ``[B, T, 3, H, W]`` in [0, 1] (numpy arrays accepted).
-            motions: ``(rot [.., T, 4], trans [.., T, 3])`` or one ``[.., T, 7]`` tensor ``(qw qx qy qz tx ty tz)``;
-                the motion of frame 0 is ignored.
-            intrinsics: ``[4]`` or ``[B, 4]`` (fx, fy, cx, cy) at the frame size.
-            reset: optional ``[T]`` / ``[B, T]`` bool; frame 0 always resets.
-            guide_depth: ``[T, 1, H, W]`` / ``[B, T, 1, H, W]`` ground-truth depth (``config.needs_depth_input``).
-        Returns:
-            :class:`StepOutput` whose ``depth`` is ``[.., T, 1, H, W]`` and ``semantic`` ``[.., T, N, H, W]`` (and
-            ``heads`` every decoder's output), without per-level maps.
-        """
+        """A whole sequence streamed with :meth:`step`: :meth:`StreamingModel.infer
+        <cosemdepth.models.protocol.StreamingModel.infer>`."""
         p = next(self.parameters())
         return infer_sequence(
             self.step, frames, motions, intrinsics, reset, guide_depth, device=p.device, dtype=p.dtype

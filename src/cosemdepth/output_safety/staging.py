@@ -249,17 +249,6 @@ def _staged_name(exc, tmp: Path, out: Path) -> str | None:
     return str(out / rel)
 
 
-def _staged_name(exc, tmp: Path, out: Path) -> str | None:
-    """For an OSError about a file inside the staging folder ``tmp``: that file's path under ``out``; else None."""
-    if not isinstance(exc, OSError) or exc.errno is None or exc.filename is None or exc.filename2 is not None:
-        return None
-    try:
-        rel = Path(os.fsdecode(exc.filename)).absolute().relative_to(tmp.absolute())
-    except (ValueError, TypeError):
-        return None
-    return str(out / rel)
-
-
 class OutputFiles:
     """Collect files to write into ``folder``; on a clean exit write them all to temporary files, then rename them
     into place (other files in ``folder`` are left alone).

@@ -1,5 +1,6 @@
-"""Robotics I/O: ROS 2 bags in (image and pose topics paired into a flight) and out (depth, validity, labels,
-status), rerun recordings, and the command-line glue that adds them to ``predict`` and ``view``.
+"""Robotics inputs: ROS bags read (:mod:`~cosemdepth.robotics.rosbag`: messages, images, poses, camera_info) and an
+image topic with a pose topic paired into a flight (:mod:`~cosemdepth.robotics.bag_flight`). The outputs (an output
+bag, a rerun recording) are sinks of the streaming pipeline (:mod:`cosemdepth.streaming.sinks`).
 
 Attributes are imported lazily (importing the package loads none of its modules)."""
 
@@ -9,9 +10,6 @@ from .._lazy import lazy_getattr as _lazy_getattr
 
 _LAZY = {
     "open_bag_flight": ".bag_flight",
-    "BagWriter": ".bag_writer",
-    "RerunWriter": ".rerun_writer",
-    "add_robotics_args": ".cli",
 }
 
 __getattr__ = _lazy_getattr(__name__, _LAZY)

@@ -35,7 +35,7 @@ class Frames:
     """One batch of frames as the metrics see them: ``heads`` the model's outputs at the input size by head name
     (``StepOutput.heads``), ``gt`` the ground truth by key (:attr:`DecoderTask.gt_key`), ``[B, ...]`` each.
 
-    The test protocol's batches (:class:`~cosemdepth.evaluation.streaming.StreamBatch`, which has the same
+    The test protocol's batches (:class:`~cosemdepth.streaming.frames.StreamBatch`, which has the same
     attributes) also carry the stream: ``reset`` ``[B]``, ``status`` (per frame), ``valid`` (the depth's validity
     mask), ``trajectory`` names, ``rot``, ``trans``, ``intrinsics``; a validation batch has none of these."""
 

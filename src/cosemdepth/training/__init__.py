@@ -5,8 +5,8 @@
   model config, their defaults), its YAML files and ``KEY=VALUE`` overrides (:func:`resolve_config`);
 * :mod:`~cosemdepth.training.checkpoint`: atomic, manifest-validated checkpoints;
 * :mod:`~cosemdepth.training.data`, :mod:`~cosemdepth.training.validation`, :mod:`~cosemdepth.training.distributed`,
-  :mod:`~cosemdepth.training.events`, :mod:`~cosemdepth.training.board`, :mod:`~cosemdepth.training.visual`,
-  :mod:`~cosemdepth.training.rundir`.
+  :mod:`~cosemdepth.training.events`, :mod:`~cosemdepth.training.board`, :mod:`~cosemdepth.training.rundir`
+  (its pictures: :mod:`cosemdepth.render.examples`).
 
 Three lines::
 

@@ -32,6 +32,7 @@ import yaml
 from ..coerce import from_mapping
 from ..data.augment import resolve_augment
 from ..data.registry import DATASETS
+from ..defaults import DEFAULT_DEVICE
 from ..errors import ConfigError
 from ..measures.metrics import selection_rule
 from ..models.config import MIDAIR_IMAGE_SIZE, ModelConfig
@@ -189,7 +190,7 @@ class TrainConfig:
     init_from: str = ""
     seed: int = 42
     #: "auto" (CUDA when available), "cpu", "cuda", "cuda:1"...
-    device: str = "auto"
+    device: str = DEFAULT_DEVICE
     #: bfloat16 autocast of the forward pass on the CPU and CUDA (float32 weights, optimizer and loss).
     bf16: bool = False
     #: Convolution weights and activations in channels-last memory format: oneDNN's CPU convolutions then take

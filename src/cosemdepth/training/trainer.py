@@ -55,6 +55,7 @@ from ..models.config import ModelConfig
 from ..models.footprint import check_size
 from ..ops.resample import resize_nn2
 from ..output_safety.atomic import atomic_write_text
+from ..render.examples import example_strip
 from ..tasks import tasks_for
 from . import distributed as D
 from .board import Board
@@ -90,7 +91,6 @@ from .rundir import (
     save_best,
 )
 from .validation import validate
-from .visual import example_strip
 
 
 class TrainingDiverged(CosemdepthError):

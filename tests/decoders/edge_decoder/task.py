@@ -10,8 +10,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from cosemdepth.evaluation.visualize import save_png
 from cosemdepth.measures.losses import FIRST_SUPERVISED_FRAME
+from cosemdepth.render.visualize import save_png
 from cosemdepth.tasks import DecoderTask, Frames, MetricContext, TaskMetrics, TaskWriter, WriteOptions
 
 from .decoder import EdgeDecoder

@@ -10,11 +10,12 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from ...evaluation.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png
 from ...measures.losses import depth_loss
 from ...measures.metrics import DepthMetrics, ValidDepthMetrics
 from ...models.config import ModelConfig
 from ...models.outputs import ESTIMATED, RESET, STATUSES
+from ...render.examples import depth_to_rgb
+from ...render.visualize import DEPTH_PNG_SCALE, depth_to_png16, save_npy, save_png
 from ...tasks.base import (
     TEST,
     DecoderTask,
@@ -25,7 +26,6 @@ from ...tasks.base import (
     WriteOptions,
     float32_levels,
 )
-from ...training.visual import depth_to_rgb
 from .decoder import DepthDecoder
 
 

@@ -11,12 +11,13 @@ import numpy as np
 import torch
 
 from ...errors import ConfigError
-from ...evaluation.visualize import colorize_labels, save_png
 from ...measures.classes import class_info, dataset_classes
 from ...measures.losses import semantic_loss
 from ...measures.metrics import ConfusionMatrix
 from ...measures.temporal import TemporalConsistency
 from ...models.config import ModelConfig
+from ...render.examples import labels_to_rgb
+from ...render.visualize import colorize_labels, save_png
 from ...tasks.base import (
     TEST,
     DecoderTask,
@@ -27,7 +28,6 @@ from ...tasks.base import (
     WriteOptions,
     float32_levels,
 )
-from ...training.visual import labels_to_rgb
 from .decoder import SemanticDecoder
 
 

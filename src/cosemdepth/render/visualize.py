@@ -7,7 +7,7 @@ Depth PNG (``depth_to_png16``): ``uint16 = round(depth_m * 256)``, saturating to
 
 Depth colour map (``colorize_depth``): linear between ``near`` (default 0 m, red) and ``far`` (default 80 m, the
 evaluation cap, dark blue), matplotlib's ``turbo``. The pictures of ``predict`` and ``demo`` (panels, captions, colour
-bar, legend) are drawn by :mod:`cosemdepth.evaluation.figures`, with one range per flight.
+bar, legend) are drawn by :mod:`cosemdepth.render.figures`, with one range per flight.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from ..defaults import DEPTH_CAP_M
 from ..output_safety.atomic import atomic_open, atomic_path
 
 #: Metres -> 16-bit PNG units: ``uint16 = round(depth_m * DEPTH_PNG_SCALE)``.
@@ -70,7 +71,7 @@ def positions_to_rgb(pos: np.ndarray, cmap: str = "turbo") -> np.ndarray:
     return _lut(cmap)[idx]
 
 
-def colorize_depth(depth: np.ndarray, near: float = 0.0, far: float = 80.0, cmap: str = "turbo") -> np.ndarray:
+def colorize_depth(depth: np.ndarray, near: float = 0.0, far: float = DEPTH_CAP_M, cmap: str = "turbo") -> np.ndarray:
     """``[H, W]`` metres -> ``[H, W, 3]`` uint8: linear scale, ``near`` at the top of ``cmap`` (red for turbo) to
     ``far`` at its bottom (dark blue); values outside are clipped, NaN shows as ``far``."""
     if not far > near:

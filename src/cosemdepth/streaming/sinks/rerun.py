@@ -22,7 +22,8 @@ entity                                content
 ====================================  ===========================================================================
 
 Without absolute poses (datasets, ``--flight``) the path is the chain of the relative camera motions the model gets,
-starting at the identity on every trajectory's first frame. ``rerun-sdk`` is optional (``pip install
+starting at the identity on every trajectory's first frame; with them (a source whose frames carry ``pose``: bags),
+the frames' camera-to-world poses. ``rerun-sdk`` is optional (``pip install
 cosemdepth[viz]``) and imported only here, when a recording is made.
 """
 
@@ -33,16 +34,18 @@ import os
 import tempfile
 import warnings
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from ..data.quaternion import qmatrix
-from ..errors import ConfigError
-from ..measures.metrics import depth_metrics
-from ..optional import require
-from ..output_safety.atomic import _default_mode
-from ..output_safety.outdir import check_output_file, record_output_file
+from ...data.quaternion import qmatrix
+from ...errors import ConfigError
+from ...measures.metrics import depth_metrics
+from ...optional import require
+from ...output_safety.atomic import _default_mode
+from ...output_safety.outdir import check_output_file, record_output_file
+from ..frames import StreamBatch
+from ..registry import register_sink
 
 APPLICATION_ID = "cosemdepth"
 
@@ -107,35 +110,32 @@ def _chain(r_prev: np.ndarray, p_prev: np.ndarray, q: np.ndarray, t: np.ndarray)
     return r_prev @ r, r_prev @ np.asarray(t, dtype=np.float64) + p_prev
 
 
-class RerunWriter:
-    """A ``predict`` sink (and the engine of ``cosemdepth view``) writing ``path`` (see the module docstring).
+class RerunSink:
+    """A sink writing the recording ``path`` (``predict --rerun``, ``cosemdepth view``; see the module docstring).
 
     Args:
         path: the ``.rrd`` file (written under a temporary name, renamed on :meth:`close`).
-        dataset: the stream-mode dataset being predicted (relative motions, stamps, intrinsics).
         class_names, palette: the class table (None: a model without labels).
-        camera_to_world: ``dataset index -> (R [3, 3], p [3])``, absolute camera poses in a z-up world (bags);
-            default: the chain of relative motions in the first camera's frame.
+        absolute_poses: the frames carry absolute camera-to-world poses (``FrameBatch.pose``) in a z-up world
+            (bags); else the path is the chain of the relative motions in the first camera's frame.
         command: the command writing it (recorded with the file's checksum in its folder's output marker).
     """
 
     def __init__(
         self,
         path: str | Path,
-        dataset,
         *,
         class_names=None,
         palette=None,
-        camera_to_world: Callable[[int], tuple[np.ndarray, np.ndarray]] | None = None,
+        absolute_poses: bool = False,
         command: str = "view",
     ) -> None:
         self.rr = require_rerun()
         self.path = Path(path)
         self.command = command
-        self.dataset = dataset
         self.names = list(class_names or [])
         self.palette = None if palette is None else np.asarray(palette, dtype=np.uint8)
-        self.camera_to_world = camera_to_world
+        self.absolute_poses = absolute_poses
         self.frames = 0
         self._tmp: Path | None = None
         self._rec = None
@@ -150,7 +150,7 @@ class RerunWriter:
         self._tmp = Path(tmp)
         rec = self._rec = rr.RecordingStream(APPLICATION_ID)
         rec.save(str(self._tmp))
-        up = rr.ViewCoordinates.RIGHT_HAND_Z_UP if self.camera_to_world else rr.ViewCoordinates.RDF
+        up = rr.ViewCoordinates.RIGHT_HAND_Z_UP if self.absolute_poses else rr.ViewCoordinates.RDF
         rec.log("world", up, static=True)
         if self.palette is not None:
             rec.log(
@@ -161,20 +161,21 @@ class RerunWriter:
                 static=True,
             )
 
-    def _camera(self, index: int, traj: Any, row: int) -> tuple[np.ndarray, np.ndarray]:
-        if self.camera_to_world is not None:
-            return self.camera_to_world(index)
-        t = self.dataset.trajectories[traj]
-        if row == 0 or traj != self._traj or bool(t.reset[row]):
+    def _camera(self, batch: StreamBatch, b: int) -> tuple[np.ndarray, np.ndarray]:
+        if self.absolute_poses:
+            pose = batch.pose[b].detach().cpu().numpy().astype(np.float64)
+            return pose[:3, :3], pose[:3, 3]
+        row, traj = int(batch.frame[b]), batch.trajectory[b]
+        if row == 0 or traj != self._traj or bool(batch.reset[b]):
             return np.eye(3), np.zeros(3)
-        return _chain(*self._pose, t.rot[row], t.trans[row])
+        q, t = (x[b].detach().cpu().numpy() for x in (batch.rot, batch.trans))
+        return _chain(*self._pose, q, t)
 
-    def __call__(self, batch) -> None:
+    def __call__(self, batch: StreamBatch) -> None:
         rr, rec = self.rr, self._rec
         for b in range(len(batch)):
-            index = batch.indices[b]
-            traj, row = self.dataset.windows[index]
-            r, p = self._camera(index, traj, row)
+            traj = batch.trajectory[b]
+            r, p = self._camera(batch, b)
             if traj != self._traj:
                 self._traj = traj
                 self._paths.append([])
@@ -193,9 +194,8 @@ class RerunWriter:
             self._pose = (r, p)
             self._paths[-1].append([float(v) for v in p])
             rec.set_time("frame", sequence=self.frames)
-            stamps = self.dataset.trajectories[traj].timestamps
-            if stamps is not None:
-                rec.set_time("time", timestamp=float(stamps[row]))
+            if batch.stamp[b] is not None:
+                rec.set_time("time", timestamp=float(batch.stamp[b]))
             rec.log("world/camera", rr.Transform3D(translation=p, mat3x3=r))
             rgb = (np.clip(batch.rgb[b].float().cpu().numpy().transpose(1, 2, 0), 0, 1) * 255 + 0.5).astype(np.uint8)
             rec.log("world/camera/image/rgb", rr.Image(rgb))
@@ -264,9 +264,11 @@ def label_metrics(gt: np.ndarray, pred: np.ndarray) -> dict[str, float]:
     return {"pixel_accuracy": float(np.mean(gt == pred)), "miou": float(np.mean(ious)) if ious else 0.0}
 
 
+register_sink("rerun", RerunSink)
+
 __all__ = [
     "APPLICATION_ID",
-    "RerunWriter",
+    "RerunSink",
     "check_recording_written",
     "check_rrd_path",
     "label_metrics",

@@ -1,10 +1,14 @@
-"""The pictures of predictions (``evaluation/figures.py``): sizes, panel order and captions, the depth colour bar
+"""The pictures of predictions (``render/figures.py``): sizes, panel order and captions, the depth colour bar
 and its range, the class legend, upscaling, and the same frame in the picture and in the video."""
+
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from cosemdepth.evaluation.figures import (
+from cosemdepth.measures.classes import class_info
+from cosemdepth.render.figures import (
     FlightFigure,
     FlightPictures,
     FrameMaps,
@@ -13,8 +17,7 @@ from cosemdepth.evaluation.figures import (
     nice_ceil,
     panel_scale,
 )
-from cosemdepth.evaluation.visualize import VideoWriter, colorize_depth
-from cosemdepth.measures.classes import class_info
+from cosemdepth.render.visualize import VideoWriter, colorize_depth
 
 NAMES, PALETTE = class_info(7, "synthair")
 ALL = ("rgb", "depth", "gt_depth", "labels", "gt_labels")
@@ -64,7 +67,7 @@ def test_auto_depth_range_by_hand():
 def test_a_map_of_an_extreme_aspect_ratio_is_upscaled_less(h, w, k):
     """48x (384 / 8) would make a 100000x8 map's panel 4.8 million pixels long: 15 GB of canvas for one picture.
     The factor is the largest whose panel keeps to MAX_UPSCALED_PANEL (2048^2) pixels, and never below 1."""
-    from cosemdepth.evaluation.figures import MAX_UPSCALED_PANEL
+    from cosemdepth.render.figures import MAX_UPSCALED_PANEL
 
     assert panel_scale(h, w) == k
     assert h * w * k * k <= MAX_UPSCALED_PANEL or k == 1
@@ -218,6 +221,7 @@ def test_a_video_frame_is_the_picture(tmp_path):
 
 # ---------------------------------------------------------------------------------------------------- the commands
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))  # the commands' test helpers
 from _outputs import SIZE, _one_thread, model_dir, tiny_midair  # noqa: E402 (some are pytest fixtures)
 
 
@@ -234,7 +238,7 @@ def _read(path):
 
 def _bar_depths(img, box, rng):
     """The depths the colour bar of ``img`` shows, column by column, read back through the colour map."""
-    from cosemdepth.evaluation.visualize import _lut
+    from cosemdepth.render.visualize import _lut
 
     x0, y0, x1, y1 = box
     row = img[(y0 + y1) // 2, x0:x1].astype(int)

@@ -4,10 +4,13 @@ nothing in --out)."""
 
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))  # the commands' test helpers
 from _bags import camera_info_msg, compressed_msg, frames, image_msg, pose_msg, trajectory, typestore, write_bag
 from _outputs import (  # noqa: F401 (pytest fixtures)
     _one_thread,
@@ -407,7 +410,8 @@ def test_jpeg_compressed_bag_decodes_like_a_jpeg_flight(model_dir, tmp_path, cap
 def test_a_bag_runs_at_the_model_s_focal_length_from_its_camera_info(tmp_path):
     from cosemdepth import build_model, save_model
     from cosemdepth.cli.main import build_parser
-    from cosemdepth.cli.predict import _open
+    from cosemdepth.cli.predict import options
+    from cosemdepth.jobs.options import open_source
     from cosemdepth.operating_point import OperatingPoint
 
     model = save_model(
@@ -415,9 +419,11 @@ def test_a_bag_runs_at_the_model_s_focal_length_from_its_camera_info(tmp_path):
     )
     bag = make_bag(tmp_path / "in")
     argv = ["predict", "--model", model, *bag_args(bag, "--camera-info-topic", "/cam/info"), "--out", tmp_path / "o"]
-    ds = _open(build_parser(only="predict").parse_args([str(a) for a in argv]))
+    o = options(build_parser(only="predict").parse_args([str(a) for a in argv]))
+    source = open_source(o.source, o.run, o.model.operating_point())
     try:
         # camera_info: fx = 16 px at 32x32 (cx 15.5 + 0.5 in our convention); the model's 8 px is the size 16x16
+        ds = source.dataset
         assert ds.intrinsics.tolist() == [8.0, 8.0, 8.0, 8.0] and ds[0]["rgb"].shape[-2:] == (16, 16)
     finally:
-        ds.bag_flight.close()
+        source.close()

@@ -2,8 +2,12 @@
 (``rerun.chunk.RrdReader``): entities, row counts, one depth value, the trajectory, the class table, the metrics."""
 
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))  # the commands' test helpers
 from _outputs import (  # noqa: F401 (pytest fixtures)
     _one_thread,
     data,

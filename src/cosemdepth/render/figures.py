@@ -36,6 +36,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from ..defaults import DEPTH_CAP_M
 from .visualize import depth_positions, positions_to_rgb, rgb_to_uint8
 
 #: Panel keys and captions, in the order they are drawn (both in pictures and videos).
@@ -57,7 +58,7 @@ MAX_UPSCALED_PANEL = 2048 * 2048
 #: Depth colour map (reversed: near is red, far is dark blue).
 DEPTH_CMAP = "turbo"
 #: Depths above this are left out when choosing a flight's range (the evaluation cap: sky and far background).
-AUTO_RANGE_CAP_M = 80.0
+AUTO_RANGE_CAP_M = DEPTH_CAP_M
 #: Percentile of a flight's first depths (those below the cap) that sets the far end of the colour scale.
 AUTO_RANGE_PERCENTILE = 90.0
 #: Frames looked at before the range of a flight is fixed.
@@ -228,7 +229,7 @@ class FlightFigure:
         keys: Sequence[str],
         size: tuple[int, int],
         *,
-        depth_range: tuple[float, float] = (0.0, 80.0),
+        depth_range: tuple[float, float] = (0.0, DEPTH_CAP_M),
         class_names: Sequence[str] = (),
         palette: np.ndarray | None = None,
         min_panel: int = MIN_PANEL,
@@ -567,7 +568,7 @@ class FlightPictures:
 
 
 def frame_maps(batch, b: int, *, title: str = "", labels_ok: Callable[[np.ndarray], bool] | None = None) -> FrameMaps:
-    """The :class:`FrameMaps` of sample ``b`` of a :class:`~cosemdepth.evaluation.streaming.StreamBatch`."""
+    """The :class:`FrameMaps` of sample ``b`` of a :class:`~cosemdepth.streaming.frames.StreamBatch`."""
 
     def arr(t, idx):
         return None if t is None else t[idx].detach().cpu().numpy()

@@ -2,17 +2,20 @@
 
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))  # the commands' test helpers
 from _outputs import SIZE, _one_thread, data, leftovers, model_dir, unwritable_folder  # noqa: F401 (pytest fixtures)
 from PIL import Image
 
 from cosemdepth.cli.main import main
 from cosemdepth.data import open_dataset
 from cosemdepth.data.midair.format import PALETTE_7
-from cosemdepth.evaluation.visualize import (
+from cosemdepth.render.visualize import (
     VideoWriter,
     depth_to_png16,
     png16_to_depth,

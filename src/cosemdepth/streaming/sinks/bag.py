@@ -19,19 +19,22 @@ topic (default namespace)       type                             content
 
 Depth topics are absent for M4Semantic models, label topics for M4Depth. The bag is written with ``rosbags``
 (optional: ``pip install cosemdepth[ros]``) into the staging folder of ``predict``, so it appears with the other
-outputs or not at all. Messages are logged at their header stamp.
+outputs or not at all. Messages are logged at their header stamp: the input image's, from each frame's ``meta``
+(``stamp_ns``, ``frame_id``: what a bag source puts there).
 """
 
 from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
-from .rosbag import require_rosbags
+from ...errors import ConfigError
+from ...robotics.rosbag import require_rosbags
+from ..frames import StreamBatch
+from ..registry import register_sink
 
 DEFAULT_NAMESPACE = "/cosemdepth"
 
@@ -47,21 +50,17 @@ def check_namespace(ns: str) -> str:
     return "" if ns == "/" else ns
 
 
-class BagWriter:
+class BagSink:
     """A ``predict`` sink writing the bag at ``FOLDER/bag`` (see the module docstring).
 
     Args:
-        header: ``dataset index -> (stamp_ns, frame_id)`` of the input image.
         intrinsics: ``(fx, fy, cx, cy)`` at the output size in the package's pixel convention (design 2.1).
         palette: ``[N, 3]`` uint8 for ``labels_color`` (None: no label topics).
         namespace: topic prefix.
     """
 
-    def __init__(
-        self, header: Callable[[int], tuple[int, str]], intrinsics, palette=None, namespace: str = DEFAULT_NAMESPACE
-    ) -> None:
+    def __init__(self, intrinsics, palette=None, namespace: str = DEFAULT_NAMESPACE) -> None:
         require_rosbags()
-        self.header = header
         self.k = [float(v) for v in intrinsics]
         self.palette = None if palette is None else np.asarray(palette, dtype=np.uint8)
         self.ns = check_namespace(namespace)
@@ -70,7 +69,9 @@ class BagWriter:
         self.messages = 0
         self.path: Path | None = None
 
-    def open(self, folder: Path) -> None:
+    def open(self, folder: Path | None) -> None:
+        if folder is None:
+            raise ConfigError("the output bag needs an output folder")
         # deferred: an optional dependency (cosemdepth[ros]), checked by require_rosbags
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.typesys import Stores, get_typestore
@@ -97,10 +98,10 @@ class BagWriter:
             header=hdr, height=h, width=w, encoding=encoding, is_bigendian=0, step=data.size // h, data=data
         )
 
-    def __call__(self, batch) -> None:
+    def __call__(self, batch: StreamBatch) -> None:
         t = self.ts.types
         for b in range(len(batch)):
-            stamp, frame_id = self.header(batch.indices[b])
+            stamp, frame_id = batch.meta[b]["stamp_ns"], batch.meta[b]["frame_id"]
             sec, nsec = divmod(int(stamp), 1_000_000_000)
             hdr = t["std_msgs/msg/Header"](
                 stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id
@@ -188,4 +189,6 @@ class BagWriter:
             self._writer = None
 
 
-__all__ = ["BagWriter", "DEFAULT_NAMESPACE", "check_namespace"]
+register_sink("bag", BagSink)
+
+__all__ = ["BagSink", "DEFAULT_NAMESPACE", "check_namespace"]

@@ -10,10 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from tf_bundle_writer import write_bundle
-
-from cosemdepth.checkpoints.tf_checkpoint import CheckpointReader
-from cosemdepth.errors import CheckpointError
-from cosemdepth.evaluation.tfref_fixture import (
+from tfref_fixture import (
     LAYOUT,
     STORED,
     compact_fixture,
@@ -22,7 +19,10 @@ from cosemdepth.evaluation.tfref_fixture import (
     seeded_weight,
 )
 
-IN_REPO = Path(__file__).resolve().parents[1] / "fixtures" / "tfref-64x96"
+from cosemdepth.checkpoints.tf_checkpoint import CheckpointReader
+from cosemdepth.errors import CheckpointError
+
+IN_REPO = Path(__file__).resolve().parent / "fixtures" / "tfref-64x96"
 SHARD = "cp-0000.ckpt.data-00000-of-00001"
 
 

@@ -16,10 +16,11 @@ import torch
 from PIL import Image
 
 from cosemdepth.data.sequence import SequenceDataset, Trajectory
-from cosemdepth.evaluation.predict import predict
-from cosemdepth.evaluation.visualize import DEPTH_PNG_SCALE
+from cosemdepth.jobs.predict import predict
 from cosemdepth.models import StepOutput, StreamState
 from cosemdepth.models.config import ModelConfig
+from cosemdepth.render.visualize import DEPTH_PNG_SCALE
+from cosemdepth.streaming.sources.dataset import DatasetSource
 
 H = W = 9
 K = [8.0, 8.0, 4.5, 4.5]
@@ -53,9 +54,21 @@ def flight(n=len(MOTION)) -> SequenceDataset:
     return SequenceDataset([traj], lambda rec: {"rgb": torch.full((3, H, W), 0.5)}, torch.tensor(K), name="own")
 
 
-def run(tmp_path, invalid="keep", n=len(MOTION), **kw):
+class Stamped(DatasetSource):
+    """The flight as a source whose frames carry their image header (as a bag's do: the output bag's stamps)."""
+
+    def __init__(self, dataset, stamps):
+        super().__init__(dataset)
+        self.stamps = stamps
+
+    def meta(self, trajectory, row):
+        return {"stamp_ns": self.stamps[row], "frame_id": "cam"}
+
+
+def run(tmp_path, invalid="keep", n=len(MOTION), stamps=None, **kw):
     out = tmp_path / "out"
-    man = predict(Plane(), flight(n), out, video=None, policy="baseline", min_baseline=1.0, invalid=invalid, **kw)
+    source = flight(n) if stamps is None else Stamped(flight(n), stamps)
+    man = predict(Plane(), source, out, video=None, policy="baseline", min_baseline=1.0, invalid=invalid, **kw)
     return out, man
 
 
@@ -117,11 +130,11 @@ def test_bad_invalid_mode_is_refused_before_anything_is_written(tmp_path):
 def test_bag_depth_is_nan_where_invalid_and_the_status_topic_reads_back(tmp_path):
     from rosbags.highlevel import AnyReader
 
-    from cosemdepth.robotics.bag_writer import BagWriter
+    from cosemdepth.streaming.sinks.bag import BagSink
 
     stamps = [1_700_000_000_000_000_000 + k * 40_000_000 for k in range(len(MOTION))]
-    sink = BagWriter(lambda i: (stamps[i], "cam"), K, palette=np.array([[0, 0, 0], [255, 255, 255]], np.uint8))
-    out, man = run(tmp_path, sinks=(sink,))
+    sink = BagSink(K, palette=np.array([[0, 0, 0], [255, 255, 255]], np.uint8))
+    out, man = run(tmp_path, sinks=(sink,), stamps=stamps)
     depth, valid, status = {}, {}, {}
     with AnyReader([out / "bag"]) as r:
         for c, t, raw in r.messages():

@@ -1,4 +1,4 @@
-"""tfref fixtures in their compact form: the checkpoint's data shard stored without its seeded weights.
+"""Test support (not part of the package): tfref fixtures in their compact form: the checkpoint's data shard stored without its seeded weights.
 
 A tfref fixture (``reference.npz``, ``weights.json``, ``meta.json`` and a TensorFlow checkpoint in ``ckpt/``, written
 by the harness ``make_reference.py`` of ``../shared/tools/tfref``) draws every trainable weight from a seeded rule of
@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CheckpointError
-from ..output_safety.atomic import atomic_open, atomic_write_bytes, atomic_write_text
+from cosemdepth.errors import CheckpointError
+from cosemdepth.output_safety.atomic import atomic_open, atomic_write_bytes, atomic_write_text
 
 LAYOUT = "shard.json"
 STORED = "shard_stored.bin"
@@ -70,7 +70,7 @@ def compact_fixture(src: str | Path, dst: str | Path) -> dict:
 
     Returns the layout written to ``shard.json``.
     """
-    from ..checkpoints.tf_checkpoint import list_entries
+    from cosemdepth.checkpoints.tf_checkpoint import list_entries
 
     src, dst = Path(src), Path(dst)
     if dst.exists() and any(dst.iterdir()):
