@@ -3,7 +3,7 @@ policies, with the shipped weights on held-out SynthAir worlds.
 
     python benchmarks/motion_robustness.py [--model weights/synthair-cosemdepth] [--seeds 21 77]
         [--data DIR | --cache DIR] [--demo DIR] [--regimes normal hover ...] [--policies every-frame baseline]
-        [--min-baseline M] [--max-conditioning C] [--max-log-ratio R] [--threads N]
+        [--min-baseline M] [--max-conditioning C] [--max-log-ratio R] [--min-overlap F] [--threads N]
         [--out benchmarks/results/motion_robustness]
 
 Flights: one sunny trajectory per seed and regime, 128x128 px, 3x supersampled, rendered by ``cosemdepth synth
@@ -86,6 +86,9 @@ NORMAL_ABSREL_CHANGE = 0.01
 MIN_COVERAGE = 0.97
 #: (d) demo flight, baseline policy: at least this fraction of the too-near pixels is not valid.
 MIN_TOO_NEAR_REMOVED = 0.5
+#: (e) the fly rows of the hover and yaw flights (normal flight before and after the still segment): the baseline
+#: policy's AbsRel at most this multiple of the every-frame policy's (it must not make normal flight worse).
+MAX_FLY_RATIO = 1.01
 
 
 def segment_kind(segment: str) -> str:
@@ -207,7 +210,7 @@ def _ratio(a, b) -> float:
 
 
 def acceptance(results: dict) -> dict:
-    """The calibration targets (a)-(d) of docs/motion.md from ``results[regime][policy][subset]``."""
+    """The calibration targets (a)-(e) of docs/motion.md from ``results[regime][policy][subset]``."""
     out: dict = {}
     base, every = "baseline", "every-frame"
 
@@ -295,7 +298,23 @@ def acceptance(results: dict) -> dict:
             **d,
             "ok": bool(demo[base]["too_near_removed"] >= MIN_TOO_NEAR_REMOVED),
         }
-    for key in ("a_still", "b_speed"):
+    fly = {}
+    for regime in SEGMENT_REGIMES:
+        b, e = get(regime, base, "fly"), get(regime, every, "fly")
+        if b is None or e is None:
+            continue
+        ratio = _ratio(b["abs_rel"], e["abs_rel"])
+        fly[regime] = {
+            "abs_rel_baseline": b["abs_rel"],
+            "abs_rel_every_frame": e["abs_rel"],
+            "ratio": ratio,
+            "valid_abs_rel_baseline": b["valid_abs_rel"],
+            "valid_abs_rel_every_frame": e["valid_abs_rel"],
+            "ok": bool(ratio <= MAX_FLY_RATIO),
+        }
+    if fly:
+        out["e_fly"] = {"max_ratio": MAX_FLY_RATIO, **fly}
+    for key in ("a_still", "b_speed", "e_fly"):
         if key in out:
             out[key]["ok"] = all(x["ok"] for x in out[key].values() if isinstance(x, dict) and "ok" in x)
     out["all_ok"] = all(v["ok"] for v in out.values())
@@ -466,6 +485,16 @@ def _acceptance_line(key: str, v: dict) -> str:
             )
             + f" (>= {v['min_removed']}, baseline)"
         )
+    if key == "e_fly":
+        return (
+            "; ".join(
+                f"{r}: fly rows AbsRel {_f(x['abs_rel_baseline'])} (baseline) vs {_f(x['abs_rel_every_frame'])} "
+                f"(every-frame) = {_f(x['ratio'], '.3f')}x"
+                for r, x in v.items()
+                if isinstance(x, dict)
+            )
+            + f" (<= {v['max_ratio']})"
+        )
     return ""
 
 
@@ -531,7 +560,7 @@ def to_report(report: dict) -> dict:
 
 def main(argv=None) -> int:
     from cosemdepth.geometry.validity import MAX_CONDITIONING
-    from cosemdepth.inference.policy import MAX_LOG_RATIO, POLICIES, StreamPolicy
+    from cosemdepth.inference.policy import MAX_LOG_RATIO, MIN_OVERLAP, POLICIES, StreamPolicy
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--model", default=str(ROOT / "weights" / "synthair-cosemdepth"), help="model folder")
@@ -549,6 +578,7 @@ def main(argv=None) -> int:
     p.add_argument("--min-baseline", type=float, help="metres (default: the model's operating point)")
     p.add_argument("--max-conditioning", type=float, default=MAX_CONDITIONING)
     p.add_argument("--max-log-ratio", type=float, default=MAX_LOG_RATIO)
+    p.add_argument("--min-overlap", type=float, default=MIN_OVERLAP)
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     p.add_argument(
         "--out",
@@ -572,6 +602,7 @@ def main(argv=None) -> int:
             min_baseline=a.min_baseline if name == "baseline" else None,
             max_conditioning=a.max_conditioning,
             max_log_ratio=a.max_log_ratio,
+            min_overlap=a.min_overlap,
         )
         for name in a.policies
     }

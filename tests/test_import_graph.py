@@ -65,6 +65,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "cosemdepth.export",
             "cosemdepth.bench",
             "cosemdepth.jobs",
+            "cosemdepth.ros2",
         ),
     ),
     ("front ends", ("cosemdepth.cli", "cosemdepth.demo", "cosemdepth.__main__")),

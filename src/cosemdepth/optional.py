@@ -24,6 +24,7 @@ OPTIONAL_PACKAGES: dict[str, tuple[str, str]] = {
     "pymavlink": ("pymavlink", "flight"),
     "pymap3d": ("pymap3d", "flight"),
     "av": ("av", "flight"),
+    "cyclonedds": ("cyclonedds", "live"),
 }
 
 

@@ -280,6 +280,17 @@ CASES = [
     (["export", "--onnx", "{T}/m.onnx", "--model", "{T}/nope"], "{T}/nope"),
     (["export", "--onnx", "{T}/m.onnx", "--model", "{T}/junk.bin"], "{T}/junk.bin"),
     (["export", "--onnx", "{T}/m.onnx", "--size", "4", "4"], "--size"),
+    # node, replay: refused before they join a DDS graph
+    (["node", "--model", "{T}/nope", "--image-topic", "/c", "--pose-topic", "/p", "--hfov", "90"], "{T}/nope"),
+    (["node", "--model", "{M}", "--image-topic", "/c", "--pose-topic", "/p", "--hfov", "190"], "--hfov"),
+    (["node", "--model", "{M}", "--image-topic", "/c", "--pose-topic", "/p", "--calibration", "{T}/nope"], "{T}/nope"),
+    (
+        ["node", "--model", "{M}", "--image-topic", "/c", "--pose-topic", "/p", "--calibration", "{T}/junk.bin"],
+        "{T}/junk.bin",
+    ),
+    (["replay", "{T}/nope"], "{T}/nope"),
+    (["replay", "{T}/junk.bin"], "{T}/junk.bin"),
+    (["replay", "{T}/mine", "--rate", "0"], "--rate"),
     # a size far beyond any image (10^10 pixels): refused before anything is allocated or written
     (["predict", "--model", "{M}", *EVAL, "--size", "100000", "--out", "{T}/p"], "--size: 100000x100000"),
     (["evaluate", "--model", "{M}", *EVAL, "--size", "100000"], "--size: 100000x100000"),

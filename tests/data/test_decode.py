@@ -394,3 +394,32 @@ def torch_equal(a, b) -> bool:
     import torch
 
     return bool(torch.equal(a, b))
+
+
+def _png16_rgb(height: int, width: int, idat: bytes | None = None) -> bytes:
+    """A 16-bit RGB PNG of the given declared size; ``idat`` the compressed rows (default: all zero rows)."""
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    if idat is None:
+        idat = zlib.compress(b"".join(b"\x00" + bytes(6 * width) for _ in range(height)))
+    ihdr = struct.pack(">IIBBBBB", width, height, 16, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        _png16_rgb(4, 9)[:33],  # the header alone
+        _png16_rgb(65535, 65535, idat=b""),  # a declared size far beyond any image (4.3 gigapixels)
+        _png16_rgb(4, 9, idat=zlib.compress(b"\x00" * 7)),  # fewer rows than declared
+    ],
+    ids=["header-only", "huge", "short-rows"],
+)
+def test_damaged_16_bit_colour_pngs_are_dataset_errors_naming_the_file(tmp_path, data):
+    np.testing.assert_array_equal(decode_rgb(_png16_rgb(4, 9), "ok.png"), np.zeros((4, 9, 3), np.uint16))
+    path = tmp_path / "000004.png"
+    path.write_bytes(data)
+    with pytest.raises(DatasetError, match="000004.png"):
+        read_rgb(path)

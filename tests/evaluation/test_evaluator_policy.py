@@ -4,9 +4,14 @@ metrics but not of the label metrics. A stand-in model returns 20 m everywhere (
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "jobs"))  # the predict tests' plane scene
 from test_predict_validity import H, K, Plane, W
 
 from cosemdepth.data.sequence import SequenceDataset, Trajectory

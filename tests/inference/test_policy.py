@@ -35,11 +35,13 @@ class PlaneModel:
         self.depths = list(depths or [])
         self.runs = 0
         self.calls = []  # (frame, ran depth, trans, state's frame)
+        self.resets = []  # the reset flag each call was given
 
     def step(self, rgb, rot, trans, intrinsics, reset, state, decoders=None):
         frame = int(rgb[0, 0, 0, 0])
         run = decoders is None or "depth" in decoders
         self.calls.append((frame, run, trans[0].tolist(), None if state is None else int(state.features[0][0])))
+        self.resets.append(bool(reset[0]))
         depth = None
         if run:
             d = self.depths[self.runs] if self.runs < len(self.depths) else 20.0
@@ -162,6 +164,74 @@ def test_a_model_without_training_motion_needs_a_min_baseline_and_none_chooses_e
     assert policy_info(s)["mode"] == BASELINE and policy_info(s)["min_baseline_m"] == 0.5
     with pytest.raises(ConfigError):
         StreamPolicy(mode="sometimes")
+
+
+def test_a_held_frame_turned_away_from_the_reference_re_anchors_and_the_next_estimate_starts_from_it():
+    """33 px at f = 32 px: 27.3 degrees either side. Yawing 2 degrees a frame, the held frames see 0.96 and 0.92 of
+    the reference's view (at least the default min_overlap, 0.9: held against it), the third (6 degrees, 0.88) re-anchors: the
+    network restarts on it (reset) and it becomes the reference with its held depth; the next estimate is made
+    against it, with the motion from it and its state."""
+    model = PlaneModel()
+    motions = [fwd(0), side(2.0), yaw(2), yaw(2), yaw(2), yaw(2), side(2.0)]
+    outs = run(model, motions)
+    assert [o.status[0] for o in outs] == ["reset", "estimated", "held", "held", "held", "held", "estimated"]
+    assert [(f, ran, r) for (f, ran, _, _), r in zip(model.calls, model.resets)] == [
+        (0, True, True),
+        (1, True, False),
+        (2, False, False),
+        (3, False, False),
+        (4, True, True),  # the re-anchor: the network's state restarts on frame 4
+        (5, False, False),
+        (6, True, False),
+    ]
+    # frame 6 against frame 4: its state, and the motion from it (2 degrees of yaw, then 2 m sideways)
+    c, s = math.cos(math.radians(2)), math.sin(math.radians(2))
+    assert model.calls[6][3] == 4 and model.calls[6][2] == pytest.approx([2 * c, 0.0, -2 * s], abs=1e-5)
+    # the held depth: the plane seen from the turned camera, 20 / cos(theta) on the optical axis (6 and 8 degrees:
+    # the re-anchored frame's own carried depth is carried on)
+    for o, theta in ((outs[4], 6), (outs[5], 8)):
+        assert bool(o.valid[0, 0, C, C])
+        assert float(o.depth[0, 0, C, C]) == pytest.approx(20.0 / math.cos(math.radians(theta)), abs=0.06)
+    assert float(outs[6].baseline[0]) == pytest.approx(2.0)
+
+
+def test_without_re_anchoring_the_estimate_after_a_turn_is_made_against_the_old_reference():
+    model = PlaneModel()
+    run(model, [fwd(0), side(2.0), yaw(2), yaw(2), yaw(2), yaw(2), side(2.0)], min_overlap=0.0)
+    assert model.resets == [True] + [False] * 6
+    assert model.calls[6][3] == 1  # frame 1's state, turned 8 degrees away
+
+
+def test_a_hover_that_wobbles_keeps_its_reference():
+    """Small rotations back and forth (0.5 degree) while hovering stay far above min_overlap: no re-anchor, the
+    estimate after the hover continues from the reference's state (the network's own depth chain)."""
+    model = PlaneModel()
+    outs = run(model, [fwd(0), fwd(2.0), yaw(0.5), yaw(-0.5), yaw(0.5), yaw(-0.5), fwd(2.0)])
+    assert [o.status[0] for o in outs] == ["reset", "estimated"] + ["held"] * 4 + ["estimated"]
+    assert model.resets == [True] + [False] * 6
+    assert model.calls[6][3] == 1
+
+
+def test_re_anchoring_before_the_first_estimate_keeps_the_frames_without_depth():
+    # a turn in place right after a reset: the re-anchored frames have no depth (status reset, nothing valid) until
+    # the camera moves; the estimate is then made against the last re-anchored frame
+    model = PlaneModel()
+    outs = run(model, [fwd(0), yaw(10), yaw(10), side(2.0)])
+    assert [o.status[0] for o in outs] == ["reset", "reset", "reset", "estimated"]
+    assert model.resets == [True, True, True, False] and model.calls[3][3] == 2
+    assert not outs[1].valid.any() and not outs[2].valid.any() and outs[3].valid.any()
+
+
+def test_every_frame_never_re_anchors_and_min_overlap_is_checked():
+    model = PlaneModel()
+    run(model, [fwd(0), side(2.0), yaw(30), side(2.0)], policy=EVERY_FRAME)
+    assert model.resets == [True, False, False, False]
+    assert policy_info(Streamer(PlaneModel(), EVERY_FRAME))["min_overlap"] is None
+    s = Streamer(PlaneModel(), StreamPolicy(min_baseline=1.0, min_overlap=0.8))
+    assert policy_info(s)["min_overlap"] == 0.8
+    for bad in (-0.1, 1.5, float("nan"), "0.9"):
+        with pytest.raises(ConfigError, match="min_overlap"):
+            StreamPolicy(min_overlap=bad)
 
 
 def test_pixels_without_a_source_are_invalid_in_estimated_and_held_frames():

@@ -18,22 +18,25 @@ import torch
 from tfref_fixture import seeded_weight
 
 from cosemdepth.checkpoints.convert import convert_tensors
+from cosemdepth.checkpoints.model_io import load_model, save_model
 from cosemdepth.evaluation.fidelity import inputs_from_reference
-from cosemdepth.models import build_model
+from cosemdepth.models import SceneModel, build_model
 from cosemdepth.training.trainer import compute_loss, forward_batch, prepare_for_training
 
 FIXTURE = Path(__file__).parent / "fixtures" / "grad-s64"
 
 
-@pytest.fixture(scope="module", params=[False, True], ids=["nchw", "channels_last"])
-def step(request):
-    return our_step(channels_last=request.param)
+@pytest.fixture(scope="module", params=["nchw", "channels_last", "reference"])
+def step(request, tmp_path_factory):
+    return our_step(layout=request.param, folder=tmp_path_factory.mktemp("model"))
 
 
-def our_step(channels_last: bool = False):
+def our_step(layout: str = "nchw", folder: Path | None = None):
     """Our training step on the fixture's batch: (loss terms, {name: flat float64 gradient}, the TF batch arrays,
-    the TF gradient samples, the TF run's meta). ``channels_last``: the model as the trainer prepares it with
-    ``train.channels_last`` (other convolution kernels, the same bounds)."""
+    the TF gradient samples, the TF run's meta). ``layout``: ``"nchw"``, ``"channels_last"`` (the model as the
+    trainer prepares it with ``train.channels_last``: other convolution kernels, the same bounds) or ``"reference"``
+    (the weights saved as a model folder in ``folder`` and loaded back with ``load_model(folder,
+    mode="reference")``, in training mode)."""
     info = json.loads((FIXTURE / "weights.json").read_text())
     tensors = {}
     for key, d in info["keys"].items():
@@ -43,9 +46,14 @@ def our_step(channels_last: bool = False):
     conv = convert_tensors(tensors)
     model = build_model(conv.config)
     model.load_state_dict(conv.state_dict)
-    model = prepare_for_training(model, torch.device("cpu"), channels_last)
-    if channels_last:
-        assert model.encoder.conv_s1[0].weight.is_contiguous(memory_format=torch.channels_last)
+    if layout == "reference":
+        save_model(model, folder)
+        model = load_model(folder, mode="reference")
+        assert isinstance(model, SceneModel) and not model.training
+    else:
+        model = prepare_for_training(model, torch.device("cpu"), layout == "channels_last")
+    conv0 = model.encoder.conv_s1[0].weight
+    assert conv0.is_contiguous(memory_format=torch.channels_last) == (layout == "channels_last")
     model.train()
     ref = np.load(FIXTURE / "batch.npz")
     inp = inputs_from_reference(ref)

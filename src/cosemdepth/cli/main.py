@@ -30,13 +30,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "benchmark": ("cosemdepth.cli.benchmark", "measure speed and memory"),
     "fast-accuracy": ("cosemdepth.cli.fast_accuracy", "check the fast inference modes' accuracy against the reference"),
     "export": ("cosemdepth.cli.export", "export the streaming model to ONNX"),
+    "node": ("cosemdepth.cli.node", "a live ROS 2 node: depth, validity and labels for a camera (no ROS install)"),
+    "replay": ("cosemdepth.cli.replay", "publish a ROS 2 bag's topics into the live ROS 2 graph at their rate"),
 }
 
 
 #: Commands run with OpenMP threads that sleep rather than spin while waiting (``OMP_WAIT_POLICY=PASSIVE``, unless
 #: the user set it): on a machine whose cores are shared with other processes, spinning threads make model steps
 #: several times slower; on an idle machine the difference is within noise. It must be set before torch is imported.
-PASSIVE_WAIT_COMMANDS = ("demo", "evaluate", "predict", "view")
+PASSIVE_WAIT_COMMANDS = ("demo", "evaluate", "node", "predict", "view")
 
 
 def _available() -> dict[str, tuple[str, str]]:

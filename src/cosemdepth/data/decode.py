@@ -298,8 +298,8 @@ def _decode_png16_colour(data: bytes, where) -> np.ndarray:
     (through Pillow's ``zip`` decoder)."""
     halves = []
     for rawmode in ("16B", "16L"):
-        img = _open_header(io.BytesIO(data), where)
         try:
+            img = _open_header(io.BytesIO(data), where)
             tile = img.tile
             if len(tile) != 1 or tile[0][0] != "zip" or img.mode not in ("RGB", "RGBA"):
                 raise DatasetError(f"{where}: unexpected 16-bit colour PNG layout {img.mode} {tile!r}")
@@ -311,7 +311,9 @@ def _decode_png16_colour(data: bytes, where) -> np.ndarray:
             img.load()
         except DatasetError:
             raise
-        except (OSError, SyntaxError, ValueError) as e:
+        except UnidentifiedImageError:
+            raise DatasetError(f"{where}: not a readable image (corrupt or unknown format)") from None
+        except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as e:
             raise DatasetError(f"{where}: corrupt image ({e})") from None
         halves.append(np.asarray(img)[..., :3])
         orientation = _orientation(img)

@@ -21,6 +21,7 @@ import torch
 from .. import __version__
 from ..errors import ConfigError
 from ..inference.fast_model import reference_model
+from ..models.protocol import StreamingModel
 from ..optional import require
 
 #: metadata key that marks an ONNX file written by ``cosemdepth export`` (its value: the cosemdepth version)
@@ -33,7 +34,7 @@ KEYS = (ONNX_MARK, ARCH, CONFIG, WEIGHTS, INPUT_SIZE, BATCH, PRECISION, OPSET, G
 PRECISIONS = ("fp32", "int8")
 
 
-def weights_digest(model) -> str:
+def weights_digest(model: StreamingModel) -> str:
     """sha256 of ``model``'s state (a :class:`~cosemdepth.models.SceneModel`, or a FastModel's model) in a canonical
     order: for each entry of the state dict sorted by name, its name, dtype and shape, then its bytes, floating
     tensors as float32 (the values an fp32 graph holds) on the CPU."""
@@ -58,7 +59,9 @@ def graph_digest(proto) -> str:
         proto.metadata_props.extend(props)
 
 
-def provenance(model, height: int, width: int, batch: int, dynamic_batch: bool, opset: int) -> dict[str, str]:
+def provenance(
+    model: StreamingModel, height: int, width: int, batch: int, dynamic_batch: bool, opset: int
+) -> dict[str, str]:
     """The metadata of an fp32 export of ``model`` (without the graph digest, which :func:`stamp` adds)."""
     cfg = reference_model(model).config
     return {
@@ -118,7 +121,7 @@ def read_provenance(path: str | Path) -> dict[str, str]:
     return props
 
 
-def check_model(record: Mapping[str, str], model, path, model_name: str = "the model") -> None:
+def check_model(record: Mapping[str, str], model: StreamingModel, path, model_name: str = "the model") -> None:
     """Refuse (one-line :class:`ConfigError` naming ``path`` and what differs) a graph whose recorded provenance is
     not ``model``'s: another architecture, another config (the differing keys), or other weights."""
     cfg = reference_model(model).config

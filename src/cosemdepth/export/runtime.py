@@ -19,6 +19,7 @@ from ..models.config import ModelConfig
 from ..models.infer import infer_sequence
 from ..models.model import SceneModel
 from ..models.outputs import StepOutput, StreamState
+from ..models.protocol import StreamingModel
 from ..operating_point import OperatingPoint
 from .onnx import state_components
 from .provenance import PRECISION, check_model, read_provenance
@@ -61,7 +62,7 @@ class OnnxStep:
         providers: Optional[Sequence] = None,
         threads: Optional[int] = None,
         profile_prefix: Optional[str] = None,
-        model=None,
+        model: Optional[StreamingModel] = None,
         provenance: bool = True,
     ):
         try:
@@ -91,7 +92,7 @@ class OnnxStep:
         self._state_shapes = [tuple(i.shape) for i in ins if i.name.startswith("state_")]
         self.components = state_components(self.state_inputs)
 
-    def check_model(self, model, model_name: str = "the model") -> None:
+    def check_model(self, model: StreamingModel, model_name: str = "the model") -> None:
         """Refuse, in one line naming the file and what differs, a graph not exported from ``model`` (its
         architecture, config and weights; :func:`~cosemdepth.export.provenance.check_model`)."""
         if self.provenance is None:  # opened without it: a model's graph must have it all the same

@@ -12,6 +12,12 @@ previous one (policy ``every-frame``). Policy ``baseline`` keeps a *reference fr
 * a frame closer to the reference is *held*: the reference's depth carried into the current view
   (:func:`cosemdepth.geometry.reproject.carry_depth`: rotation and the small translation applied), status ``held``;
   its semantic labels are the current frame's own (the semantic decoder has no temporal input);
+* a held frame that sees less than ``min_overlap`` of the reference frame's view (distant points, the rotation from
+  the reference: :func:`cosemdepth.geometry.overlap.view_overlap`) *re-anchors*: it becomes the reference, with its
+  held depth, and the network's state restarts on it as after a reset (its features, no depth prior). The network's
+  state describes the reference's view; after a turn in place most of the current view lies outside it, and an
+  estimate made against it, through the whole composed rotation, is far worse than one from a fresh start. A hover
+  (no rotation) keeps its reference and the network's own depth chain, which the next estimate continues;
 * a reset (first frame, new trajectory) starts a new reference without depth: it and the frames held after it have
   status ``reset`` and nothing valid, until the camera has moved far enough.
 
@@ -33,6 +39,7 @@ import torch
 from ..defaults import DEPTH_CAP_M, MIN_DEPTH_M
 from ..errors import ConfigError
 from ..geometry.motion import baseline, compose_motion, identity_motion
+from ..geometry.overlap import view_overlap
 from ..geometry.reproject import carry_depth
 from ..geometry.validity import MAX_CONDITIONING, depth_validity
 from ..models.config import ModelConfig
@@ -53,6 +60,10 @@ MIN_BASELINE_FACTOR = 0.75
 #: An estimate more than ``exp(MAX_LOG_RATIO)`` (2x) from the reference's carried depth is not valid: two estimates of
 #: the same surface that far apart say that at least one of them is wrong; calibrated on SynthAir (docs/motion.md).
 MAX_LOG_RATIO = 0.7
+#: A held frame that sees less than this fraction of the reference frame's view (distant points, rotation only:
+#: :func:`cosemdepth.geometry.overlap.view_overlap`) becomes the new reference, the network's state restarting on it
+#: (docs/motion.md); calibrated on SynthAir.
+MIN_OVERLAP = 0.9
 #: Depths compared by the consistency check are clipped to this range (metres): beyond FAR_DEPTH both are "far"
 #: (the evaluation's cap, design 10.1).
 MIN_DEPTH, FAR_DEPTH = MIN_DEPTH_M, DEPTH_CAP_M
@@ -70,12 +81,15 @@ class StreamPolicy:
             (:mod:`cosemdepth.geometry.validity`).
         max_log_ratio: an estimate that differs from the reference frame's depth carried into its view by more than
             ``exp(max_log_ratio)`` is not valid (:func:`inconsistent`).
+        min_overlap: a held frame that sees less than this fraction of the reference's view becomes the new
+            reference (``baseline`` mode; 0: never).
     """
 
     mode: str = BASELINE
     min_baseline: Optional[float] = None
     max_conditioning: float = MAX_CONDITIONING
     max_log_ratio: float = MAX_LOG_RATIO
+    min_overlap: float = MIN_OVERLAP
 
     def __post_init__(self) -> None:
         if self.mode not in POLICIES:
@@ -88,6 +102,8 @@ class StreamPolicy:
             raise ConfigError(f"max_conditioning must be positive, got {self.max_conditioning!r}")
         if not self.max_log_ratio > 0:
             raise ConfigError(f"max_log_ratio must be positive, got {self.max_log_ratio!r}")
+        if not (isinstance(self.min_overlap, (int, float)) and 0 <= self.min_overlap <= 1):
+            raise ConfigError(f"min_overlap must be a fraction in [0, 1], got {self.min_overlap!r}")
 
 
 def default_min_baseline(model: StreamingModel) -> float | None:
@@ -237,12 +253,20 @@ class Streamer:
         q, t = _where(reset, one, q), _where(reset, zero, t)
         base = baseline(t)
         estimate = ~reset & (base >= self.min_baseline)
-        run_depth = reset | estimate
+        # a held frame turned away from the reference re-anchors: it becomes the reference (its depth the carried
+        # one) and the network's state restarts on it, as after a reset
+        reanchor = ~reset & ~estimate
+        if self.policy.mode == BASELINE and self.policy.min_overlap > 0 and bool(reanchor.any()):
+            reanchor &= view_overlap(q, intrinsics, *rgb.shape[-2:]).to(dev) < self.policy.min_overlap
+        else:
+            reanchor = torch.zeros_like(reset)
+        restart = reset | reanchor  # the network starts afresh on these samples
+        run_depth = restart | estimate
         decoders = None if bool(run_depth.any()) else tuple(n for n in self.decoders if n != "depth")
         if decoders is None:  # a model's plain step (any backend, or a stand-in with only step())
-            out, net = self.model.step(rgb, q, t, intrinsics, reset, net_prev, **guide)
+            out, net = self.model.step(rgb, q, t, intrinsics, restart, net_prev, **guide)
         else:
-            out, net = self.model.step(rgb, q, t, intrinsics, reset, net_prev, decoders=decoders, **guide)
+            out, net = self.model.step(rgb, q, t, intrinsics, restart, net_prev, decoders=decoders, **guide)
         if fresh:
             ref_depth, ref_valid = out.depth, torch.zeros_like(out.depth, dtype=torch.bool)
             has_depth = torch.zeros(b, dtype=torch.bool, device=dev)
@@ -268,7 +292,7 @@ class Streamer:
             new_depth = out.depth
         else:
             new_depth, new_valid = ref_depth, ref_valid
-        hold = ~run_depth
+        hold = ~(reset | estimate)
         depth = _where(hold, carried, new_depth)
         valid = _where(hold, carried_valid, new_valid)
         if source_valid is not None:
@@ -279,7 +303,7 @@ class Streamer:
         ]
         out.heads = {**out.heads, "depth": depth}
         out.valid, out.status, out.baseline = valid, status, _where(reset, torch.zeros_like(base), base)
-        # the new reference: this frame where it was estimated or reset
+        # the new reference: this frame where it was estimated, reset or re-anchored (with its held depth)
         new_state = StreamerState(
             net=net,
             rot=_where(run_depth, one, q),
@@ -314,6 +338,7 @@ def policy_info(streamer: Streamer) -> dict:
         "min_baseline_m": streamer.min_baseline,
         "max_conditioning": p.max_conditioning,
         "max_log_ratio": p.max_log_ratio,
+        "min_overlap": p.min_overlap if p.mode == BASELINE else None,
     }
 
 

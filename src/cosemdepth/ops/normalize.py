@@ -97,11 +97,16 @@ def dinl(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Ten
 
 def _channel_norm(z: torch.Tensor) -> torch.Tensor:
     """The per-pixel L2 norm over the channels, ``[B, 1, H, W]``: ``torch.linalg.vector_norm`` on channels-last
-    maps (and in an ONNX export: one ReduceL2), the square root of a channel sum of squares otherwise, where the
-    norm's kernel walks the strided channel axis one pixel at a time (several times slower)."""
+    maps (and in an ONNX export: one ReduceL2); on NCHW maps, where the norm's kernel walks the strided channel axis
+    one pixel at a time (several times slower), the square root of a channel sum of squares accumulated in float64.
+
+    The float64 accumulator keeps the NCHW form as exact as ``vector_norm`` in training: ``z = (x - mean) / (var +
+    1e-12)`` spans many orders of magnitude across channels (a channel of tiny variance gives ``|z|`` up to
+    ``sqrt(H W) / (2 sqrt(1e-12))``), and the first convolution's gradient, which flows back through this norm, is
+    sensitive to a float32 sum's rounding; the float64 sum costs one more cast of a ``[B, 1, H, W]`` map."""
     if torch.onnx.is_in_onnx_export() or (z.dim() == 4 and z.is_contiguous(memory_format=torch.channels_last)):
         return torch.linalg.vector_norm(z, dim=1, keepdim=True)
-    return (z * z).sum(dim=1, keepdim=True).sqrt_()
+    return (z * z).sum(dim=1, keepdim=True, dtype=torch.float64).sqrt_().to(z.dtype)
 
 
 def _dinl_forward(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor):

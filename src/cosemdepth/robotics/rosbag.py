@@ -85,6 +85,11 @@ class Bag:
                 pass
             self._reader = None
 
+    @property
+    def reader(self):
+        """The open ``rosbags.highlevel.AnyReader`` (its connections, typestore and raw messages)."""
+        return self._reader
+
     def topics(self) -> dict[str, str]:
         """Topic -> message type."""
         return {c.topic: c.msgtype for c in self._reader.connections}

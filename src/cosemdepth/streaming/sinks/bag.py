@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import ConfigError
+from ...robotics.messages import frame_messages
 from ...robotics.rosbag import require_rosbags
 from ..frames import StreamBatch
 from ..registry import register_sink
@@ -90,82 +91,11 @@ class BagSink:
         self._writer.write(self._conn(name, msg.__msgtype__), stamp, self.ts.serialize_cdr(msg, msg.__msgtype__))
         self.messages += 1
 
-    def _image(self, hdr, array: np.ndarray, encoding: str):
-        t = self.ts.types
-        h, w = array.shape[:2]
-        data = np.ascontiguousarray(array).view(np.uint8).reshape(-1)
-        return t["sensor_msgs/msg/Image"](
-            header=hdr, height=h, width=w, encoding=encoding, is_bigendian=0, step=data.size // h, data=data
-        )
-
     def __call__(self, batch: StreamBatch) -> None:
-        t = self.ts.types
         for b in range(len(batch)):
-            stamp, frame_id = batch.meta[b]["stamp_ns"], batch.meta[b]["frame_id"]
-            sec, nsec = divmod(int(stamp), 1_000_000_000)
-            hdr = t["std_msgs/msg/Header"](
-                stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id
-            )
-            h, w = batch.rgb.shape[-2:]
-            if batch.depth is not None:
-                depth = batch.depth[b, 0].float().cpu().numpy().astype("<f4")
-                valid = np.isfinite(depth) & (depth > 0)
-                if getattr(batch, "valid", None) is not None:
-                    valid &= batch.valid[b, 0].cpu().numpy().astype(bool)
-                elif bool(batch.reset[b]):
-                    valid[...] = False
-                self._write(
-                    "depth", self._image(hdr, np.where(valid, depth, np.float32(np.nan)).astype("<f4"), "32FC1"), stamp
-                )
-                self._write("depth_valid", self._image(hdr, valid.astype(np.uint8) * np.uint8(255), "mono8"), stamp)
-                self._status(hdr, batch, b, float(valid.mean()), stamp)
-            if batch.labels is not None:
-                labels = batch.labels[b].cpu().numpy().astype(np.uint8)
-                self._write("labels", self._image(hdr, labels, "mono8"), stamp)
-                if self.palette is not None:
-                    self._write("labels_color", self._image(hdr, self.palette[labels], "rgb8"), stamp)
-            fx, fy, cx, cy = self.k
-            cx, cy = cx - 0.5, cy - 0.5  # ROS/OpenCV: pixel centres at integer coordinates
-            info = t["sensor_msgs/msg/CameraInfo"](
-                header=hdr,
-                height=int(h),
-                width=int(w),
-                distortion_model="plumb_bob",
-                d=np.zeros(5),
-                k=np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1], dtype=np.float64),
-                r=np.eye(3).reshape(-1),
-                p=np.array([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0], dtype=np.float64),
-                binning_x=0,
-                binning_y=0,
-                roi=t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
-            )
-            self._write("camera_info", info, stamp)
-
-    def _status(self, hdr, batch, b: int, valid_fraction: float, stamp: int) -> None:
-        t = self.ts.types
-        statuses = getattr(batch, "status", None) or []
-        status = statuses[b] if b < len(statuses) else ("reset" if bool(batch.reset[b]) else "estimated")
-        base = getattr(batch, "baseline", None)
-        st = t["diagnostic_msgs/msg/DiagnosticStatus"]
-        level = {"estimated": st.OK, "held": st.WARN}.get(status, st.ERROR)
-        values = [
-            ("status", status),
-            ("baseline_m", "" if base is None else f"{float(base[b]):.6f}"),
-            ("valid_fraction", f"{valid_fraction:.6f}"),
-        ]
-        msg = t["diagnostic_msgs/msg/DiagnosticArray"](
-            header=hdr,
-            status=[
-                st(
-                    level=level,
-                    name="cosemdepth depth",
-                    message=status,
-                    hardware_id=hdr.frame_id,
-                    values=[t["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values],
-                )
-            ],
-        )
-        self._write("depth_status", msg, stamp)
+            stamp, frame_id = int(batch.meta[b]["stamp_ns"]), batch.meta[b]["frame_id"]
+            for name, msg in frame_messages(self.ts, batch, b, stamp, frame_id, self.k, self.palette):
+                self._write(name, msg, stamp)
 
     def close(self) -> dict[str, Any]:
         """Finish the bag; the manifest entry describing it."""

@@ -2,10 +2,14 @@
 given as a flight with the equivalent ``--calibration`` YAML; the output camera_info is the undistorted pinhole; the
 pixels without a source pixel are never valid."""
 
-import json  # noqa: I001 (_outputs puts tests/data, which test_predict_bag needs, on the path first)
+import json  # noqa: I001 (the commands' test helpers are put on the path first)
+import sys
+from pathlib import Path
 
 import numpy as np
 from PIL import Image
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "evaluation"))  # the commands' test helpers
 from _outputs import _one_thread, model_dir  # noqa: F401 (pytest fixtures)
 from test_predict_bag import K, bag_args, make_bag, make_flight, predict, read_bag
 
