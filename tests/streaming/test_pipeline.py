@@ -251,3 +251,43 @@ def test_the_source_s_baseline_floor_raises_the_policy_s_minimum(model):
     assert make_streamer(model, "baseline", 5.0, UnusableMotion((2,))).min_baseline == 5.0
     assert make_streamer(model, "baseline", 1.0, ToySource((2,))).min_baseline == 1.0
     assert make_streamer(model, "every-frame", None, UnusableMotion((2,))).min_baseline == 0.0
+
+
+class CoarsePositions(ToySource):
+    """The toy trajectory (1 m per frame) from positions that resolve 2.5 m."""
+
+    min_baseline_m = 2.5
+
+
+@pytest.mark.parametrize("policy", ["every-frame", "baseline"])
+def test_no_depth_is_valid_on_a_baseline_the_positions_cannot_measure(model, policy):
+    from cosemdepth.jobs.predict import make_streamer
+
+    sink = ToySink()
+    source = CoarsePositions((6,))
+    run_stream(source, make_streamer(model, policy, 1.0 if policy == "baseline" else None, source), [sink])
+    status = [b.status[0] for b in sink.batches]
+    base = [float(b.baseline[0]) for b in sink.batches]
+    if policy == "every-frame":  # every frame estimated from the previous one, 1 m away
+        assert status == ["reset"] + ["estimated"] * 5 and base[1:] == [1.0] * 5
+    else:  # the minimum raised to 2.5 m: frame 3 estimated from frame 0 (1, 2: no depth yet), 4 and 5 hold its depth
+        assert status == ["reset"] * 3 + ["estimated", "held", "held"] and base == [0, 1, 2, 3, 1, 2]
+    for b, s, d in zip(sink.batches, status, base):
+        if s != "reset" and d < 2.5:
+            assert not b.valid.any() and "less than 2.5 m from its reference" in b.meta[0]["depth_invalid_reason"]
+        else:
+            assert "depth_invalid_reason" not in b.meta[0]
+
+
+def test_a_floor_below_every_baseline_changes_nothing(model):
+    class FinePositions(ToySource):
+        min_baseline_m = 0.5
+
+    runs = []
+    for source in (ToySource((6,)), FinePositions((6,))):
+        sink = ToySink()
+        run_stream(source, Streamer(model, "baseline", min_baseline=2.5), [sink])
+        runs.append(sink.batches)
+    assert [b.status[0] for b in runs[0]] == ["reset"] * 3 + ["estimated", "held", "held"]
+    for plain, fine in zip(*runs):
+        assert torch.equal(plain.valid, fine.valid) and "depth_invalid_reason" not in fine.meta[0]

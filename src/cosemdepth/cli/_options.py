@@ -6,12 +6,15 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..data.video import is_video
 from ..errors import ConfigError
 from ..jobs.model import ModelOptions
 from ..jobs.options import RunOptions
 from ..streaming.sources.bag import BagOptions
 from ..streaming.sources.dataset import DatasetOptions
 from ..streaming.sources.flight import FlightOptions
+from ..streaming.sources.video_log import AUTO, VideoLogOptions
+from .flag_rules import explicit
 
 
 def run_options(args: argparse.Namespace) -> RunOptions:
@@ -54,6 +57,43 @@ def split_options(args: argparse.Namespace) -> DatasetOptions:
     )
 
 
+#: predict's / view's flags of a video with a log, and of a folder of images with a pose file (``--flight``)
+_VIDEO_FLAGS = ("--log", "--log-format", "--time-offset", "--camera-mount", "--lever-arm")
+_IMAGE_FLAGS = ("--poses", "--convention", "--match", "--stamp-unit", "--skip-unposed")
+
+
+def video_options(args: argparse.Namespace) -> VideoLogOptions:
+    """``--flight --images VIDEO --log FILE``: :class:`~cosemdepth.streaming.sources.video_log.VideoLogOptions`;
+    the flags of a folder of images (``--poses``, ``--match``...) are refused."""
+    for flag in _IMAGE_FLAGS:
+        if flag in explicit(args):
+            raise ConfigError(
+                f"{flag} applies to a folder of images with a pose file, not to a video (--images {args.images}: "
+                "its poses come from --log)"
+            )
+    if "--calibration" in explicit(args):
+        raise ConfigError(
+            f"--calibration does not apply to a video (--images {args.images}): its frames are read as a pinhole "
+            "camera's; give --hfov DEG or --intrinsics FX FY CX CY"
+        )
+    if "--jpeg-idct" in explicit(args):
+        raise ConfigError(f"--jpeg-idct applies to JPEG images, not to a video (--images {args.images})")
+    if args.log is None:
+        raise ConfigError(f"--images {args.images} is a video: give the flight controller's log with --log FILE")
+    return VideoLogOptions(
+        video=args.images,
+        log=args.log,
+        log_format=args.log_format,
+        time_offset=AUTO if args.time_offset is None else args.time_offset,
+        camera_mount=args.camera_mount or "forward",
+        lever_arm=None if args.lever_arm is None else tuple(args.lever_arm),
+        intrinsics=None if args.intrinsics is None else tuple(args.intrinsics),
+        hfov=args.hfov,
+        frame_skip=args.frame_skip,
+        max_pose_gap=args.max_pose_gap,
+    )
+
+
 def source_options(args: argparse.Namespace):
     """The input of predict / view: ``--bag``, ``--flight`` or a dataset split (only one of them)."""
     if args.bag is not None:
@@ -77,6 +117,11 @@ def source_options(args: argparse.Namespace):
     if args.flight:
         if args.dataset or args.root:
             raise ConfigError("give either --flight (with --images, --poses) or --dataset/--root, not both")
+        if args.images is not None and is_video(args.images):
+            return video_options(args)
+        for flag in _VIDEO_FLAGS:
+            if flag in explicit(args):
+                raise ConfigError(f"{flag} applies to a video (--images VIDEO with --log), not to a folder of images")
         return FlightOptions(
             args.images,
             args.poses,
@@ -94,4 +139,4 @@ def source_options(args: argparse.Namespace):
     return split_options(args)
 
 
-__all__ = ["model_options", "run_options", "source_options", "split_options"]
+__all__ = ["model_options", "run_options", "source_options", "split_options", "video_options"]

@@ -2,6 +2,8 @@
 
     cosemdepth predict --model MODEL --dataset NAME --root ROOT [--split-dir D] [--split test] --out DIR
     cosemdepth predict --model MODEL --flight --images DIR --poses FILE (--intrinsics FX FY CX CY | --hfov DEG) --out DIR
+    cosemdepth predict --model MODEL --flight --images VIDEO --log FILE [--time-offset S|auto] [--camera-mount SPEC]
+        (--intrinsics FX FY CX CY | --hfov DEG) --out DIR
     cosemdepth predict --model MODEL --bag PATH --image-topic T --pose-topic T (--camera-info-topic T | ...) --out DIR
 
 Outputs (depth as float32 .npy and 16-bit PNG = round(depth_m * 256), labels, colourised labels, side-by-side
@@ -24,6 +26,7 @@ from pathlib import Path
 from ..data.pose_matching import DEFAULT_MAX_GAP, MATCHES
 from ..data.poses import CONVENTIONS
 from ..data.stamps import UNITS
+from ..flightlogs import LOG_FORMATS
 from ..inference.policy import BASELINE, EVERY_FRAME
 from ..jobs.predict import PredictOptions, run_predict
 from ..render.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS
@@ -55,8 +58,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--onnx", type=Path, metavar="FILE", help="the exported graph of --backend onnxruntime")
     add_split_args(parser, required=False)
     flight = parser.add_argument_group("your own flight (instead of --dataset)")
-    flight.add_argument("--flight", action="store_true", help="run on a folder of images with a pose file")
-    flight.add_argument("--images", type=Path, metavar="DIR", help="folder of the flight's images")
+    flight.add_argument(
+        "--flight", action="store_true", help="run on a folder of images with a pose file, or a video with a log"
+    )
+    flight.add_argument(
+        "--images",
+        type=Path,
+        metavar="DIR|VIDEO",
+        help="folder of the flight's images, or a video file (.mp4, .mov, .mkv...; with --log)",
+    )
     flight.add_argument(
         "--poses",
         type=Path,
@@ -121,6 +131,36 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--skip-unposed",
         action="store_true",
         help="leave out images without a pose (counted in the summary) instead of failing",
+    )
+    video = parser.add_argument_group("a video with the flight controller's log (--flight --images VIDEO)")
+    video.add_argument(
+        "--log",
+        type=Path,
+        metavar="FILE",
+        help="the flight log giving the video's poses: PX4 .ulg, ArduPilot .bin, MAVLink .tlog or DJI .SRT "
+        "(the format from the content; docs/own-flight.md)",
+    )
+    video.add_argument("--log-format", choices=LOG_FORMATS, default=None, help="insist on this log format")
+    video.add_argument(
+        "--time-offset",
+        default=None,
+        metavar="S|auto",
+        help="the log time (seconds) of the video's first frame, or auto (default): estimated from the camera's "
+        "rotation (a DJI .SRT is on the video's own clock)",
+    )
+    video.add_argument(
+        "--camera-mount",
+        default=None,
+        metavar="SPEC",
+        help="the camera on the vehicle: forward (default), down, R,P,Y (degrees of the camera's FRD frame "
+        "relative to the body's, e.g. 0,-30,0 pitched down 30), or a Kalibr camchain / T_body_cam YAML",
+    )
+    video.add_argument(
+        "--lever-arm",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="the camera's position on the vehicle, metres in body FRD (x forward, y right, z down)",
     )
     parser.add_argument(
         "--size",

@@ -282,6 +282,9 @@ def run_settings(options: PredictOptions, source: Source, model: StreamingModel 
     calibration = getattr(options.source, "calibration", None)
     out["calibration"] = None if calibration is None else str(calibration)
     out["jpeg_idct"] = getattr(options.source, "jpeg_idct", None)
+    entries = getattr(source, "run_entries", None)  # a source's own settings found while opening (a clock offset)
+    if callable(entries):
+        out.update(entries())
     return out
 
 
@@ -377,6 +380,9 @@ def predict_report(manifest: dict[str, Any], options: PredictOptions, source_rep
             statuses.get(HELD, 0),
             sum(fractions) / len(fractions) if fractions else None,
         )
+        unavailable = (manifest.get("dataset") or {}).get("depth_unavailable")  # the source's reason, e.g. a log's
+        if no_depth and unavailable:
+            no_depth = f"no depth was produced: {unavailable}"
         if no_depth:
             warnings.append(f"cosemdepth predict: warning: {no_depth}")
     return lines, warnings

@@ -131,7 +131,7 @@ class Source(Protocol):
     """Yields :class:`FrameBatch` objects (the registry builds one from its options: ``SOURCES[name]``).
 
     Optional attributes a source may have: ``total_frames() -> int | None`` (progress bars), ``min_baseline_m`` (a
-    floor for the policy's baseline), ``intrinsics`` (camera_info), ``class_names`` / ``palette`` hints."""
+    floor for the policy's baseline: no frame with a shorter baseline from its reference has valid depth), ``intrinsics`` (camera_info), ``class_names`` / ``palette`` hints."""
 
     name: str
 

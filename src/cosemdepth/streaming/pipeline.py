@@ -18,6 +18,7 @@ import torch
 
 from ..errors import ConfigError, NonFiniteOutputError
 from ..inference.policy import Streamer
+from ..models.outputs import RESET
 from ..models.protocol import StreamingModel, model_device, model_dtype
 from .frames import FrameBatch, Sink, Source, StreamBatch, with_outputs
 
@@ -64,6 +65,37 @@ def needs_depth_input(model: StreamingModel) -> bool:
     return bool(getattr(getattr(model, "config", None), "needs_depth_input", False))
 
 
+def no_depth_where_not_ok(depth_ok, valid, status: list[str]):
+    """``(valid, status)`` with nothing valid and the status ``reset`` on the rows whose ``depth_ok`` is False (the
+    source could give no usable motion for them: the frame keeps its labels, not its depth)."""
+    if depth_ok is None or valid is None or bool(depth_ok.all()):
+        return valid, status
+    bad = ~depth_ok.to(device=valid.device, dtype=torch.bool)
+    valid = valid & ~bad.view(-1, *([1] * (valid.dim() - 1)))
+    return valid, [RESET if b else s for s, b in zip(status, bad.tolist())]
+
+
+def no_depth_below_floor(floor: float, baseline, valid, status: list[str], meta: list[dict]):
+    """``valid`` with nothing valid on the rows (estimated or held) whose baseline from their reference frame is
+    below ``floor`` (a source's ``min_baseline_m``: its positions cannot measure a shorter motion, so neither an
+    estimate nor a carried depth rests on a measured motion), whatever the policy; each such row's ``meta`` gets a
+    ``depth_invalid_reason``."""
+    if not floor or baseline is None or valid is None:
+        return valid
+    below = (baseline.detach().reshape(-1).to(torch.float64) < floor).tolist()
+    short = [b and s != RESET for b, s in zip(below, status)]
+    if not any(short):
+        return valid
+    for b in (i for i, x in enumerate(short) if x):
+        meta[b].setdefault(
+            "depth_invalid_reason",
+            f"the camera moved less than {floor:.3g} m from its reference frame, too little for the input's positions "
+            "to measure (the source's min_baseline_m)",
+        )
+    mask = torch.tensor(short, device=valid.device).view(-1, *([1] * (valid.dim() - 1)))
+    return valid & ~mask
+
+
 def steps(
     source: Source,
     streamer: Streamer,
@@ -77,6 +109,7 @@ def steps(
     device = model_device(streamer)
     dtype = model_dtype(streamer)
     guided = needs_depth_input(streamer)
+    floor = float(getattr(source, "min_baseline_m", 0.0) or 0.0)
     state = None
     prev_lanes: tuple[int, ...] = ()
     with torch.inference_mode():
@@ -108,11 +141,15 @@ def steps(
             seconds = time.perf_counter() - t0
             heads = dict(getattr(out, "heads", None) or {})
             check_finite_outputs(heads, frames)
+            valid, status = no_depth_where_not_ok(
+                frames.depth_ok, getattr(out, "valid", None), list(getattr(out, "status", None) or ())
+            )
+            valid = no_depth_below_floor(floor, getattr(out, "baseline", None), valid, status, frames.meta)
             batch = with_outputs(
                 frames,
                 heads=heads,
-                valid=getattr(out, "valid", None),
-                status=list(getattr(out, "status", None) or ()),
+                valid=valid,
+                status=status,
                 baseline=getattr(out, "baseline", None),
                 seconds=seconds,
             )
@@ -171,6 +208,8 @@ def run(
 __all__ = [
     "check_finite_outputs",
     "needs_depth_input",
+    "no_depth_below_floor",
+    "no_depth_where_not_ok",
     "run",
     "steps",
 ]

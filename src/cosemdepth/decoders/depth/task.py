@@ -184,7 +184,8 @@ class DepthTask(DecoderTask):
                 else " (also where depth_valid is 0: use the mask)"
             ),
             "depth_valid": "depth_valid/*.png: uint8, 255 where the depth is an estimate, 0 where it is not "
-            "(a reset frame, a frame held without an earlier estimate, ill-conditioned geometry, depth <= 0)",
+            "(a reset frame, a frame held without an earlier estimate, a baseline below the positions' resolution, "
+            "ill-conditioned geometry, depth <= 0)",
             "depth_png": f"depth_png/*.png: uint16 = round(depth_m * {DEPTH_PNG_SCALE:g}) saturated to "
             f"[1, 65535]; depth_m = value / {DEPTH_PNG_SCALE:g}; 0 where depth_valid is 0",
             "status": "frames[].status: estimated (from the camera's motion since its reference frame), held "

@@ -2,8 +2,9 @@
 
 Output folder (one sub-folder per trajectory; ``NNNNNN`` is the input image's file stem, so that a user can match
 outputs and inputs (for a bag frame: ``<topic's last part>_<seconds, 10 digits>.<nanoseconds, 9 digits>``, the
-image's full stamp); the frame's row in its trajectory, 6 digits, when the dataset has no file names; a stem seen
-twice in one trajectory gets ``_<row>`` appended)::
+image's full stamp; for a video frame: its 0-based index in decoding order, 6 digits); the frame's row in its
+trajectory, 6 digits, when the dataset has no file names; a stem seen twice in one trajectory gets ``_<row>``
+appended)::
 
     OUT/predictions.json                       what was run, the encodings below, every frame's status and files
     OUT/<trajectory>/depth/NNNNNN.npy          predicted depth, float32 [H, W], metres (the model's output as is;
@@ -39,6 +40,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from ...data.video import is_video
 from ...errors import ConfigError
 from ...render.figures import FlightPictures, frame_maps
 from ...render.visualize import DEFAULT_FPS, DEFAULT_VIDEO, VIDEO_FORMATS, VideoWriter, save_png
@@ -107,11 +109,15 @@ def safe_relpath(name: str) -> str:
 #: A file-type extension: a dot, a letter, up to 4 more letters or digits (``.png``, ``.JPEG``, ``.jp2``). A
 #: numeric tail is not one: a bag frame's stamp (``image_raw@1700000000.000001000``) keeps its fraction.
 _EXTENSION = re.compile(r"\.[A-Za-z][A-Za-z0-9]{0,4}$")
+_VIDEO_FRAME = re.compile(r"^(.+)#(\d{6,})$")
 
 
 def file_stem(source: str) -> str:
     """The last part of a frame's source (a path, or a bag frame's ``bag:topic@stamp``) without its file-type
-    extension."""
+    extension; a video frame's (``<video file>#000042``) is its index."""
+    video = _VIDEO_FRAME.match(source)
+    if video and is_video(video.group(1)):
+        return video.group(2)
     return _EXTENSION.sub("", Path(source).name)
 
 
