@@ -536,6 +536,8 @@ def main(argv=None) -> int:
         "memory_minutes": a.memory_minutes,
         "dds": "Cyclone DDS on loopback (lo, no multicast, unicast peer 127.0.0.1)",
     }
+    if a.acceptance:  # its own result file beside the full run's: live_node_acceptance.json
+        params["mode"] = "acceptance"
     write_report(a.out, make_report("live_node", params, results, **sections))
     print(f"wrote {a.out}")
     return 0

@@ -71,7 +71,11 @@ def _calls_and_classes(path: Path) -> tuple[list[str], list[str]]:
         if isinstance(node, ast.Call):
             f = node.func
             called = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else ""
-            if called in REGISTRATIONS:
+            # ``x.register(...)`` on another library's object (rosbags' typestore) is not ours: the store's plain
+            # ``register`` counts called by name or on the registry module
+            foreign = called == "register" and isinstance(f, ast.Attribute)
+            foreign = foreign and not (isinstance(f.value, ast.Name) and f.value.id == "registry")
+            if called in REGISTRATIONS and not foreign:
                 calls.append(called)
         elif isinstance(node, ast.ClassDef):
             bases = {b.id if isinstance(b, ast.Name) else getattr(b, "attr", "") for b in node.bases}
