@@ -107,7 +107,7 @@ def test_rotation_metadata_turns_the_frames(model_dir, flight, tmp_path):
         (("--time-offset", "100"), "log", "{log}: the log (5.000 .. 19.990 s) does not cover the video"),
         (("--camera-mount", "sideways"), "log", "--camera-mount 'sideways': not forward, down, R,P,Y"),
         (("--log-format", "tlog"), "log", "{log}: not a tlog log (its content is that of a ulog log)"),
-        (("--calibration", "cam.yaml"), "log", "--calibration does not apply to a video (--images {video})"),
+        (("--calibration", "cam.yaml"), "log", "exactly one of --intrinsics FX FY CX CY, --hfov DEG and --calibration"),
         (("--jpeg-idct", "accurate"), "log", "--jpeg-idct applies to JPEG images, not to a video"),
     ],
 )

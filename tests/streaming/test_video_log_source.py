@@ -145,7 +145,7 @@ def test_gps_positions_say_the_shortest_baseline_with_depth(tmp_path):
     [
         ({"time_offset": "soon"}, r"--time-offset must be seconds or 'auto', got 'soon'"),
         ({"time_offset": float("nan")}, r"--time-offset must be a finite number"),
-        ({"hfov": None}, r"exactly one of --intrinsics FX FY CX CY and --hfov DEG"),
+        ({"hfov": None}, r"exactly one of --intrinsics FX FY CX CY, --hfov DEG and --calibration FILE"),
         ({"log_format": "csv"}, r"--log-format must be one of ulog, dataflash, tlog, srt"),
         ({"camera_mount": "sideways"}, r"--camera-mount 'sideways'"),
         ({"camera_mount": "down@0,0,1", "lever_arm": (1, 0, 0)}, r"--lever-arm: the mount 'down@0,0,1' already"),
@@ -197,3 +197,30 @@ def test_the_offset_is_estimated_from_a_video_of_the_logged_attitude(tmp_path):
         VideoLogOptions(video=video, log=log, hfov=90.0, camera_mount="forward"), None
     )
     assert wrong.describe()["time_offset"]["fit"] < info["time_offset"]["fit"]
+
+
+def test_a_calibrated_video_is_undistorted_with_its_source_mask(tmp_path):
+    """``calibration``: each decoded frame goes through the calibration's Undistorter (the same remap as a flight
+    of images), the intrinsics are the rectified pinhole's, the pixels without a source are marked, and the
+    description records the rectified camera; a calibration with --hfov is refused."""
+    from cosemdepth.camera import Calibration, Undistorter
+    from cosemdepth.camera.writers import ros_yaml
+    from cosemdepth.data.video import open_video
+
+    # a 64x48 video (write_video's frames), a strong barrel lens calibrated at 128x96 (scaled: same aspect ratio)
+    cal = Calibration((96, 128), 64.0, 64.0, 64.0, 48.0, "radtan", (-0.3, 0.08, 0.0, 0.0, 0.0))
+    path = tmp_path / "camera_info.yaml"
+    path.write_text(ros_yaml(cal), encoding="utf-8")
+    src = SOURCES["video"].from_options(options(tmp_path, hfov=None, calibration=path), (24, 32))
+    batches = list(src.batches(max_frames=3))
+    expected = Undistorter(cal.for_image_size((48, 64), "the video's frames"), size=(24, 32))
+    np.testing.assert_allclose(batches[0].intrinsics[0].numpy(), expected.intrinsics.numpy())
+    frames = [f.image for f in open_video(tmp_path / "flight.mp4").frames(1)][:3]
+    for b, image in zip(batches, frames):
+        rgb, valid = expected(image)
+        torch.testing.assert_close(b.rgb[0], rgb)
+        assert b.source_valid.shape == (1, 1, 24, 32) and torch.equal(b.source_valid[0, 0], valid)
+    info = src.describe()["calibration"]
+    assert info["size"] == [24, 32] and info["calibration"]["model"] == "radtan"
+    with pytest.raises(ConfigError, match="exactly one of --intrinsics FX FY CX CY, --hfov DEG and --calibration"):
+        options(tmp_path, calibration=path)

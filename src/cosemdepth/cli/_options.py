@@ -71,11 +71,6 @@ def video_options(args: argparse.Namespace) -> VideoLogOptions:
                 f"{flag} applies to a folder of images with a pose file, not to a video (--images {args.images}: "
                 "its poses come from --log)"
             )
-    if "--calibration" in explicit(args):
-        raise ConfigError(
-            f"--calibration does not apply to a video (--images {args.images}): its frames are read as a pinhole "
-            "camera's; give --hfov DEG or --intrinsics FX FY CX CY"
-        )
     if "--jpeg-idct" in explicit(args):
         raise ConfigError(f"--jpeg-idct applies to JPEG images, not to a video (--images {args.images})")
     if args.log is None:
@@ -89,6 +84,7 @@ def video_options(args: argparse.Namespace) -> VideoLogOptions:
         lever_arm=None if args.lever_arm is None else tuple(args.lever_arm),
         intrinsics=None if args.intrinsics is None else tuple(args.intrinsics),
         hfov=args.hfov,
+        calibration=getattr(args, "calibration", None),
         frame_skip=args.frame_skip,
         max_pose_gap=args.max_pose_gap,
     )

@@ -35,6 +35,7 @@ from ...data.flight import parse_intrinsics, scale_intrinsics
 from ...data.frames import resolve_size, rgb_to_tensor
 from ...data.poses import relative_camera_motions
 from ...data.quaternion import qmatrix
+from ...data.undistorted import undistorter_for
 from ...data.video import is_video, open_video
 from ...errors import ConfigError, DatasetError
 from ...flightlogs import LOG_FORMATS, read_log
@@ -64,7 +65,9 @@ class VideoLogOptions:
         camera_mount: ``--camera-mount`` spec (:func:`cosemdepth.geometry.mount.parse_mount`).
         lever_arm: ``(x, y, z)`` metres in body FRD (None: the mount spec's, else zero).
         intrinsics: ``(fx, fy, cx, cy)`` in pixels of the displayed video frames, or
-        hfov: the horizontal field of view in degrees (exactly one of the two).
+        hfov: the horizontal field of view in degrees, or
+        calibration: the camera's calibration file (:func:`cosemdepth.camera.load_calibration`: the frames are
+            undistorted to a pinhole, the pixels without a source invalid); exactly one of the three.
         intrinsics_convention: ``"model"`` (pixel centres at +0.5) or ``"opencv"``.
         frame_skip: keep every k-th frame.
         max_pose_gap: interpolate the log only across gaps of at most this many seconds (None: the log's default,
@@ -80,6 +83,7 @@ class VideoLogOptions:
     lever_arm: tuple[float, float, float] | None = None
     intrinsics: tuple[float, float, float, float] | None = None
     hfov: float | None = None
+    calibration: Path | None = None
     intrinsics_convention: str = "model"
     frame_skip: int = 1
     max_pose_gap: float | None = None
@@ -104,8 +108,12 @@ class VideoLogOptions:
         if not isinstance(offset, str) and not (isinstance(offset, (int, float)) and math.isfinite(offset)):
             raise ConfigError(f"--time-offset must be a finite number of seconds or 'auto', got {offset!r}")
         object.__setattr__(self, "time_offset", offset if isinstance(offset, str) else float(offset))
-        if (self.intrinsics is None) == (self.hfov is None):
-            raise ConfigError("a video needs exactly one of --intrinsics FX FY CX CY and --hfov DEG")
+        if self.calibration is not None:
+            object.__setattr__(self, "calibration", Path(self.calibration))
+        if sum(x is not None for x in (self.intrinsics, self.hfov, self.calibration)) != 1:
+            raise ConfigError(
+                "a video needs exactly one of --intrinsics FX FY CX CY, --hfov DEG and --calibration FILE"
+            )
         if self.hfov is not None and not 0 < float(self.hfov) < 180:
             raise ConfigError(f"--hfov must be in (0, 180) degrees, got {self.hfov}")
         if not isinstance(self.frame_skip, int) or self.frame_skip < 1:
@@ -116,7 +124,8 @@ class VideoLogOptions:
 
     def inputs(self) -> list[Input]:
         """The paths it reads (the output policy of :mod:`cosemdepth.output_safety.outdir`)."""
-        return [Input("--images", self.video), Input("--log", self.log)]
+        given = [Input("--images", self.video), Input("--log", self.log)]
+        return given + ([] if self.calibration is None else [Input("--calibration", self.calibration)])
 
     def settings(self) -> dict[str, Any]:
         """``predictions.json``'s ``run`` entries about the input that every flight has (the log's: the source's
@@ -124,6 +133,7 @@ class VideoLogOptions:
         return {
             "intrinsics_given": None if self.intrinsics is None else [float(v) for v in self.intrinsics],
             "hfov_deg": self.hfov,
+            "calibration": None if self.calibration is None else str(self.calibration),
             "convention": "opencv",
             "frame_skip": self.frame_skip,
             "max_pose_gap": self.max_pose_gap,
@@ -158,9 +168,18 @@ class VideoLogSource:
         self.log = read_log(options.log, options.log_format, require_attitude=False)
         self.mount_ = options.mount()
         native = self.video.size
-        self._k_native = parse_intrinsics(options.intrinsics, options.hfov, native, options.intrinsics_convention)
-        self.size = resolve_size(size, lambda: (native, float(self._k_native[0]))) or native
-        self.intrinsics = scale_intrinsics(self._k_native, native, self.size)
+        self.undistorter = None
+        if options.calibration is not None:  # undistorted to a pinhole at the size the size rule asks for
+            self.undistorter = undistorter_for(options.calibration, native, size, "the video's frames")
+            cal = self.undistorter.calibration
+            self._k_native = torch.tensor([cal.fx, cal.fy, cal.cx, cal.cy], dtype=torch.float32)
+            self.size = tuple(self.undistorter.size)
+            self.intrinsics = self.undistorter.intrinsics.clone()
+        else:
+            k = parse_intrinsics(options.intrinsics, options.hfov, native, options.intrinsics_convention)
+            self._k_native = k
+            self.size = resolve_size(size, lambda: (native, float(k[0]))) or native
+            self.intrinsics = scale_intrinsics(k, native, self.size)
         if options.time_offset == AUTO:
             est = estimate_time_offset(
                 self.video, self.log, self.mount_, focal_px=float(self._k_native[0]), progress=progress
@@ -254,7 +273,14 @@ class VideoLogSource:
             "time_offset_confidence": self.confidence,
             "time_offset": self.offset_details,
             "depth_unavailable": self.depth_unavailable(),
+            "calibration": None if self.undistorter is None else self.undistorter.info(),
         }
+
+    def calibration_note(self) -> str | None:
+        """What the undistortion says about the calibration it was given (e.g. scaled to the frames' size)."""
+        if self.undistorter is None:
+            return None
+        return (self.undistorter.info().get("calibration") or {}).get("note")
 
     # ------------------------------------------------------------------ poses
     def _spans(self) -> list[tuple[float, float]]:
@@ -353,8 +379,14 @@ class VideoLogSource:
                 pose[:3, 3] = torch.from_numpy(np.asarray(p, dtype=np.float64))
             row += 1
             self.frames_streamed = row
+            source_valid = None
+            if self.undistorter is None:
+                rgb = rgb_to_tensor(image, self.size)
+            else:
+                rgb, valid = self.undistorter(image)
+                source_valid = valid[None, None].clone()
             yield FrameBatch(
-                rgb=rgb_to_tensor(image, self.size)[None],
+                rgb=rgb[None],
                 rot=torch.tensor(rot, dtype=torch.float32)[None],
                 trans=torch.tensor(trans, dtype=torch.float32)[None],
                 intrinsics=self.intrinsics[None].clone(),
@@ -368,6 +400,7 @@ class VideoLogSource:
                 meta=[meta],
                 pose=None if pose is None else pose[None].to(torch.float32),
                 depth_ok=torch.tensor([depth_ok]),
+                source_valid=source_valid,
             )
         if covered == 0 and row > 0:
             raise DatasetError(
