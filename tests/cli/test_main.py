@@ -15,6 +15,8 @@ REQUIRED = {
     "view": ["--model", "m", "--rrd", "x.rrd"],
     "demo": ["--out", "o"],
     "benchmark": [],
+    "node": ["--model", "m", "--image-topic", "/image", "--pose-topic", "/odom", "--hfov", "90"],
+    "replay": ["bag"],
     "fast-accuracy": ["--model", "m", "--dataset", "synthair", "--root", "r"],
     "export": ["--onnx", "x.onnx"],
 }

@@ -80,7 +80,9 @@ def run_cli(*argv):
     return main(["evaluate", *map(str, argv)])
 
 
-@pytest.mark.parametrize("path, rel", [("reference", 1e-6), ("fast", 1e-4)])
+# the reference modules: float32 rounding of the original's arithmetic (DINL's channel norm accumulates in float64,
+# the original in float32: a few float32 ulps in the depth, 1e-6 relative in rmse_log on this random-weight model)
+@pytest.mark.parametrize("path, rel", [("reference", 2e-6), ("fast", 1e-4)])
 def test_evaluate_cli_on_the_converted_tf_model(converted, split, expected, tmp_path, capsys, path, rel):
     # --reference runs the same modules as the independent loop (float-exact); the default fast path agrees up to
     # float rounding amplified by the time recurrence of an untrained network
