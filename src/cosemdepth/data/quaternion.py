@@ -4,27 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry.attitude import quat_conjugate, quat_multiply
+
 
 def qconj(q: np.ndarray) -> np.ndarray:
-    q = np.asarray(q, dtype=np.float64)
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
+    """The conjugate (the inverse rotation of a unit quaternion), ``[..., 4]``."""
+    return quat_conjugate(q)
 
 
 def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product ``a (x) b`` of ``[..., 4]`` arrays."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
+    return quat_multiply(a, b)
 
 
 def qrotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -42,6 +42,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from ..errors import ConfigError
+from ..geometry.attitude import quat_conjugate, quat_multiply, slerp
 from ..geometry.mount import CameraMount, camera_poses
 from .image_rotation import frame_rotation
 
@@ -108,24 +109,6 @@ class OffsetEstimate:
 # --- quaternions on arrays ---------------------------------------------------------------------------------------
 
 
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        -1,
-    )
-
-
-def _qconj(q: np.ndarray) -> np.ndarray:
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
-
-
 def quaternion_to_rotvec(q: np.ndarray) -> np.ndarray:
     """``[..., 4]`` unit quaternions (w, x, y, z) -> ``[..., 3]`` rotation vectors (the shorter rotation)."""
     q = np.where(q[..., :1] < 0, -q, q)
@@ -141,25 +124,14 @@ def attitude_at(att: Attitude, t: np.ndarray) -> np.ndarray:
     t = np.asarray(t, dtype=np.float64)
     ts = att.t
     i = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, len(ts) - 2)
-    a = np.clip((t - ts[i]) / (ts[i + 1] - ts[i]), 0.0, 1.0)[..., None]
-    q0, q1 = att.q[i], att.q[i + 1]
-    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.abs(dot)
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    sin = np.sin(theta)
-    near = sin < 1e-6
-    s = np.where(near, 1.0, sin)
-    w0 = np.where(near, 1 - a, np.sin((1 - a) * theta) / s)
-    w1 = np.where(near, a, np.sin(a * theta) / s)
-    q = w0 * q0 + w1 * q1
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    a = np.clip((t - ts[i]) / (ts[i + 1] - ts[i]), 0.0, 1.0)
+    return slerp(att.q[i], att.q[i + 1], a)
 
 
 def pair_rotations(att: Attitude, t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
     """The camera's rotation vectors ``[N, 3]`` of ``R(t0)^T R(t1)`` (camera axes at ``t0``; the motion convention
     ``X_prev = R X_curr``) between log times ``t0`` and ``t1`` [N]."""
-    return quaternion_to_rotvec(_qmul(_qconj(attitude_at(att, t0)), attitude_at(att, t1)))
+    return quaternion_to_rotvec(quat_multiply(quat_conjugate(attitude_at(att, t0)), attitude_at(att, t1)))
 
 
 def check_attitude(att: Attitude, what: str = "attitude") -> Attitude:
